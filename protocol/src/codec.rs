@@ -1,0 +1,123 @@
+//! Postcard encodings of the messages, as the MCAP recorder stores them.
+//!
+//! A record is `version: u16 (varint)` followed by the message. Slice messages (scan and
+//! deviation chunks) are the header followed by the sequence of elements.
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint};
+
+/// A message type with a versioned name, e.g. `asbuilt.PoseSnapshot.v1`.
+pub trait Message: Serialize + DeserializeOwned {
+    /// The iceoryx2 type name and the MCAP schema name.
+    const TYPE_NAME: &'static str;
+    const VERSION: u16;
+    /// The version this instance claims (the payload's own field).
+    fn version(&self) -> u16;
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DecodeError {
+    #[error(
+        "{message} version {found} cannot be read by this build, which reads version {expected}: \
+         use the asbuilt release that wrote it, or re-record"
+    )]
+    VersionMismatch {
+        message: &'static str,
+        found: u16,
+        expected: u16,
+    },
+    #[error("corrupt {message} record: {reason}")]
+    Corrupt {
+        message: &'static str,
+        reason: String,
+    },
+    #[error("{message} record has {extra} unread bytes after the message: it is not a {message}")]
+    TrailingBytes { message: &'static str, extra: usize },
+}
+
+pub fn encode<M: Message>(msg: &M) -> Vec<u8> {
+    let mut out = postcard::to_allocvec(&M::VERSION).expect("u16 always encodes");
+    out.extend(postcard::to_allocvec(msg).expect("fixed-size message always encodes"));
+    out
+}
+
+pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
+    let body = read_version::<M>(bytes)?;
+    let (msg, rest): (M, _) = postcard::take_from_bytes(body).map_err(|e| corrupt::<M>(e))?;
+    if !rest.is_empty() {
+        return Err(DecodeError::TrailingBytes {
+            message: M::TYPE_NAME,
+            extra: rest.len(),
+        });
+    }
+    crate::check_version::<M>(msg.version())?;
+    Ok(msg)
+}
+
+pub fn encode_scan_chunk(header: &ChunkHeader, points: &[ScanPoint]) -> Vec<u8> {
+    encode_slice(header, points)
+}
+
+pub fn decode_scan_chunk(bytes: &[u8]) -> Result<(ChunkHeader, Vec<ScanPoint>), DecodeError> {
+    decode_slice(bytes, |h: &ChunkHeader| h.point_count)
+}
+
+pub fn encode_deviation_chunk(header: &DeviationHeader, points: &[PointDeviation]) -> Vec<u8> {
+    encode_slice(header, points)
+}
+
+pub fn decode_deviation_chunk(
+    bytes: &[u8],
+) -> Result<(DeviationHeader, Vec<PointDeviation>), DecodeError> {
+    decode_slice(bytes, |h: &DeviationHeader| h.point_count)
+}
+
+fn encode_slice<H: Message, T: Serialize>(header: &H, items: &[T]) -> Vec<u8> {
+    let mut out = encode(header);
+    out.extend(postcard::to_allocvec(items).expect("slice of fixed-size items always encodes"));
+    out
+}
+
+fn decode_slice<H: Message, T: DeserializeOwned>(
+    bytes: &[u8],
+    declared: impl Fn(&H) -> u32,
+) -> Result<(H, Vec<T>), DecodeError> {
+    let body = read_version::<H>(bytes)?;
+    let (header, rest): (H, _) = postcard::take_from_bytes(body).map_err(|e| corrupt::<H>(e))?;
+    crate::check_version::<H>(header.version())?;
+    let (items, rest): (Vec<T>, _) =
+        postcard::take_from_bytes(rest).map_err(|e| corrupt::<H>(e))?;
+    if !rest.is_empty() {
+        return Err(DecodeError::TrailingBytes {
+            message: H::TYPE_NAME,
+            extra: rest.len(),
+        });
+    }
+    if items.len() != declared(&header) as usize {
+        return Err(DecodeError::Corrupt {
+            message: H::TYPE_NAME,
+            reason: format!(
+                "header declares {} points but {} follow",
+                declared(&header),
+                items.len()
+            ),
+        });
+    }
+    Ok((header, items))
+}
+
+fn read_version<M: Message>(bytes: &[u8]) -> Result<&[u8], DecodeError> {
+    let (version, body): (u16, _) =
+        postcard::take_from_bytes(bytes).map_err(|e| corrupt::<M>(e))?;
+    crate::check_version::<M>(version)?;
+    Ok(body)
+}
+
+fn corrupt<M: Message>(e: postcard::Error) -> DecodeError {
+    DecodeError::Corrupt {
+        message: M::TYPE_NAME,
+        reason: e.to_string(),
+    }
+}

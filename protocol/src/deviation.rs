@@ -1,0 +1,118 @@
+use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
+
+use crate::codec::Message;
+
+/// The user header of a deviation chunk; a `[PointDeviation]` slice follows, one entry per
+/// scan point of the chunk with the same `sequence`, in the same order.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.DeviationHeader.v1")]
+#[repr(C)]
+pub struct DeviationHeader {
+    pub version: u16,
+    pub _reserved: u16,
+    pub station: u32,
+    pub job: u64,
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    pub point_count: u32,
+    /// Points of the chunk that were rejected (non-finite, out of range, flagged by the scanner).
+    pub rejected: u32,
+    /// Points farther than the maximum distance from the design.
+    pub no_match: u32,
+    /// Points outside the tolerance band.
+    pub out_of_tolerance: u32,
+}
+
+impl Message for DeviationHeader {
+    const TYPE_NAME: &'static str = "asbuilt.DeviationHeader.v1";
+    const VERSION: u16 = 1;
+    fn version(&self) -> u16 {
+        self.version
+    }
+}
+
+impl DeviationHeader {
+    pub fn new(job: u64, station: u32, sequence: u64) -> Self {
+        Self {
+            version: Self::VERSION,
+            _reserved: 0,
+            station,
+            job,
+            sequence,
+            timestamp_ns: 0,
+            point_count: 0,
+            rejected: 0,
+            no_match: 0,
+            out_of_tolerance: 0,
+        }
+    }
+}
+
+/// Which part of the closest triangle the closest design point lies on. The sign of a distance
+/// comes from this feature's angle-weighted pseudo-normal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(u8)]
+pub enum Feature {
+    /// No closest point: the point was rejected or had no match.
+    #[default]
+    None = 0,
+    Face = 1,
+    Edge = 2,
+    Vertex = 3,
+}
+
+/// Bit flags of a [`PointDeviation`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+pub struct DeviationFlags(pub u8);
+
+impl DeviationFlags {
+    /// Farther from the design than the maximum distance; `distance` is NaN, never clamped.
+    pub const NO_MATCH: u8 = 1 << 0;
+    /// The input point was rejected; `distance` is NaN and `position` is what arrived.
+    pub const REJECTED: u8 = 1 << 1;
+    /// |distance| exceeds the tolerance.
+    pub const OUT_OF_TOLERANCE: u8 = 1 << 2;
+
+    pub fn contains(self, bit: u8) -> bool {
+        self.0 & bit != 0
+    }
+}
+
+/// The deviation of one scan point from the design.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.PointDeviation.v1")]
+#[repr(C)]
+pub struct PointDeviation {
+    /// Design frame, metres.
+    pub position: [f64; 3],
+    /// Signed distance to the design surface, metres; positive outside (excess material).
+    pub distance: f64,
+    /// Index of the closest design triangle; `u32::MAX` when there is none.
+    pub triangle: u32,
+    /// A [`Feature`] as `u8`; read it with [`PointDeviation::feature`].
+    pub feature: u8,
+    /// Which edge (0: v0-v1, 1: v1-v2, 2: v2-v0) or vertex (0..3) when `feature` says so.
+    pub feature_index: u8,
+    pub flags: DeviationFlags,
+    pub _reserved: u8,
+}
+
+impl Feature {
+    pub fn from_u8(v: u8) -> Option<Self> {
+        match v {
+            0 => Some(Self::None),
+            1 => Some(Self::Face),
+            2 => Some(Self::Edge),
+            3 => Some(Self::Vertex),
+            _ => None,
+        }
+    }
+}
+
+impl PointDeviation {
+    pub fn feature(&self) -> Option<Feature> {
+        Feature::from_u8(self.feature)
+    }
+}

@@ -1,0 +1,43 @@
+//! Every message asbuilt sends or records, and nothing else.
+//!
+//! Each payload is `#[repr(C)]`, fixed-size and [`ZeroCopySend`](iceoryx2::prelude::ZeroCopySend),
+//! so it can travel through iceoryx2 shared memory without a copy, and the same type encodes to
+//! postcard for the MCAP recorder through [`codec`]. Type names carry the message version
+//! (`asbuilt.PoseSnapshot.v1`): iceoryx2 refuses to connect a publisher and a subscriber whose
+//! type names differ, and [`codec::decode`] refuses a record written by another version, so a
+//! version mismatch is always an error and never a misread.
+//!
+//! Units: metres, radians, nanoseconds since the Unix epoch.
+
+pub mod codec;
+mod deviation;
+mod pose;
+mod report;
+mod scan;
+mod station;
+mod text;
+
+pub use codec::{DecodeError, Message};
+pub use deviation::{DeviationFlags, DeviationHeader, Feature, PointDeviation};
+pub use pose::{PoseMode, PoseSnapshot};
+pub use report::{
+    ChunkCounts, DeviationStats, HISTOGRAM_BINS, Histogram, RejectCounts, StationReport,
+    StationStatus,
+};
+pub use scan::{ChunkHeader, ScanPoint, ScanPointFlags};
+pub use station::{StationEvent, StationEventKind};
+pub use text::{FixedText, TextTooLong};
+
+/// Checks the version field that every payload carries, for payloads that arrive through shared
+/// memory (where the codec's check does not run).
+pub fn check_version<M: Message>(found: u16) -> Result<(), DecodeError> {
+    if found == M::VERSION {
+        Ok(())
+    } else {
+        Err(DecodeError::VersionMismatch {
+            message: M::TYPE_NAME,
+            found,
+            expected: M::VERSION,
+        })
+    }
+}

@@ -1,0 +1,79 @@
+use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
+
+use crate::codec::Message;
+
+/// How the robot's pose is to be read; see the brief, section 2.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum PoseMode {
+    /// Translation and rotation of the flange in the robot base frame are both used.
+    SixDof = 0,
+    /// Only the translation is used; the orientation is the calibrated one (Z+F fixed azimuth).
+    FixedOrientation = 1,
+    /// The snapshot already is `T_design_scanner` (offline scans, tripod stations).
+    DesignScanner = 2,
+}
+
+impl PoseMode {
+    pub fn from_u8(v: u8) -> Option<Self> {
+        match v {
+            0 => Some(Self::SixDof),
+            1 => Some(Self::FixedOrientation),
+            2 => Some(Self::DesignScanner),
+            _ => None,
+        }
+    }
+}
+
+/// Where the robot held the scanner when a station was scanned: `T_base_flange` from the
+/// controller, or `T_design_scanner` directly when `mode` says so.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.PoseSnapshot.v1")]
+#[repr(C)]
+pub struct PoseSnapshot {
+    pub version: u16,
+    /// A [`PoseMode`] as `u8`; read it with [`PoseSnapshot::mode`].
+    pub mode: u8,
+    pub _reserved: u8,
+    pub station: u32,
+    pub job: u64,
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    /// Metres.
+    pub translation: [f64; 3],
+    /// Unit quaternion, scalar last.
+    pub rotation_xyzw: [f64; 4],
+    /// One-sigma position uncertainty of the scanner origin, metres (about 1e-3 robot-mounted).
+    pub position_sigma: f64,
+}
+
+impl Message for PoseSnapshot {
+    const TYPE_NAME: &'static str = "asbuilt.PoseSnapshot.v1";
+    const VERSION: u16 = 1;
+    fn version(&self) -> u16 {
+        self.version
+    }
+}
+
+impl PoseSnapshot {
+    /// `None` for a value no known sender writes.
+    pub fn mode(&self) -> Option<PoseMode> {
+        PoseMode::from_u8(self.mode)
+    }
+
+    pub fn new(job: u64, station: u32, mode: PoseMode) -> Self {
+        Self {
+            version: Self::VERSION,
+            mode: mode as u8,
+            _reserved: 0,
+            station,
+            job,
+            sequence: 0,
+            timestamp_ns: 0,
+            translation: [0.0; 3],
+            rotation_xyzw: [0.0, 0.0, 0.0, 1.0],
+            position_sigma: 1e-3,
+        }
+    }
+}

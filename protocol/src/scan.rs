@@ -1,0 +1,84 @@
+use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
+
+use crate::codec::Message;
+
+/// The user header of a scan chunk; the points follow as a `[ScanPoint]` slice payload.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.ChunkHeader.v1")]
+#[repr(C)]
+pub struct ChunkHeader {
+    pub version: u16,
+    pub _reserved: u16,
+    pub station: u32,
+    pub job: u64,
+    /// Starts at 0 for each station and counts up by one; gaps and repeats are detected.
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    /// Number of points in the slice that follows.
+    pub point_count: u32,
+    /// Set on the last chunk of a station, so the station can close without waiting.
+    pub last: u8,
+    pub _reserved2: [u8; 3],
+}
+
+impl Message for ChunkHeader {
+    const TYPE_NAME: &'static str = "asbuilt.ChunkHeader.v1";
+    const VERSION: u16 = 1;
+    fn version(&self) -> u16 {
+        self.version
+    }
+}
+
+impl ChunkHeader {
+    pub fn new(job: u64, station: u32, sequence: u64, point_count: u32) -> Self {
+        Self {
+            version: Self::VERSION,
+            _reserved: 0,
+            station,
+            job,
+            sequence,
+            timestamp_ns: 0,
+            point_count,
+            last: 0,
+            _reserved2: [0; 3],
+        }
+    }
+}
+
+/// Bit flags of a [`ScanPoint`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+pub struct ScanPointFlags(pub u16);
+
+impl ScanPointFlags {
+    /// The scanner marked the measurement invalid (no return, saturated...).
+    pub const INVALID: u16 = 1 << 0;
+
+    pub fn is_invalid(self) -> bool {
+        self.0 & Self::INVALID != 0
+    }
+}
+
+/// One measured point in the scanner's own frame. f32 keeps 0.01 mm at 200 m range.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.ScanPoint.v1")]
+#[repr(C)]
+pub struct ScanPoint {
+    /// Metres, scanner frame.
+    pub xyz: [f32; 3],
+    pub intensity: f32,
+    pub flags: ScanPointFlags,
+    /// Return number (1-based) in the low nibble, number of returns in the high nibble; 0 unknown.
+    pub returns: u8,
+    pub _reserved: u8,
+}
+
+impl ScanPoint {
+    pub fn new(x: f32, y: f32, z: f32) -> Self {
+        Self {
+            xyz: [x, y, z],
+            ..Self::default()
+        }
+    }
+}

@@ -1,0 +1,167 @@
+use asbuilt_protocol::codec::{self, DecodeError};
+use asbuilt_protocol::*;
+use iceoryx2::prelude::ZeroCopySend;
+use std::mem::{align_of, size_of};
+
+fn sample_report() -> StationReport {
+    let mut r = StationReport::new(7, 3);
+    r.name = FixedText::new("bun045").unwrap();
+    r.layer = 12;
+    r.printed_height = 0.42;
+    r.tolerance = 0.005;
+    r.stats.count = 40_000;
+    r.stats.mean = -1.25e-4;
+    r.stats.median_abs = 6.1e-5;
+    r.histogram.low = -0.02;
+    r.histogram.high = 0.02;
+    for (i, b) in r.histogram.bins.iter_mut().enumerate() {
+        *b = (i * i) as u64;
+    }
+    r.rejected.non_finite = 3;
+    r.chunks.duplicate = 1;
+    r
+}
+
+#[test]
+fn every_message_round_trips_through_postcard() {
+    let mut pose = PoseSnapshot::new(1, 2, PoseMode::FixedOrientation);
+    pose.translation = [1.5, -2.25, 0.125];
+    pose.rotation_xyzw = [0.0, 0.0, 0.70710678, 0.70710678];
+    assert_eq!(codec::decode::<PoseSnapshot>(&codec::encode(&pose)).unwrap(), pose);
+
+    let mut ev = StationEvent::new(StationEventKind::End, 1, 2);
+    ev.name = FixedText::new("north-east").unwrap();
+    ev.expected_points = 1_000_000;
+    let back = codec::decode::<StationEvent>(&codec::encode(&ev)).unwrap();
+    assert_eq!(back.kind(), Some(StationEventKind::End));
+    assert_eq!(back.name.as_str(), "north-east");
+    assert!(back.printed_height.is_nan());
+
+    let report = sample_report();
+    let back = codec::decode::<StationReport>(&codec::encode(&report)).unwrap();
+    assert_eq!(back.histogram.bins, report.histogram.bins);
+    assert_eq!(back.name.as_str(), "bun045");
+    assert_eq!(back.stats, report.stats);
+    assert_eq!(back.status(), Some(StationStatus::Complete));
+
+    let points: Vec<ScanPoint> = (0..1000)
+        .map(|i| ScanPoint::new(i as f32 * 0.001, -(i as f32), 3.0))
+        .collect();
+    let header = ChunkHeader::new(1, 2, 5, points.len() as u32);
+    let (h, p) = codec::decode_scan_chunk(&codec::encode_scan_chunk(&header, &points)).unwrap();
+    assert_eq!(h, header);
+    assert_eq!(p, points);
+
+    let devs = vec![
+        PointDeviation {
+            position: [1.0, 2.0, 3.0],
+            distance: -0.0015,
+            triangle: 17,
+            feature: Feature::Edge as u8,
+            feature_index: 2,
+            flags: DeviationFlags(DeviationFlags::OUT_OF_TOLERANCE),
+            _reserved: 0,
+        };
+        3
+    ];
+    let mut dh = DeviationHeader::new(1, 2, 5);
+    dh.point_count = 3;
+    let (h, p) =
+        codec::decode_deviation_chunk(&codec::encode_deviation_chunk(&dh, &devs)).unwrap();
+    assert_eq!(h, dh);
+    assert_eq!(p, devs);
+    assert_eq!(p[0].feature(), Some(Feature::Edge));
+}
+
+#[test]
+fn a_record_of_another_version_is_refused_with_a_clear_error() {
+    let pose = PoseSnapshot::new(1, 2, PoseMode::SixDof);
+    let mut bytes = codec::encode(&pose);
+    bytes[0] = 2; // the leading version varint
+    let err = codec::decode::<PoseSnapshot>(&bytes).unwrap_err();
+    assert_eq!(
+        err,
+        DecodeError::VersionMismatch {
+            message: "asbuilt.PoseSnapshot.v1",
+            found: 2,
+            expected: 1
+        }
+    );
+    assert!(err.to_string().contains("version 2"), "{err}");
+
+    // A payload that arrived through shared memory carries its version in a field.
+    let mut pose = pose;
+    pose.version = 9;
+    assert!(check_version::<PoseSnapshot>(pose.version).is_err());
+    assert!(matches!(
+        codec::decode::<PoseSnapshot>(&codec::encode(&pose)),
+        Err(DecodeError::VersionMismatch { found: 9, .. })
+    ));
+}
+
+#[test]
+fn corrupt_and_mistyped_records_are_errors_not_panics() {
+    let report = codec::encode(&sample_report());
+    for cut in [0, 1, 5, report.len() / 2, report.len() - 1] {
+        assert!(codec::decode::<StationReport>(&report[..cut]).is_err(), "cut {cut}");
+    }
+    // A pose record is not a station event.
+    let pose = codec::encode(&PoseSnapshot::new(1, 2, PoseMode::SixDof));
+    assert!(codec::decode::<StationEvent>(&pose).is_err());
+
+    // A chunk whose header lies about its length.
+    let points = vec![ScanPoint::new(1.0, 2.0, 3.0); 4];
+    let header = ChunkHeader::new(1, 2, 0, 5);
+    let err = codec::decode_scan_chunk(&codec::encode_scan_chunk(&header, &points)).unwrap_err();
+    assert!(err.to_string().contains("declares 5 points but 4"), "{err}");
+
+    // Text longer than its field.
+    assert!(FixedText::<4>::new("too long").is_err());
+    assert_eq!(FixedText::<4>::truncated("héllo").as_str(), "hél");
+}
+
+#[test]
+fn layouts_are_fixed_and_aligned_for_shared_memory() {
+    assert_eq!(size_of::<ScanPoint>(), 20);
+    assert_eq!(align_of::<ScanPoint>(), 4);
+    assert_eq!(size_of::<PointDeviation>(), 40);
+    assert_eq!(align_of::<PointDeviation>(), 8);
+    assert_eq!(size_of::<PoseSnapshot>(), 96);
+    assert_eq!(size_of::<ChunkHeader>(), 40);
+    assert_eq!(size_of::<DeviationHeader>(), 48);
+    // A change to any of these sizes is a layout change: bump the message version with it.
+    assert_eq!(size_of::<StationEvent>(), 104);
+    for (size, align) in [
+        (size_of::<PoseSnapshot>(), align_of::<PoseSnapshot>()),
+        (size_of::<StationReport>(), align_of::<StationReport>()),
+        (size_of::<ChunkHeader>(), align_of::<ChunkHeader>()),
+    ] {
+        assert_eq!(align, 8);
+        assert_eq!(size % align, 0);
+    }
+}
+
+#[test]
+fn iceoryx2_type_names_carry_the_version() {
+    // SAFETY: type_name only returns a static string.
+    unsafe {
+        assert_eq!(PoseSnapshot::type_name(), PoseSnapshot::TYPE_NAME);
+        assert_eq!(ChunkHeader::type_name(), ChunkHeader::TYPE_NAME);
+        assert_eq!(StationEvent::type_name(), StationEvent::TYPE_NAME);
+        assert_eq!(DeviationHeader::type_name(), DeviationHeader::TYPE_NAME);
+        assert_eq!(StationReport::type_name(), StationReport::TYPE_NAME);
+        assert_eq!(ScanPoint::type_name(), "asbuilt.ScanPoint.v1");
+        assert_eq!(PointDeviation::type_name(), "asbuilt.PointDeviation.v1");
+    }
+}
+
+#[test]
+fn foreign_text_bytes_never_panic() {
+    let mut t = FixedText::<8>::new("abc").unwrap();
+    // Simulate a peer that wrote a bogus length into shared memory.
+    unsafe {
+        let p = &mut t as *mut FixedText<8> as *mut u32;
+        *p = 1000;
+    }
+    assert_eq!(t.as_str(), "abc\0\0\0\0\0");
+}

@@ -1,1 +1,11 @@
-pub fn _x(){}
+//! Pure, synchronous geometry and statistics for asbuilt, shared by the agent and the offline
+//! tools. No I/O beyond reading design files; no logging.
+
+pub mod c2m;
+pub mod design;
+pub mod frames;
+pub mod station;
+pub mod stats;
+
+pub use c2m::{C2mIndex, C2mParams, Closest, Cursor};
+pub use design::{Design, DesignError, MeshReport, Units};

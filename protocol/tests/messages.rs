@@ -27,7 +27,10 @@ fn every_message_round_trips_through_postcard() {
     let mut pose = PoseSnapshot::new(1, 2, PoseMode::FixedOrientation);
     pose.translation = [1.5, -2.25, 0.125];
     pose.rotation_xyzw = [0.0, 0.0, 0.70710678, 0.70710678];
-    assert_eq!(codec::decode::<PoseSnapshot>(&codec::encode(&pose)).unwrap(), pose);
+    assert_eq!(
+        codec::decode::<PoseSnapshot>(&codec::encode(&pose)).unwrap(),
+        pose
+    );
 
     let mut ev = StationEvent::new(StationEventKind::End, 1, 2);
     ev.name = FixedText::new("north-east").unwrap();
@@ -66,8 +69,7 @@ fn every_message_round_trips_through_postcard() {
     ];
     let mut dh = DeviationHeader::new(1, 2, 5);
     dh.point_count = 3;
-    let (h, p) =
-        codec::decode_deviation_chunk(&codec::encode_deviation_chunk(&dh, &devs)).unwrap();
+    let (h, p) = codec::decode_deviation_chunk(&codec::encode_deviation_chunk(&dh, &devs)).unwrap();
     assert_eq!(h, dh);
     assert_eq!(p, devs);
     assert_eq!(p[0].feature(), Some(Feature::Edge));
@@ -103,7 +105,10 @@ fn a_record_of_another_version_is_refused_with_a_clear_error() {
 fn corrupt_and_mistyped_records_are_errors_not_panics() {
     let report = codec::encode(&sample_report());
     for cut in [0, 1, 5, report.len() / 2, report.len() - 1] {
-        assert!(codec::decode::<StationReport>(&report[..cut]).is_err(), "cut {cut}");
+        assert!(
+            codec::decode::<StationReport>(&report[..cut]).is_err(),
+            "cut {cut}"
+        );
     }
     // A pose record is not a station event.
     let pose = codec::encode(&PoseSnapshot::new(1, 2, PoseMode::SixDof));

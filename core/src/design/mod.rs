@@ -1,0 +1,216 @@
+//! The as-designed model: an indexed triangle mesh in metres, checked for the defects that make
+//! signed distances unreliable.
+
+mod load;
+pub mod shapes;
+mod topology;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use nalgebra::Point3;
+
+pub use load::{DesignError, MeshFormat};
+pub use topology::Topology;
+
+/// The unit a design file was written in. Declared by the user, never guessed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Units {
+    Metres,
+    Millimetres,
+}
+
+impl Units {
+    /// Metres per file unit.
+    pub fn scale(self) -> f64 {
+        match self {
+            Units::Metres => 1.0,
+            Units::Millimetres => 1e-3,
+        }
+    }
+}
+
+impl std::str::FromStr for Units {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "m" | "metres" | "meters" => Ok(Units::Metres),
+            "mm" | "millimetres" | "millimeters" => Ok(Units::Millimetres),
+            other => Err(format!("unknown unit {other:?}: use m or mm")),
+        }
+    }
+}
+
+/// What loading and cleaning found. Everything here is a warning unless the mesh ends up empty.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct MeshReport {
+    pub input_vertices: usize,
+    pub input_triangles: usize,
+    /// Vertices dropped because another one had the same position.
+    pub merged_vertices: usize,
+    /// Triangles dropped because they have no area (repeated or collinear vertices).
+    pub degenerate_triangles: usize,
+    /// Triangles that point to a vertex the file does not have.
+    pub invalid_indices: usize,
+    pub topology: Topology,
+}
+
+impl MeshReport {
+    /// One line per problem, saying what it means for the deviations.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut w = Vec::new();
+        if self.invalid_indices > 0 {
+            w.push(format!(
+                "{} triangles refer to vertices the file does not have; they were dropped",
+                self.invalid_indices
+            ));
+        }
+        if self.degenerate_triangles > 0 {
+            w.push(format!(
+                "{} degenerate triangles (no area) were dropped",
+                self.degenerate_triangles
+            ));
+        }
+        let t = &self.topology;
+        if t.boundary_edges > 0 {
+            w.push(format!(
+                "{} open boundary edges: the design is not closed, so the sign of a distance \
+                 near a hole may be wrong",
+                t.boundary_edges
+            ));
+        }
+        if t.non_manifold_edges > 0 {
+            w.push(format!(
+                "{} non-manifold edges (shared by more than two triangles): signs near them may \
+                 be wrong",
+                t.non_manifold_edges
+            ));
+        }
+        if t.inconsistent_edges > 0 {
+            w.push(format!(
+                "{} edges between triangles of opposite orientation: fix the normals in the \
+                 design tool, or signs will flip across those edges",
+                t.inconsistent_edges
+            ));
+        }
+        w
+    }
+}
+
+/// An indexed triangle mesh in metres, with no degenerate triangles.
+#[derive(Debug, Clone)]
+pub struct Design {
+    pub vertices: Vec<Point3<f64>>,
+    pub triangles: Vec<[u32; 3]>,
+    pub report: MeshReport,
+}
+
+impl Design {
+    /// Reads an STL (binary or ASCII), OBJ or PLY file whose coordinates are in `units`.
+    pub fn load(path: &Path, units: Units) -> Result<Self, DesignError> {
+        let (vertices, triangles) = load::read_mesh(path)?;
+        Self::from_indexed(vertices, triangles, units.scale()).map_err(|e| match e {
+            DesignError::Empty { .. } => DesignError::Empty {
+                path: path.to_path_buf(),
+            },
+            other => other,
+        })
+    }
+
+    /// Builds a design from vertices and triangles in file units, scaled to metres by `scale`.
+    /// Vertices at the same position are merged and degenerate triangles dropped.
+    pub fn from_indexed(
+        vertices: Vec<Point3<f64>>,
+        triangles: Vec<[u32; 3]>,
+        scale: f64,
+    ) -> Result<Self, DesignError> {
+        let mut report = MeshReport {
+            input_vertices: vertices.len(),
+            input_triangles: triangles.len(),
+            ..Default::default()
+        };
+        // Merge by exact position: STL repeats each vertex per triangle, bit for bit.
+        let mut remap = Vec::with_capacity(vertices.len());
+        let mut unique: Vec<Point3<f64>> = Vec::with_capacity(vertices.len());
+        let mut seen: HashMap<[u64; 3], u32> = HashMap::with_capacity(vertices.len());
+        for v in &vertices {
+            let v = v * scale;
+            // +0.0 and -0.0 are one position.
+            let key = [v.x, v.y, v.z].map(|c| (c + 0.0).to_bits());
+            let id = *seen.entry(key).or_insert_with(|| {
+                unique.push(v);
+                (unique.len() - 1) as u32
+            });
+            remap.push(id);
+        }
+        report.merged_vertices = vertices.len() - unique.len();
+
+        let mut kept = Vec::with_capacity(triangles.len());
+        for t in triangles {
+            if t.iter().any(|&i| i as usize >= remap.len()) {
+                report.invalid_indices += 1;
+                continue;
+            }
+            let t = t.map(|i| remap[i as usize]);
+            let [a, b, c] = t.map(|i| unique[i as usize]);
+            let area2 = (b - a).cross(&(c - a)).norm();
+            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || area2 <= 0.0 || !area2.is_finite() {
+                report.degenerate_triangles += 1;
+                continue;
+            }
+            kept.push(t);
+        }
+        if kept.is_empty() {
+            return Err(DesignError::Empty {
+                path: Default::default(),
+            });
+        }
+        report.topology = Topology::of(&kept);
+        Ok(Self {
+            vertices: unique,
+            triangles: kept,
+            report,
+        })
+    }
+
+    /// Axis-aligned bounds, metres.
+    pub fn bounds(&self) -> (Point3<f64>, Point3<f64>) {
+        let mut lo = self.vertices[self.triangles[0][0] as usize];
+        let mut hi = lo;
+        for t in &self.triangles {
+            for &i in t {
+                lo = lo.inf(&self.vertices[i as usize]);
+                hi = hi.sup(&self.vertices[i as usize]);
+            }
+        }
+        (lo, hi)
+    }
+
+    pub fn surface_area(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+                0.5 * (b - a).cross(&(c - a)).norm()
+            })
+            .sum()
+    }
+
+    /// Median triangle edge length, metres.
+    pub fn median_edge(&self) -> f64 {
+        let mut e: Vec<f64> = self
+            .triangles
+            .iter()
+            .flat_map(|t| {
+                let p = t.map(|i| self.vertices[i as usize]);
+                [
+                    (p[1] - p[0]).norm(),
+                    (p[2] - p[1]).norm(),
+                    (p[0] - p[2]).norm(),
+                ]
+            })
+            .collect();
+        let mid = e.len() / 2;
+        *e.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+}

@@ -1,0 +1,119 @@
+//! Analytic shapes as closed, outward-oriented meshes: ground truth for tests, and design objects
+//! for the simulator.
+
+use std::collections::HashMap;
+
+use nalgebra::{Point3, Vector3};
+
+use super::Design;
+
+/// An axis-aligned box from `min` to `max`, 12 triangles.
+pub fn cuboid(min: Point3<f64>, max: Point3<f64>) -> Design {
+    let v: Vec<Point3<f64>> = (0..8)
+        .map(|i| {
+            Point3::new(
+                if i & 1 == 0 { min.x } else { max.x },
+                if i & 2 == 0 { min.y } else { max.y },
+                if i & 4 == 0 { min.z } else { max.z },
+            )
+        })
+        .collect();
+    // Each face as a quad, counter-clockwise seen from outside.
+    let quads = [
+        [0, 2, 3, 1], // z = min
+        [4, 5, 7, 6], // z = max
+        [0, 1, 5, 4], // y = min
+        [2, 6, 7, 3], // y = max
+        [0, 4, 6, 2], // x = min
+        [1, 3, 7, 5], // x = max
+    ];
+    let triangles = quads
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+    Design::from_indexed(v, triangles, 1.0).expect("a box has area")
+}
+
+/// A flat square sheet in the plane z = `z`, `n × n` quads, normal +z. Open: it has a boundary.
+pub fn sheet(half_size: f64, z: f64, n: u32) -> Design {
+    let mut v = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let s = |k: u32| -half_size + 2.0 * half_size * k as f64 / n as f64;
+            v.push(Point3::new(s(i), s(j), z));
+        }
+    }
+    let id = |i: u32, j: u32| j * (n + 1) + i;
+    let mut t = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            t.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            t.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    Design::from_indexed(v, t, 1.0).expect("a sheet has area")
+}
+
+/// A geodesic sphere: an icosahedron subdivided `subdivisions` times, every vertex at `radius`
+/// from `center`. 20 · 4^subdivisions triangles.
+pub fn icosphere(center: Point3<f64>, radius: f64, subdivisions: u32) -> Design {
+    let p = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut v: Vec<Vector3<f64>> = [
+        [-1.0, p, 0.0],
+        [1.0, p, 0.0],
+        [-1.0, -p, 0.0],
+        [1.0, -p, 0.0],
+        [0.0, -1.0, p],
+        [0.0, 1.0, p],
+        [0.0, -1.0, -p],
+        [0.0, 1.0, -p],
+        [p, 0.0, -1.0],
+        [p, 0.0, 1.0],
+        [-p, 0.0, -1.0],
+        [-p, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|c| Vector3::from(*c).normalize())
+    .collect();
+    let mut t: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..subdivisions {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut midpoint = |a: u32, b: u32, v: &mut Vec<Vector3<f64>>| {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                v.push((v[a as usize] + v[b as usize]).normalize());
+                (v.len() - 1) as u32
+            })
+        };
+        let mut next = Vec::with_capacity(t.len() * 4);
+        for [a, b, c] in t {
+            let ab = midpoint(a, b, &mut v);
+            let bc = midpoint(b, c, &mut v);
+            let ca = midpoint(c, a, &mut v);
+            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        t = next;
+    }
+    let v = v.iter().map(|d| center + d * radius).collect();
+    Design::from_indexed(v, t, 1.0).expect("a sphere has area")
+}

@@ -99,7 +99,7 @@ impl<'a> StationInspector<'a> {
             .map(|(ps, os)| inspect_task(index, &t, &config, ps, os))
             .reduce_with(|mut a, b| {
                 a.stats.merge(&b.stats);
-                add_rejects(&mut a.rejected, &b.rejected);
+                a.rejected += b.rejected;
                 a.outcome.rejected += b.outcome.rejected;
                 a.outcome.no_match += b.outcome.no_match;
                 a.outcome.out_of_tolerance += b.outcome.out_of_tolerance;
@@ -111,7 +111,7 @@ impl<'a> StationInspector<'a> {
             return ChunkOutcome::default();
         };
         self.stats.merge(&tally.stats);
-        add_rejects(&mut self.rejected, &tally.rejected);
+        self.rejected += tally.rejected;
         self.no_match += tally.no_match;
         tally.outcome
     }
@@ -161,13 +161,6 @@ impl<'a> StationInspector<'a> {
         r.histogram = self.stats.histogram();
         r
     }
-}
-
-fn add_rejects(a: &mut RejectCounts, b: &RejectCounts) {
-    a.non_finite += b.non_finite;
-    a.out_of_range += b.out_of_range;
-    a.scanner_invalid += b.scanner_invalid;
-    a.without_pose += b.without_pose;
 }
 
 fn inspect_task(

@@ -68,6 +68,15 @@ pub struct RejectCounts {
     pub without_pose: u64,
 }
 
+impl std::ops::AddAssign for RejectCounts {
+    fn add_assign(&mut self, o: Self) {
+        self.non_finite += o.non_finite;
+        self.out_of_range += o.out_of_range;
+        self.scanner_invalid += o.scanner_invalid;
+        self.without_pose += o.without_pose;
+    }
+}
+
 impl RejectCounts {
     pub fn total(&self) -> u64 {
         self.non_finite + self.out_of_range + self.scanner_invalid + self.without_pose

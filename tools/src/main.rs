@@ -1,1 +1,64 @@
-fn main() {}
+//! `asbuilt`: the command line. Thin: every computation lives in asbuilt-core.
+
+mod deviations_ply;
+mod inspect;
+mod report;
+mod scan_file;
+mod stations;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "asbuilt", version, about = "Geometric inspection for construction 3D printing")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Compare scans with the design: signed distances per point, statistics per station.
+    Inspect(inspect::InspectArgs),
+    /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
+    ImportConf {
+        /// The .conf file.
+        conf: PathBuf,
+        /// Where to write stations.toml; scan paths are made relative to its folder.
+        #[arg(short, long)]
+        out: PathBuf,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Inspect(args) => inspect::run(args),
+        Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
+    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(dir)?;
+    let file = stations::from_conf(conf, dir)?;
+    let text = format!(
+        "# Stations converted from {} by `asbuilt import-conf`.\n\
+         # p_design = R(rotation_xyzw) * p_scan + translation (metres); scan paths are relative \
+         to this file.\n\n{}",
+        conf.display(),
+        toml::to_string(&file)?
+    );
+    std::fs::write(out, text)?;
+    eprintln!("wrote {} stations to {}", file.station.len(), out.display());
+    Ok(())
+}

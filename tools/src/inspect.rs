@@ -1,0 +1,272 @@
+//! `asbuilt inspect`: offline inspection of scans with known poses against a design.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use asbuilt_core::station::{InspectConfig, StationInspector};
+use asbuilt_core::stats::DeviationAccumulator;
+use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
+use asbuilt_protocol::{DeviationFlags, PointDeviation, RejectCounts, StationReport};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Point3;
+
+use crate::deviations_ply::DeviationsPly;
+use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
+use crate::scan_file::read_scan;
+use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
+
+/// Points per processing chunk: the only per-point buffer, reused for every chunk.
+const CHUNK: usize = 1 << 16;
+
+#[derive(Args)]
+pub struct InspectArgs {
+    /// The design model: STL (binary or ASCII), OBJ or PLY triangle mesh.
+    #[arg(long)]
+    design: PathBuf,
+    /// Units the design file is written in (m or mm). Never guessed.
+    #[arg(long)]
+    units: Units,
+    /// Stations file: [[station]] with id, scan, translation, rotation_xyzw.
+    #[arg(long, conflicts_with = "scan", required_unless_present = "scan")]
+    stations: Option<PathBuf>,
+    /// A single scan (PLY or XYZ, metres) instead of a stations file.
+    #[arg(long, requires = "translation", requires = "rotation_xyzw")]
+    scan: Option<PathBuf>,
+    /// With --scan: x,y,z of the scanner in the design frame, metres.
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true)]
+    translation: Option<Vec<f64>>,
+    /// With --scan: the scanner's rotation as a unit quaternion x,y,z,w.
+    #[arg(long, value_delimiter = ',', num_args = 4, allow_negative_numbers = true)]
+    rotation_xyzw: Option<Vec<f64>>,
+    /// Tolerance band, metres: |d| <= tolerance is within tolerance.
+    #[arg(long, default_value_t = 0.005)]
+    tolerance: f64,
+    /// Points farther than this from the design have no match (flagged, never clamped).
+    /// Metres; default 10 × tolerance.
+    #[arg(long)]
+    max_distance: Option<f64>,
+    /// Output folder for report.json and deviations.ply.
+    #[arg(long, default_value = "out/inspect")]
+    out: PathBuf,
+}
+
+pub fn run(args: InspectArgs) -> Result<ExitCode> {
+    if !(args.tolerance > 0.0 && args.tolerance.is_finite()) {
+        bail!("--tolerance must be a positive number of metres, got {}", args.tolerance);
+    }
+    let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
+    let stations = match (&args.stations, &args.scan) {
+        (Some(path), _) => stations::load(path)?,
+        (None, Some(scan)) => single_station(&args, scan)?,
+        (None, None) => bail!("give --stations FILE or --scan FILE"),
+    };
+
+    let started = Instant::now();
+    let design = Design::load(&args.design, args.units)?;
+    let mut warnings = Vec::new();
+    let design_warnings = design.report.warnings();
+    for w in &design_warnings {
+        eprintln!("warning: design: {w}");
+    }
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance,
+            cell_size: None,
+        },
+    )?;
+    let ix = index.stats();
+    eprintln!(
+        "design {}: {} triangles, index {} cells of {:.2} mm, {:.0} MB, built in {:.1} s",
+        args.design.display(),
+        ix.triangles,
+        ix.cells,
+        ix.cell_size * 1e3,
+        ix.bytes as f64 / 1e6,
+        started.elapsed().as_secs_f64()
+    );
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
+    let mut ply = DeviationsPly::create(&args.out.join("deviations.ply"))?;
+    let config = InspectConfig::with_tolerance(args.tolerance);
+    let (design_lo, design_hi) = design.bounds();
+    let design_size = (design_hi - design_lo).norm();
+
+    let mut sections = Vec::new();
+    let mut total = DeviationAccumulator::new(config.stats);
+    let mut total_rejected = RejectCounts::default();
+    let (mut total_points, mut total_no_match, mut total_malformed) = (0u64, 0u64, 0u64);
+    let mut failed = Vec::new();
+    let mut buffer = vec![PointDeviation::default(); CHUNK];
+
+    for (n, station) in stations.iter().enumerate() {
+        let t0 = Instant::now();
+        let (points, notes) = match read_scan(&station.scan) {
+            Ok(v) => v,
+            Err(e) => {
+                eprintln!("error: station {}: {e:#}", station.id);
+                failed.push(station.id.clone());
+                continue;
+            }
+        };
+        if notes.malformed_lines > 0 {
+            let w = format!(
+                "station {}: {} unreadable lines skipped (first at line {})",
+                station.id,
+                notes.malformed_lines,
+                notes.first_malformed_line.unwrap_or(0)
+            );
+            eprintln!("warning: {w}");
+            warnings.push(w);
+        }
+        let bar = ProgressBar::new(points.len() as u64).with_style(
+            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} points ({per_sec})")
+                .expect("valid template")
+                .progress_chars("=> "),
+        );
+        bar.set_message(station.id.clone());
+        let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
+        let mut bounds = (Point3::from([f64::INFINITY; 3]), Point3::from([f64::NEG_INFINITY; 3]));
+        for chunk in points.chunks(CHUNK) {
+            let out = &mut buffer[..chunk.len()];
+            inspector.process(chunk, out);
+            for d in out.iter().filter(|d| !d.flags.contains(DeviationFlags::REJECTED)) {
+                let p = Point3::from(d.position);
+                bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
+            }
+            ply.write(n as u16, out)?;
+            bar.inc(chunk.len() as u64);
+        }
+        bar.finish_and_clear();
+
+        let scan_size = (bounds.1 - bounds.0).norm();
+        if scan_size.is_finite() && design_size > 0.0 && scan_size > 0.0 {
+            let ratio = design_size / scan_size;
+            if !(1.0 / 30.0..=30.0).contains(&ratio) {
+                let w = format!(
+                    "station {}: the design spans {:.3} m but the scan spans {:.3} m ({}× apart): \
+                     check --units (a millimetre design declared as m is 1000× too big)",
+                    station.id,
+                    design_size,
+                    scan_size,
+                    format_ratio(ratio)
+                );
+                eprintln!("warning: {w}");
+                warnings.push(w);
+            }
+        }
+        let report: StationReport = inspector.report(0, n as u32, &station.id);
+        let mut report = report;
+        report.position_sigma = station.position_sigma;
+        total.merge(inspector.stats());
+        total_rejected += inspector.rejected();
+        total_points += inspector.points_received();
+        total_no_match += inspector.no_match();
+        total_malformed += notes.malformed_lines;
+        let section = Section::from_report(
+            &report,
+            Some(station.scan.display().to_string()),
+            notes.malformed_lines,
+        );
+        eprintln!(
+            "station {:<10} {:>8} points  median |d| {} mm  ({:.2} s)",
+            station.id,
+            section.points,
+            section
+                .median_abs
+                .map(|v| format!("{:.3}", v * 1e3))
+                .unwrap_or("-".into()),
+            t0.elapsed().as_secs_f64()
+        );
+        sections.push(section);
+    }
+    let written = ply.finish()?;
+
+    let mut overall = StationReport::new(0, u32::MAX);
+    overall.name = asbuilt_protocol::FixedText::truncated("overall");
+    overall.points_received = total_points;
+    overall.no_match = total_no_match;
+    overall.rejected = total_rejected;
+    overall.stats = total.finish();
+    overall.histogram = total.histogram();
+    let overall = Section::from_report(&overall, None, total_malformed);
+
+    if overall.matched == 0 {
+        warnings.push(format!(
+            "no point matched the design within {max_distance} m: check the poses, --units and \
+             --max-distance"
+        ));
+    }
+    let report = Report {
+        asbuilt_version: env!("CARGO_PKG_VERSION"),
+        design: DesignSection {
+            path: args.design.display().to_string(),
+            units: format!("{:?}", args.units),
+            vertices: design.vertices.len(),
+            triangles: design.triangles.len(),
+            warnings: design_warnings,
+            index_cell_size_m: ix.cell_size,
+            index_cells: ix.cells,
+            index_bytes: ix.bytes,
+        },
+        parameters: Parameters {
+            tolerance_m: args.tolerance,
+            max_distance_m: max_distance,
+            histogram_range_m: config.stats.histogram_range,
+        },
+        stations: sections,
+        overall,
+        warnings,
+    };
+    let json_path = args.out.join("report.json");
+    std::fs::write(&json_path, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("cannot write {}", json_path.display()))?;
+
+    print!("{}", summary_table(&report));
+    eprintln!(
+        "wrote {} and {} ({} points) in {:.1} s",
+        json_path.display(),
+        args.out.join("deviations.ply").display(),
+        written,
+        started.elapsed().as_secs_f64()
+    );
+    if !failed.is_empty() {
+        eprintln!("error: {} station(s) could not be read: {}", failed.len(), failed.join(", "));
+        return Ok(ExitCode::from(1));
+    }
+    if report.overall.matched == 0 {
+        eprintln!("error: {}", report.warnings.last().expect("pushed above"));
+        return Ok(ExitCode::from(1));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Station>> {
+    let t = args.translation.as_deref().context("--scan needs --translation x,y,z")?;
+    let r = args
+        .rotation_xyzw
+        .as_deref()
+        .context("--scan needs --rotation-xyzw x,y,z,w")?;
+    let file = stations::StationsFile {
+        station: vec![stations::StationEntry {
+            id: scan
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "scan".into()),
+            scan: scan.to_path_buf(),
+            translation: Some([t[0], t[1], t[2]]),
+            rotation_xyzw: Some([r[0], r[1], r[2], r[3]]),
+            position_sigma: Some(DEFAULT_POSITION_SIGMA),
+        }],
+    };
+    stations::resolve(file, std::path::Path::new("."), "--scan")
+}
+
+fn format_ratio(r: f64) -> String {
+    let r = if r < 1.0 { 1.0 / r } else { r };
+    format!("{r:.0}")
+}

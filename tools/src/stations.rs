@@ -1,0 +1,171 @@
+//! `stations.toml`: which scan was taken where. `p_design = R(rotation_xyzw) · p_scan + translation`.
+
+use std::path::{Component, Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use nalgebra::{Isometry3, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StationsFile {
+    pub station: Vec<StationEntry>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StationEntry {
+    pub id: String,
+    /// A PLY or XYZ file; relative paths are relative to the stations file.
+    pub scan: PathBuf,
+    /// Metres.
+    pub translation: Option<[f64; 3]>,
+    /// Unit quaternion, scalar last.
+    pub rotation_xyzw: Option<[f64; 4]>,
+    /// One-sigma position uncertainty of the station, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub position_sigma: Option<f64>,
+}
+
+/// A station ready to inspect.
+#[derive(Debug, Clone)]
+pub struct Station {
+    pub id: String,
+    pub scan: PathBuf,
+    pub t_design_scanner: Isometry3<f64>,
+    pub position_sigma: f64,
+}
+
+pub const DEFAULT_POSITION_SIGMA: f64 = 1e-3;
+
+/// Reads and checks a stations file, listing every problem at once.
+pub fn load(path: &Path) -> Result<Vec<Station>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read stations file {}", path.display()))?;
+    let file: StationsFile = toml::from_str(&text).map_err(|e| {
+        anyhow::anyhow!(
+            "stations file {} is not valid: {e}\nexpected [[station]] tables with id, scan, \
+             translation = [x, y, z] and rotation_xyzw = [x, y, z, w]",
+            path.display()
+        )
+    })?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    resolve(file, base, &path.display().to_string())
+}
+
+pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Station>> {
+    let mut problems = Vec::new();
+    let mut out = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    if file.station.is_empty() {
+        problems.push("no [[station]] entries".to_string());
+    }
+    for s in file.station {
+        if !seen.insert(s.id.clone()) {
+            problems.push(format!("station {:?} is listed twice", s.id));
+        }
+        let (Some(t), Some(r)) = (s.translation, s.rotation_xyzw) else {
+            problems.push(format!(
+                "station {:?} has no pose: give both translation = [x, y, z] (metres) and \
+                 rotation_xyzw = [x, y, z, w]",
+                s.id
+            ));
+            continue;
+        };
+        let pose = match asbuilt_core::frames::isometry(t, r) {
+            Ok(p) => p,
+            Err(e) => {
+                problems.push(format!("station {:?}: {e}", s.id));
+                continue;
+            }
+        };
+        let sigma = s.position_sigma.unwrap_or(DEFAULT_POSITION_SIGMA);
+        if !(sigma >= 0.0 && sigma.is_finite()) {
+            problems.push(format!("station {:?}: position_sigma must be >= 0 metres", s.id));
+        }
+        let scan = if s.scan.is_absolute() {
+            s.scan.clone()
+        } else {
+            base.join(&s.scan)
+        };
+        if !scan.is_file() {
+            problems.push(format!(
+                "station {:?}: scan file {} does not exist",
+                s.id,
+                scan.display()
+            ));
+        }
+        out.push(Station {
+            id: s.id,
+            scan,
+            t_design_scanner: pose,
+            position_sigma: sigma,
+        });
+    }
+    if !problems.is_empty() {
+        bail!("{origin}:\n  - {}", problems.join("\n  - "));
+    }
+    Ok(out)
+}
+
+/// Converts a Stanford/Scanalyze `.conf` (`bmesh FILE tx ty tz qx qy qz qw`, where
+/// `p_mesh = R(q)ᵀ · p_scan + t`) into stations. Scan paths are written relative to `out_dir`.
+pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
+    let text = std::fs::read_to_string(conf)
+        .with_context(|| format!("cannot read {}", conf.display()))?;
+    let dir = conf.parent().unwrap_or(Path::new("."));
+    let mut station = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        if f.first() != Some(&"bmesh") {
+            continue; // `camera` lines are a viewpoint, not a station
+        }
+        if f.len() != 9 {
+            bail!("{} line {}: expected `bmesh FILE tx ty tz qx qy qz qw`", conf.display(), n + 1);
+        }
+        let nums: Vec<f64> = f[2..]
+            .iter()
+            .map(|s| s.parse::<f64>())
+            .collect::<Result<_, _>>()
+            .with_context(|| format!("{} line {}: bad number", conf.display(), n + 1))?;
+        // The file's rotation maps mesh to scan; the station needs scan to mesh: its conjugate.
+        let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            nums[6], nums[3], nums[4], nums[5],
+        ))
+        .conjugate();
+        let c = q.quaternion().coords; // (x, y, z, w)
+        let scan = dir.join(f[1]);
+        station.push(StationEntry {
+            id: Path::new(f[1])
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| f[1].to_string()),
+            scan: relative_to(&scan, out_dir),
+            translation: Some([nums[0], nums[1], nums[2]]),
+            rotation_xyzw: Some([c.x, c.y, c.z, c.w]),
+            position_sigma: None,
+        });
+    }
+    if station.is_empty() {
+        bail!("{} has no `bmesh` lines", conf.display());
+    }
+    Ok(StationsFile { station })
+}
+
+/// `target` as seen from `dir`, when both can be resolved; otherwise `target` unchanged.
+fn relative_to(target: &Path, dir: &Path) -> PathBuf {
+    let (Ok(t), Ok(d)) = (std::fs::canonicalize(target), std::fs::canonicalize(dir)) else {
+        return target.to_path_buf();
+    };
+    let tc: Vec<Component> = t.components().collect();
+    let dc: Vec<Component> = d.components().collect();
+    let common = tc.iter().zip(&dc).take_while(|(a, b)| a == b).count();
+    let mut out = PathBuf::new();
+    for _ in common..dc.len() {
+        out.push("..");
+    }
+    for c in &tc[common..] {
+        out.push(c);
+    }
+    out
+}

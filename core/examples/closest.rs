@@ -9,10 +9,24 @@ fn main() {
         std::process::exit(2);
     }
     let design = Design::load(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design");
-    let index = C2mIndex::build(&design, C2mParams { max_distance: 1e3, cell_size: None }).expect("index");
-    let p = Point3::new(a[3].parse().unwrap(), a[4].parse().unwrap(), a[5].parse().unwrap());
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: 1e3,
+            cell_size: None,
+        },
+    )
+    .expect("index");
+    let p = Point3::new(
+        a[3].parse().unwrap(),
+        a[4].parse().unwrap(),
+        a[5].parse().unwrap(),
+    );
     match index.brute_force(&p) {
-        Some(c) => println!("distance {:.6} m, triangle {}, {:?}", c.distance, c.triangle, c.region),
+        Some(c) => println!(
+            "distance {:.6} m, triangle {}, {:?}",
+            c.distance, c.triangle, c.region
+        ),
         None => println!("no triangle"),
     }
 }

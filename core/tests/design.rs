@@ -8,16 +8,21 @@ use asbuilt_core::{Design, DesignError, Units};
 use nalgebra::Point3;
 
 fn cube() -> Design {
-    cuboid(Point3::new(-500.0, -250.0, 0.0), Point3::new(500.0, 250.0, 100.0))
+    cuboid(
+        Point3::new(-500.0, -250.0, 0.0),
+        Point3::new(500.0, 250.0, 100.0),
+    )
 }
 
 fn soup(d: &Design) -> Vec<[[f32; 3]; 3]> {
     d.triangles
         .iter()
-        .map(|t| t.map(|i| {
-            let v = d.vertices[i as usize];
-            [v.x as f32, v.y as f32, v.z as f32]
-        }))
+        .map(|t| {
+            t.map(|i| {
+                let v = d.vertices[i as usize];
+                [v.x as f32, v.y as f32, v.z as f32]
+            })
+        })
         .collect()
 }
 
@@ -92,13 +97,26 @@ fn every_format_loads_the_same_closed_mesh_in_metres() {
         let d = Design::load(&path, Units::Millimetres).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(d.vertices.len(), 8, "{name}: duplicate vertices merged");
         assert_eq!(d.triangles.len(), 12, "{name}");
-        assert!(d.report.topology.is_closed_and_oriented(), "{name}: {:?}", d.report);
+        assert!(
+            d.report.topology.is_closed_and_oriented(),
+            "{name}: {:?}",
+            d.report
+        );
         assert!(d.report.warnings().is_empty(), "{name}");
         let (lo, hi) = d.bounds();
-        assert!((lo - Point3::new(-0.5, -0.25, 0.0)).norm() < 1e-12, "{name}: {lo}");
-        assert!((hi - Point3::new(0.5, 0.25, 0.1)).norm() < 1e-12, "{name}: {hi}");
+        assert!(
+            (lo - Point3::new(-0.5, -0.25, 0.0)).norm() < 1e-12,
+            "{name}: {lo}"
+        );
+        assert!(
+            (hi - Point3::new(0.5, 0.25, 0.1)).norm() < 1e-12,
+            "{name}: {hi}"
+        );
         let m = Design::load(&path, Units::Metres).unwrap();
-        assert!((m.bounds().1.x - 500.0).abs() < 1e-9, "{name}: metres are not scaled");
+        assert!(
+            (m.bounds().1.x - 500.0).abs() < 1e-9,
+            "{name}: metres are not scaled"
+        );
     }
 }
 
@@ -122,7 +140,12 @@ fn defects_are_counted_as_warnings() {
     assert!(topo.inconsistent_edges >= 1, "{topo:?}");
     assert_eq!(topo.non_manifold_edges, 1, "{topo:?}");
     let w = d.report.warnings().join("\n");
-    for word in ["degenerate", "open boundary", "non-manifold", "opposite orientation"] {
+    for word in [
+        "degenerate",
+        "open boundary",
+        "non-manifold",
+        "opposite orientation",
+    ] {
         assert!(w.contains(word), "{word} missing from:\n{w}");
     }
 }

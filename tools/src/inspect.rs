@@ -36,10 +36,10 @@ pub struct InspectArgs {
     #[arg(long, requires = "translation", requires = "rotation_xyzw")]
     scan: Option<PathBuf>,
     /// With --scan: x,y,z of the scanner in the design frame, metres.
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true)]
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     translation: Option<Vec<f64>>,
     /// With --scan: the scanner's rotation as a unit quaternion x,y,z,w.
-    #[arg(long, value_delimiter = ',', num_args = 4, allow_negative_numbers = true)]
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     rotation_xyzw: Option<Vec<f64>>,
     /// Tolerance band, metres: |d| <= tolerance is within tolerance.
     #[arg(long, default_value_t = 0.005)]
@@ -55,7 +55,10 @@ pub struct InspectArgs {
 
 pub fn run(args: InspectArgs) -> Result<ExitCode> {
     if !(args.tolerance > 0.0 && args.tolerance.is_finite()) {
-        bail!("--tolerance must be a positive number of metres, got {}", args.tolerance);
+        bail!(
+            "--tolerance must be a positive number of metres, got {}",
+            args.tolerance
+        );
     }
     let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
     let stations = match (&args.stations, &args.scan) {
@@ -130,11 +133,17 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         );
         bar.set_message(station.id.clone());
         let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
-        let mut bounds = (Point3::from([f64::INFINITY; 3]), Point3::from([f64::NEG_INFINITY; 3]));
+        let mut bounds = (
+            Point3::from([f64::INFINITY; 3]),
+            Point3::from([f64::NEG_INFINITY; 3]),
+        );
         for chunk in points.chunks(CHUNK) {
             let out = &mut buffer[..chunk.len()];
             inspector.process(chunk, out);
-            for d in out.iter().filter(|d| !d.flags.contains(DeviationFlags::REJECTED)) {
+            for d in out
+                .iter()
+                .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
+            {
                 let p = Point3::from(d.position);
                 bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
             }
@@ -235,7 +244,11 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         started.elapsed().as_secs_f64()
     );
     if !failed.is_empty() {
-        eprintln!("error: {} station(s) could not be read: {}", failed.len(), failed.join(", "));
+        eprintln!(
+            "error: {} station(s) could not be read: {}",
+            failed.len(),
+            failed.join(", ")
+        );
         return Ok(ExitCode::from(1));
     }
     if report.overall.matched == 0 {
@@ -246,11 +259,26 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
 }
 
 fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Station>> {
-    let t = args.translation.as_deref().context("--scan needs --translation x,y,z")?;
+    let t = args
+        .translation
+        .as_deref()
+        .context("--scan needs --translation x,y,z")?;
     let r = args
         .rotation_xyzw
         .as_deref()
         .context("--scan needs --rotation-xyzw x,y,z,w")?;
+    if t.len() != 3 {
+        bail!(
+            "--translation takes three numbers x,y,z (metres), got {}",
+            t.len()
+        );
+    }
+    if r.len() != 4 {
+        bail!(
+            "--rotation-xyzw takes four numbers x,y,z,w, got {}",
+            r.len()
+        );
+    }
     let file = stations::StationsFile {
         station: vec![stations::StationEntry {
             id: scan

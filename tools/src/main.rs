@@ -12,7 +12,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "asbuilt", version, about = "Geometric inspection for construction 3D printing")]
+#[command(
+    name = "asbuilt",
+    version,
+    about = "Geometric inspection for construction 3D printing"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -48,7 +52,10 @@ fn main() -> ExitCode {
 }
 
 fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
-    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    let dir = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
     std::fs::create_dir_all(dir)?;
     let file = stations::from_conf(conf, dir)?;
     let text = format!(

@@ -122,17 +122,30 @@ impl Section {
 }
 
 fn mm(v: Option<f64>) -> String {
-    v.map(|v| format!("{:.3}", v * 1e3)).unwrap_or_else(|| "-".into())
+    v.map(|v| format!("{:.3}", v * 1e3))
+        .unwrap_or_else(|| "-".into())
 }
 
 /// A table a person reads at the end of a run. Distances in millimetres.
 pub fn summary_table(report: &Report) -> String {
     let mut out = format!(
         "{:<12} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>9} {:>9} {:>8}\n",
-        "station", "points", "rejected", "no-match", "mean mm", "std mm", "|d|50 mm", "|d|95 mm",
-        "max mm", "in tol %"
+        "station",
+        "points",
+        "rejected",
+        "no-match",
+        "mean mm",
+        "std mm",
+        "|d|50 mm",
+        "|d|95 mm",
+        "max mm",
+        "in tol %"
     );
-    for s in report.stations.iter().chain(std::iter::once(&report.overall)) {
+    for s in report
+        .stations
+        .iter()
+        .chain(std::iter::once(&report.overall))
+    {
         if std::ptr::eq(s, &report.overall) {
             out.push_str(&"-".repeat(98));
             out.push('\n');
@@ -142,7 +155,10 @@ pub fn summary_table(report: &Report) -> String {
             _ => None,
         };
         let in_tol = if s.matched > 0 {
-            format!("{:.1}", 100.0 * s.within_tolerance as f64 / s.matched as f64)
+            format!(
+                "{:.1}",
+                100.0 * s.within_tolerance as f64 / s.matched as f64
+            )
         } else {
             "-".into()
         };

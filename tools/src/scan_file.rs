@@ -47,9 +47,9 @@ fn read_ply(mut reader: impl BufRead, path: &Path) -> Result<Vec<ScanPoint>> {
     let mut out = Vec::with_capacity(vertices.len());
     for (i, v) in vertices.iter().enumerate() {
         let coord = |k: &str| -> Result<f32> {
-            v.get(k)
-                .and_then(scalar)
-                .with_context(|| format!("scan {}: vertex {i} has no numeric `{k}`", path.display()))
+            v.get(k).and_then(scalar).with_context(|| {
+                format!("scan {}: vertex {i} has no numeric `{k}`", path.display())
+            })
         };
         let mut p = ScanPoint::new(coord("x")?, coord("y")?, coord("z")?);
         if let Some(intensity) = v.get("intensity").and_then(scalar) {

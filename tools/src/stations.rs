@@ -64,6 +64,18 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
         if !seen.insert(s.id.clone()) {
             problems.push(format!("station {:?} is listed twice", s.id));
         }
+        let scan = if s.scan.is_absolute() {
+            s.scan.clone()
+        } else {
+            base.join(&s.scan)
+        };
+        if !scan.is_file() {
+            problems.push(format!(
+                "station {:?}: scan file {} does not exist",
+                s.id,
+                scan.display()
+            ));
+        }
         let (Some(t), Some(r)) = (s.translation, s.rotation_xyzw) else {
             problems.push(format!(
                 "station {:?} has no pose: give both translation = [x, y, z] (metres) and \
@@ -81,18 +93,9 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
         };
         let sigma = s.position_sigma.unwrap_or(DEFAULT_POSITION_SIGMA);
         if !(sigma >= 0.0 && sigma.is_finite()) {
-            problems.push(format!("station {:?}: position_sigma must be >= 0 metres", s.id));
-        }
-        let scan = if s.scan.is_absolute() {
-            s.scan.clone()
-        } else {
-            base.join(&s.scan)
-        };
-        if !scan.is_file() {
             problems.push(format!(
-                "station {:?}: scan file {} does not exist",
-                s.id,
-                scan.display()
+                "station {:?}: position_sigma must be >= 0 metres",
+                s.id
             ));
         }
         out.push(Station {
@@ -111,8 +114,8 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
 /// Converts a Stanford/Scanalyze `.conf` (`bmesh FILE tx ty tz qx qy qz qw`, where
 /// `p_mesh = R(q)ᵀ · p_scan + t`) into stations. Scan paths are written relative to `out_dir`.
 pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
-    let text = std::fs::read_to_string(conf)
-        .with_context(|| format!("cannot read {}", conf.display()))?;
+    let text =
+        std::fs::read_to_string(conf).with_context(|| format!("cannot read {}", conf.display()))?;
     let dir = conf.parent().unwrap_or(Path::new("."));
     let mut station = Vec::new();
     for (n, line) in text.lines().enumerate() {
@@ -121,7 +124,11 @@ pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
             continue; // `camera` lines are a viewpoint, not a station
         }
         if f.len() != 9 {
-            bail!("{} line {}: expected `bmesh FILE tx ty tz qx qy qz qw`", conf.display(), n + 1);
+            bail!(
+                "{} line {}: expected `bmesh FILE tx ty tz qx qy qz qw`",
+                conf.display(),
+                n + 1
+            );
         }
         let nums: Vec<f64> = f[2..]
             .iter()

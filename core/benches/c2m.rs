@@ -27,7 +27,11 @@ fn noisy_surface_points(design: &Design, n: usize) -> Vec<Point3<f64>> {
         let [a, b, c] = t.map(|i| design.vertices[i as usize]);
         for _ in 0..per_triangle {
             let (u, v): (f64, f64) = (rng.random(), rng.random());
-            let (u, v) = if u + v > 1.0 { (1.0 - u, 1.0 - v) } else { (u, v) };
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
             let g = |rng: &mut ChaCha8Rng| {
                 // Box–Muller: σ = 0.5 mm per axis.
                 let (u1, u2): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
@@ -44,7 +48,8 @@ fn noisy_surface_points(design: &Design, n: usize) -> Vec<Point3<f64>> {
 }
 
 fn bench(c: &mut Criterion) {
-    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/stanford-bunny/bun_zipper.ply");
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/stanford-bunny/bun_zipper.ply");
     let design = Design::load(&mesh, Units::Metres).expect("bunny mesh in ../shared/data");
     let t0 = Instant::now();
     let index = C2mIndex::build(
@@ -83,7 +88,11 @@ fn bench(c: &mut Criterion) {
     let mut devs = vec![PointDeviation::default(); 1 << 16];
     g.bench_function("station_inspector", |b| {
         b.iter(|| {
-            let mut st = StationInspector::new(&index, Isometry3::identity(), InspectConfig::with_tolerance(0.005));
+            let mut st = StationInspector::new(
+                &index,
+                Isometry3::identity(),
+                InspectConfig::with_tolerance(0.005),
+            );
             for chunk in scan.chunks(1 << 16) {
                 st.process(chunk, &mut devs[..chunk.len()]);
             }

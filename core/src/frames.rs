@@ -175,7 +175,8 @@ mod tests {
             Err(FrameError::NonFinite(..))
         ));
         // Four printed decimals are accepted and normalised.
-        let t = isometry([0.0; 3], [0.0, 0.0, 0.7071, 0.7071]).unwrap();
+        let printed = (FRAC_1_SQRT_2 * 1e4).round() / 1e4;
+        let t = isometry([0.0; 3], [0.0, 0.0, printed, printed]).unwrap();
         assert!((t.rotation.quaternion().norm() - 1.0).abs() < 1e-15);
         let mut pose = PoseSnapshot::new(1, 1, PoseMode::SixDof);
         pose.mode = 7;

@@ -26,7 +26,8 @@ fn sample_report() -> StationReport {
 fn every_message_round_trips_through_postcard() {
     let mut pose = PoseSnapshot::new(1, 2, PoseMode::FixedOrientation);
     pose.translation = [1.5, -2.25, 0.125];
-    pose.rotation_xyzw = [0.0, 0.0, 0.70710678, 0.70710678];
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    pose.rotation_xyzw = [0.0, 0.0, h, h];
     assert_eq!(
         codec::decode::<PoseSnapshot>(&codec::encode(&pose)).unwrap(),
         pose

@@ -1,0 +1,135 @@
+//! The Stanford bunny stations through protocol and core together.
+
+use std::path::{Path, PathBuf};
+
+use asbuilt_core::station::{InspectConfig, StationInspector};
+use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
+use asbuilt_protocol::{DeviationFlags, PointDeviation, ScanPoint, StationReport, codec};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{DefaultElement, Property};
+
+fn bunny_dir() -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/stanford-bunny");
+    assert!(p.is_dir(), "test data not found at {}", p.display());
+    p
+}
+
+/// `bmesh FILE tx ty tz qx qy qz qw` with `p_mesh = R(q)ᵀ p_scan + t` (the data's README).
+fn stations() -> Vec<(String, Isometry3<f64>)> {
+    let text = std::fs::read_to_string(bunny_dir().join("scans/bun.conf")).unwrap();
+    text.lines()
+        .filter(|l| l.starts_with("bmesh"))
+        .map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let n: Vec<f64> = f[2..].iter().map(|s| s.parse().unwrap()).collect();
+            let q = UnitQuaternion::from_quaternion(Quaternion::new(n[6], n[3], n[4], n[5]));
+            let t = Isometry3::from_parts(
+                Translation3::from(Vector3::new(n[0], n[1], n[2])),
+                q.conjugate(),
+            );
+            (f[1].to_string(), t)
+        })
+        .collect()
+}
+
+fn read_scan(name: &str) -> Vec<ScanPoint> {
+    let mut f =
+        std::io::BufReader::new(std::fs::File::open(bunny_dir().join("scans").join(name)).unwrap());
+    let ply = Parser::<DefaultElement>::new().read_ply(&mut f).unwrap();
+    ply.payload["vertex"]
+        .iter()
+        .map(|v| {
+            let c = |k: &str| match v[k] {
+                Property::Float(x) => x,
+                _ => panic!("float coordinates expected"),
+            };
+            ScanPoint::new(c("x"), c("y"), c("z"))
+        })
+        .collect()
+}
+
+fn inspect(
+    index: &C2mIndex,
+    t: Isometry3<f64>,
+    points: &[ScanPoint],
+    chunk: usize,
+) -> (StationReport, Vec<PointDeviation>) {
+    let mut st = StationInspector::new(index, t, InspectConfig::with_tolerance(0.005));
+    let mut all = vec![PointDeviation::default(); points.len()];
+    for (ps, out) in points.chunks(chunk).zip(all.chunks_mut(chunk)) {
+        st.process(ps, out);
+    }
+    (st.report(1, 9, "ear_back"), all)
+}
+
+#[test]
+fn every_no_match_point_is_truly_beyond_the_maximum_distance() {
+    let design = Design::load(&bunny_dir().join("bun_zipper.ply"), Units::Metres).unwrap();
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: 0.005,
+            cell_size: None,
+        },
+    )
+    .unwrap();
+    let far = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: 1.0,
+            cell_size: None,
+        },
+    )
+    .unwrap();
+    let mut no_match = 0;
+    for (name, t) in stations() {
+        let points = read_scan(&name);
+        let (report, devs) = inspect(&index, t, &points, 1 << 16);
+        assert_eq!(report.points_received as usize, points.len());
+        for d in devs
+            .iter()
+            .filter(|d| d.flags.contains(DeviationFlags::NO_MATCH))
+        {
+            no_match += 1;
+            let truth = far.brute_force(&d.position.into()).unwrap();
+            assert!(
+                truth.distance.abs() > 0.005,
+                "{name}: {d:?} is {} m away",
+                truth.distance
+            );
+            assert!(d.distance.is_nan(), "no-match is flagged, never clamped");
+        }
+    }
+    // One stray point in ear_back.ply, 79 mm from the surface.
+    assert_eq!(no_match, 1);
+}
+
+#[test]
+fn station_reports_do_not_depend_on_chunking() {
+    let design = Design::load(&bunny_dir().join("bun_zipper_res2.ply"), Units::Metres).unwrap();
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: 0.005,
+            cell_size: None,
+        },
+    )
+    .unwrap();
+    let (name, t) = stations().into_iter().last().unwrap();
+    let points = read_scan(&name);
+    let (a, da) = inspect(&index, t, &points, 65_536);
+    let (b, db) = inspect(&index, t, &points, 997);
+    let (c, _) = inspect(&index, t, &points, 1);
+    // Bit-identical encodings (NaN fields compare equal as bytes, not as floats).
+    assert_eq!(codec::encode(&a), codec::encode(&b));
+    assert_eq!(codec::encode(&a), codec::encode(&c));
+    assert_eq!(da.len(), db.len());
+    for (x, y) in da.iter().zip(&db) {
+        assert_eq!(x.distance.to_bits(), y.distance.to_bits());
+        assert_eq!(x.triangle, y.triangle);
+    }
+    let back: StationReport = codec::decode(&codec::encode(&a)).unwrap();
+    assert_eq!(back.stats.count, a.stats.count);
+    assert!(a.stats.count > 30_000);
+}

@@ -17,6 +17,21 @@ pub trait Message: Serialize + DeserializeOwned {
     fn version(&self) -> u16;
 }
 
+/// Implements [`Message`] for a payload with a `version: u16` field. The name must match the
+/// type's `#[type_name]`, which iceoryx2 compares; a test checks that they agree.
+macro_rules! message {
+    ($ty:ty, $name:literal, $version:literal) => {
+        impl $crate::codec::Message for $ty {
+            const TYPE_NAME: &'static str = $name;
+            const VERSION: u16 = $version;
+            fn version(&self) -> u16 {
+                self.version
+            }
+        }
+    };
+}
+pub(crate) use message;
+
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DecodeError {
     #[error(

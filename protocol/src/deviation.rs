@@ -24,13 +24,7 @@ pub struct DeviationHeader {
     pub out_of_tolerance: u32,
 }
 
-impl Message for DeviationHeader {
-    const TYPE_NAME: &'static str = "asbuilt.DeviationHeader.v1";
-    const VERSION: u16 = 1;
-    fn version(&self) -> u16 {
-        self.version
-    }
-}
+crate::codec::message!(DeviationHeader, "asbuilt.DeviationHeader.v1", 1);
 
 impl DeviationHeader {
     pub fn new(job: u64, station: u32, sequence: u64) -> Self {

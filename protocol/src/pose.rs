@@ -48,13 +48,7 @@ pub struct PoseSnapshot {
     pub position_sigma: f64,
 }
 
-impl Message for PoseSnapshot {
-    const TYPE_NAME: &'static str = "asbuilt.PoseSnapshot.v1";
-    const VERSION: u16 = 1;
-    fn version(&self) -> u16 {
-        self.version
-    }
-}
+crate::codec::message!(PoseSnapshot, "asbuilt.PoseSnapshot.v1", 1);
 
 impl PoseSnapshot {
     /// `None` for a value no known sender writes.

@@ -140,13 +140,7 @@ pub struct StationReport {
     pub histogram: Histogram,
 }
 
-impl Message for StationReport {
-    const TYPE_NAME: &'static str = "asbuilt.StationReport.v1";
-    const VERSION: u16 = 1;
-    fn version(&self) -> u16 {
-        self.version
-    }
-}
+crate::codec::message!(StationReport, "asbuilt.StationReport.v1", 1);
 
 impl StationReport {
     pub fn status(&self) -> Option<StationStatus> {

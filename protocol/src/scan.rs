@@ -22,13 +22,7 @@ pub struct ChunkHeader {
     pub _reserved2: [u8; 3],
 }
 
-impl Message for ChunkHeader {
-    const TYPE_NAME: &'static str = "asbuilt.ChunkHeader.v1";
-    const VERSION: u16 = 1;
-    fn version(&self) -> u16 {
-        self.version
-    }
-}
+crate::codec::message!(ChunkHeader, "asbuilt.ChunkHeader.v1", 1);
 
 impl ChunkHeader {
     pub fn new(job: u64, station: u32, sequence: u64, point_count: u32) -> Self {

@@ -34,13 +34,7 @@ pub struct StationEvent {
     pub name: FixedText<48>,
 }
 
-impl Message for StationEvent {
-    const TYPE_NAME: &'static str = "asbuilt.StationEvent.v1";
-    const VERSION: u16 = 1;
-    fn version(&self) -> u16 {
-        self.version
-    }
-}
+crate::codec::message!(StationEvent, "asbuilt.StationEvent.v1", 1);
 
 impl StationEvent {
     pub fn kind(&self) -> Option<StationEventKind> {

@@ -96,7 +96,7 @@ fn bench(c: &mut Criterion) {
             for chunk in scan.chunks(1 << 16) {
                 st.process(chunk, &mut devs[..chunk.len()]);
             }
-            st.stats().count()
+            st.tally().stats.count()
         })
     });
     g.finish();

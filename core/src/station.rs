@@ -6,8 +6,7 @@
 //! State is the statistics only: memory does not grow with the number of points.
 
 use asbuilt_protocol::{
-    DeviationFlags, DeviationHeader, Feature, FixedText, PointDeviation, RejectCounts, ScanPoint,
-    StationReport,
+    DeviationFlags, Feature, FixedText, PointDeviation, RejectCounts, ScanPoint, StationReport,
 };
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
@@ -47,21 +46,62 @@ pub struct ChunkOutcome {
     pub out_of_tolerance: u32,
 }
 
+/// Everything counted for a set of points: a task, a chunk, a station or a whole job. Merging is
+/// exact, so a job's tally is the merge of its stations' whatever the order.
+#[derive(Clone)]
+pub struct Tally {
+    pub stats: DeviationAccumulator,
+    pub rejected: RejectCounts,
+    /// Every point that arrived, good or bad.
+    pub points_received: u64,
+    pub no_match: u64,
+}
+
+impl Tally {
+    pub fn new(config: StatsConfig) -> Self {
+        Self {
+            stats: DeviationAccumulator::new(config),
+            rejected: RejectCounts::default(),
+            points_received: 0,
+            no_match: 0,
+        }
+    }
+
+    pub fn merge(&mut self, other: &Self) {
+        self.stats.merge(&other.stats);
+        self.rejected += other.rejected;
+        self.points_received += other.points_received;
+        self.no_match += other.no_match;
+    }
+
+    /// A report of these counts. What a tally cannot know (maximum distance, pose σ, layer,
+    /// chunk counts) is the caller's to fill in.
+    pub fn report(&self, job: u64, station: u32, name: &str) -> StationReport {
+        let mut r = StationReport::new(job, station);
+        r.name = FixedText::truncated(name);
+        r.tolerance = self.stats.config().tolerance;
+        r.points_received = self.points_received;
+        r.no_match = self.no_match;
+        r.stats = self.stats.finish();
+        r.rejected = self.rejected;
+        r.histogram = self.stats.histogram();
+        r
+    }
+
+    fn outcome(&self) -> ChunkOutcome {
+        ChunkOutcome {
+            rejected: self.rejected.total() as u32,
+            no_match: self.no_match as u32,
+            out_of_tolerance: self.stats.out_of_tolerance() as u32,
+        }
+    }
+}
+
 pub struct StationInspector<'a> {
     index: &'a C2mIndex,
     t_design_scanner: Isometry3<f64>,
     config: InspectConfig,
-    stats: DeviationAccumulator,
-    rejected: RejectCounts,
-    points_received: u64,
-    no_match: u64,
-}
-
-struct TaskTally {
-    stats: DeviationAccumulator,
-    rejected: RejectCounts,
-    outcome: ChunkOutcome,
-    no_match: u64,
+    tally: Tally,
 }
 
 impl<'a> StationInspector<'a> {
@@ -74,17 +114,14 @@ impl<'a> StationInspector<'a> {
             index,
             t_design_scanner,
             config,
-            stats: DeviationAccumulator::new(config.stats),
-            rejected: RejectCounts::default(),
-            points_received: 0,
-            no_match: 0,
+            tally: Tally::new(config.stats),
         }
     }
 
     /// Counts points that could not be used because their station has no pose.
     pub fn reject_without_pose(&mut self, points: u64) {
-        self.points_received += points;
-        self.rejected.without_pose += points;
+        self.tally.points_received += points;
+        self.tally.rejected.without_pose += points;
     }
 
     /// Processes one chunk; `out[i]` receives the deviation of `points[i]`.
@@ -93,72 +130,30 @@ impl<'a> StationInspector<'a> {
         let index = self.index;
         let t = self.t_design_scanner;
         let config = self.config;
-        let tally = points
+        let chunk = points
             .par_chunks(TASK_POINTS)
             .zip(out.par_chunks_mut(TASK_POINTS))
             .map(|(ps, os)| inspect_task(index, &t, &config, ps, os))
             .reduce_with(|mut a, b| {
-                a.stats.merge(&b.stats);
-                a.rejected += b.rejected;
-                a.outcome.rejected += b.outcome.rejected;
-                a.outcome.no_match += b.outcome.no_match;
-                a.outcome.out_of_tolerance += b.outcome.out_of_tolerance;
-                a.no_match += b.no_match;
+                a.merge(&b);
                 a
             });
-        self.points_received += points.len() as u64;
-        let Some(tally) = tally else {
+        let Some(chunk) = chunk else {
             return ChunkOutcome::default();
         };
-        self.stats.merge(&tally.stats);
-        self.rejected += tally.rejected;
-        self.no_match += tally.no_match;
-        tally.outcome
+        self.tally.merge(&chunk);
+        chunk.outcome()
     }
 
-    /// Fills a deviation chunk header for the outcome of [`Self::process`].
-    pub fn header(
-        job: u64,
-        station: u32,
-        sequence: u64,
-        count: usize,
-        o: ChunkOutcome,
-    ) -> DeviationHeader {
-        let mut h = DeviationHeader::new(job, station, sequence);
-        h.point_count = count as u32;
-        h.rejected = o.rejected;
-        h.no_match = o.no_match;
-        h.out_of_tolerance = o.out_of_tolerance;
-        h
-    }
-
-    pub fn stats(&self) -> &DeviationAccumulator {
-        &self.stats
-    }
-
-    pub fn rejected(&self) -> RejectCounts {
-        self.rejected
-    }
-
-    pub fn points_received(&self) -> u64 {
-        self.points_received
-    }
-
-    pub fn no_match(&self) -> u64 {
-        self.no_match
+    /// What the station has counted so far.
+    pub fn tally(&self) -> &Tally {
+        &self.tally
     }
 
     /// The station's report so far.
     pub fn report(&self, job: u64, station: u32, name: &str) -> StationReport {
-        let mut r = StationReport::new(job, station);
-        r.name = FixedText::truncated(name);
-        r.tolerance = self.config.stats.tolerance;
+        let mut r = self.tally.report(job, station, name);
         r.max_distance = self.index.max_distance();
-        r.points_received = self.points_received;
-        r.no_match = self.no_match;
-        r.stats = self.stats.finish();
-        r.rejected = self.rejected;
-        r.histogram = self.stats.histogram();
         r
     }
 }
@@ -169,13 +164,9 @@ fn inspect_task(
     config: &InspectConfig,
     points: &[ScanPoint],
     out: &mut [PointDeviation],
-) -> TaskTally {
-    let mut tally = TaskTally {
-        stats: DeviationAccumulator::new(config.stats),
-        rejected: RejectCounts::default(),
-        outcome: ChunkOutcome::default(),
-        no_match: 0,
-    };
+) -> Tally {
+    let mut tally = Tally::new(config.stats);
+    tally.points_received = points.len() as u64;
     let mut cursor = Cursor::default();
     let tol = config.stats.tolerance;
     for (sp, o) in points.iter().zip(out) {
@@ -191,7 +182,6 @@ fn inspect_task(
         };
         if let Some(counter) = reject {
             *counter += 1;
-            tally.outcome.rejected += 1;
             *o = PointDeviation {
                 position: [x as f64, y as f64, z as f64],
                 distance: f64::NAN,
@@ -207,7 +197,6 @@ fn inspect_task(
         *o = match index.query(&p, &mut cursor) {
             None => {
                 tally.no_match += 1;
-                tally.outcome.no_match += 1;
                 PointDeviation {
                     position: p.into(),
                     distance: f64::NAN,
@@ -223,7 +212,6 @@ fn inspect_task(
                 let mut flags = 0;
                 if c.distance.abs() > tol {
                     flags |= DeviationFlags::OUT_OF_TOLERANCE;
-                    tally.outcome.out_of_tolerance += 1;
                 }
                 let (feature, feature_index) = match c.region {
                     Region::Face => (Feature::Face, 0),

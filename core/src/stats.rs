@@ -86,6 +86,11 @@ impl DeviationAccumulator {
         self.count
     }
 
+    /// Distances outside the tolerance band, either side.
+    pub fn out_of_tolerance(&self) -> u64 {
+        self.above + self.below
+    }
+
     /// Adds one signed distance in metres. Non-finite values are the caller's to reject.
     #[inline]
     pub fn push(&mut self, d: f64) {

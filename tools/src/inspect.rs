@@ -5,10 +5,9 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use asbuilt_core::station::{InspectConfig, StationInspector};
-use asbuilt_core::stats::DeviationAccumulator;
+use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
 use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
-use asbuilt_protocol::{DeviationFlags, PointDeviation, RejectCounts, StationReport};
+use asbuilt_protocol::{DeviationFlags, PointDeviation};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Point3;
@@ -100,9 +99,8 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     let design_size = (design_hi - design_lo).norm();
 
     let mut sections = Vec::new();
-    let mut total = DeviationAccumulator::new(config.stats);
-    let mut total_rejected = RejectCounts::default();
-    let (mut total_points, mut total_no_match, mut total_malformed) = (0u64, 0u64, 0u64);
+    let mut total = Tally::new(config.stats);
+    let mut total_malformed = 0u64;
     let mut failed = Vec::new();
     let mut buffer = vec![PointDeviation::default(); CHUNK];
 
@@ -168,13 +166,9 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
                 warnings.push(w);
             }
         }
-        let report: StationReport = inspector.report(0, n as u32, &station.id);
-        let mut report = report;
+        let mut report = inspector.report(0, n as u32, &station.id);
         report.position_sigma = station.position_sigma;
-        total.merge(inspector.stats());
-        total_rejected += inspector.rejected();
-        total_points += inspector.points_received();
-        total_no_match += inspector.no_match();
+        total.merge(inspector.tally());
         total_malformed += notes.malformed_lines;
         let section = Section::from_report(
             &report,
@@ -195,14 +189,8 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     }
     let written = ply.finish()?;
 
-    let mut overall = StationReport::new(0, u32::MAX);
-    overall.name = asbuilt_protocol::FixedText::truncated("overall");
-    overall.points_received = total_points;
-    overall.no_match = total_no_match;
-    overall.rejected = total_rejected;
-    overall.stats = total.finish();
-    overall.histogram = total.histogram();
-    let overall = Section::from_report(&overall, None, total_malformed);
+    let overall =
+        Section::from_report(&total.report(0, u32::MAX, "overall"), None, total_malformed);
 
     if overall.matched == 0 {
         warnings.push(format!(

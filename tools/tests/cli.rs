@@ -34,6 +34,34 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `asbuilt inspect` on one scan taken from `translation` (x,y,z) with no rotation.
+fn inspect_scan(
+    design: &str,
+    units: &str,
+    scan: &Path,
+    translation: &str,
+    out: &str,
+    extra: &[&str],
+) -> Output {
+    let mut args = vec![
+        "inspect",
+        "--design",
+        design,
+        "--units",
+        units,
+        "--scan",
+        s(scan),
+        "--translation",
+        translation,
+        "--rotation-xyzw",
+        "0,0,0,1",
+        "--out",
+        out,
+    ];
+    args.extend_from_slice(extra);
+    asbuilt(&args)
+}
+
 /// The unit cube [-0.5, 0.5]³ as an ASCII STL, scaled by `scale` (1000 for millimetres).
 fn cube_stl(path: &Path, scale: f64) {
     let v = |i: usize| {
@@ -164,23 +192,14 @@ fn known_offset_on_a_cube_single_scan() {
     let scan = dir.path().join("top.xyz");
     let n = top_face_scan(&scan, 0.003, false);
     let out = dir.path().join("out");
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
+    let o = inspect_scan(
         s(&stl),
-        "--units",
         "mm",
-        "--scan",
-        s(&scan),
-        "--translation",
+        &scan,
         "0,0,2",
-        "--rotation-xyzw",
-        "0,0,0,1",
-        "--tolerance",
-        "0.002",
-        "--out",
         s(&out),
-    ]);
+        &["--tolerance", "0.002"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let r = report(&out);
     let st = &r["overall"];
@@ -203,21 +222,7 @@ fn nan_points_are_rejected_counted_and_the_rest_kept() {
     let scan = dir.path().join("top.xyz");
     let n = top_face_scan(&scan, -0.001, true);
     let out = dir.path().join("out");
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
-        s(&stl),
-        "--units",
-        "m",
-        "--scan",
-        s(&scan),
-        "--translation",
-        "0,0,2",
-        "--rotation-xyzw",
-        "0,0,0,1",
-        "--out",
-        s(&out),
-    ]);
+    let o = inspect_scan(s(&stl), "m", &scan, "0,0,2", s(&out), &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let st = &report(&out)["overall"];
     assert_eq!(st["rejected_by_reason"]["non_finite"], 3);
@@ -231,21 +236,14 @@ fn missing_design_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let scan = dir.path().join("s.xyz");
     top_face_scan(&scan, 0.0, false);
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
+    let o = inspect_scan(
         "/no/such/design.stl",
-        "--units",
         "m",
-        "--scan",
-        s(&scan),
-        "--translation",
+        &scan,
         "0,0,0",
-        "--rotation-xyzw",
-        "0,0,0,1",
-        "--out",
         s(dir.path()),
-    ]);
+        &[],
+    );
     assert_eq!(o.status.code(), Some(2));
     assert!(
         stderr(&o).contains("cannot open design file /no/such/design.stl"),
@@ -265,21 +263,7 @@ fn design_without_triangles_is_a_clear_error() {
     .unwrap();
     let scan = dir.path().join("s.xyz");
     top_face_scan(&scan, 0.0, false);
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
-        s(&ply),
-        "--units",
-        "m",
-        "--scan",
-        s(&scan),
-        "--translation",
-        "0,0,0",
-        "--rotation-xyzw",
-        "0,0,0,1",
-        "--out",
-        s(dir.path()),
-    ]);
+    let o = inspect_scan(s(&ply), "m", &scan, "0,0,0", s(dir.path()), &[]);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("no usable triangles"), "{}", stderr(&o));
 }
@@ -325,21 +309,7 @@ fn millimetre_design_declared_as_metres_is_caught() {
     let scan = dir.path().join("top.xyz");
     top_face_scan(&scan, 0.0, false);
     let out = dir.path().join("out");
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
-        s(&stl),
-        "--units",
-        "m",
-        "--scan",
-        s(&scan),
-        "--translation",
-        "0,0,2",
-        "--rotation-xyzw",
-        "0,0,0,1",
-        "--out",
-        s(&out),
-    ]);
+    let o = inspect_scan(s(&stl), "m", &scan, "0,0,2", s(&out), &[]);
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{e}");
     assert!(e.contains("check --units"), "{e}");

@@ -108,6 +108,10 @@ impl Bvh {
         Self { nodes, order }
     }
 
+    pub fn bytes(&self) -> usize {
+        self.nodes.len() * size_of::<Node>() + self.order.len() * size_of::<u32>()
+    }
+
     /// The triangle closest to `p` among those within `sqrt(limit2)`, with its squared distance;
     /// ties go to the lowest index. `hint` (a triangle likely to be close, such as the previous
     /// point's) tightens the bound before the descent.

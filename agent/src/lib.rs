@@ -1,7 +1,16 @@
-//! The asbuilt edge agent. This crate will hold the iceoryx2 event loop, the station lifecycle,
-//! the recorder and the viewer link (issue 4 onwards). What exists so far is the bookkeeping of
-//! a station's chunk stream, which the event loop feeds and the station report reads.
+//! The asbuilt edge agent: it serves scan chunks, poses and station events over iceoryx2, turns
+//! every chunk into deviations as it arrives, and closes each station with a report.
+//!
+//! Layers, from the outside in: [`daemon`] runs the event loop over [`ipc`] ports; [`lifecycle`]
+//! decides what each message means for its station, with [`sequence`] doing the chunk
+//! bookkeeping; the geometry is `asbuilt-core`'s.
 
+pub mod config;
+pub mod daemon;
+pub mod ipc;
+pub mod lifecycle;
+pub mod log;
 pub mod sequence;
 
+pub use config::AgentConfig;
 pub use sequence::{ChunkVerdict, SequenceTracker};

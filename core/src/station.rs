@@ -118,6 +118,17 @@ impl<'a> StationInspector<'a> {
         }
     }
 
+    /// Sets the scanner pose for the chunks that follow (a station can open before its pose).
+    pub fn set_pose(&mut self, t_design_scanner: Isometry3<f64>) {
+        self.t_design_scanner = t_design_scanner;
+    }
+
+    /// Counts points that arrived but were not inspected, under the given reason.
+    pub fn reject(&mut self, points: u64, reason: fn(&mut RejectCounts) -> &mut u64) {
+        self.tally.points_received += points;
+        *reason(&mut self.tally.rejected) += points;
+    }
+
     /// Counts points that could not be used because their station has no pose.
     pub fn reject_without_pose(&mut self, points: u64) {
         self.tally.points_received += points;

@@ -26,6 +26,13 @@ pub struct DeviationHeader {
 
 crate::codec::message!(DeviationHeader, "asbuilt.DeviationHeader.v1", 1);
 
+/// Required by iceoryx2 to loan a sample with this header; a real header comes from `new`.
+impl Default for DeviationHeader {
+    fn default() -> Self {
+        Self::new(0, 0, 0)
+    }
+}
+
 impl DeviationHeader {
     pub fn new(job: u64, station: u32, sequence: u64) -> Self {
         Self {

@@ -15,6 +15,7 @@ mod pose;
 mod report;
 mod scan;
 mod station;
+mod status;
 mod text;
 
 pub use codec::{DecodeError, Message};
@@ -26,6 +27,7 @@ pub use report::{
 };
 pub use scan::{ChunkHeader, ScanPoint, ScanPointFlags};
 pub use station::{StationEvent, StationEventKind};
+pub use status::{AgentState, AgentStatus, InputRejects, OutputDrops};
 pub use text::{FixedText, TextTooLong};
 
 /// Checks the version field that every payload carries, for payloads that arrive through shared

@@ -66,6 +66,9 @@ pub struct RejectCounts {
     pub scanner_invalid: u64,
     /// Arrived for a station without a usable pose.
     pub without_pose: u64,
+    /// In a chunk rejected whole: oversized, repeated, too late, or whose header disagrees with
+    /// its payload.
+    pub in_rejected_chunks: u64,
 }
 
 impl std::ops::AddAssign for RejectCounts {
@@ -74,12 +77,17 @@ impl std::ops::AddAssign for RejectCounts {
         self.out_of_range += o.out_of_range;
         self.scanner_invalid += o.scanner_invalid;
         self.without_pose += o.without_pose;
+        self.in_rejected_chunks += o.in_rejected_chunks;
     }
 }
 
 impl RejectCounts {
     pub fn total(&self) -> u64 {
-        self.non_finite + self.out_of_range + self.scanner_invalid + self.without_pose
+        self.non_finite
+            + self.out_of_range
+            + self.scanner_invalid
+            + self.without_pose
+            + self.in_rejected_chunks
     }
 }
 

@@ -24,6 +24,13 @@ pub struct ChunkHeader {
 
 crate::codec::message!(ChunkHeader, "asbuilt.ChunkHeader.v1", 1);
 
+/// Required by iceoryx2 to loan a sample with this header; a real header comes from `new`.
+impl Default for ChunkHeader {
+    fn default() -> Self {
+        Self::new(0, 0, 0, 0)
+    }
+}
+
 impl ChunkHeader {
     pub fn new(job: u64, station: u32, sequence: u64, point_count: u32) -> Self {
         Self {

@@ -48,6 +48,16 @@ fn every_message_round_trips_through_postcard() {
     assert_eq!(back.stats, report.stats);
     assert_eq!(back.status(), Some(StationStatus::Complete));
 
+    let mut status = AgentStatus::new(4242);
+    status.state = AgentState::ShuttingDown as u8;
+    status.points_per_second = 2.1e6;
+    status.input.chunks_unknown_station = 3;
+    status.output.reports = 1;
+    status.rejected_points.in_rejected_chunks = 5000;
+    let back = codec::decode::<AgentStatus>(&codec::encode(&status)).unwrap();
+    assert_eq!(back, status);
+    assert_eq!(back.state(), Some(AgentState::ShuttingDown));
+
     let points: Vec<ScanPoint> = (0..1000)
         .map(|i| ScanPoint::new(i as f32 * 0.001, -(i as f32), 3.0))
         .collect();
@@ -141,6 +151,7 @@ fn layouts_are_fixed_and_aligned_for_shared_memory() {
         (size_of::<PoseSnapshot>(), align_of::<PoseSnapshot>()),
         (size_of::<StationReport>(), align_of::<StationReport>()),
         (size_of::<ChunkHeader>(), align_of::<ChunkHeader>()),
+        (size_of::<AgentStatus>(), align_of::<AgentStatus>()),
     ] {
         assert_eq!(align, 8);
         assert_eq!(size % align, 0);
@@ -156,6 +167,7 @@ fn iceoryx2_type_names_carry_the_version() {
         assert_eq!(StationEvent::type_name(), StationEvent::TYPE_NAME);
         assert_eq!(DeviationHeader::type_name(), DeviationHeader::TYPE_NAME);
         assert_eq!(StationReport::type_name(), StationReport::TYPE_NAME);
+        assert_eq!(AgentStatus::type_name(), AgentStatus::TYPE_NAME);
         assert_eq!(ScanPoint::type_name(), "asbuilt.ScanPoint.v1");
         assert_eq!(PointDeviation::type_name(), "asbuilt.PointDeviation.v1");
     }

@@ -2,6 +2,7 @@
 
 mod deviations_ply;
 mod inspect;
+mod publish;
 mod report;
 mod scan_file;
 mod stations;
@@ -26,6 +27,8 @@ struct Cli {
 enum Command {
     /// Compare scans with the design: signed distances per point, statistics per station.
     Inspect(inspect::InspectArgs),
+    /// Stream scans with known poses into a running asbuilt-agent, station by station.
+    Publish(publish::PublishArgs),
     /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
     ImportConf {
         /// The .conf file.
@@ -40,6 +43,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(args),
+        Command::Publish(args) => publish::run(args),
         Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
     };
     match result {

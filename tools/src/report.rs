@@ -63,6 +63,7 @@ pub struct RejectSection {
     pub out_of_range: u64,
     pub scanner_invalid: u64,
     pub without_pose: u64,
+    pub in_rejected_chunks: u64,
     pub malformed_lines: u64,
 }
 
@@ -96,6 +97,7 @@ impl Section {
                 out_of_range: rej.out_of_range,
                 scanner_invalid: rej.scanner_invalid,
                 without_pose: rej.without_pose,
+                in_rejected_chunks: rej.in_rejected_chunks,
                 malformed_lines,
             },
             no_match: r.no_match,

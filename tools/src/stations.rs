@@ -33,6 +33,9 @@ pub struct Station {
     pub id: String,
     pub scan: PathBuf,
     pub t_design_scanner: Isometry3<f64>,
+    /// The pose as written, so a publisher sends exactly the numbers `inspect` used.
+    pub translation: [f64; 3],
+    pub rotation_xyzw: [f64; 4],
     pub position_sigma: f64,
 }
 
@@ -102,6 +105,8 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
             id: s.id,
             scan,
             t_design_scanner: pose,
+            translation: t,
+            rotation_xyzw: r,
             position_sigma: sigma,
         });
     }

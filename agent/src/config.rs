@@ -1,0 +1,466 @@
+//! `agent.toml`: what the agent inspects against, how poses become design-frame transforms, which
+//! services it serves, and its limits. Loading validates everything and lists every problem with
+//! its key, so one run of `asbuilt-agent --check-config` finds them all.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use asbuilt_core::Units;
+use asbuilt_core::frames::{FrameChain, isometry};
+use nalgebra::UnitQuaternion;
+use serde::Deserialize;
+use serde::de::DeserializeOwned;
+
+/// Methods this build can run in the agent. The deviation suite (C2C, coverage, M3C2) arrives
+/// with its own issue; asking for it now is a configuration error, not a silent no-op.
+pub const AVAILABLE_METHODS: &[&str] = &["c2m"];
+
+#[derive(Debug, Clone)]
+pub struct AgentConfig {
+    /// The file the configuration was read from, for messages.
+    pub source: PathBuf,
+    pub design: DesignConfig,
+    pub frames: FrameChain,
+    pub inspect: InspectSettings,
+    pub services: ServicesConfig,
+    pub limits: Limits,
+    pub status: StatusConfig,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DesignConfig {
+    /// Relative paths are relative to the configuration file.
+    pub path: PathBuf,
+    /// `m` or `mm`: the unit the design file is written in. Never guessed.
+    pub units: String,
+}
+
+impl DesignConfig {
+    pub fn units(&self) -> Units {
+        self.units.parse().unwrap_or(Units::Metres)
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Transform {
+    translation: [f64; 3],
+    rotation_xyzw: [f64; 4],
+}
+
+#[derive(Debug, Clone, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct CalibrationSection {
+    t_design_base: Option<Transform>,
+    t_flange_scanner: Option<Transform>,
+    r_base_flange_xyzw: Option<[f64; 4]>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InspectSettings {
+    pub methods: Vec<String>,
+    /// Metres: |d| <= tolerance is within tolerance.
+    pub tolerance: f64,
+    /// Metres; points farther from the design have no match. Default 10 × tolerance.
+    pub max_distance: Option<f64>,
+    /// Metres, scanner frame: coordinates beyond this are rejected as out of range.
+    pub max_range: f64,
+    /// Metres; grid cell of the C2M index. Default: chosen from the design's edge length.
+    pub cell_size: Option<f64>,
+}
+
+impl Default for InspectSettings {
+    fn default() -> Self {
+        Self {
+            methods: vec!["c2m".into()],
+            tolerance: 0.005,
+            max_distance: None,
+            max_range: asbuilt_core::station::DEFAULT_MAX_RANGE,
+            cell_size: None,
+        }
+    }
+}
+
+impl InspectSettings {
+    pub fn max_distance(&self) -> f64 {
+        self.max_distance.unwrap_or(10.0 * self.tolerance)
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServicesConfig {
+    /// Every service name starts with this, e.g. `asbuilt/cell-1/scan/chunks`.
+    pub prefix: String,
+}
+
+impl Default for ServicesConfig {
+    fn default() -> Self {
+        Self {
+            prefix: "asbuilt".into(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Limits {
+    /// Largest chunk the agent accepts; also the size of each shared-memory sample.
+    pub max_points_per_chunk: usize,
+    /// Scan chunks queued in shared memory for the agent before the scanner is held back.
+    pub chunk_queue: usize,
+    /// Chunks held (zero-copy) while their station's pose has not arrived.
+    pub pending_chunks: usize,
+    /// Stations open at the same time.
+    pub open_stations: usize,
+    /// Seconds without a message for an open station before it closes as timed out.
+    pub station_timeout_s: f64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            max_points_per_chunk: 1 << 16,
+            chunk_queue: 32,
+            pending_chunks: 16,
+            open_stations: 4,
+            station_timeout_s: 30.0,
+        }
+    }
+}
+
+impl Limits {
+    pub fn station_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.station_timeout_s)
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StatusConfig {
+    /// Seconds between status messages and health log lines.
+    pub period_s: f64,
+}
+
+impl Default for StatusConfig {
+    fn default() -> Self {
+        Self { period_s: 5.0 }
+    }
+}
+
+impl StatusConfig {
+    pub fn period(&self) -> Duration {
+        Duration::from_secs_f64(self.period_s)
+    }
+}
+
+/// Every problem found in a configuration, each as `key: what is wrong; what to do`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{file}: {} problem(s):\n  - {}", problems.len(), problems.join("\n  - "))]
+pub struct ConfigError {
+    pub file: String,
+    pub problems: Vec<String>,
+}
+
+const SECTIONS: &[&str] = &[
+    "design",
+    "calibration",
+    "inspect",
+    "services",
+    "limits",
+    "status",
+];
+
+impl AgentConfig {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let fail = |p: String| ConfigError {
+            file: path.display().to_string(),
+            problems: vec![p],
+        };
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| fail(format!("cannot read the configuration: {e}")))?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        Self::parse(&text, base, path)
+    }
+
+    /// Parses and validates `text`; relative paths are resolved against `base`.
+    pub fn parse(text: &str, base: &Path, source: &Path) -> Result<Self, ConfigError> {
+        let mut problems = Vec::new();
+        let table: toml::Table = toml::from_str(text).map_err(|e| ConfigError {
+            file: source.display().to_string(),
+            problems: vec![format!("not valid TOML: {e}")],
+        })?;
+        for key in table.keys() {
+            if !SECTIONS.contains(&key.as_str()) {
+                problems.push(format!(
+                    "[{key}]: unknown section; the sections are {}",
+                    SECTIONS.join(", ")
+                ));
+            }
+        }
+        let design: Option<DesignConfig> = section(&table, "design", &mut problems, false);
+        let calibration: CalibrationSection =
+            section(&table, "calibration", &mut problems, true).unwrap_or_default();
+        let inspect: InspectSettings =
+            section(&table, "inspect", &mut problems, true).unwrap_or_default();
+        let services: ServicesConfig =
+            section(&table, "services", &mut problems, true).unwrap_or_default();
+        let limits: Limits = section(&table, "limits", &mut problems, true).unwrap_or_default();
+        let status: StatusConfig =
+            section(&table, "status", &mut problems, true).unwrap_or_default();
+
+        let design = design.map(|mut d| {
+            if d.path.is_relative() {
+                d.path = base.join(&d.path);
+            }
+            if !d.path.is_file() {
+                problems.push(format!(
+                    "design.path: {} does not exist (relative paths are relative to this file)",
+                    d.path.display()
+                ));
+            }
+            if let Err(e) = d.units.parse::<Units>() {
+                problems.push(format!("design.units: {e}"));
+            }
+            d
+        });
+        let frames = frames(&calibration, &mut problems);
+        check_inspect(&inspect, &mut problems);
+        check_services(&services, &mut problems);
+        check_limits(&limits, &mut problems);
+        if !(status.period_s > 0.0 && status.period_s <= 3600.0) {
+            problems.push(format!(
+                "status.period_s: {} is not a period; give seconds in (0, 3600]",
+                status.period_s
+            ));
+        }
+        match design {
+            Some(design) if problems.is_empty() => Ok(Self {
+                source: source.to_path_buf(),
+                design,
+                frames,
+                inspect,
+                services,
+                limits,
+                status,
+            }),
+            _ => Err(ConfigError {
+                file: source.display().to_string(),
+                problems,
+            }),
+        }
+    }
+}
+
+/// Deserialises one section, recording its problem instead of stopping at it.
+fn section<T: DeserializeOwned>(
+    table: &toml::Table,
+    name: &str,
+    problems: &mut Vec<String>,
+    optional: bool,
+) -> Option<T> {
+    let Some(value) = table.get(name) else {
+        if !optional {
+            problems.push(format!(
+                "[{name}]: missing; see agent/agent.example.toml for what it holds"
+            ));
+        }
+        return None;
+    };
+    match value.clone().try_into::<T>() {
+        Ok(v) => Some(v),
+        Err(e) => {
+            problems.push(format!("[{name}]: {}", e.to_string().trim()));
+            None
+        }
+    }
+}
+
+fn frames(c: &CalibrationSection, problems: &mut Vec<String>) -> FrameChain {
+    let mut chain = FrameChain::default();
+    let mut transform = |key: &str, t: &Option<Transform>| {
+        t.as_ref()
+            .and_then(|t| match isometry(t.translation, t.rotation_xyzw) {
+                Ok(iso) => Some(iso),
+                Err(e) => {
+                    problems.push(format!("calibration.{key}: {e}"));
+                    None
+                }
+            })
+    };
+    if let Some(t) = transform("t_design_base", &c.t_design_base) {
+        chain.t_design_base = t;
+    }
+    if let Some(t) = transform("t_flange_scanner", &c.t_flange_scanner) {
+        chain.t_flange_scanner = t;
+    }
+    if let Some(q) = c.r_base_flange_xyzw {
+        match isometry([0.0; 3], q) {
+            Ok(iso) => chain.r_base_flange = iso.rotation,
+            Err(e) => problems.push(format!("calibration.r_base_flange_xyzw: {e}")),
+        }
+    } else {
+        chain.r_base_flange = UnitQuaternion::identity();
+    }
+    chain
+}
+
+fn positive(v: f64) -> bool {
+    v > 0.0 && v.is_finite()
+}
+
+fn check_inspect(i: &InspectSettings, problems: &mut Vec<String>) {
+    if i.methods.is_empty() {
+        problems.push("inspect.methods: empty; give at least [\"c2m\"]".into());
+    }
+    for m in &i.methods {
+        if !AVAILABLE_METHODS.contains(&m.as_str()) {
+            problems.push(format!(
+                "inspect.methods: {m:?} is not available in this build of the agent (available: \
+                 {})",
+                AVAILABLE_METHODS.join(", ")
+            ));
+        }
+    }
+    if !positive(i.tolerance) {
+        problems.push(format!(
+            "inspect.tolerance: {} is not a positive number of metres (5 mm is 0.005)",
+            i.tolerance
+        ));
+    }
+    if let Some(d) = i.max_distance
+        && !positive(d)
+    {
+        problems.push(format!(
+            "inspect.max_distance: {d} is not a positive number of metres"
+        ));
+    }
+    if let Some(c) = i.cell_size
+        && !positive(c)
+    {
+        problems.push(format!(
+            "inspect.cell_size: {c} is not a positive number of metres; leave it out to let the \
+             agent choose"
+        ));
+    }
+    if !positive(i.max_range) {
+        problems.push(format!(
+            "inspect.max_range: {} is not a positive number of metres",
+            i.max_range
+        ));
+    }
+}
+
+fn check_services(s: &ServicesConfig, problems: &mut Vec<String>) {
+    let ok = !s.prefix.is_empty()
+        && s.prefix.len() <= 200
+        && !s.prefix.starts_with('/')
+        && !s.prefix.ends_with('/')
+        && s.prefix
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c));
+    if !ok {
+        problems.push(format!(
+            "services.prefix: {:?} is not a usable service prefix; use letters, digits and - _ . / \
+             (not at either end), e.g. \"asbuilt/cell-1\"",
+            s.prefix
+        ));
+    }
+}
+
+fn check_limits(l: &Limits, problems: &mut Vec<String>) {
+    let mut range = |key: &str, v: usize, lo: usize, hi: usize| {
+        if !(lo..=hi).contains(&v) {
+            problems.push(format!("limits.{key}: {v} is outside {lo}..={hi}"));
+        }
+    };
+    range("max_points_per_chunk", l.max_points_per_chunk, 1, 1 << 22);
+    range("chunk_queue", l.chunk_queue, 1, 1024);
+    range("pending_chunks", l.pending_chunks, 0, 1024);
+    range("open_stations", l.open_stations, 1, 64);
+    if !(l.station_timeout_s > 0.0 && l.station_timeout_s <= 86_400.0) {
+        problems.push(format!(
+            "limits.station_timeout_s: {} is not a timeout; give seconds in (0, 86400]",
+            l.station_timeout_s
+        ));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<AgentConfig, ConfigError> {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("wall.stl"), b"solid x\nendsolid x\n").unwrap();
+        AgentConfig::parse(text, dir.path(), Path::new("agent.toml"))
+    }
+
+    #[test]
+    fn minimal_config_takes_the_defaults() {
+        let c = parse("[design]\npath = \"wall.stl\"\nunits = \"mm\"\n").unwrap();
+        assert_eq!(c.design.units(), Units::Millimetres);
+        assert_eq!(c.inspect.methods, ["c2m"]);
+        assert_eq!(c.inspect.max_distance(), 0.05);
+        assert_eq!(c.services.prefix, "asbuilt");
+        assert_eq!(c.frames, FrameChain::default());
+    }
+
+    #[test]
+    fn every_problem_is_listed_with_its_key() {
+        let err = parse(
+            r#"
+            [design]
+            path = "missing.stl"
+            units = "inches"
+            [calibration]
+            t_design_base = { translation = [0, 0, 0], rotation_xyzw = [0, 0, 0, 2] }
+            [inspect]
+            methods = ["c2m", "m3c2"]
+            tolerance = -1
+            [services]
+            prefix = "/bad prefix"
+            [limits]
+            open_stations = 0
+            station_timeout_s = 0
+            [recorder]
+            path = "x"
+            "#,
+        )
+        .unwrap_err();
+        let text = err.to_string();
+        for key in [
+            "design.path",
+            "design.units",
+            "calibration.t_design_base",
+            "\"m3c2\" is not available",
+            "inspect.tolerance",
+            "services.prefix",
+            "limits.open_stations",
+            "limits.station_timeout_s",
+            "[recorder]: unknown section",
+        ] {
+            assert!(text.contains(key), "{key} missing from:\n{text}");
+        }
+        assert_eq!(err.problems.len(), 9, "{text}");
+    }
+
+    #[test]
+    fn a_wrong_type_names_its_section_and_the_rest_is_still_checked() {
+        let err = parse(
+            "[design]\npath = \"wall.stl\"\nunits = \"m\"\n[limits]\nchunk_queue = \"many\"\n\
+             [inspect]\ntolerance = 0\n",
+        )
+        .unwrap_err();
+        assert!(err.problems[0].starts_with("[limits]"), "{err}");
+        assert!(err.problems[1].starts_with("inspect.tolerance"), "{err}");
+    }
+
+    #[test]
+    fn missing_design_is_an_error() {
+        let err = parse("[inspect]\ntolerance = 0.003\n").unwrap_err();
+        assert!(err.problems[0].contains("[design]: missing"), "{err}");
+    }
+}

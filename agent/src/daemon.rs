@@ -1,0 +1,432 @@
+//! The event loop: wait on the inbox with a WaitSet (no polling, no sleeps), drain the input
+//! queues into the station lifecycle, and on a fixed tick close silent stations, clean up after
+//! dead publishers and publish the agent's status.
+
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use asbuilt_core::station::InspectConfig;
+use asbuilt_core::{C2mIndex, C2mParams, Design};
+use asbuilt_protocol::{
+    AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation, ScanPoint,
+    StationReport,
+};
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+use iceoryx2_bb_posix::signal::SignalHandler;
+
+use crate::config::AgentConfig;
+use crate::ipc::{AgentPorts, ChunkSample, Ipc, QueueSizes, ServiceNames};
+use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
+use crate::{error, info, warn};
+
+/// Station timeouts are checked this often at least.
+const MAX_TICK: Duration = Duration::from_millis(250);
+
+#[derive(Debug, thiserror::Error)]
+pub enum AgentError {
+    #[error("design: {0}")]
+    Design(String),
+    #[error("{0}")]
+    Ipc(String),
+}
+
+/// What a run did, for the exit message.
+#[derive(Debug, Clone, Copy)]
+pub struct RunSummary {
+    pub stations_reported: u64,
+    pub points_processed: u64,
+}
+
+impl ChunkSource for ChunkSample {
+    fn header(&self) -> &ChunkHeader {
+        self.user_header()
+    }
+    fn points(&self) -> &[ScanPoint] {
+        self.payload()
+    }
+}
+
+struct IpcOutputs<'p> {
+    ports: &'p AgentPorts,
+    /// Where deviations go when no shared-memory sample can be loaned, so the station's
+    /// statistics stay whole. Sized once for the largest accepted chunk.
+    scratch: Vec<PointDeviation>,
+    unloaned: u64,
+}
+
+impl IpcOutputs<'_> {
+    fn notify(&self) {
+        if let Err(e) = self.ports.outbox.notify() {
+            warn!("cannot notify output subscribers: {e:?}");
+        }
+    }
+}
+
+impl Outputs for IpcOutputs<'_> {
+    fn deviations(
+        &mut self,
+        n: usize,
+        fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
+    ) {
+        match self.ports.deviations.loan_slice(n) {
+            Ok(mut sample) => {
+                let header = fill(sample.payload_mut());
+                *sample.user_header_mut() = header;
+                if let Err(e) = sample.send() {
+                    warn!("deviation chunk {} not published: {e:?}", header.sequence);
+                }
+                self.notify();
+            }
+            Err(e) => {
+                self.unloaned += 1;
+                let header = fill(&mut self.scratch[..n]);
+                warn!(
+                    "deviation chunk {} computed but not published, no output sample free \
+                     ({e:?}): subscribers are holding too many",
+                    header.sequence
+                );
+            }
+        }
+    }
+
+    fn report(&mut self, report: &StationReport) {
+        if let Err(e) = self.ports.reports.send_copy(*report) {
+            warn!("report of station {} not published: {e:?}", report.station);
+        }
+        self.notify();
+    }
+}
+
+fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
+/// Runs the agent until SIGINT or SIGTERM. Returns after every open station got its report.
+pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
+    // Install the termination handler before the long design load, so a stop request during
+    // start-up is seen instead of killing the process.
+    let _ = SignalHandler::termination_requested();
+    set_log_level_from_env_or(LogLevel::Error);
+    let started = Instant::now();
+
+    let design = Design::load(&config.design.path, config.design.units())
+        .map_err(|e| AgentError::Design(e.to_string()))?;
+    for w in design.report.warnings() {
+        warn!("design: {w}");
+    }
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: config.inspect.max_distance(),
+            cell_size: config.inspect.cell_size,
+        },
+    )
+    .map_err(|e| AgentError::Design(e.to_string()))?;
+    let ix = index.stats();
+    info!(
+        "design {} ({}): {} triangles, index {} cells of {:.2} mm, {:.0} MB, ready in {:.1} s",
+        config.design.path.display(),
+        config.design.units,
+        ix.triangles,
+        ix.cells,
+        ix.cell_size * 1e3,
+        ix.bytes as f64 / 1e6,
+        started.elapsed().as_secs_f64()
+    );
+    drop(design);
+
+    let node = NodeBuilder::new()
+        .name(&"asbuilt-agent".try_into().expect("valid node name"))
+        .create::<Ipc>()
+        .map_err(|e| AgentError::Ipc(format!("cannot create the iceoryx2 node: {e:?}")))?;
+    let mut dead_nodes = node.try_cleanup_dead_nodes().cleanups;
+    if dead_nodes > 0 {
+        info!("removed the resources of {dead_nodes} dead iceoryx2 node(s) from an earlier run");
+    }
+    let names = ServiceNames::new(&config.services.prefix);
+    let limits = &config.limits;
+    let ports = AgentPorts::create(
+        &node,
+        &names,
+        QueueSizes {
+            max_points_per_chunk: limits.max_points_per_chunk,
+            chunk_queue: limits.chunk_queue,
+            pending_chunks: limits.pending_chunks,
+        },
+    )
+    .map_err(|e| AgentError::Ipc(e.0))?;
+
+    let mut inspect = InspectConfig::with_tolerance(config.inspect.tolerance);
+    inspect.max_range = config.inspect.max_range;
+    let mut lifecycle: Lifecycle<'_, ChunkSample> = Lifecycle::new(
+        &index,
+        config.frames.clone(),
+        inspect,
+        LifecycleLimits {
+            max_points_per_chunk: limits.max_points_per_chunk,
+            pending_chunks: limits.pending_chunks,
+            open_stations: limits.open_stations,
+            station_timeout: limits.station_timeout(),
+        },
+    );
+    let mut out = IpcOutputs {
+        ports: &ports,
+        scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
+        unloaned: 0,
+    };
+
+    let tick = config.status.period().min(MAX_TICK);
+    let waitset = WaitSetBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| AgentError::Ipc(format!("cannot create the wait set: {e:?}")))?;
+    let _inbox_guard = waitset
+        .attach_notification(&ports.inbox)
+        .map_err(|e| AgentError::Ipc(format!("cannot wait on the inbox: {e:?}")))?;
+    let _tick_guard = waitset
+        .attach_interval(tick)
+        .map_err(|e| AgentError::Ipc(format!("cannot attach the tick: {e:?}")))?;
+
+    info!(
+        "serving {}/… (chunks up to {} points, {} queued, {} held for a pose; station timeout \
+         {:.0} s)",
+        names.prefix,
+        limits.max_points_per_chunk,
+        limits.chunk_queue,
+        limits.pending_chunks,
+        limits.station_timeout_s
+    );
+    let pid = std::process::id();
+    let mut status = StatusClock {
+        next: Instant::now() + config.status.period(),
+        period: config.status.period(),
+        last_points: 0,
+        last_at: Instant::now(),
+    };
+    let mut terminated = false;
+    while !terminated {
+        let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
+        match result {
+            Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) => break,
+            Ok(_) => {}
+            Err(e) => {
+                error!("wait set failed: {e:?}; stopping");
+                break;
+            }
+        }
+        // Clear the wake-ups before reading, so data that arrives while we read wakes us again.
+        if let Err(e) = ports.inbox.try_wait(|_| {}) {
+            warn!("inbox: {e:?}");
+        }
+        terminated = drain(&ports, &mut lifecycle, &mut out);
+        let now = Instant::now();
+        lifecycle.on_tick(now, &mut out);
+        if now >= status.next {
+            dead_nodes += cleanup_dead_nodes(&node);
+            publish_status(
+                &ports,
+                &lifecycle,
+                &out,
+                &mut status,
+                pid,
+                started,
+                dead_nodes,
+                AgentState::Serving,
+            );
+        }
+    }
+
+    info!("stop requested: closing open stations with partial reports");
+    lifecycle.shutdown(&mut out);
+    publish_status(
+        &ports,
+        &lifecycle,
+        &out,
+        &mut status,
+        pid,
+        started,
+        dead_nodes,
+        AgentState::ShuttingDown,
+    );
+    let c = lifecycle.counters;
+    info!(
+        "stopped after {:.1} s: {} stations reported, {} points processed",
+        started.elapsed().as_secs_f64(),
+        c.stations_reported,
+        c.points_processed
+    );
+    Ok(RunSummary {
+        stations_reported: c.stations_reported,
+        points_processed: c.points_processed,
+    })
+}
+
+/// Reads every queue until all are empty. Station events and poses go first, and again before
+/// any chunk whose station is not ready, because the cell sends a station's Begin and pose
+/// before its chunks but on other services. Returns true when a stop was requested.
+fn drain(
+    ports: &AgentPorts,
+    lifecycle: &mut Lifecycle<'_, ChunkSample>,
+    out: &mut IpcOutputs<'_>,
+) -> bool {
+    loop {
+        let mut any = drain_control(ports, lifecycle, out);
+        loop {
+            let sample = match ports.chunks.receive() {
+                Ok(Some(s)) => s,
+                Ok(None) => break,
+                Err(e) => {
+                    warn!("scan chunks: {e:?}");
+                    break;
+                }
+            };
+            any = true;
+            if !lifecycle.is_ready_for(sample.user_header()) {
+                drain_control(ports, lifecycle, out);
+            }
+            lifecycle.on_chunk(sample, Instant::now(), out);
+            if SignalHandler::termination_requested() {
+                return true;
+            }
+        }
+        if !any {
+            break;
+        }
+    }
+    lifecycle.on_idle(out);
+    false
+}
+
+fn drain_control(
+    ports: &AgentPorts,
+    lifecycle: &mut Lifecycle<'_, ChunkSample>,
+    out: &mut IpcOutputs<'_>,
+) -> bool {
+    let mut any = false;
+    loop {
+        match ports.stations.receive() {
+            Ok(Some(ev)) => {
+                any = true;
+                lifecycle.on_event(ev.payload(), Instant::now(), out);
+            }
+            Ok(None) => break,
+            Err(e) => {
+                warn!("station events: {e:?}");
+                break;
+            }
+        }
+    }
+    loop {
+        match ports.poses.receive() {
+            Ok(Some(p)) => {
+                any = true;
+                lifecycle.on_pose(p.payload(), Instant::now(), out);
+            }
+            Ok(None) => break,
+            Err(e) => {
+                warn!("poses: {e:?}");
+                break;
+            }
+        }
+    }
+    any
+}
+
+fn cleanup_dead_nodes(node: &Node<Ipc>) -> u64 {
+    let c = node.try_cleanup_dead_nodes();
+    if c.cleanups > 0 {
+        info!(
+            "removed the resources of {} dead iceoryx2 node(s) (a publisher that died)",
+            c.cleanups
+        );
+    }
+    if c.failed_cleanups > 0 {
+        warn!(
+            "{} dead iceoryx2 node(s) could not be cleaned up",
+            c.failed_cleanups
+        );
+    }
+    c.cleanups
+}
+
+struct StatusClock {
+    next: Instant,
+    period: Duration,
+    last_points: u64,
+    last_at: Instant,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn publish_status(
+    ports: &AgentPorts,
+    lifecycle: &Lifecycle<'_, ChunkSample>,
+    out: &IpcOutputs<'_>,
+    clock: &mut StatusClock,
+    pid: u32,
+    started: Instant,
+    dead_nodes: u64,
+    state: AgentState,
+) {
+    use std::sync::atomic::Ordering::Relaxed;
+    let now = Instant::now();
+    let mut s = AgentStatus::new(pid);
+    s.state = state as u8;
+    s.timestamp_ns = now_ns();
+    s.uptime_ns = started.elapsed().as_nanos() as u64;
+    lifecycle.fill_status(&mut s);
+    let dt = now.duration_since(clock.last_at).as_secs_f64();
+    if dt > 0.0 {
+        s.points_per_second = (s.points_processed - clock.last_points) as f64 / dt;
+    }
+    s.dead_nodes_cleaned = dead_nodes;
+    s.output = OutputDrops {
+        deviation_chunks: ports.deviation_drops.load(Relaxed),
+        reports: ports.report_drops.load(Relaxed),
+        deviation_chunks_unloaned: out.unloaned,
+    };
+    clock.last_points = s.points_processed;
+    clock.last_at = now;
+    clock.next = now + clock.period;
+    if let Err(e) = ports.status.send_copy(s) {
+        warn!("status not published: {e:?}");
+    }
+    let i = s.input;
+    info!(
+        "health: {:.2} M points/s, {} points, {} chunks, {} stations open, {} chunks waiting for \
+         a pose, {} reported; rejected points {}; dropped inputs {} (unknown station {}, after \
+         close {}, overflow {}, duplicate {}, out of order {}, empty {}, oversized {}, malformed \
+         {}, version {}), bad poses {}, bad events {}; outputs missed by slow subscribers {} \
+         deviation chunks, {} reports",
+        s.points_per_second / 1e6,
+        s.points_processed,
+        s.chunks_processed,
+        s.stations_open,
+        s.chunks_waiting,
+        s.stations_reported,
+        s.rejected_points.total(),
+        i.chunks_unknown_station
+            + i.chunks_after_close
+            + i.chunks_pending_overflow
+            + i.chunks_duplicate
+            + i.chunks_out_of_order
+            + i.chunks_empty
+            + i.chunks_oversized
+            + i.chunks_malformed
+            + i.version_mismatch,
+        i.chunks_unknown_station,
+        i.chunks_after_close,
+        i.chunks_pending_overflow,
+        i.chunks_duplicate,
+        i.chunks_out_of_order,
+        i.chunks_empty,
+        i.chunks_oversized,
+        i.chunks_malformed,
+        i.version_mismatch,
+        i.poses_invalid,
+        i.events_invalid,
+        s.output.deviation_chunks + s.output.deviation_chunks_unloaned,
+        s.output.reports
+    );
+}

@@ -1,0 +1,494 @@
+//! The iceoryx2 services of one print cell, named under a prefix:
+//!
+//! | service                    | payload                                 | direction      |
+//! |----------------------------|-----------------------------------------|----------------|
+//! | `P/robot/poses`            | `PoseSnapshot`                          | cell → agent   |
+//! | `P/scanner/chunks`         | `ChunkHeader` + `[ScanPoint]`           | cell → agent   |
+//! | `P/job/stations`           | `StationEvent`                          | cell → agent   |
+//! | `P/agent/inbox`            | event: "input waiting"                  | cell → agent   |
+//! | `P/agent/deviations`       | `DeviationHeader` + `[PointDeviation]`  | agent → cell   |
+//! | `P/agent/reports`          | `StationReport`                         | agent → cell   |
+//! | `P/agent/status`           | `AgentStatus`                           | agent → cell   |
+//! | `P/agent/outbox`           | event: "output published"               | agent → cell   |
+//!
+//! Delivery, chosen so that nothing is lost silently:
+//! - **Inputs** do not overflow. When the agent's queue is full, a publisher is held back
+//!   (`RetryUntilDelivered`): the scanner driver waits instead of its chunks being overwritten.
+//!   [`CellPorts`] gives up after a deadline and returns an error, so a dead agent never hangs
+//!   the cell. The agent holds chunks whose pose has not arrived as borrowed samples, in a
+//!   bounded buffer.
+//! - **Outputs** never hold the agent back. A subscriber whose queue is full misses that sample,
+//!   and the agent counts every such miss in its status (`output.deviation_chunks`,
+//!   `output.reports`). Reports keep a history, so a monitor that connects late still gets the
+//!   recent ones.
+//! - **One agent per prefix**: the status service admits one publisher, so a second agent on
+//!   the same services fails at start with a message naming the prefix.
+//!
+//! The agent creates the services with these settings; the cell side only opens them.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use asbuilt_protocol::{
+    AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
+    StationEvent, StationReport,
+};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::{BackpressureAction, BackpressureInfo};
+use iceoryx2::prelude::*;
+
+pub type Ipc = ipc::Service;
+
+pub type ChunkSample = iceoryx2::sample::Sample<Ipc, [ScanPoint], ChunkHeader>;
+pub type DeviationSample = iceoryx2::sample::Sample<Ipc, [PointDeviation], DeviationHeader>;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct IpcError(pub String);
+
+fn err(what: impl std::fmt::Display, e: impl std::fmt::Debug) -> IpcError {
+    IpcError(format!("{what}: {e:?}"))
+}
+
+/// The names of a cell's services.
+#[derive(Debug, Clone)]
+pub struct ServiceNames {
+    pub prefix: String,
+    pub poses: String,
+    pub chunks: String,
+    pub stations: String,
+    pub inbox: String,
+    pub deviations: String,
+    pub reports: String,
+    pub status: String,
+    pub outbox: String,
+}
+
+impl ServiceNames {
+    pub fn new(prefix: &str) -> Self {
+        let n = |s: &str| format!("{prefix}/{s}");
+        Self {
+            prefix: prefix.to_string(),
+            poses: n("robot/poses"),
+            chunks: n("scanner/chunks"),
+            stations: n("job/stations"),
+            inbox: n("agent/inbox"),
+            deviations: n("agent/deviations"),
+            reports: n("agent/reports"),
+            status: n("agent/status"),
+            outbox: n("agent/outbox"),
+        }
+    }
+}
+
+fn service_name(s: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(s).map_err(|e| err(format!("{s:?} is not a valid service name"), e))
+}
+
+/// Sizes of the agent's queues and samples.
+#[derive(Debug, Clone, Copy)]
+pub struct QueueSizes {
+    pub max_points_per_chunk: usize,
+    pub chunk_queue: usize,
+    pub pending_chunks: usize,
+}
+
+/// Publishers of inputs (robot, scanner, job control) and of the agent's outputs.
+const MAX_INPUT_PUBLISHERS: usize = 4;
+/// The agent plus a recorder or monitor.
+const MAX_INPUT_SUBSCRIBERS: usize = 2;
+const MAX_OUTPUT_SUBSCRIBERS: usize = 4;
+const DEVIATION_QUEUE: usize = 8;
+const REPORT_QUEUE: usize = 64;
+const REPORT_HISTORY: usize = 16;
+const SMALL_QUEUE: usize = 64;
+const MAX_NODES: usize = 16;
+
+/// The agent's side: it owns the services.
+pub struct AgentPorts {
+    pub poses: Subscriber<Ipc, PoseSnapshot, ()>,
+    pub chunks: Subscriber<Ipc, [ScanPoint], ChunkHeader>,
+    pub stations: Subscriber<Ipc, StationEvent, ()>,
+    pub inbox: Listener<Ipc>,
+    pub deviations: Publisher<Ipc, [PointDeviation], DeviationHeader>,
+    pub reports: Publisher<Ipc, StationReport, ()>,
+    pub status: Publisher<Ipc, AgentStatus, ()>,
+    pub outbox: Notifier<Ipc>,
+    /// Deviation chunks and reports a full subscriber queue did not take.
+    pub deviation_drops: Arc<AtomicU64>,
+    pub report_drops: Arc<AtomicU64>,
+}
+
+fn counting_handler(
+    counter: Arc<AtomicU64>,
+) -> impl Fn(&BackpressureInfo) -> BackpressureAction + Send + 'static {
+    move |_| {
+        counter.fetch_add(1, Ordering::Relaxed);
+        BackpressureAction::DiscardData
+    }
+}
+
+impl AgentPorts {
+    pub fn create(node: &Node<Ipc>, names: &ServiceNames, q: QueueSizes) -> Result<Self, IpcError> {
+        let exists = |what: &str, e: &dyn std::fmt::Debug| {
+            IpcError(format!(
+                "cannot open or create service {what}: {e:?}. If an earlier agent or publisher \
+                 used other settings on prefix {:?}, stop every asbuilt process on that prefix \
+                 (or choose another services.prefix) and start the agent first",
+                names.prefix
+            ))
+        };
+        let status_service = node
+            .service_builder(&service_name(&names.status)?)
+            .publish_subscribe::<AgentStatus>()
+            .max_publishers(1)
+            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .history_size(1)
+            .subscriber_max_buffer_size(4)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(|e| exists(&names.status, &e))?;
+        let status = status_service.publisher_builder().create().map_err(|e| {
+            IpcError(format!(
+                "another asbuilt-agent is already serving prefix {:?} ({e:?}): stop it first, or \
+                 give this one another services.prefix",
+                names.prefix
+            ))
+        })?;
+
+        let chunks = node
+            .service_builder(&service_name(&names.chunks)?)
+            .publish_subscribe::<[ScanPoint]>()
+            .user_header::<ChunkHeader>()
+            .max_publishers(MAX_INPUT_PUBLISHERS)
+            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .history_size(0)
+            .subscriber_max_buffer_size(q.chunk_queue)
+            .subscriber_max_borrowed_samples(q.pending_chunks + 2)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.chunks, &e))?
+            .subscriber_builder()
+            .buffer_size(q.chunk_queue)
+            .create()
+            .map_err(|e| err("cannot subscribe to scan chunks", e))?;
+        let poses = node
+            .service_builder(&service_name(&names.poses)?)
+            .publish_subscribe::<PoseSnapshot>()
+            .max_publishers(MAX_INPUT_PUBLISHERS)
+            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .subscriber_max_buffer_size(SMALL_QUEUE)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.poses, &e))?
+            .subscriber_builder()
+            .buffer_size(SMALL_QUEUE)
+            .create()
+            .map_err(|e| err("cannot subscribe to poses", e))?;
+        let stations = node
+            .service_builder(&service_name(&names.stations)?)
+            .publish_subscribe::<StationEvent>()
+            .max_publishers(MAX_INPUT_PUBLISHERS)
+            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .subscriber_max_buffer_size(SMALL_QUEUE)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.stations, &e))?
+            .subscriber_builder()
+            .buffer_size(SMALL_QUEUE)
+            .create()
+            .map_err(|e| err("cannot subscribe to station events", e))?;
+        let inbox = node
+            .service_builder(&service_name(&names.inbox)?)
+            .event()
+            .max_notifiers(MAX_INPUT_PUBLISHERS * 3)
+            .max_listeners(2)
+            .max_nodes(MAX_NODES)
+            .open_or_create()
+            .map_err(|e| exists(&names.inbox, &e))?
+            .listener_builder()
+            .create()
+            .map_err(|e| err("cannot listen on the agent inbox", e))?;
+
+        let deviation_drops = Arc::new(AtomicU64::new(0));
+        let report_drops = Arc::new(AtomicU64::new(0));
+        let deviations = node
+            .service_builder(&service_name(&names.deviations)?)
+            .publish_subscribe::<[PointDeviation]>()
+            .user_header::<DeviationHeader>()
+            .max_publishers(1)
+            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .history_size(0)
+            .subscriber_max_buffer_size(DEVIATION_QUEUE)
+            .subscriber_max_borrowed_samples(2)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.deviations, &e))?
+            .publisher_builder()
+            .initial_max_slice_len(q.max_points_per_chunk)
+            .allocation_strategy(AllocationStrategy::Static)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .set_backpressure_handler(counting_handler(deviation_drops.clone()))
+            .create()
+            .map_err(|e| err("cannot publish deviations", e))?;
+        let reports = node
+            .service_builder(&service_name(&names.reports)?)
+            .publish_subscribe::<StationReport>()
+            .max_publishers(1)
+            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .history_size(REPORT_HISTORY)
+            .subscriber_max_buffer_size(REPORT_QUEUE)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.reports, &e))?
+            .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .set_backpressure_handler(counting_handler(report_drops.clone()))
+            .create()
+            .map_err(|e| err("cannot publish reports", e))?;
+        let outbox = node
+            .service_builder(&service_name(&names.outbox)?)
+            .event()
+            .max_notifiers(2)
+            .max_listeners(MAX_OUTPUT_SUBSCRIBERS * 2)
+            .max_nodes(MAX_NODES)
+            .open_or_create()
+            .map_err(|e| exists(&names.outbox, &e))?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err("cannot notify on the agent outbox", e))?;
+        Ok(Self {
+            poses,
+            chunks,
+            stations,
+            inbox,
+            deviations,
+            reports,
+            status,
+            outbox,
+            deviation_drops,
+            report_drops,
+        })
+    }
+}
+
+/// The cell's side: what a robot controller, scanner driver and job control use to talk to a
+/// running agent (and what `asbuilt publish`, the simulator and the tests use).
+pub struct CellPorts {
+    pub poses: Publisher<Ipc, PoseSnapshot, ()>,
+    pub chunks: Publisher<Ipc, [ScanPoint], ChunkHeader>,
+    pub stations: Publisher<Ipc, StationEvent, ()>,
+    pub inbox: Notifier<Ipc>,
+    pub deviations: Subscriber<Ipc, [PointDeviation], DeviationHeader>,
+    pub reports: Subscriber<Ipc, StationReport, ()>,
+    pub status: Subscriber<Ipc, AgentStatus, ()>,
+    pub outbox: Listener<Ipc>,
+    chunk_service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+        Ipc,
+        [ScanPoint],
+        ChunkHeader,
+    >,
+}
+
+/// How long a chunk publisher waits for a full agent queue before it reports the agent stuck.
+pub const DELIVERY_DEADLINE: Duration = Duration::from_secs(10);
+
+impl CellPorts {
+    /// Opens the services of a running agent, waiting up to `wait` for it to appear.
+    /// `max_points_per_chunk` sizes this publisher's chunk samples.
+    pub fn open(
+        node: &Node<Ipc>,
+        names: &ServiceNames,
+        max_points_per_chunk: usize,
+        wait: Duration,
+    ) -> Result<Self, IpcError> {
+        let start = Instant::now();
+        loop {
+            match Self::try_open(node, names, max_points_per_chunk) {
+                Ok(p) => return Ok(p),
+                Err(e) if start.elapsed() >= wait => {
+                    return Err(IpcError(format!(
+                        "no asbuilt-agent is serving prefix {:?} (waited {:.1} s; last error: \
+                         {e}). Start one with `asbuilt-agent --config agent.toml` and check that \
+                         its services.prefix matches",
+                        names.prefix,
+                        wait.as_secs_f64()
+                    )));
+                }
+                Err(_) => std::thread::sleep(Duration::from_millis(20)),
+            }
+        }
+    }
+
+    fn try_open(
+        node: &Node<Ipc>,
+        names: &ServiceNames,
+        max_points_per_chunk: usize,
+    ) -> Result<Self, IpcError> {
+        // The status publisher exists only while an agent is up; opening it first means the
+        // agent has created every other service.
+        let status_service = node
+            .service_builder(&service_name(&names.status)?)
+            .publish_subscribe::<AgentStatus>()
+            .open()
+            .map_err(|e| err(&names.status, e))?;
+        if status_service.dynamic_config().number_of_publishers() == 0 {
+            return Err(IpcError("the agent's status publisher is not up".into()));
+        }
+        let status = status_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("cannot subscribe to agent status", e))?;
+        let deliver_or_fail = |info: &BackpressureInfo| {
+            if info.elapsed_time < DELIVERY_DEADLINE {
+                std::thread::yield_now();
+                BackpressureAction::Retry
+            } else {
+                BackpressureAction::DiscardDataAndFail
+            }
+        };
+        let chunk_service = node
+            .service_builder(&service_name(&names.chunks)?)
+            .publish_subscribe::<[ScanPoint]>()
+            .user_header::<ChunkHeader>()
+            .open()
+            .map_err(|e| err(&names.chunks, e))?;
+        let chunks = chunk_service
+            .publisher_builder()
+            .initial_max_slice_len(max_points_per_chunk)
+            .allocation_strategy(AllocationStrategy::Static)
+            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+            .set_backpressure_handler(deliver_or_fail)
+            .create()
+            .map_err(|e| err("cannot publish scan chunks", e))?;
+        let poses = node
+            .service_builder(&service_name(&names.poses)?)
+            .publish_subscribe::<PoseSnapshot>()
+            .open()
+            .map_err(|e| err(&names.poses, e))?
+            .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+            .set_backpressure_handler(deliver_or_fail)
+            .create()
+            .map_err(|e| err("cannot publish poses", e))?;
+        let stations = node
+            .service_builder(&service_name(&names.stations)?)
+            .publish_subscribe::<StationEvent>()
+            .open()
+            .map_err(|e| err(&names.stations, e))?
+            .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+            .set_backpressure_handler(deliver_or_fail)
+            .create()
+            .map_err(|e| err("cannot publish station events", e))?;
+        let inbox = node
+            .service_builder(&service_name(&names.inbox)?)
+            .event()
+            .open()
+            .map_err(|e| err(&names.inbox, e))?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err("cannot notify the agent", e))?;
+        let deviations = node
+            .service_builder(&service_name(&names.deviations)?)
+            .publish_subscribe::<[PointDeviation]>()
+            .user_header::<DeviationHeader>()
+            .open()
+            .map_err(|e| err(&names.deviations, e))?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("cannot subscribe to deviations", e))?;
+        let reports = node
+            .service_builder(&service_name(&names.reports)?)
+            .publish_subscribe::<StationReport>()
+            .open()
+            .map_err(|e| err(&names.reports, e))?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("cannot subscribe to reports", e))?;
+        let outbox = node
+            .service_builder(&service_name(&names.outbox)?)
+            .event()
+            .open()
+            .map_err(|e| err(&names.outbox, e))?
+            .listener_builder()
+            .create()
+            .map_err(|e| err("cannot listen on the agent outbox", e))?;
+        Ok(Self {
+            poses,
+            chunks,
+            stations,
+            inbox,
+            deviations,
+            reports,
+            status,
+            outbox,
+            chunk_service,
+        })
+    }
+
+    /// Subscribers of scan chunks right now (the agent, and a recorder if one runs).
+    pub fn chunk_subscribers(&self) -> usize {
+        self.chunk_service.dynamic_config().number_of_subscribers()
+    }
+
+    fn wake_agent(&self) -> Result<(), IpcError> {
+        self.inbox
+            .notify()
+            .map(|_| ())
+            .map_err(|e| err("cannot notify the agent", e))
+    }
+
+    pub fn send_pose(&self, pose: &PoseSnapshot) -> Result<(), IpcError> {
+        self.poses
+            .send_copy(*pose)
+            .map_err(|e| err("pose not delivered", e))?;
+        self.wake_agent()
+    }
+
+    pub fn send_event(&self, ev: &StationEvent) -> Result<(), IpcError> {
+        self.stations
+            .send_copy(*ev)
+            .map_err(|e| err("station event not delivered", e))?;
+        self.wake_agent()
+    }
+
+    /// Sends one chunk; `header.point_count` is the caller's to set (the agent checks it).
+    pub fn send_chunk(&self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), IpcError> {
+        let sample = self
+            .chunks
+            .loan_slice_uninit(points.len())
+            .map_err(|e| err("cannot loan a chunk sample", e))?;
+        let mut sample = sample.write_from_slice(points);
+        *sample.user_header_mut() = *header;
+        sample.send().map_err(|e| {
+            err(
+                format!(
+                    "chunk {} not delivered within {} s: the agent is not taking chunks",
+                    header.sequence,
+                    DELIVERY_DEADLINE.as_secs()
+                ),
+                e,
+            )
+        })?;
+        self.wake_agent()
+    }
+
+    /// Waits up to `timeout` for the agent to publish something.
+    pub fn wait_for_output(&self, timeout: Duration) -> Result<(), IpcError> {
+        self.outbox
+            .timed_wait(|_| {}, timeout)
+            .map(|_| ())
+            .map_err(|e| err("waiting for the agent", e))
+    }
+}

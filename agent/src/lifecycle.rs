@@ -1,0 +1,907 @@
+//! Stations from begin to report: which chunks belong where, when a station may close, and what
+//! is counted when something is wrong. No I/O: chunks come in through [`ChunkSource`] and
+//! results go out through [`Outputs`], so the daemon feeds this from shared memory and the tests
+//! feed it from plain vectors.
+//!
+//! Memory is fixed at start-up: `open_stations` slots, `pending_chunks` held chunks (held, not
+//! copied: a held iceoryx2 sample stays in shared memory), a ring of recently closed stations.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use asbuilt_core::C2mIndex;
+use asbuilt_core::frames::FrameChain;
+use asbuilt_core::station::{InspectConfig, StationInspector};
+use asbuilt_protocol::{
+    AgentStatus, ChunkHeader, DeviationHeader, InputRejects, Message, PointDeviation, PoseSnapshot,
+    RejectCounts, ScanPoint, StationEvent, StationEventKind, StationReport, StationStatus,
+};
+
+use crate::sequence::{ChunkVerdict, SequenceTracker};
+use crate::{info, warn};
+
+/// A received scan chunk: a header and its points, wherever they live.
+pub trait ChunkSource {
+    fn header(&self) -> &ChunkHeader;
+    fn points(&self) -> &[ScanPoint];
+}
+
+/// Where results go.
+pub trait Outputs {
+    /// Publishes one deviation chunk of `n` entries: `fill` writes the entries into the buffer it
+    /// is given (shared memory when there is one) and returns the chunk's header.
+    fn deviations(
+        &mut self,
+        n: usize,
+        fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
+    );
+    fn report(&mut self, report: &StationReport);
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct LifecycleLimits {
+    pub max_points_per_chunk: usize,
+    pub pending_chunks: usize,
+    pub open_stations: usize,
+    pub station_timeout: Duration,
+}
+
+/// How many closed stations are remembered, to tell a late chunk from one of an unknown station.
+const CLOSED_MEMORY: usize = 64;
+
+type StationKey = (u64, u32);
+
+struct OpenStation<'a> {
+    key: StationKey,
+    begin: Option<StationEvent>,
+    end: Option<StationEvent>,
+    pose: Option<PoseSnapshot>,
+    /// Sequence of a chunk flagged `last`.
+    last_sequence: Option<u64>,
+    inspector: StationInspector<'a>,
+    tracker: SequenceTracker,
+    empty: u64,
+    oversized: u64,
+    last_activity: Instant,
+}
+
+impl OpenStation<'_> {
+    fn expected_chunks(&self) -> u64 {
+        let announced = self
+            .end
+            .or(self.begin)
+            .map(|e| e.expected_chunks as u64)
+            .unwrap_or(0);
+        if announced > 0 {
+            announced
+        } else {
+            self.last_sequence.map(|s| s + 1).unwrap_or(0)
+        }
+    }
+
+    fn expected_points(&self) -> u64 {
+        self.end
+            .map(|e| e.expected_points)
+            .filter(|&n| n > 0)
+            .or(self.begin.map(|e| e.expected_points))
+            .unwrap_or(0)
+    }
+
+    /// The scanner said it is done (End event or a chunk flagged last).
+    fn finished_sending(&self) -> bool {
+        self.end.is_some() || self.last_sequence.is_some()
+    }
+
+    fn name(&self) -> String {
+        self.begin
+            .or(self.end)
+            .map(|e| e.name.as_str().to_string())
+            .filter(|n| !n.is_empty())
+            .unwrap_or_else(|| format!("station-{}", self.key.1))
+    }
+}
+
+struct Pending<C> {
+    chunk: C,
+    since: Instant,
+}
+
+/// Counters for the status message, kept across stations.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Counters {
+    pub points_processed: u64,
+    pub chunks_processed: u64,
+    pub stations_reported: u64,
+    pub rejected_points: RejectCounts,
+    pub input: InputRejects,
+}
+
+pub struct Lifecycle<'a, C> {
+    index: &'a C2mIndex,
+    frames: FrameChain,
+    config: InspectConfig,
+    limits: LifecycleLimits,
+    open: Vec<OpenStation<'a>>,
+    pending: VecDeque<Pending<C>>,
+    closed: VecDeque<StationKey>,
+    pub counters: Counters,
+}
+
+impl<'a, C: ChunkSource> Lifecycle<'a, C> {
+    pub fn new(
+        index: &'a C2mIndex,
+        frames: FrameChain,
+        config: InspectConfig,
+        limits: LifecycleLimits,
+    ) -> Self {
+        Self {
+            index,
+            frames,
+            config,
+            limits,
+            open: Vec::with_capacity(limits.open_stations),
+            pending: VecDeque::with_capacity(limits.pending_chunks),
+            closed: VecDeque::with_capacity(CLOSED_MEMORY),
+            counters: Counters::default(),
+        }
+    }
+
+    pub fn stations_open(&self) -> usize {
+        self.open.len()
+    }
+
+    pub fn chunks_waiting(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Fills the counting fields of a status message.
+    pub fn fill_status(&self, s: &mut AgentStatus) {
+        s.points_processed = self.counters.points_processed;
+        s.chunks_processed = self.counters.chunks_processed;
+        s.stations_reported = self.counters.stations_reported;
+        s.rejected_points = self.counters.rejected_points;
+        s.input = self.counters.input;
+        s.stations_open = self.open.len() as u32;
+        s.chunks_waiting = self.pending.len() as u32;
+    }
+
+    /// True when a chunk with this header can be processed now (its station is open with a
+    /// pose). The daemon reads the event and pose queues before giving up on a chunk.
+    pub fn is_ready_for(&self, h: &ChunkHeader) -> bool {
+        self.find(&(h.job, h.station))
+            .is_some_and(|i| self.open[i].pose.is_some())
+    }
+
+    pub fn on_event(&mut self, ev: &StationEvent, now: Instant, out: &mut impl Outputs) {
+        if ev.version != StationEvent::VERSION {
+            self.counters.input.version_mismatch += 1;
+            warn!(
+                "station event of version {} ignored: this agent reads version {}",
+                ev.version,
+                StationEvent::VERSION
+            );
+            return;
+        }
+        let key = (ev.job, ev.station);
+        match ev.kind() {
+            Some(StationEventKind::Begin) => {
+                let i = self.open_slot(key, now, out);
+                let s = &mut self.open[i];
+                if s.begin.is_some() {
+                    warn!("job {} station {}: Begin repeated", key.0, key.1);
+                }
+                s.begin = Some(*ev);
+                s.last_activity = now;
+                info!(
+                    "job {} station {} ({}) begins, layer {}",
+                    key.0,
+                    key.1,
+                    s.name(),
+                    ev.layer
+                );
+                self.release_pending(key, now, out);
+            }
+            Some(StationEventKind::End) => match self.find(&key) {
+                Some(i) => {
+                    self.open[i].end = Some(*ev);
+                    self.open[i].last_activity = now;
+                    self.close_if_complete(i, out);
+                }
+                None if self.closed.contains(&key) => {
+                    // Closed already by a chunk flagged last: nothing to add.
+                }
+                None => {
+                    self.counters.input.events_invalid += 1;
+                    warn!(
+                        "job {} station {}: End for a station that is not open, ignored",
+                        key.0, key.1
+                    );
+                }
+            },
+            None => {
+                self.counters.input.events_invalid += 1;
+                warn!(
+                    "job {} station {}: station event of unknown kind {} ignored",
+                    key.0, key.1, ev.kind
+                );
+            }
+        }
+    }
+
+    pub fn on_pose(&mut self, pose: &PoseSnapshot, now: Instant, out: &mut impl Outputs) {
+        if pose.version != PoseSnapshot::VERSION {
+            self.counters.input.version_mismatch += 1;
+            warn!(
+                "pose of version {} ignored: this agent reads version {}",
+                pose.version,
+                PoseSnapshot::VERSION
+            );
+            return;
+        }
+        let key = (pose.job, pose.station);
+        if self.closed.contains(&key) {
+            self.counters.input.poses_invalid += 1;
+            warn!(
+                "job {} station {}: pose for a station already reported, ignored",
+                key.0, key.1
+            );
+            return;
+        }
+        let t = match self.frames.t_design_scanner(pose) {
+            Ok(t) => t,
+            Err(e) => {
+                self.counters.input.poses_invalid += 1;
+                warn!("job {} station {}: pose rejected: {e}", key.0, key.1);
+                return;
+            }
+        };
+        let i = self.open_slot(key, now, out);
+        let s = &mut self.open[i];
+        if s.pose.is_some() {
+            warn!(
+                "job {} station {}: a new pose replaces the previous one for the chunks that follow",
+                key.0, key.1
+            );
+        }
+        s.pose = Some(*pose);
+        s.inspector.set_pose(t);
+        s.last_activity = now;
+        self.release_pending(key, now, out);
+    }
+
+    pub fn on_chunk(&mut self, chunk: C, now: Instant, out: &mut impl Outputs) {
+        let h = *chunk.header();
+        if h.version != ChunkHeader::VERSION {
+            self.counters.input.version_mismatch += 1;
+            warn!(
+                "scan chunk of version {} ignored ({} points): this agent reads version {}",
+                h.version,
+                chunk.points().len(),
+                ChunkHeader::VERSION
+            );
+            return;
+        }
+        let key = (h.job, h.station);
+        match self.find(&key) {
+            Some(i) if self.open[i].pose.is_some() => {
+                self.process(i, &chunk, now, out);
+                self.close_if_complete(i, out);
+            }
+            None if self.closed.contains(&key) => {
+                self.counters.input.chunks_after_close += 1;
+                warn!(
+                    "job {} station {}: chunk {} arrived after the station's report, dropped ({} \
+                     points)",
+                    key.0,
+                    key.1,
+                    h.sequence,
+                    chunk.points().len()
+                );
+            }
+            _ => self.hold(chunk, now, out),
+        }
+    }
+
+    /// The input queues are empty: a station whose scanner said it is done closes now, even if
+    /// chunks are missing.
+    pub fn on_idle(&mut self, out: &mut impl Outputs) {
+        let mut i = 0;
+        while i < self.open.len() {
+            if self.open[i].finished_sending() {
+                self.close(i, None, out);
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    /// Closes stations and drops held chunks that have waited longer than the station timeout.
+    pub fn on_tick(&mut self, now: Instant, out: &mut impl Outputs) {
+        let timeout = self.limits.station_timeout;
+        let mut i = 0;
+        while i < self.open.len() {
+            if now.duration_since(self.open[i].last_activity) > timeout {
+                let s = &self.open[i];
+                warn!(
+                    "job {} station {}: no message for {:.1} s, closing it as timed out",
+                    s.key.0,
+                    s.key.1,
+                    timeout.as_secs_f64()
+                );
+                self.close(i, Some(StationStatus::TimedOut), out);
+            } else {
+                i += 1;
+            }
+        }
+        while self
+            .pending
+            .front()
+            .is_some_and(|p| now.duration_since(p.since) > timeout)
+        {
+            let p = self.pending.pop_front().expect("checked non-empty");
+            self.drop_unknown(&p.chunk);
+        }
+    }
+
+    /// Shutdown: every open station gets a partial report; held chunks without a station are
+    /// counted.
+    pub fn shutdown(&mut self, out: &mut impl Outputs) {
+        while !self.open.is_empty() {
+            self.close(0, Some(StationStatus::Partial), out);
+        }
+        while let Some(p) = self.pending.pop_front() {
+            self.drop_unknown(&p.chunk);
+        }
+    }
+
+    fn find(&self, key: &StationKey) -> Option<usize> {
+        self.open.iter().position(|s| &s.key == key)
+    }
+
+    fn open_slot(&mut self, key: StationKey, now: Instant, out: &mut impl Outputs) -> usize {
+        if let Some(i) = self.find(&key) {
+            return i;
+        }
+        if self.open.len() == self.limits.open_stations {
+            let oldest = (0..self.open.len())
+                .min_by_key(|&i| self.open[i].last_activity)
+                .expect("at least one station is open");
+            let s = &self.open[oldest];
+            warn!(
+                "more than {} stations open: closing job {} station {} early to make room",
+                self.limits.open_stations, s.key.0, s.key.1
+            );
+            self.close(oldest, Some(StationStatus::Incomplete), out);
+        }
+        self.open.push(OpenStation {
+            key,
+            begin: None,
+            end: None,
+            pose: None,
+            last_sequence: None,
+            inspector: StationInspector::new(
+                self.index,
+                nalgebra::Isometry3::identity(),
+                self.config,
+            ),
+            tracker: SequenceTracker::new(),
+            empty: 0,
+            oversized: 0,
+            last_activity: now,
+        });
+        self.open.len() - 1
+    }
+
+    fn hold(&mut self, chunk: C, now: Instant, out: &mut impl Outputs) {
+        let h = *chunk.header();
+        if self.pending.len() == self.limits.pending_chunks {
+            match self.pending.pop_front() {
+                Some(old) => {
+                    self.counters.input.chunks_pending_overflow += 1;
+                    let oh = *old.chunk.header();
+                    warn!(
+                        "job {} station {}: chunk {} waited for a pose in a full buffer and was \
+                         pushed out ({} points)",
+                        oh.job,
+                        oh.station,
+                        oh.sequence,
+                        old.chunk.points().len()
+                    );
+                    self.reject_held(old.chunk, now, out);
+                }
+                None => {
+                    // No buffer at all (pending_chunks = 0): reject at once.
+                    self.counters.input.chunks_pending_overflow += 1;
+                    self.reject_held(chunk, now, out);
+                    return;
+                }
+            }
+        }
+        if let Some(i) = self.find(&(h.job, h.station)) {
+            self.open[i].last_activity = now;
+        }
+        self.pending.push_back(Pending { chunk, since: now });
+    }
+
+    /// A held chunk that will never be processed: counted against its station when it is open.
+    fn reject_held(&mut self, chunk: C, _now: Instant, _out: &mut impl Outputs) {
+        let h = *chunk.header();
+        match self.find(&(h.job, h.station)) {
+            Some(i) => {
+                let n = chunk.points().len() as u64;
+                let s = &mut self.open[i];
+                s.tracker.offer(h.sequence);
+                s.inspector.reject(n, |r| &mut r.without_pose);
+                self.counters.rejected_points.without_pose += n;
+            }
+            None => self.drop_unknown(&chunk),
+        }
+    }
+
+    fn drop_unknown(&mut self, chunk: &C) {
+        let h = chunk.header();
+        self.counters.input.chunks_unknown_station += 1;
+        warn!(
+            "job {} station {}: chunk {} dropped, the station never began (no Begin event or \
+             pose) ({} points)",
+            h.job,
+            h.station,
+            h.sequence,
+            chunk.points().len()
+        );
+    }
+
+    /// Processes the held chunks of a station that just became ready, in arrival order.
+    fn release_pending(&mut self, key: StationKey, now: Instant, out: &mut impl Outputs) {
+        let Some(i) = self.find(&key) else { return };
+        if self.open[i].pose.is_none() {
+            return;
+        }
+        let mut n = self.pending.len();
+        while n > 0 {
+            n -= 1;
+            let p = self.pending.pop_front().expect("counted");
+            let h = p.chunk.header();
+            if (h.job, h.station) == key {
+                let i = self.find(&key).expect("still open");
+                self.process(i, &p.chunk, now, out);
+            } else {
+                self.pending.push_back(p);
+            }
+        }
+        if let Some(i) = self.find(&key) {
+            self.close_if_complete(i, out);
+        }
+    }
+
+    fn process(&mut self, i: usize, chunk: &C, now: Instant, out: &mut impl Outputs) {
+        let h = *chunk.header();
+        let points = chunk.points();
+        let n = points.len();
+        let s = &mut self.open[i];
+        s.last_activity = now;
+        if h.last != 0 {
+            s.last_sequence = Some(h.sequence);
+        }
+        let input = &mut self.counters.input;
+        if h.point_count as usize != n {
+            input.chunks_malformed += 1;
+            s.tracker.offer(h.sequence);
+            s.inspector.reject(n as u64, |r| &mut r.in_rejected_chunks);
+            self.counters.rejected_points.in_rejected_chunks += n as u64;
+            warn!(
+                "job {} station {}: chunk {} declares {} points but carries {}, rejected",
+                h.job, h.station, h.sequence, h.point_count, n
+            );
+            return;
+        }
+        let verdict = s.tracker.offer(h.sequence);
+        match verdict {
+            ChunkVerdict::Duplicate | ChunkVerdict::TooOld => {
+                if verdict == ChunkVerdict::Duplicate {
+                    input.chunks_duplicate += 1;
+                } else {
+                    input.chunks_out_of_order += 1;
+                }
+                s.inspector.reject(n as u64, |r| &mut r.in_rejected_chunks);
+                self.counters.rejected_points.in_rejected_chunks += n as u64;
+                warn!(
+                    "job {} station {}: chunk {} {}, dropped",
+                    h.job,
+                    h.station,
+                    h.sequence,
+                    if verdict == ChunkVerdict::Duplicate {
+                        "repeated"
+                    } else {
+                        "too far out of order to tell whether it is new"
+                    }
+                );
+                return;
+            }
+            ChunkVerdict::Accept | ChunkVerdict::AcceptLate => {}
+        }
+        if n == 0 {
+            input.chunks_empty += 1;
+            s.empty += 1;
+            return;
+        }
+        if n > self.limits.max_points_per_chunk {
+            input.chunks_oversized += 1;
+            s.oversized += 1;
+            s.inspector.reject(n as u64, |r| &mut r.in_rejected_chunks);
+            self.counters.rejected_points.in_rejected_chunks += n as u64;
+            warn!(
+                "job {} station {}: chunk {} has {} points, more than limits.max_points_per_chunk \
+                 = {}, rejected",
+                h.job, h.station, h.sequence, n, self.limits.max_points_per_chunk
+            );
+            return;
+        }
+        let before = s.inspector.tally().rejected;
+        let inspector = &mut s.inspector;
+        out.deviations(n, &mut |buf| {
+            let outcome = inspector.process(points, buf);
+            let mut d = DeviationHeader::new(h.job, h.station, h.sequence);
+            d.timestamp_ns = h.timestamp_ns;
+            d.point_count = n as u32;
+            d.rejected = outcome.rejected;
+            d.no_match = outcome.no_match;
+            d.out_of_tolerance = outcome.out_of_tolerance;
+            d
+        });
+        let after = s.inspector.tally().rejected;
+        let r = &mut self.counters.rejected_points;
+        r.non_finite += after.non_finite - before.non_finite;
+        r.out_of_range += after.out_of_range - before.out_of_range;
+        r.scanner_invalid += after.scanner_invalid - before.scanner_invalid;
+        self.counters.points_processed += n as u64;
+        self.counters.chunks_processed += 1;
+    }
+
+    fn close_if_complete(&mut self, i: usize, out: &mut impl Outputs) {
+        let s = &self.open[i];
+        if s.finished_sending() && s.tracker.is_complete(s.expected_chunks()) {
+            self.close(i, None, out);
+        }
+    }
+
+    fn close(&mut self, i: usize, forced: Option<StationStatus>, out: &mut impl Outputs) {
+        let key = self.open[i].key;
+        // Held chunks of this station will never get a pose now.
+        let mut n = self.pending.len();
+        while n > 0 {
+            n -= 1;
+            let p = self.pending.pop_front().expect("counted");
+            let h = p.chunk.header();
+            if (h.job, h.station) == key {
+                let points = p.chunk.points().len() as u64;
+                let s = &mut self.open[i];
+                s.tracker.offer(h.sequence);
+                s.inspector.reject(points, |r| &mut r.without_pose);
+                self.counters.rejected_points.without_pose += points;
+            } else {
+                self.pending.push_back(p);
+            }
+        }
+        let s = self.open.swap_remove(i);
+        let expected = s.expected_chunks();
+        let mut report = s.inspector.report(key.0, key.1, &s.name());
+        let mut chunks = s.tracker.finish(expected);
+        chunks.empty = s.empty;
+        chunks.oversized = s.oversized;
+        report.chunks = chunks;
+        if let Some(e) = s.begin.or(s.end) {
+            report.layer = e.layer;
+            report.printed_height = e.printed_height;
+        }
+        report.position_sigma = s.pose.map(|p| p.position_sigma).unwrap_or(f64::NAN);
+        let expected_points = s.expected_points();
+        let complete = s.pose.is_some()
+            && s.tracker.is_complete(expected)
+            && (expected_points == 0 || report.points_received == expected_points)
+            && s.finished_sending();
+        let status = forced.unwrap_or(if complete {
+            StationStatus::Complete
+        } else {
+            StationStatus::Incomplete
+        });
+        report.status = status as u8;
+        out.report(&report);
+        self.counters.stations_reported += 1;
+        if self.closed.len() == CLOSED_MEMORY {
+            self.closed.pop_front();
+        }
+        self.closed.push_back(key);
+        let st = &report.stats;
+        info!(
+            "job {} station {} ({}) {:?}: {} points, {} matched, {} rejected, {} no match; chunks \
+             {} received / {} expected, {} missing; median |d| {:.3} mm, p95 {:.3} mm",
+            key.0,
+            key.1,
+            report.name.as_str(),
+            status,
+            report.points_received,
+            st.count,
+            report.rejected.total(),
+            report.no_match,
+            chunks.received,
+            chunks.expected,
+            chunks.missing,
+            st.median_abs * 1e3,
+            st.p95_abs * 1e3
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use asbuilt_core::C2mParams;
+    use asbuilt_core::design::shapes;
+    use asbuilt_protocol::{PoseMode, ScanPointFlags};
+
+    struct Owned(ChunkHeader, Vec<ScanPoint>);
+    impl ChunkSource for Owned {
+        fn header(&self) -> &ChunkHeader {
+            &self.0
+        }
+        fn points(&self) -> &[ScanPoint] {
+            &self.1
+        }
+    }
+
+    #[derive(Default)]
+    struct Collect {
+        deviations: Vec<(DeviationHeader, Vec<PointDeviation>)>,
+        reports: Vec<StationReport>,
+    }
+    impl Outputs for Collect {
+        fn deviations(
+            &mut self,
+            n: usize,
+            fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
+        ) {
+            let mut buf = vec![PointDeviation::default(); n];
+            let h = fill(&mut buf);
+            self.deviations.push((h, buf));
+        }
+        fn report(&mut self, r: &StationReport) {
+            self.reports.push(*r);
+        }
+    }
+
+    /// A 1 m cube centred at the origin; points on its top face, 2 mm above it.
+    fn cube() -> C2mIndex {
+        let d = shapes::cuboid(
+            nalgebra::Point3::new(-0.5, -0.5, -0.5),
+            nalgebra::Point3::new(0.5, 0.5, 0.5),
+        );
+        C2mIndex::build(
+            &d,
+            C2mParams {
+                max_distance: 0.05,
+                cell_size: None,
+            },
+        )
+        .unwrap()
+    }
+
+    fn limits() -> LifecycleLimits {
+        LifecycleLimits {
+            max_points_per_chunk: 100,
+            pending_chunks: 4,
+            open_stations: 2,
+            station_timeout: Duration::from_secs(10),
+        }
+    }
+
+    fn chunk(station: u32, seq: u64, n: usize) -> Owned {
+        let pts = (0..n)
+            .map(|i| ScanPoint::new(-0.4 + 0.008 * i as f32, 0.1, 0.502))
+            .collect();
+        Owned(ChunkHeader::new(1, station, seq, n as u32), pts)
+    }
+
+    fn pose(station: u32) -> PoseSnapshot {
+        PoseSnapshot::new(1, station, PoseMode::DesignScanner)
+    }
+
+    fn event(kind: StationEventKind, station: u32, chunks: u32) -> StationEvent {
+        let mut e = StationEvent::new(kind, 1, station);
+        e.expected_chunks = chunks;
+        e
+    }
+
+    #[test]
+    fn a_clean_station_reports_complete_when_its_last_chunk_is_in() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        lc.on_event(&event(StationEventKind::Begin, 7, 0), t, &mut out);
+        lc.on_pose(&pose(7), t, &mut out);
+        for s in 0..3 {
+            lc.on_chunk(chunk(7, s, 50), t, &mut out);
+        }
+        assert!(out.reports.is_empty());
+        lc.on_event(&event(StationEventKind::End, 7, 3), t, &mut out);
+        assert_eq!(out.reports.len(), 1);
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+        assert_eq!(r.points_received, 150);
+        assert_eq!(r.stats.count, 150);
+        assert!((r.stats.mean - 0.002).abs() < 1e-6, "{}", r.stats.mean);
+        assert_eq!(out.deviations.len(), 3);
+        assert_eq!(out.deviations[2].0.sequence, 2);
+        assert_eq!(lc.stations_open(), 0);
+    }
+
+    fn cfg() -> InspectConfig {
+        InspectConfig::with_tolerance(0.005)
+    }
+
+    #[test]
+    fn chunks_before_their_pose_wait_and_are_then_processed() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        lc.on_chunk(chunk(3, 0, 10), t, &mut out);
+        lc.on_event(&event(StationEventKind::Begin, 3, 2), t, &mut out);
+        lc.on_chunk(chunk(3, 1, 10), t, &mut out);
+        assert_eq!(lc.chunks_waiting(), 2);
+        lc.on_pose(&pose(3), t, &mut out);
+        assert_eq!(lc.chunks_waiting(), 0);
+        lc.on_event(&event(StationEventKind::End, 3, 2), t, &mut out);
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+        assert_eq!(r.stats.count, 20);
+    }
+
+    #[test]
+    fn a_station_without_pose_is_reported_with_every_point_counted() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        lc.on_event(&event(StationEventKind::Begin, 3, 0), t, &mut out);
+        for s in 0..6 {
+            lc.on_chunk(chunk(3, s, 10), t, &mut out);
+        }
+        // Two were pushed out of the 4-chunk buffer.
+        assert_eq!(lc.counters.input.chunks_pending_overflow, 2);
+        lc.on_event(&event(StationEventKind::End, 3, 6), t, &mut out);
+        lc.on_idle(&mut out);
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Incomplete));
+        assert_eq!(r.points_received, 60);
+        assert_eq!(r.rejected.without_pose, 60);
+        assert_eq!(r.chunks.missing, 0);
+        assert_eq!(r.stats.count, 0);
+    }
+
+    #[test]
+    fn bad_chunks_are_counted_by_reason_and_good_points_kept() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        lc.on_event(&event(StationEventKind::Begin, 1, 0), t, &mut out);
+        lc.on_pose(&pose(1), t, &mut out);
+        let mut c = chunk(1, 0, 10);
+        c.1[0].xyz[0] = f32::NAN;
+        c.1[1].flags = ScanPointFlags(ScanPointFlags::INVALID);
+        c.1[2].xyz = [1e6, 0.0, 0.0];
+        lc.on_chunk(c, t, &mut out);
+        lc.on_chunk(chunk(1, 0, 10), t, &mut out); // repeat
+        lc.on_chunk(chunk(1, 1, 0), t, &mut out); // empty
+        lc.on_chunk(chunk(1, 2, 101), t, &mut out); // oversized
+        let mut lying = chunk(1, 3, 10);
+        lying.0.point_count = 11;
+        lc.on_chunk(lying, t, &mut out);
+        let mut future = chunk(1, 4, 10);
+        future.0.version = 9;
+        lc.on_chunk(future, t, &mut out);
+        lc.on_chunk(chunk(1, 5, 10), t, &mut out);
+        lc.on_event(&event(StationEventKind::End, 1, 6), t, &mut out);
+        lc.on_idle(&mut out);
+        let r = out.reports[0];
+        let i = lc.counters.input;
+        assert_eq!(
+            (
+                i.chunks_duplicate,
+                i.chunks_empty,
+                i.chunks_oversized,
+                i.chunks_malformed,
+                i.version_mismatch
+            ),
+            (1, 1, 1, 1, 1)
+        );
+        assert_eq!(r.rejected.non_finite, 1);
+        assert_eq!(r.rejected.scanner_invalid, 1);
+        assert_eq!(r.rejected.out_of_range, 1);
+        assert_eq!(r.rejected.in_rejected_chunks, 10 + 101 + 10);
+        assert_eq!(r.stats.count, 7 + 10);
+        assert_eq!(r.chunks.missing, 1, "chunk 4 was never usable");
+        assert_eq!((r.chunks.empty, r.chunks.oversized), (1, 1));
+        assert_eq!(r.status(), Some(StationStatus::Incomplete));
+        assert_eq!(lc.counters.rejected_points.total(), r.rejected.total());
+    }
+
+    #[test]
+    fn silence_closes_a_station_as_timed_out_and_late_chunks_are_counted() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        lc.on_event(&event(StationEventKind::Begin, 2, 0), t, &mut out);
+        lc.on_pose(&pose(2), t, &mut out);
+        lc.on_chunk(chunk(2, 0, 10), t, &mut out);
+        lc.on_chunk(chunk(9, 0, 10), t, &mut out); // never begins
+        lc.on_tick(t + Duration::from_secs(5), &mut out);
+        assert!(out.reports.is_empty());
+        lc.on_tick(t + Duration::from_secs(11), &mut out);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::TimedOut));
+        assert_eq!(out.reports[0].stats.count, 10);
+        assert_eq!(lc.counters.input.chunks_unknown_station, 1);
+        lc.on_chunk(chunk(2, 1, 10), t, &mut out);
+        assert_eq!(lc.counters.input.chunks_after_close, 1);
+    }
+
+    #[test]
+    fn shutdown_writes_partial_reports() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        lc.on_pose(&pose(4), t, &mut out);
+        lc.on_chunk(chunk(4, 0, 10), t, &mut out);
+        lc.shutdown(&mut out);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::Partial));
+        assert_eq!(out.reports[0].stats.count, 10);
+    }
+
+    #[test]
+    fn too_many_open_stations_close_the_least_recent_one() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        for (k, s) in [1u32, 2, 3].into_iter().enumerate() {
+            lc.on_event(
+                &event(StationEventKind::Begin, s, 0),
+                t + Duration::from_millis(k as u64),
+                &mut out,
+            );
+        }
+        assert_eq!(lc.stations_open(), 2);
+        assert_eq!(out.reports.len(), 1);
+        assert_eq!(out.reports[0].station, 1);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::Incomplete));
+    }
+
+    #[test]
+    fn a_bad_pose_is_rejected_and_the_station_waits_for_a_good_one() {
+        let index = cube();
+        let mut lc: Lifecycle<'_, Owned> =
+            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
+        let mut out = Collect::default();
+        let t = Instant::now();
+        let mut p = pose(5);
+        p.rotation_xyzw = [0.0, 0.0, 0.0, 3.0];
+        lc.on_pose(&p, t, &mut out);
+        assert_eq!(lc.counters.input.poses_invalid, 1);
+        lc.on_chunk(chunk(5, 0, 10), t, &mut out);
+        assert_eq!(lc.chunks_waiting(), 1);
+        lc.on_pose(&pose(5), t, &mut out);
+        assert_eq!(lc.chunks_waiting(), 0);
+        assert_eq!(out.deviations.len(), 1);
+    }
+}

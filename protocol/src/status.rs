@@ -1,0 +1,111 @@
+use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
+
+use crate::codec::Message;
+use crate::report::RejectCounts;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum AgentState {
+    Serving = 0,
+    /// A termination signal arrived: open stations are being closed with partial reports.
+    ShuttingDown = 1,
+}
+
+/// Inputs the agent could not use, whole messages at a time, by reason. Points inside rejected
+/// chunks are also counted per station in [`RejectCounts`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+pub struct InputRejects {
+    /// Chunks for a station that never began (no `Begin` event or pose within the timeout).
+    pub chunks_unknown_station: u64,
+    /// Chunks for a station whose report was already sent.
+    pub chunks_after_close: u64,
+    /// Chunks pushed out of the bounded wait-for-pose buffer by newer ones.
+    pub chunks_pending_overflow: u64,
+    pub chunks_empty: u64,
+    pub chunks_oversized: u64,
+    pub chunks_duplicate: u64,
+    pub chunks_out_of_order: u64,
+    /// `point_count` in the header disagrees with the payload length.
+    pub chunks_malformed: u64,
+    /// Any message whose `version` field is not the one this build reads.
+    pub version_mismatch: u64,
+    /// Poses that cannot be used: unknown mode, non-unit quaternion, non-finite values.
+    pub poses_invalid: u64,
+    /// Events of an unknown kind, or an `End` for a station that is not open.
+    pub events_invalid: u64,
+}
+
+/// Outputs that did not reach every subscriber because the subscriber's queue was full: the agent
+/// never waits for a slow consumer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
+#[repr(C)]
+pub struct OutputDrops {
+    pub deviation_chunks: u64,
+    pub reports: u64,
+    /// Deviation chunks computed but not published because no output sample could be loaned.
+    pub deviation_chunks_unloaned: u64,
+}
+
+/// The agent's health, published periodically and logged.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.AgentStatus.v1")]
+#[repr(C)]
+pub struct AgentStatus {
+    pub version: u16,
+    /// An [`AgentState`] as `u8`; read it with [`AgentStatus::state`].
+    pub state: u8,
+    pub _reserved: u8,
+    pub process_id: u32,
+    pub timestamp_ns: u64,
+    pub uptime_ns: u64,
+    /// Points of accepted chunks processed since start.
+    pub points_processed: u64,
+    pub chunks_processed: u64,
+    /// Over the last status period.
+    pub points_per_second: f64,
+    pub stations_open: u32,
+    /// Chunks held while they wait for their station's pose.
+    pub chunks_waiting: u32,
+    pub stations_reported: u64,
+    /// Dead iceoryx2 nodes (crashed publishers) whose resources the agent removed.
+    pub dead_nodes_cleaned: u64,
+    /// Points rejected in all stations so far, by reason.
+    pub rejected_points: RejectCounts,
+    pub input: InputRejects,
+    pub output: OutputDrops,
+}
+
+crate::codec::message!(AgentStatus, "asbuilt.AgentStatus.v1", 1);
+
+impl AgentStatus {
+    pub fn state(&self) -> Option<AgentState> {
+        match self.state {
+            0 => Some(AgentState::Serving),
+            1 => Some(AgentState::ShuttingDown),
+            _ => None,
+        }
+    }
+
+    pub fn new(process_id: u32) -> Self {
+        Self {
+            version: Self::VERSION,
+            state: AgentState::Serving as u8,
+            _reserved: 0,
+            process_id,
+            timestamp_ns: 0,
+            uptime_ns: 0,
+            points_processed: 0,
+            chunks_processed: 0,
+            points_per_second: 0.0,
+            stations_open: 0,
+            chunks_waiting: 0,
+            stations_reported: 0,
+            dead_nodes_cleaned: 0,
+            rejected_points: RejectCounts::default(),
+            input: InputRejects::default(),
+            output: OutputDrops::default(),
+        }
+    }
+}

@@ -1,0 +1,194 @@
+//! `asbuilt publish`: streams scans with known poses into a running agent as stations, the way a
+//! scanner on a robot would, and prints the reports that come back.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::{
+    ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind, StationReport,
+    StationStatus,
+};
+use clap::Args;
+use iceoryx2::prelude::*;
+
+use crate::scan_file::read_scan;
+use crate::stations;
+
+#[derive(Args)]
+pub struct PublishArgs {
+    /// Stations file: [[station]] with id, scan, translation, rotation_xyzw (design frame).
+    #[arg(long)]
+    stations: PathBuf,
+    /// Service prefix of the agent (its services.prefix).
+    #[arg(long, default_value = "asbuilt")]
+    prefix: String,
+    /// Job number carried by every message.
+    #[arg(long, default_value_t = 1)]
+    job: u64,
+    /// Points per scan chunk.
+    #[arg(long, default_value_t = 16_384)]
+    chunk_points: usize,
+    /// Points per second to send (a Z+F IMAGER delivers about 1000000), or `max`.
+    #[arg(long, default_value = "max")]
+    rate: String,
+    /// Seconds to wait for the agent to come up, and then for each report.
+    #[arg(long, default_value_t = 30.0)]
+    wait: f64,
+}
+
+fn parse_rate(s: &str) -> Result<Option<f64>> {
+    if s == "max" {
+        return Ok(None);
+    }
+    let r: f64 = s
+        .parse()
+        .ok()
+        .filter(|r: &f64| *r > 0.0 && r.is_finite())
+        .with_context(|| format!("--rate {s:?}: give points per second (e.g. 1000000) or max"))?;
+    Ok(Some(r))
+}
+
+pub fn run(args: PublishArgs) -> Result<ExitCode> {
+    let rate = parse_rate(&args.rate)?;
+    if args.chunk_points == 0 {
+        bail!("--chunk-points must be at least 1");
+    }
+    let stations = stations::load(&args.stations)?;
+    set_log_level_from_env_or(LogLevel::Error);
+    let node = NodeBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
+    // A publisher that crashed earlier may still hold a slot in the agent's services.
+    node.try_cleanup_dead_nodes();
+    let names = ServiceNames::new(&args.prefix);
+    let wait = Duration::from_secs_f64(args.wait);
+    let ports = CellPorts::open(&node, &names, args.chunk_points, wait)?;
+    eprintln!(
+        "publishing {} stations to {}/… ({} points per chunk, rate {})",
+        stations.len(),
+        names.prefix,
+        args.chunk_points,
+        args.rate
+    );
+
+    let started = Instant::now();
+    let mut sent_points = 0u64;
+    let mut reports = Vec::new();
+    let mut expected = Vec::new();
+    for (n, st) in stations.iter().enumerate() {
+        let station = n as u32;
+        let (points, _) = read_scan(&st.scan)?;
+        let chunks = points.len().div_ceil(args.chunk_points);
+
+        let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
+        begin.name = FixedText::truncated(&st.id);
+        begin.expected_chunks = chunks as u32;
+        begin.expected_points = points.len() as u64;
+        begin.timestamp_ns = now_ns();
+        ports.send_event(&begin)?;
+
+        let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
+        pose.translation = st.translation;
+        pose.rotation_xyzw = st.rotation_xyzw;
+        pose.position_sigma = st.position_sigma;
+        pose.timestamp_ns = now_ns();
+        ports.send_pose(&pose)?;
+
+        for (seq, chunk) in points.chunks(args.chunk_points).enumerate() {
+            let mut h = ChunkHeader::new(args.job, station, seq as u64, chunk.len() as u32);
+            h.timestamp_ns = now_ns();
+            h.last = u8::from(seq + 1 == chunks);
+            ports.send_chunk(&h, chunk)?;
+            sent_points += chunk.len() as u64;
+            if let Some(rate) = rate {
+                let due = Duration::from_secs_f64(sent_points as f64 / rate);
+                if let Some(ahead) = due.checked_sub(started.elapsed()) {
+                    std::thread::sleep(ahead);
+                }
+            }
+        }
+        let mut end = StationEvent::new(StationEventKind::End, args.job, station);
+        end.name = begin.name;
+        end.expected_chunks = chunks as u32;
+        end.expected_points = points.len() as u64;
+        end.timestamp_ns = now_ns();
+        ports.send_event(&end)?;
+        expected.push(station);
+        collect_reports(&ports, args.job, &mut reports, Duration::ZERO)?;
+    }
+    let deadline = Instant::now() + wait;
+    while reports.len() < expected.len() && Instant::now() < deadline {
+        collect_reports(&ports, args.job, &mut reports, Duration::from_millis(100))?;
+    }
+    let elapsed = started.elapsed().as_secs_f64();
+    eprintln!(
+        "sent {sent_points} points in {elapsed:.2} s ({:.2} M points/s); {} of {} reports back",
+        sent_points as f64 / elapsed / 1e6,
+        reports.len(),
+        expected.len()
+    );
+    let complete = reports
+        .iter()
+        .filter(|r| r.status() == Some(StationStatus::Complete))
+        .count();
+    if reports.len() < expected.len() {
+        eprintln!(
+            "error: {} station(s) got no report within {:.0} s",
+            expected.len() - reports.len(),
+            args.wait
+        );
+        return Ok(ExitCode::from(1));
+    }
+    if complete < reports.len() {
+        eprintln!(
+            "error: {} station(s) reported incomplete",
+            reports.len() - complete
+        );
+        return Ok(ExitCode::from(1));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn collect_reports(
+    ports: &CellPorts,
+    job: u64,
+    reports: &mut Vec<StationReport>,
+    wait: Duration,
+) -> Result<()> {
+    if !wait.is_zero() {
+        ports.wait_for_output(wait)?;
+    }
+    while let Some(r) = ports
+        .reports
+        .receive()
+        .map_err(|e| anyhow::anyhow!("cannot read reports: {e:?}"))?
+    {
+        let r = *r.payload();
+        if r.job != job || reports.iter().any(|x| x.station == r.station) {
+            continue;
+        }
+        println!(
+            "station {:<12} {:?}: {} points, {} matched, median |d| {:.3} mm, p95 {:.3} mm",
+            r.name.as_str(),
+            r.status().unwrap_or(StationStatus::Incomplete),
+            r.points_received,
+            r.stats.count,
+            r.stats.median_abs * 1e3,
+            r.stats.p95_abs * 1e3
+        );
+        reports.push(r);
+    }
+    // Deviations are for other subscribers; keep this one's queue from filling.
+    while let Ok(Some(_)) = ports.deviations.receive() {}
+    Ok(())
+}
+
+fn now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}

@@ -1,2 +1,233 @@
-//! End-to-end tests that cross crates live in `tests/`; the command line's own end-to-end tests
-//! live next to it in `tools/tests/`, where cargo builds the `asbuilt` binary for them.
+//! Harness for the end-to-end tests in `tests/`: a real `asbuilt-agent` process on services
+//! named for one test, and the cell's side of those services in the test process.
+//!
+//! Cargo hands an integration test only the binaries of its own package, so this package
+//! builds the shipped `main.rs` files of the agent and the command line again under the names
+//! `e2e-asbuilt-agent` and `e2e-asbuilt` (see Cargo.toml): the same source, not a stand-in.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::{AgentStatus, StationReport};
+use iceoryx2::prelude::*;
+
+/// A service prefix no other test or run uses.
+pub fn unique_prefix(test: &str) -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos();
+    format!("asbuilt-e2e/{test}-{}-{nanos}", std::process::id())
+}
+
+pub fn shared_data() -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+    assert!(p.is_dir(), "test data not found at {}", p.display());
+    p
+}
+
+/// Writes a closed axis-aligned box as ASCII STL, in metres, outward normals.
+pub fn write_box_stl(path: &Path, min: [f64; 3], max: [f64; 3]) {
+    let c = |i: usize| {
+        [
+            if i & 1 == 0 { min[0] } else { max[0] },
+            if i & 2 == 0 { min[1] } else { max[1] },
+            if i & 4 == 0 { min[2] } else { max[2] },
+        ]
+    };
+    // Each face as two triangles, counter-clockwise seen from outside.
+    let faces = [
+        [0, 2, 3, 1], // z-
+        [4, 5, 7, 6], // z+
+        [0, 1, 5, 4], // y-
+        [2, 6, 7, 3], // y+
+        [0, 4, 6, 2], // x-
+        [1, 3, 7, 5], // x+
+    ];
+    let mut s = String::from("solid box\n");
+    for f in faces {
+        for t in [[f[0], f[1], f[2]], [f[0], f[2], f[3]]] {
+            s.push_str(" facet normal 0 0 0\n  outer loop\n");
+            for v in t {
+                let p = c(v);
+                s.push_str(&format!("   vertex {} {} {}\n", p[0], p[1], p[2]));
+            }
+            s.push_str("  endloop\n endfacet\n");
+        }
+    }
+    s.push_str("endsolid box\n");
+    std::fs::write(path, s).unwrap();
+}
+
+/// A running agent; killed when dropped.
+pub struct Agent {
+    pub child: Child,
+    pub prefix: String,
+    pub dir: tempfile::TempDir,
+    log: PathBuf,
+}
+
+impl Agent {
+    /// Starts `exe` on a configuration made of `config` plus a `[services]` section for `prefix`.
+    pub fn start(exe: &str, prefix: &str, config: &str) -> Agent {
+        let dir = tempfile::tempdir().unwrap();
+        Self::start_in(exe, prefix, config, dir)
+    }
+
+    pub fn start_in(exe: &str, prefix: &str, config: &str, dir: tempfile::TempDir) -> Agent {
+        let path = dir.path().join("agent.toml");
+        std::fs::write(
+            &path,
+            format!("{config}\n[services]\nprefix = \"{prefix}\"\n"),
+        )
+        .unwrap();
+        let log = dir.path().join(format!("agent-{}.log", rand_suffix()));
+        let child = Command::new(exe)
+            .arg("--config")
+            .arg(&path)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Agent {
+            child,
+            prefix: prefix.to_string(),
+            dir,
+            log,
+        }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    pub fn log(&self) -> String {
+        let mut s = String::new();
+        std::fs::File::open(&self.log)
+            .unwrap()
+            .read_to_string(&mut s)
+            .unwrap();
+        s
+    }
+
+    pub fn signal(&self, signal: &str) {
+        let ok = Command::new("kill")
+            .arg(format!("-{signal}"))
+            .arg(self.pid().to_string())
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill -{signal} failed");
+    }
+
+    /// Waits for the process to exit on its own.
+    pub fn wait_exit(&mut self, timeout: Duration) -> ExitStatus {
+        let start = Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return s;
+            }
+            assert!(
+                start.elapsed() < timeout,
+                "agent did not exit within {timeout:?}; log:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Agent {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn rand_suffix() -> u32 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos()
+}
+
+/// The cell's side of an agent's services, in the test process.
+pub struct Cell {
+    pub ports: CellPorts,
+    _node: Node<Ipc>,
+}
+
+impl Cell {
+    /// Opens the agent's services, waiting for it to come up (design loading included).
+    pub fn open(prefix: &str, max_points_per_chunk: usize) -> Cell {
+        set_log_level_from_env_or(LogLevel::Error);
+        let node = NodeBuilder::new().create::<Ipc>().unwrap();
+        let ports = CellPorts::open(
+            &node,
+            &ServiceNames::new(prefix),
+            max_points_per_chunk,
+            Duration::from_secs(60),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        Cell { ports, _node: node }
+    }
+
+    /// Collects reports until `n` have arrived or `timeout` passes.
+    pub fn reports(&self, n: usize, timeout: Duration) -> Vec<StationReport> {
+        let start = Instant::now();
+        let mut out = Vec::new();
+        while out.len() < n && start.elapsed() < timeout {
+            while let Some(r) = self.ports.reports.receive().unwrap() {
+                out.push(*r.payload());
+            }
+            self.drain_deviations();
+            if out.len() < n {
+                let _ = self.ports.wait_for_output(Duration::from_millis(50));
+            }
+        }
+        out
+    }
+
+    pub fn drain_deviations(&self) -> usize {
+        let mut n = 0;
+        while let Ok(Some(d)) = self.ports.deviations.receive() {
+            n += d.payload().len();
+        }
+        n
+    }
+
+    /// The newest status that satisfies `pred`, waiting up to `timeout`.
+    pub fn status_where(
+        &self,
+        timeout: Duration,
+        pred: impl Fn(&AgentStatus) -> bool,
+    ) -> Option<AgentStatus> {
+        let start = Instant::now();
+        while start.elapsed() < timeout {
+            while let Some(s) = self.ports.status.receive().unwrap() {
+                if pred(s.payload()) {
+                    return Some(*s.payload());
+                }
+            }
+            self.drain_deviations();
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    }
+}
+
+/// Resident memory of a process from /proc, in KiB: (VmRSS, RssAnon, VmHWM).
+pub fn memory_kib(pid: u32) -> (u64, u64, u64) {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let field = |k: &str| {
+        s.lines()
+            .find(|l| l.starts_with(k))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    };
+    (field("VmRSS:"), field("RssAnon:"), field("VmHWM:"))
+}

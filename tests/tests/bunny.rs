@@ -133,3 +133,33 @@ fn station_reports_do_not_depend_on_chunking() {
     assert_eq!(back.stats.count, a.stats.count);
     assert!(a.stats.count > 30_000);
 }
+
+#[test]
+fn every_station_of_the_full_bunny_gives_the_same_bits_in_any_chunking() {
+    let design = Design::load(&bunny_dir().join("bun_zipper.ply"), Units::Metres).unwrap();
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: 0.005,
+            cell_size: None,
+        },
+    )
+    .unwrap();
+    for (name, t) in stations() {
+        let points = read_scan(&name);
+        let (ra, a) = inspect(&index, t, &points, 1 << 16);
+        for chunk in [10_000, 997] {
+            let (rb, b) = inspect(&index, t, &points, chunk);
+            for (i, (da, db)) in a.iter().zip(&b).enumerate() {
+                if da.distance.to_bits() != db.distance.to_bits() || da.triangle != db.triangle {
+                    let truth = index.brute_force(&da.position.into());
+                    panic!(
+                        "{name} point {i}, chunks of {chunk}: {da:?} vs {db:?}; brute force \
+                         {truth:?}"
+                    );
+                }
+            }
+            assert_eq!(codec::encode(&ra), codec::encode(&rb), "{name}");
+        }
+    }
+}

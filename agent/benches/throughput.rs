@@ -1,0 +1,192 @@
+//! Sustained throughput of the real agent process over iceoryx2 with C2M on the Stanford bunny
+//! (69,451 triangles), and the delay from a station's last chunk to its report.
+//!
+//! `cargo bench -p asbuilt-agent --bench throughput` (add `-- --quick` for one round)
+//!
+//! - max rate: the publisher sends as fast as the agent takes chunks (it is held back when the
+//!   agent's queue is full), so points / (report time - first send) is the agent's sustained rate.
+//! - paced at 1 and 2 M points/s (the scanner's rate and twice it): the report delay is measured
+//!   from the moment the last chunk was handed over (End follows at once), with the agent
+//!   keeping up, so it includes processing that last chunk.
+//!
+//! Points: the bunny surface in scan-like order, plus Gaussian noise of σ 0.5 mm per axis, 65,536 per
+//! chunk, 4 M per station. Every round checks that the report is complete and nothing was dropped.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_core::{Design, Units};
+use asbuilt_protocol::{
+    ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationReport,
+    StationStatus,
+};
+use iceoryx2::prelude::*;
+
+const CHUNK: usize = 65_536;
+const STATION_POINTS: usize = 4 << 20;
+
+#[path = "../../core/benches/support/points.rs"]
+mod points;
+
+fn surface_points(design: &Design, n: usize) -> Vec<ScanPoint> {
+    points::noisy_surface_points(design, n)
+        .iter()
+        .map(|p| ScanPoint::new(p.x as f32, p.y as f32, p.z as f32))
+        .collect()
+}
+
+struct AgentProcess(Child);
+impl Drop for AgentProcess {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Sends one station; returns (first send, last chunk handed over, report).
+fn station(
+    cell: &CellPorts,
+    station: u32,
+    points: &[ScanPoint],
+    rate: Option<f64>,
+) -> (Instant, Instant, Instant, StationReport) {
+    let chunks = points.len().div_ceil(CHUNK);
+    let mut begin = StationEvent::new(StationEventKind::Begin, 1, station);
+    begin.expected_chunks = chunks as u32;
+    cell.send_event(&begin).unwrap();
+    cell.send_pose(&PoseSnapshot::new(1, station, PoseMode::DesignScanner))
+        .unwrap();
+    let start = Instant::now();
+    let mut sent = 0usize;
+    let mut last = start;
+    for (seq, c) in points.chunks(CHUNK).enumerate() {
+        let h = ChunkHeader::new(1, station, seq as u64, c.len() as u32);
+        cell.send_chunk(&h, c).unwrap();
+        last = Instant::now();
+        sent += c.len();
+        while let Ok(Some(_)) = cell.deviations.receive() {}
+        if seq + 1 == chunks {
+            break;
+        }
+        if let Some(rate) = rate {
+            let due = start + Duration::from_secs_f64(sent as f64 / rate);
+            while Instant::now() < due {
+                while let Ok(Some(_)) = cell.deviations.receive() {}
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+    }
+    let mut end = StationEvent::new(StationEventKind::End, 1, station);
+    end.expected_chunks = chunks as u32;
+    cell.send_event(&end).unwrap();
+    loop {
+        while let Ok(Some(_)) = cell.deviations.receive() {}
+        if let Some(r) = cell.reports.receive().unwrap() {
+            let r = *r.payload();
+            if r.station == station {
+                return (start, last, Instant::now(), r);
+            }
+        }
+        let _ = cell.wait_for_output(Duration::from_millis(100));
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
+    let rounds = if quick { 1 } else { 5 };
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+    let mesh = data.join("stanford-bunny/bun_zipper.ply");
+    let design = Design::load(&mesh, Units::Metres).expect("the bunny in ../shared/data");
+    let points = surface_points(&design, STATION_POINTS);
+
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = format!("asbuilt-bench/{}", std::process::id());
+    let config = dir.path().join("agent.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+             max_distance = 0.005\n[services]\nprefix = \"{prefix}\"\n[status]\nperiod_s = 1.0\n",
+            mesh.display().to_string()
+        ),
+    )
+    .unwrap();
+    let _agent = AgentProcess(
+        Command::new(env!("CARGO_BIN_EXE_asbuilt-agent"))
+            .arg("--config")
+            .arg(&config)
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    set_log_level_from_env_or(LogLevel::Error);
+    let node = NodeBuilder::new().create::<Ipc>().unwrap();
+    let cell = CellPorts::open(
+        &node,
+        &ServiceNames::new(&prefix),
+        CHUNK,
+        Duration::from_secs(60),
+    )
+    .unwrap();
+
+    let mut next = 0u32;
+    let mut run = |rate: Option<f64>| {
+        let (start, last, done, r) = station(&cell, next, &points, rate);
+        next += 1;
+        assert_eq!(r.status(), Some(StationStatus::Complete), "{r:?}");
+        assert_eq!(r.points_received, points.len() as u64);
+        (
+            points.len() as f64 / done.duration_since(start).as_secs_f64(),
+            done.duration_since(last).as_secs_f64() * 1e3,
+        )
+    };
+    run(None); // warm-up: page in the shared-memory pools
+
+    println!(
+        "agent throughput, bunny C2M, {} points per station, {} per chunk, {rounds} round(s)",
+        points.len(),
+        CHUNK
+    );
+    for (label, rate) in [
+        ("max rate", None),
+        ("paced 1 M/s", Some(1e6)),
+        ("paced 2 M/s", Some(2e6)),
+    ] {
+        let results: Vec<(f64, f64)> = (0..rounds).map(|_| run(rate)).collect();
+        let rate_med = median(results.iter().map(|r| r.0).collect());
+        let delay_med = median(results.iter().map(|r| r.1).collect());
+        let delay_max = results.iter().map(|r| r.1).fold(0.0, f64::max);
+        println!(
+            "{label:>12}: {:.2} M points/s end to end (median); report {:.1} ms after the last \
+             chunk (median, max {:.1} ms)",
+            rate_med / 1e6,
+            delay_med,
+            delay_max
+        );
+    }
+    // Nothing dropped anywhere: the last status counts every input and output loss.
+    let deadline = Instant::now() + Duration::from_secs(3);
+    let mut status = None;
+    while Instant::now() < deadline {
+        while let Some(s) = cell.status.receive().unwrap() {
+            status = Some(*s.payload());
+        }
+        while let Ok(Some(_)) = cell.deviations.receive() {}
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let s = status.expect("the agent publishes its status");
+    println!(
+        "agent status: {} points, rejected {}, input drops {:?}, output drops {:?}",
+        s.points_processed,
+        s.rejected_points.total(),
+        s.input,
+        s.output
+    );
+}

@@ -13,7 +13,7 @@ use asbuilt_core::station::{InspectConfig, StationInspector};
 use asbuilt_core::{C2mIndex, C2mParams, Closest, Design, Units};
 use asbuilt_protocol::{PointDeviation, ScanPoint};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Isometry3;
 
 const POINTS: usize = 2_000_000;
 

@@ -304,34 +304,35 @@ fn drain_control(
     lifecycle: &mut Lifecycle<'_, ChunkSample>,
     out: &mut IpcOutputs<'_>,
 ) -> bool {
+    let events = drain_queue(&ports.stations, "station events", |ev| {
+        lifecycle.on_event(ev, Instant::now(), out)
+    });
+    let poses = drain_queue(&ports.poses, "poses", |p| {
+        lifecycle.on_pose(p, Instant::now(), out)
+    });
+    events || poses
+}
+
+/// Hands every queued message to `f`; true when there was any.
+fn drain_queue<T: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend>(
+    queue: &iceoryx2::port::subscriber::Subscriber<Ipc, T, ()>,
+    what: &str,
+    mut f: impl FnMut(&T),
+) -> bool {
     let mut any = false;
     loop {
-        match ports.stations.receive() {
-            Ok(Some(ev)) => {
+        match queue.receive() {
+            Ok(Some(m)) => {
                 any = true;
-                lifecycle.on_event(ev.payload(), Instant::now(), out);
+                f(m.payload());
             }
-            Ok(None) => break,
+            Ok(None) => return any,
             Err(e) => {
-                warn!("station events: {e:?}");
-                break;
+                warn!("{what}: {e:?}");
+                return any;
             }
         }
     }
-    loop {
-        match ports.poses.receive() {
-            Ok(Some(p)) => {
-                any = true;
-                lifecycle.on_pose(p.payload(), Instant::now(), out);
-            }
-            Ok(None) => break,
-            Err(e) => {
-                warn!("poses: {e:?}");
-                break;
-            }
-        }
-    }
-    any
 }
 
 fn cleanup_dead_nodes(node: &Node<Ipc>) -> u64 {

@@ -108,6 +108,28 @@ const REPORT_HISTORY: usize = 16;
 const SMALL_QUEUE: usize = 64;
 const MAX_NODES: usize = 16;
 
+/// A subscriber on a small input service (poses, station events): never overflowing, so the
+/// publisher is held back rather than a message lost.
+fn control_subscriber<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    name: &str,
+    exists: &dyn Fn(&str, &dyn std::fmt::Debug) -> IpcError,
+) -> Result<Subscriber<Ipc, T, ()>, IpcError> {
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<T>()
+        .max_publishers(MAX_INPUT_PUBLISHERS)
+        .max_subscribers(MAX_INPUT_SUBSCRIBERS)
+        .max_nodes(MAX_NODES)
+        .subscriber_max_buffer_size(SMALL_QUEUE)
+        .enable_safe_overflow(false)
+        .open_or_create()
+        .map_err(|e| exists(name, &e))?
+        .subscriber_builder()
+        .buffer_size(SMALL_QUEUE)
+        .create()
+        .map_err(|e| err(format!("cannot subscribe to {name}"), e))
+}
+
 /// The agent's side: it owns the services.
 pub struct AgentPorts {
     pub poses: Subscriber<Ipc, PoseSnapshot, ()>,
@@ -178,34 +200,8 @@ impl AgentPorts {
             .buffer_size(q.chunk_queue)
             .create()
             .map_err(|e| err("cannot subscribe to scan chunks", e))?;
-        let poses = node
-            .service_builder(&service_name(&names.poses)?)
-            .publish_subscribe::<PoseSnapshot>()
-            .max_publishers(MAX_INPUT_PUBLISHERS)
-            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .subscriber_max_buffer_size(SMALL_QUEUE)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.poses, &e))?
-            .subscriber_builder()
-            .buffer_size(SMALL_QUEUE)
-            .create()
-            .map_err(|e| err("cannot subscribe to poses", e))?;
-        let stations = node
-            .service_builder(&service_name(&names.stations)?)
-            .publish_subscribe::<StationEvent>()
-            .max_publishers(MAX_INPUT_PUBLISHERS)
-            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .subscriber_max_buffer_size(SMALL_QUEUE)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.stations, &e))?
-            .subscriber_builder()
-            .buffer_size(SMALL_QUEUE)
-            .create()
-            .map_err(|e| err("cannot subscribe to station events", e))?;
+        let poses = control_subscriber::<PoseSnapshot>(node, &names.poses, &exists)?;
+        let stations = control_subscriber::<StationEvent>(node, &names.stations, &exists)?;
         let inbox = node
             .service_builder(&service_name(&names.inbox)?)
             .event()

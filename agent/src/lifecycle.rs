@@ -172,14 +172,20 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             .is_some_and(|i| self.open[i].pose.is_some())
     }
 
+    /// Counts and logs a message of another version; true when it can be read.
+    fn readable<M: Message>(&mut self, version: u16, what: std::fmt::Arguments<'_>) -> bool {
+        match asbuilt_protocol::check_version::<M>(version) {
+            Ok(()) => true,
+            Err(e) => {
+                self.counters.input.version_mismatch += 1;
+                warn!("{what} ignored: {e}");
+                false
+            }
+        }
+    }
+
     pub fn on_event(&mut self, ev: &StationEvent, now: Instant, out: &mut impl Outputs) {
-        if ev.version != StationEvent::VERSION {
-            self.counters.input.version_mismatch += 1;
-            warn!(
-                "station event of version {} ignored: this agent reads version {}",
-                ev.version,
-                StationEvent::VERSION
-            );
+        if !self.readable::<StationEvent>(ev.version, format_args!("station event")) {
             return;
         }
         let key = (ev.job, ev.station);
@@ -229,13 +235,7 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
     }
 
     pub fn on_pose(&mut self, pose: &PoseSnapshot, now: Instant, out: &mut impl Outputs) {
-        if pose.version != PoseSnapshot::VERSION {
-            self.counters.input.version_mismatch += 1;
-            warn!(
-                "pose of version {} ignored: this agent reads version {}",
-                pose.version,
-                PoseSnapshot::VERSION
-            );
+        if !self.readable::<PoseSnapshot>(pose.version, format_args!("pose")) {
             return;
         }
         let key = (pose.job, pose.station);
@@ -271,14 +271,8 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
 
     pub fn on_chunk(&mut self, chunk: C, now: Instant, out: &mut impl Outputs) {
         let h = *chunk.header();
-        if h.version != ChunkHeader::VERSION {
-            self.counters.input.version_mismatch += 1;
-            warn!(
-                "scan chunk of version {} ignored ({} points): this agent reads version {}",
-                h.version,
-                chunk.points().len(),
-                ChunkHeader::VERSION
-            );
+        let n = chunk.points().len();
+        if !self.readable::<ChunkHeader>(h.version, format_args!("scan chunk ({n} points)")) {
             return;
         }
         let key = (h.job, h.station);

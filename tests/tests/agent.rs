@@ -273,7 +273,7 @@ fn every_bad_input_is_counted_logged_and_survived() {
         "declares 50 points but carries 40",
         "chunk 0 repeated",
         "more than limits.max_points_per_chunk",
-        "scan chunk of version 9 ignored",
+        "ChunkHeader.v1 version 9 cannot be read",
         "pose rejected",
         "End for a station that is not open",
         "unknown kind 7",

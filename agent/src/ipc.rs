@@ -299,6 +299,32 @@ pub struct CellPorts {
 /// How long a chunk publisher waits for a full agent queue before it reports the agent stuck.
 pub const DELIVERY_DEADLINE: Duration = Duration::from_secs(10);
 
+/// Inputs wait for a full agent queue, but not forever: a stuck agent becomes an error.
+fn deliver_or_fail(info: &BackpressureInfo) -> BackpressureAction {
+    if info.elapsed_time < DELIVERY_DEADLINE {
+        std::thread::yield_now();
+        BackpressureAction::Retry
+    } else {
+        BackpressureAction::DiscardDataAndFail
+    }
+}
+
+/// A publisher on a small input service of a running agent.
+fn control_publisher<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    name: &str,
+) -> Result<Publisher<Ipc, T, ()>, IpcError> {
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<T>()
+        .open()
+        .map_err(|e| err(name, e))?
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+        .set_backpressure_handler(deliver_or_fail)
+        .create()
+        .map_err(|e| err(format!("cannot publish on {name}"), e))
+}
+
 impl CellPorts {
     /// Opens the services of a running agent, waiting up to `wait` for it to appear.
     /// `max_points_per_chunk` sizes this publisher's chunk samples.
@@ -345,14 +371,6 @@ impl CellPorts {
             .subscriber_builder()
             .create()
             .map_err(|e| err("cannot subscribe to agent status", e))?;
-        let deliver_or_fail = |info: &BackpressureInfo| {
-            if info.elapsed_time < DELIVERY_DEADLINE {
-                std::thread::yield_now();
-                BackpressureAction::Retry
-            } else {
-                BackpressureAction::DiscardDataAndFail
-            }
-        };
         let chunk_service = node
             .service_builder(&service_name(&names.chunks)?)
             .publish_subscribe::<[ScanPoint]>()
@@ -367,26 +385,8 @@ impl CellPorts {
             .set_backpressure_handler(deliver_or_fail)
             .create()
             .map_err(|e| err("cannot publish scan chunks", e))?;
-        let poses = node
-            .service_builder(&service_name(&names.poses)?)
-            .publish_subscribe::<PoseSnapshot>()
-            .open()
-            .map_err(|e| err(&names.poses, e))?
-            .publisher_builder()
-            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-            .set_backpressure_handler(deliver_or_fail)
-            .create()
-            .map_err(|e| err("cannot publish poses", e))?;
-        let stations = node
-            .service_builder(&service_name(&names.stations)?)
-            .publish_subscribe::<StationEvent>()
-            .open()
-            .map_err(|e| err(&names.stations, e))?
-            .publisher_builder()
-            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-            .set_backpressure_handler(deliver_or_fail)
-            .create()
-            .map_err(|e| err("cannot publish station events", e))?;
+        let poses = control_publisher::<PoseSnapshot>(node, &names.poses)?;
+        let stations = control_publisher::<StationEvent>(node, &names.stations)?;
         let inbox = node
             .service_builder(&service_name(&names.inbox)?)
             .event()

@@ -709,10 +709,7 @@ mod tests {
     #[test]
     fn a_clean_station_reports_complete_when_its_last_chunk_is_in() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         lc.on_event(&event(StationEventKind::Begin, 7, 0), t, &mut out);
         lc.on_pose(&pose(7), t, &mut out);
         for s in 0..3 {
@@ -731,6 +728,11 @@ mod tests {
         assert_eq!(lc.stations_open(), 0);
     }
 
+    fn setup(index: &C2mIndex) -> (Lifecycle<'_, Owned>, Collect, Instant) {
+        let lc = Lifecycle::new(index, FrameChain::default(), cfg(), limits());
+        (lc, Collect::default(), Instant::now())
+    }
+
     fn cfg() -> InspectConfig {
         InspectConfig::with_tolerance(0.005)
     }
@@ -738,10 +740,7 @@ mod tests {
     #[test]
     fn chunks_before_their_pose_wait_and_are_then_processed() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         lc.on_chunk(chunk(3, 0, 10), t, &mut out);
         lc.on_event(&event(StationEventKind::Begin, 3, 2), t, &mut out);
         lc.on_chunk(chunk(3, 1, 10), t, &mut out);
@@ -757,10 +756,7 @@ mod tests {
     #[test]
     fn a_station_without_pose_is_reported_with_every_point_counted() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         lc.on_event(&event(StationEventKind::Begin, 3, 0), t, &mut out);
         for s in 0..6 {
             lc.on_chunk(chunk(3, s, 10), t, &mut out);
@@ -780,10 +776,7 @@ mod tests {
     #[test]
     fn bad_chunks_are_counted_by_reason_and_good_points_kept() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         lc.on_event(&event(StationEventKind::Begin, 1, 0), t, &mut out);
         lc.on_pose(&pose(1), t, &mut out);
         let mut c = chunk(1, 0, 10);
@@ -829,10 +822,7 @@ mod tests {
     #[test]
     fn silence_closes_a_station_as_timed_out_and_late_chunks_are_counted() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         lc.on_event(&event(StationEventKind::Begin, 2, 0), t, &mut out);
         lc.on_pose(&pose(2), t, &mut out);
         lc.on_chunk(chunk(2, 0, 10), t, &mut out);
@@ -850,10 +840,7 @@ mod tests {
     #[test]
     fn shutdown_writes_partial_reports() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         lc.on_pose(&pose(4), t, &mut out);
         lc.on_chunk(chunk(4, 0, 10), t, &mut out);
         lc.shutdown(&mut out);
@@ -864,10 +851,7 @@ mod tests {
     #[test]
     fn too_many_open_stations_close_the_least_recent_one() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         for (k, s) in [1u32, 2, 3].into_iter().enumerate() {
             lc.on_event(
                 &event(StationEventKind::Begin, s, 0),
@@ -884,10 +868,7 @@ mod tests {
     #[test]
     fn a_bad_pose_is_rejected_and_the_station_waits_for_a_good_one() {
         let index = cube();
-        let mut lc: Lifecycle<'_, Owned> =
-            Lifecycle::new(&index, FrameChain::default(), cfg(), limits());
-        let mut out = Collect::default();
-        let t = Instant::now();
+        let (mut lc, mut out, t) = setup(&index);
         let mut p = pose(5);
         p.rotation_xyzw = [0.0, 0.0, 0.0, 3.0];
         lc.on_pose(&p, t, &mut out);

@@ -7,7 +7,6 @@ use std::time::Duration;
 
 use asbuilt_core::Units;
 use asbuilt_core::frames::{FrameChain, isometry};
-use nalgebra::UnitQuaternion;
 use serde::Deserialize;
 use serde::de::DeserializeOwned;
 
@@ -301,8 +300,6 @@ fn frames(c: &CalibrationSection, problems: &mut Vec<String>) -> FrameChain {
             Ok(iso) => chain.r_base_flange = iso.rotation,
             Err(e) => problems.push(format!("calibration.r_base_flange_xyzw: {e}")),
         }
-    } else {
-        chain.r_base_flange = UnitQuaternion::identity();
     }
     chain
 }

@@ -2,13 +2,13 @@
 //! queues into the station lifecycle, and on a fixed tick close silent stations, clean up after
 //! dead publishers and publish the agent's status.
 
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use asbuilt_core::station::InspectConfig;
 use asbuilt_core::{C2mIndex, C2mParams, Design};
 use asbuilt_protocol::{
     AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation, ScanPoint,
-    StationReport,
+    StationReport, unix_time_ns,
 };
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -97,13 +97,6 @@ impl Outputs for IpcOutputs<'_> {
     }
 }
 
-fn now_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_nanos() as u64)
-        .unwrap_or(0)
-}
-
 /// Runs the agent until SIGINT or SIGTERM. Returns after every open station got its report.
 pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     // Install the termination handler before the long design load, so a stop request during
@@ -142,7 +135,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         .name(&"asbuilt-agent".try_into().expect("valid node name"))
         .create::<Ipc>()
         .map_err(|e| AgentError::Ipc(format!("cannot create the iceoryx2 node: {e:?}")))?;
-    let mut dead_nodes = node.try_cleanup_dead_nodes().cleanups;
+    let dead_nodes = node.try_cleanup_dead_nodes().cleanups;
     if dead_nodes > 0 {
         info!("removed the resources of {dead_nodes} dead iceoryx2 node(s) from an earlier run");
     }
@@ -198,12 +191,13 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         limits.pending_chunks,
         limits.station_timeout_s
     );
-    let pid = std::process::id();
-    let mut status = StatusClock {
-        next: Instant::now() + config.status.period(),
+    let mut status = StatusReporter {
+        started,
         period: config.status.period(),
+        next: Instant::now() + config.status.period(),
         last_points: 0,
         last_at: Instant::now(),
+        dead_nodes,
     };
     let mut terminated = false;
     while !terminated {
@@ -224,32 +218,14 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         let now = Instant::now();
         lifecycle.on_tick(now, &mut out);
         if now >= status.next {
-            dead_nodes += cleanup_dead_nodes(&node);
-            publish_status(
-                &ports,
-                &lifecycle,
-                &out,
-                &mut status,
-                pid,
-                started,
-                dead_nodes,
-                AgentState::Serving,
-            );
+            status.dead_nodes += cleanup_dead_nodes(&node);
+            status.publish(&ports, &lifecycle, &out, AgentState::Serving);
         }
     }
 
     info!("stop requested: closing open stations with partial reports");
     lifecycle.shutdown(&mut out);
-    publish_status(
-        &ports,
-        &lifecycle,
-        &out,
-        &mut status,
-        pid,
-        started,
-        dead_nodes,
-        AgentState::ShuttingDown,
-    );
+    status.publish(&ports, &lifecycle, &out, AgentState::ShuttingDown);
     let c = lifecycle.counters;
     info!(
         "stopped after {:.1} s: {} stations reported, {} points processed",
@@ -352,53 +328,59 @@ fn cleanup_dead_nodes(node: &Node<Ipc>) -> u64 {
     c.cleanups
 }
 
-struct StatusClock {
-    next: Instant,
+/// The periodic status message and health line, and what they are computed from.
+struct StatusReporter {
+    started: Instant,
     period: Duration,
+    next: Instant,
     last_points: u64,
     last_at: Instant,
+    /// Dead iceoryx2 nodes removed since start.
+    dead_nodes: u64,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn publish_status(
-    ports: &AgentPorts,
-    lifecycle: &Lifecycle<'_, ChunkSample>,
-    out: &IpcOutputs<'_>,
-    clock: &mut StatusClock,
-    pid: u32,
-    started: Instant,
-    dead_nodes: u64,
-    state: AgentState,
-) {
-    use std::sync::atomic::Ordering::Relaxed;
-    let now = Instant::now();
-    let mut s = AgentStatus::new(pid);
-    s.state = state as u8;
-    s.timestamp_ns = now_ns();
-    s.uptime_ns = started.elapsed().as_nanos() as u64;
-    lifecycle.fill_status(&mut s);
-    let dt = now.duration_since(clock.last_at).as_secs_f64();
-    if dt > 0.0 {
-        s.points_per_second = (s.points_processed - clock.last_points) as f64 / dt;
+impl StatusReporter {
+    fn publish(
+        &mut self,
+        ports: &AgentPorts,
+        lifecycle: &Lifecycle<'_, ChunkSample>,
+        out: &IpcOutputs<'_>,
+        state: AgentState,
+    ) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let now = Instant::now();
+        let mut s = AgentStatus::new(std::process::id());
+        s.state = state as u8;
+        s.timestamp_ns = unix_time_ns();
+        s.uptime_ns = self.started.elapsed().as_nanos() as u64;
+        lifecycle.fill_status(&mut s);
+        let dt = now.duration_since(self.last_at).as_secs_f64();
+        if dt > 0.0 {
+            s.points_per_second = (s.points_processed - self.last_points) as f64 / dt;
+        }
+        s.dead_nodes_cleaned = self.dead_nodes;
+        s.output = OutputDrops {
+            deviation_chunks: ports.deviation_drops.load(Relaxed),
+            reports: ports.report_drops.load(Relaxed),
+            deviation_chunks_unloaned: out.unloaned,
+        };
+        self.last_points = s.points_processed;
+        self.last_at = now;
+        self.next = now + self.period;
+        if let Err(e) = ports.status.send_copy(s) {
+            warn!("status not published: {e:?}");
+        }
+        log_health(&s);
     }
-    s.dead_nodes_cleaned = dead_nodes;
-    s.output = OutputDrops {
-        deviation_chunks: ports.deviation_drops.load(Relaxed),
-        reports: ports.report_drops.load(Relaxed),
-        deviation_chunks_unloaned: out.unloaned,
-    };
-    clock.last_points = s.points_processed;
-    clock.last_at = now;
-    clock.next = now + clock.period;
-    if let Err(e) = ports.status.send_copy(s) {
-        warn!("status not published: {e:?}");
-    }
+}
+
+fn log_health(s: &AgentStatus) {
     let i = s.input;
     info!(
         "health: {:.2} M points/s, {} points, {} chunks, {} stations open, {} chunks waiting for \
-         a pose, {} reported; rejected points {}; dropped inputs {} (unknown station {}, after \
+         a pose, {} reported; rejected points {}; rejected inputs {} (unknown station {}, after \
          close {}, overflow {}, duplicate {}, out of order {}, empty {}, oversized {}, malformed \
-         {}, version {}), bad poses {}, bad events {}; outputs missed by slow subscribers {} \
+         {}, version {}, bad poses {}, bad events {}); outputs missed by slow subscribers {} \
          deviation chunks, {} reports",
         s.points_per_second / 1e6,
         s.points_processed,
@@ -407,15 +389,7 @@ fn publish_status(
         s.chunks_waiting,
         s.stations_reported,
         s.rejected_points.total(),
-        i.chunks_unknown_station
-            + i.chunks_after_close
-            + i.chunks_pending_overflow
-            + i.chunks_duplicate
-            + i.chunks_out_of_order
-            + i.chunks_empty
-            + i.chunks_oversized
-            + i.chunks_malformed
-            + i.version_mismatch,
+        i.total(),
         i.chunks_unknown_station,
         i.chunks_after_close,
         i.chunks_pending_overflow,

@@ -112,6 +112,8 @@ pub struct Counters {
     pub points_processed: u64,
     pub chunks_processed: u64,
     pub stations_reported: u64,
+    /// Points rejected in the stations already reported; [`Lifecycle::fill_status`] adds those
+    /// of the open ones.
     pub rejected_points: RejectCounts,
     pub input: InputRejects,
 }
@@ -160,6 +162,9 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         s.chunks_processed = self.counters.chunks_processed;
         s.stations_reported = self.counters.stations_reported;
         s.rejected_points = self.counters.rejected_points;
+        for station in &self.open {
+            s.rejected_points += station.inspector.tally().rejected;
+        }
         s.input = self.counters.input;
         s.stations_open = self.open.len() as u32;
         s.chunks_waiting = self.pending.len() as u32;
@@ -292,7 +297,7 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
                     chunk.points().len()
                 );
             }
-            _ => self.hold(chunk, now, out),
+            _ => self.hold(chunk, now),
         }
     }
 
@@ -386,7 +391,7 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         self.open.len() - 1
     }
 
-    fn hold(&mut self, chunk: C, now: Instant, out: &mut impl Outputs) {
+    fn hold(&mut self, chunk: C, now: Instant) {
         let h = *chunk.header();
         if self.pending.len() == self.limits.pending_chunks {
             match self.pending.pop_front() {
@@ -401,12 +406,12 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
                         oh.sequence,
                         old.chunk.points().len()
                     );
-                    self.reject_held(old.chunk, now, out);
+                    self.reject_held(old.chunk);
                 }
                 None => {
                     // No buffer at all (pending_chunks = 0): reject at once.
                     self.counters.input.chunks_pending_overflow += 1;
-                    self.reject_held(chunk, now, out);
+                    self.reject_held(chunk);
                     return;
                 }
             }
@@ -418,18 +423,26 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
     }
 
     /// A held chunk that will never be processed: counted against its station when it is open.
-    fn reject_held(&mut self, chunk: C, _now: Instant, _out: &mut impl Outputs) {
+    fn reject_held(&mut self, chunk: C) {
         let h = *chunk.header();
         match self.find(&(h.job, h.station)) {
             Some(i) => {
-                let n = chunk.points().len() as u64;
                 let s = &mut self.open[i];
                 s.tracker.offer(h.sequence);
-                s.inspector.reject(n, |r| &mut r.without_pose);
-                self.counters.rejected_points.without_pose += n;
+                s.inspector
+                    .reject(chunk.points().len() as u64, |r| &mut r.without_pose);
             }
             None => self.drop_unknown(&chunk),
         }
+    }
+
+    /// Removes the first held chunk of a station, keeping the others in arrival order.
+    fn take_pending(&mut self, key: StationKey) -> Option<Pending<C>> {
+        let at = self.pending.iter().position(|p| {
+            let h = p.chunk.header();
+            (h.job, h.station) == key
+        })?;
+        self.pending.remove(at)
     }
 
     fn drop_unknown(&mut self, chunk: &C) {
@@ -451,21 +464,10 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         if self.open[i].pose.is_none() {
             return;
         }
-        let mut n = self.pending.len();
-        while n > 0 {
-            n -= 1;
-            let p = self.pending.pop_front().expect("counted");
-            let h = p.chunk.header();
-            if (h.job, h.station) == key {
-                let i = self.find(&key).expect("still open");
-                self.process(i, &p.chunk, now, out);
-            } else {
-                self.pending.push_back(p);
-            }
+        while let Some(p) = self.take_pending(key) {
+            self.process(i, &p.chunk, now, out);
         }
-        if let Some(i) = self.find(&key) {
-            self.close_if_complete(i, out);
-        }
+        self.close_if_complete(i, out);
     }
 
     fn process(&mut self, i: usize, chunk: &C, now: Instant, out: &mut impl Outputs) {
@@ -482,7 +484,6 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             input.chunks_malformed += 1;
             s.tracker.offer(h.sequence);
             s.inspector.reject(n as u64, |r| &mut r.in_rejected_chunks);
-            self.counters.rejected_points.in_rejected_chunks += n as u64;
             warn!(
                 "job {} station {}: chunk {} declares {} points but carries {}, rejected",
                 h.job, h.station, h.sequence, h.point_count, n
@@ -498,7 +499,6 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
                     input.chunks_out_of_order += 1;
                 }
                 s.inspector.reject(n as u64, |r| &mut r.in_rejected_chunks);
-                self.counters.rejected_points.in_rejected_chunks += n as u64;
                 warn!(
                     "job {} station {}: chunk {} {}, dropped",
                     h.job,
@@ -523,7 +523,6 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             input.chunks_oversized += 1;
             s.oversized += 1;
             s.inspector.reject(n as u64, |r| &mut r.in_rejected_chunks);
-            self.counters.rejected_points.in_rejected_chunks += n as u64;
             warn!(
                 "job {} station {}: chunk {} has {} points, more than limits.max_points_per_chunk \
                  = {}, rejected",
@@ -531,7 +530,6 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             );
             return;
         }
-        let before = s.inspector.tally().rejected;
         let inspector = &mut s.inspector;
         out.deviations(n, &mut |buf| {
             let outcome = inspector.process(points, buf);
@@ -543,11 +541,6 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             d.out_of_tolerance = outcome.out_of_tolerance;
             d
         });
-        let after = s.inspector.tally().rejected;
-        let r = &mut self.counters.rejected_points;
-        r.non_finite += after.non_finite - before.non_finite;
-        r.out_of_range += after.out_of_range - before.out_of_range;
-        r.scanner_invalid += after.scanner_invalid - before.scanner_invalid;
         self.counters.points_processed += n as u64;
         self.counters.chunks_processed += 1;
     }
@@ -562,20 +555,8 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
     fn close(&mut self, i: usize, forced: Option<StationStatus>, out: &mut impl Outputs) {
         let key = self.open[i].key;
         // Held chunks of this station will never get a pose now.
-        let mut n = self.pending.len();
-        while n > 0 {
-            n -= 1;
-            let p = self.pending.pop_front().expect("counted");
-            let h = p.chunk.header();
-            if (h.job, h.station) == key {
-                let points = p.chunk.points().len() as u64;
-                let s = &mut self.open[i];
-                s.tracker.offer(h.sequence);
-                s.inspector.reject(points, |r| &mut r.without_pose);
-                self.counters.rejected_points.without_pose += points;
-            } else {
-                self.pending.push_back(p);
-            }
+        while let Some(p) = self.take_pending(key) {
+            self.reject_held(p.chunk);
         }
         let s = self.open.swap_remove(i);
         let expected = s.expected_chunks();
@@ -602,6 +583,7 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         report.status = status as u8;
         out.report(&report);
         self.counters.stations_reported += 1;
+        self.counters.rejected_points += report.rejected;
         if self.closed.len() == CLOSED_MEMORY {
             self.closed.pop_front();
         }

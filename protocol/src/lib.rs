@@ -30,6 +30,15 @@ pub use station::{StationEvent, StationEventKind};
 pub use status::{AgentState, AgentStatus, InputRejects, OutputDrops};
 pub use text::{FixedText, TextTooLong};
 
+/// Now, in the unit every message's `timestamp_ns` uses: nanoseconds since the Unix epoch
+/// (0 if the clock is set before 1970).
+pub fn unix_time_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
 /// Checks the version field that every payload carries, for payloads that arrive through shared
 /// memory (where the codec's check does not run).
 pub fn check_version<M: Message>(found: u16) -> Result<(), DecodeError> {

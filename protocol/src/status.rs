@@ -37,6 +37,22 @@ pub struct InputRejects {
     pub events_invalid: u64,
 }
 
+impl InputRejects {
+    pub fn total(&self) -> u64 {
+        self.chunks_unknown_station
+            + self.chunks_after_close
+            + self.chunks_pending_overflow
+            + self.chunks_empty
+            + self.chunks_oversized
+            + self.chunks_duplicate
+            + self.chunks_out_of_order
+            + self.chunks_malformed
+            + self.version_mismatch
+            + self.poses_invalid
+            + self.events_invalid
+    }
+}
+
 /// Outputs that did not reach every subscriber because the subscriber's queue was full: the agent
 /// never waits for a slow consumer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]

@@ -49,6 +49,21 @@ fn read_scan(name: &str) -> Vec<ScanPoint> {
         .collect()
 }
 
+fn bunny_mesh(file: &str) -> Design {
+    Design::load(&bunny_dir().join(file), Units::Metres).unwrap()
+}
+
+fn c2m_index(design: &Design, max_distance: f64) -> C2mIndex {
+    C2mIndex::build(
+        design,
+        C2mParams {
+            max_distance,
+            cell_size: None,
+        },
+    )
+    .unwrap()
+}
+
 fn inspect(
     index: &C2mIndex,
     t: Isometry3<f64>,
@@ -65,23 +80,9 @@ fn inspect(
 
 #[test]
 fn every_no_match_point_is_truly_beyond_the_maximum_distance() {
-    let design = Design::load(&bunny_dir().join("bun_zipper.ply"), Units::Metres).unwrap();
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 0.005,
-            cell_size: None,
-        },
-    )
-    .unwrap();
-    let far = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 1.0,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let design = bunny_mesh("bun_zipper.ply");
+    let index = c2m_index(&design, 0.005);
+    let far = c2m_index(&design, 1.0);
     let mut no_match = 0;
     for (name, t) in stations() {
         let points = read_scan(&name);
@@ -107,15 +108,8 @@ fn every_no_match_point_is_truly_beyond_the_maximum_distance() {
 
 #[test]
 fn station_reports_do_not_depend_on_chunking() {
-    let design = Design::load(&bunny_dir().join("bun_zipper_res2.ply"), Units::Metres).unwrap();
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 0.005,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let design = bunny_mesh("bun_zipper_res2.ply");
+    let index = c2m_index(&design, 0.005);
     let (name, t) = stations().into_iter().last().unwrap();
     let points = read_scan(&name);
     let (a, da) = inspect(&index, t, &points, 65_536);
@@ -136,15 +130,8 @@ fn station_reports_do_not_depend_on_chunking() {
 
 #[test]
 fn every_station_of_the_full_bunny_gives_the_same_bits_in_any_chunking() {
-    let design = Design::load(&bunny_dir().join("bun_zipper.ply"), Units::Metres).unwrap();
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 0.005,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let design = bunny_mesh("bun_zipper.ply");
+    let index = c2m_index(&design, 0.005);
     for (name, t) in stations() {
         let points = read_scan(&name);
         let (ra, a) = inspect(&index, t, &points, 1 << 16);

@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind, StationReport,
-    StationStatus,
+    StationStatus, unix_time_ns,
 };
 use clap::Args;
 use iceoryx2::prelude::*;
@@ -87,19 +87,19 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         begin.name = FixedText::truncated(&st.id);
         begin.expected_chunks = chunks as u32;
         begin.expected_points = points.len() as u64;
-        begin.timestamp_ns = now_ns();
+        begin.timestamp_ns = unix_time_ns();
         ports.send_event(&begin)?;
 
         let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
         pose.position_sigma = st.position_sigma;
-        pose.timestamp_ns = now_ns();
+        pose.timestamp_ns = unix_time_ns();
         ports.send_pose(&pose)?;
 
         for (seq, chunk) in points.chunks(args.chunk_points).enumerate() {
             let mut h = ChunkHeader::new(args.job, station, seq as u64, chunk.len() as u32);
-            h.timestamp_ns = now_ns();
+            h.timestamp_ns = unix_time_ns();
             h.last = u8::from(seq + 1 == chunks);
             ports.send_chunk(&h, chunk)?;
             sent_points += chunk.len() as u64;
@@ -114,7 +114,7 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         end.name = begin.name;
         end.expected_chunks = chunks as u32;
         end.expected_points = points.len() as u64;
-        end.timestamp_ns = now_ns();
+        end.timestamp_ns = unix_time_ns();
         ports.send_event(&end)?;
         expected.push(station);
         collect_reports(&ports, args.job, &mut reports, Duration::ZERO)?;
@@ -184,11 +184,4 @@ fn collect_reports(
     // Deviations are for other subscribers; keep this one's queue from filling.
     while let Ok(Some(_)) = ports.deviations.receive() {}
     Ok(())
-}
-
-fn now_ns() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos() as u64)
-        .unwrap_or(0)
 }

@@ -60,18 +60,9 @@ fn read_ply(mut reader: impl BufRead, path: &Path) -> Result<Vec<ScanPoint>> {
     Ok(out)
 }
 
+/// Scan coordinates are f32 (see `ScanPoint`); every PLY scalar converts exactly to f64 first.
 fn scalar(p: &Property) -> Option<f32> {
-    Some(match *p {
-        Property::Float(v) => v,
-        Property::Double(v) => v as f32,
-        Property::Char(v) => v as f32,
-        Property::UChar(v) => v as f32,
-        Property::Short(v) => v as f32,
-        Property::UShort(v) => v as f32,
-        Property::Int(v) => v as f32,
-        Property::UInt(v) => v as f32,
-        _ => return None,
-    })
+    asbuilt_core::design::ply_scalar(p).map(|v| v as f32)
 }
 
 /// `x y z [intensity ...]` per line, separated by spaces, tabs, commas or semicolons. Comment

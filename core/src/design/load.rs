@@ -124,7 +124,7 @@ pub(super) fn read_mesh(path: &Path) -> Result<Mesh, DesignError> {
             for (i, v) in vertex_el.iter().enumerate() {
                 let coord = |k: &str| {
                     v.get(k)
-                        .and_then(scalar)
+                        .and_then(ply_scalar)
                         .ok_or_else(|| parse(format!("vertex {i} has no numeric `{k}`")))
                 };
                 vertices.push(Point3::new(coord("x")?, coord("y")?, coord("z")?));
@@ -148,7 +148,8 @@ pub(super) fn read_mesh(path: &Path) -> Result<Mesh, DesignError> {
     }
 }
 
-fn scalar(p: &Property) -> Option<f64> {
+/// A numeric PLY property as f64 (exact for every PLY scalar type); `None` for a list.
+pub fn ply_scalar(p: &Property) -> Option<f64> {
     Some(match *p {
         Property::Float(v) => v as f64,
         Property::Double(v) => v,

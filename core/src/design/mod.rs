@@ -10,7 +10,7 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-pub use load::{DesignError, MeshFormat};
+pub use load::{DesignError, MeshFormat, ply_scalar};
 pub use topology::Topology;
 
 /// The unit a design file was written in. Declared by the user, never guessed.

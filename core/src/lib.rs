@@ -9,3 +9,8 @@ pub mod stats;
 
 pub use c2m::{C2mIndex, C2mParams, Closest, Cursor};
 pub use design::{Design, DesignError, MeshReport, Units};
+pub mod cloud;
+pub mod coverage;
+pub mod m3c2;
+pub mod probes;
+pub mod sampling;

@@ -204,4 +204,72 @@ impl Bvh {
             }
         }
     }
+
+    /// Whether any triangle crosses the segment from `from` to `from + dir · t` for some `t` in
+    /// `(t_min, t_max)`.
+    pub fn segment_blocked(
+        &self,
+        triangles: &[Triangle],
+        from: &Point3<f64>,
+        dir: &nalgebra::Vector3<f64>,
+        t_min: f64,
+        t_max: f64,
+    ) -> bool {
+        let inv = dir.map(|d| 1.0 / d);
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            if !slab_hit(&node.min, &node.max, from, &inv, t_min, t_max) {
+                continue;
+            }
+            if node.count > 0 {
+                let s = node.start as usize;
+                for &t in &self.order[s..s + node.count as usize] {
+                    if let Some(hit) = triangles[t as usize].ray_hit(from, dir)
+                        && hit > t_min
+                        && hit < t_max
+                    {
+                        return true;
+                    }
+                }
+            } else {
+                stack[top] = node.start;
+                stack[top + 1] = node.start + 1;
+                top += 2;
+            }
+        }
+        false
+    }
+}
+
+/// Ray against box by slabs (Kay and Kajiya); infinities from zero direction components compare
+/// correctly.
+#[inline]
+fn slab_hit(
+    min: &[f64; 3],
+    max: &[f64; 3],
+    o: &Point3<f64>,
+    inv: &nalgebra::Vector3<f64>,
+    t_min: f64,
+    t_max: f64,
+) -> bool {
+    let (mut lo, mut hi) = (t_min, t_max);
+    for k in 0..3 {
+        let a = (min[k] - o[k]) * inv[k];
+        let b = (max[k] - o[k]) * inv[k];
+        let (a, b) = if a <= b { (a, b) } else { (b, a) };
+        // A NaN (0 · ∞ on a box face) must not exclude the box.
+        if a > lo {
+            lo = a;
+        }
+        if b < hi {
+            hi = b;
+        }
+        if lo > hi {
+            return false;
+        }
+    }
+    true
 }

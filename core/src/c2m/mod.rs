@@ -190,6 +190,24 @@ impl C2mIndex {
         Some(self.signed(p, t))
     }
 
+    /// Unit normal of design triangle `t`, outward for a consistently oriented mesh.
+    pub fn face_normal(&self, t: u32) -> Vector3<f64> {
+        self.normals.face[t as usize]
+    }
+
+    /// Whether the design blocks the line of sight from `eye` to `target`. Surface within
+    /// `margin` of either end does not count, so a point on the design sees past its own face.
+    pub fn blocks_sight(&self, eye: &Point3<f64>, target: &Point3<f64>, margin: f64) -> bool {
+        let d = target - eye;
+        let len = d.norm();
+        if !(len > 2.0 * margin) {
+            return false;
+        }
+        let dir = d / len;
+        self.bvh
+            .segment_blocked(&self.triangles, eye, &dir, margin, len - margin)
+    }
+
     /// Every triangle tested: the reference the fast path is checked against.
     pub fn brute_force(&self, p: &Point3<f64>) -> Option<Closest> {
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {

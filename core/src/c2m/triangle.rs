@@ -38,6 +38,29 @@ impl Triangle {
         self.a + self.ac
     }
 
+    /// Where the ray `o + t · dir` crosses the triangle, as `t` (Möller and Trumbore 1997);
+    /// `None` when it misses or runs parallel to the plane.
+    #[inline]
+    pub fn ray_hit(&self, o: &Point3<f64>, dir: &Vector3<f64>) -> Option<f64> {
+        let p = dir.cross(&self.ac);
+        let det = self.ab.dot(&p);
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let inv = 1.0 / det;
+        let s = o - self.a;
+        let u = s.dot(&p) * inv;
+        if !(0.0..=1.0).contains(&u) {
+            return None;
+        }
+        let q = s.cross(&self.ab);
+        let v = dir.dot(&q) * inv;
+        if v < 0.0 || u + v > 1.0 {
+            return None;
+        }
+        Some(self.ac.dot(&q) * inv)
+    }
+
     /// The closest point of the triangle to `p` and the region it lies in.
     #[inline]
     pub fn closest_point(&self, p: &Point3<f64>) -> (Point3<f64>, Region) {

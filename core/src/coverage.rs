@@ -1,0 +1,431 @@
+//! Reverse C2C and coverage: what C2M cannot see.
+//!
+//! A missing part of the print leaves no scan point, so no point-to-design distance exists for
+//! it. Turned around, every design sample keeps the distance to the nearest scan point seen so
+//! far (updated chunk by chunk; the state is per sample, never per point), and the sign of that
+//! point's offset along the sample's normal tells whether the as-built surface lies inside the
+//! design there. At the end of a station each sample is classified:
+//!
+//! - **observed**: a scan point within the threshold, or the design surface is buried under
+//!   material (the nearest point, within reach, stands out along the normal by more than the
+//!   threshold);
+//! - **missing**: no such point, and the sample faces a station in range at an acceptable
+//!   incidence with a clear line of sight: the scanner should have seen material there;
+//! - **occluded**: it faces a station in range but the design itself blocks the view;
+//! - **not scanned**: no station could have seen it (out of range, facing away, grazing).
+
+use nalgebra::{Point3, Vector3};
+
+use crate::c2m::C2mIndex;
+use crate::probes::{ProbeGrid, Scratch};
+use crate::sampling::DesignSamples;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoverageParams {
+    /// Farthest a scan point may be from a sample and still count as its nearest, metres. It is
+    /// the largest reverse distance reported, and the cost per point grows with its square.
+    pub reach: f64,
+    /// A sample with a scan point this close is observed, metres.
+    pub threshold: f64,
+    /// Farthest a station sees, metres.
+    pub max_range: f64,
+    /// Largest angle between a sample's normal and its line of sight that still returns points.
+    pub max_incidence_deg: f64,
+}
+
+impl CoverageParams {
+    pub fn with_threshold(threshold: f64, reach: f64) -> Self {
+        Self {
+            reach,
+            threshold,
+            max_range: 60.0,
+            max_incidence_deg: 80.0,
+        }
+    }
+
+    fn validate(&self) -> Result<(), CoverageError> {
+        let positive = |v: f64| v > 0.0 && v.is_finite();
+        if !positive(self.reach) || !positive(self.threshold) || self.threshold > self.reach {
+            return Err(CoverageError::Distances {
+                threshold: self.threshold,
+                reach: self.reach,
+            });
+        }
+        if !positive(self.max_range) || !(0.0..=90.0).contains(&self.max_incidence_deg) {
+            return Err(CoverageError::Sight {
+                max_range: self.max_range,
+                max_incidence_deg: self.max_incidence_deg,
+            });
+        }
+        Ok(())
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CoverageError {
+    #[error(
+        "coverage threshold ({threshold} m) and reach ({reach} m) must be positive, with the \
+         threshold no larger than the reach"
+    )]
+    Distances { threshold: f64, reach: f64 },
+    #[error(
+        "maximum range ({max_range} m) must be positive and the maximum incidence \
+         ({max_incidence_deg}°) between 0 and 90"
+    )]
+    Sight {
+        max_range: f64,
+        max_incidence_deg: f64,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SampleClass {
+    Observed,
+    Missing,
+    Occluded,
+    NotScanned,
+}
+
+/// The nearest scan point of one sample so far.
+#[derive(Debug, Clone, Copy)]
+struct Nearest {
+    d2: f64,
+    /// That point's offset along the sample's outward normal, metres.
+    along: f64,
+}
+
+impl Nearest {
+    const NONE: Self = Self {
+        d2: f64::INFINITY,
+        along: 0.0,
+    };
+
+    #[inline]
+    fn offer(&mut self, d2: f64, along: f64) {
+        if d2 < self.d2 || (d2 == self.d2 && along > self.along) {
+            *self = Self { d2, along };
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CoverageSummary {
+    pub observed: u64,
+    pub missing: u64,
+    pub occluded: u64,
+    pub not_scanned: u64,
+    pub missing_area_m2: f64,
+    /// Missing samples, as indices into [`Coverage::samples`].
+    pub missing_samples: Vec<u32>,
+}
+
+/// One design sample's outcome.
+#[derive(Debug, Clone, Copy)]
+pub struct SampleOutcome {
+    pub position: Point3<f64>,
+    pub normal: Vector3<f64>,
+    /// Signed distance to the nearest scan point, metres: negative when that point lies inside
+    /// the design. `None` when no scan point came within reach.
+    pub reverse_distance: Option<f64>,
+    pub class: SampleClass,
+}
+
+pub struct Coverage {
+    grid: ProbeGrid,
+    params: CoverageParams,
+    area_per_sample: f64,
+    station: Vec<Nearest>,
+    total: Vec<Nearest>,
+    scratch: Scratch,
+    origins: Vec<Point3<f64>>,
+}
+
+impl Coverage {
+    pub fn new(samples: &DesignSamples, params: CoverageParams) -> Result<Self, CoverageError> {
+        params.validate()?;
+        let grid = ProbeGrid::new(&samples.points, &samples.normals, params.reach);
+        let n = grid.len();
+        Ok(Self {
+            grid,
+            params,
+            area_per_sample: samples.area_per_sample,
+            station: vec![Nearest::NONE; n],
+            total: vec![Nearest::NONE; n],
+            scratch: Scratch::default(),
+            origins: Vec::new(),
+        })
+    }
+
+    pub fn params(&self) -> &CoverageParams {
+        &self.params
+    }
+
+    /// Sample positions in the order every per-sample output uses.
+    pub fn samples(&self) -> &[Point3<f64>] {
+        self.grid.points()
+    }
+
+    pub fn area_per_sample(&self) -> f64 {
+        self.area_per_sample
+    }
+
+    /// Memory held for the whole job: per-sample state plus the largest chunk's scratch.
+    pub fn bytes(&self) -> usize {
+        self.grid.bytes()
+            + (self.station.capacity() + self.total.capacity()) * size_of::<Nearest>()
+            + self.scratch.bytes()
+    }
+
+    /// Starts a station: its own nearest points start empty; the job's are kept.
+    pub fn begin_station(&mut self) {
+        self.station.fill(Nearest::NONE);
+    }
+
+    /// Takes a chunk of scan points already in the design frame.
+    pub fn ingest(&mut self, points: &[Point3<f64>]) {
+        let reach2 = self.params.reach * self.params.reach;
+        self.grid.offer(
+            &mut self.scratch,
+            &mut self.station,
+            points,
+            |s, n, st, pts| {
+                for p in pts {
+                    let v = p - s;
+                    let d2 = v.norm_squared();
+                    if d2 <= reach2 {
+                        st.offer(d2, v.dot(n));
+                    }
+                }
+            },
+        );
+    }
+
+    /// Closes the station scanned from `origin` (design frame): classifies every sample by this
+    /// station alone, then adds what it saw to the job.
+    pub fn end_station(&mut self, origin: Point3<f64>, design: &C2mIndex) -> CoverageSummary {
+        let summary = self.classify(&self.station, std::slice::from_ref(&origin), design);
+        for (t, s) in self.total.iter_mut().zip(&self.station) {
+            t.offer(s.d2, s.along);
+        }
+        self.origins.push(origin);
+        summary
+    }
+
+    /// The job so far: every sample against every station closed so far.
+    pub fn total(&self, design: &C2mIndex) -> CoverageSummary {
+        self.classify(&self.total, &self.origins, design)
+    }
+
+    /// Every sample's reverse distance and class over the job so far.
+    pub fn outcomes(&self, design: &C2mIndex) -> Vec<SampleOutcome> {
+        let g = &self.grid;
+        (0..g.len())
+            .map(|i| {
+                let s = &self.total[i];
+                SampleOutcome {
+                    position: g.points()[i],
+                    normal: g.normals()[i],
+                    reverse_distance: s.d2.is_finite().then(|| signed(s)),
+                    class: self.class_of(i, s, &self.origins, design),
+                }
+            })
+            .collect()
+    }
+
+    fn classify(
+        &self,
+        state: &[Nearest],
+        origins: &[Point3<f64>],
+        design: &C2mIndex,
+    ) -> CoverageSummary {
+        use rayon::prelude::*;
+        let classes: Vec<SampleClass> = (0..state.len())
+            .into_par_iter()
+            .map(|i| self.class_of(i, &state[i], origins, design))
+            .collect();
+        let mut s = CoverageSummary::default();
+        for (i, c) in classes.iter().enumerate() {
+            match c {
+                SampleClass::Observed => s.observed += 1,
+                SampleClass::Missing => {
+                    s.missing += 1;
+                    s.missing_samples.push(i as u32);
+                }
+                SampleClass::Occluded => s.occluded += 1,
+                SampleClass::NotScanned => s.not_scanned += 1,
+            }
+        }
+        s.missing_area_m2 = s.missing as f64 * self.area_per_sample;
+        s
+    }
+
+    fn class_of(
+        &self,
+        i: usize,
+        nearest: &Nearest,
+        origins: &[Point3<f64>],
+        design: &C2mIndex,
+    ) -> SampleClass {
+        let t = self.params.threshold;
+        // Seen where it should be, or buried: the nearest point stands out along the normal by
+        // more than the threshold. A point merely beside the sample (at the rim of a hole) is
+        // neither.
+        if nearest.d2 <= t * t || nearest.along > t {
+            return SampleClass::Observed;
+        }
+        let p = self.grid.points()[i];
+        let n = self.grid.normals()[i];
+        let cos_max = self.params.max_incidence_deg.to_radians().cos();
+        // Lines of sight start just off the surface, so the sample's own face never blocks.
+        let margin = (0.25 * t).min(1e-3);
+        let mut facing = false;
+        for o in origins {
+            let v = o - p;
+            let range = v.norm();
+            if !(range > 0.0 && range <= self.params.max_range) || v.dot(&n) < cos_max * range {
+                continue;
+            }
+            facing = true;
+            if !design.blocks_sight(o, &(p + n * margin), margin) {
+                return SampleClass::Missing;
+            }
+        }
+        if facing {
+            SampleClass::Occluded
+        } else {
+            SampleClass::NotScanned
+        }
+    }
+}
+
+fn signed(n: &Nearest) -> f64 {
+    let d = n.d2.sqrt();
+    if n.along < 0.0 { -d } else { d }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::c2m::C2mParams;
+    use crate::design::shapes;
+
+    fn plane_points(z: f64, x: (f64, f64), y: (f64, f64), step: f64) -> Vec<Point3<f64>> {
+        let mut v = Vec::new();
+        let mut xi = x.0;
+        while xi <= x.1 {
+            let mut yi = y.0;
+            while yi <= y.1 {
+                v.push(Point3::new(xi, yi, z));
+                yi += step;
+            }
+            xi += step;
+        }
+        v
+    }
+
+    /// A 1 m box scanned from above: only its top is within reach of the scan. The top is
+    /// observed where points are; a hole in the scan is missing with its area; the sides face
+    /// away from a station straight overhead at grazing angles (not scanned), the bottom faces
+    /// away.
+    #[test]
+    fn a_hole_in_the_top_of_a_box_is_missing_with_its_area() {
+        let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
+        let index = C2mIndex::build(&d, C2mParams::default()).unwrap();
+        let samples = DesignSamples::generate(&d, 0.01, 1).unwrap();
+        let params = CoverageParams::with_threshold(0.005, 0.05);
+        let mut cov = Coverage::new(&samples, params).unwrap();
+        let hole = |p: &Point3<f64>| (0.3..0.5).contains(&p.x) && (0.3..0.6).contains(&p.y);
+        let scan: Vec<_> = plane_points(1.001, (0.0, 1.0), (0.0, 1.0), 0.002)
+            .into_iter()
+            .filter(|p| !hole(p))
+            .collect();
+        cov.begin_station();
+        for c in scan.chunks(10_000) {
+            cov.ingest(c);
+        }
+        let s = cov.end_station(Point3::new(0.5, 0.5, 3.0), &index);
+        // The hole's centre part (more than 5 mm from any scan point) is 0.19 × 0.29 m.
+        let truth = (0.2 - 0.01) * (0.3 - 0.01);
+        assert!(
+            (s.missing_area_m2 - truth).abs() < 0.1 * truth,
+            "{} vs {truth}",
+            s.missing_area_m2
+        );
+        for &i in &s.missing_samples {
+            let p = cov.samples()[i as usize];
+            assert!((p.z - 1.0).abs() < 1e-9 && hole(&p), "{p}");
+        }
+        // Sides see the station at 71° to 90° from their normal, the bottom faces away.
+        assert_eq!(s.occluded, 0);
+        let top_area = 1.0;
+        let observed_area = s.observed as f64 * cov.area_per_sample();
+        assert!(
+            (observed_area - (top_area - truth)).abs() < 0.05,
+            "{observed_area}"
+        );
+        let total = cov.total(&index);
+        assert_eq!(total, s);
+    }
+
+    #[test]
+    fn material_short_of_the_design_is_missing_and_material_beyond_it_is_not() {
+        // Scan of the top face 8 mm too low (material missing) on one half and 8 mm too high
+        // (excess) on the other.
+        let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
+        let index = C2mIndex::build(&d, C2mParams::default()).unwrap();
+        let samples = DesignSamples::generate(&d, 0.02, 1).unwrap();
+        let mut cov = Coverage::new(&samples, CoverageParams::with_threshold(0.005, 0.05)).unwrap();
+        let mut scan = plane_points(0.992, (0.0, 0.5), (0.0, 1.0), 0.004);
+        scan.extend(plane_points(1.008, (0.504, 1.0), (0.0, 1.0), 0.004));
+        cov.begin_station();
+        cov.ingest(&scan);
+        cov.end_station(Point3::new(0.5, 0.5, 2.0), &index);
+        for o in cov.outcomes(&index) {
+            if (o.position.z - 1.0).abs() > 1e-9 || (o.position.x - 0.5).abs() < 0.03 {
+                continue;
+            }
+            let d = o.reverse_distance.expect("within reach");
+            if o.position.x < 0.5 {
+                assert!((d + 0.008).abs() < 1e-3, "{d}");
+                assert_eq!(o.class, SampleClass::Missing);
+            } else {
+                assert!((d - 0.008).abs() < 1e-3, "{d}");
+                assert_eq!(o.class, SampleClass::Observed);
+            }
+        }
+    }
+
+    #[test]
+    fn a_face_hidden_behind_another_part_is_occluded() {
+        // Two boxes side by side in x; the station looks along +x from the left, so the right
+        // box's left face is hidden behind the left box.
+        let a = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
+        let b = shapes::cuboid(Point3::new(2.0, 0.0, 0.0), Point3::new(3.0, 1.0, 1.0));
+        let mut v = a.vertices.clone();
+        let off = v.len() as u32;
+        v.extend(&b.vertices);
+        let mut t = a.triangles.clone();
+        t.extend(b.triangles.iter().map(|t| t.map(|i| i + off)));
+        let d = crate::Design::from_indexed(v, t, 1.0).unwrap();
+        let index = C2mIndex::build(&d, C2mParams::default()).unwrap();
+        let samples = DesignSamples::generate(&d, 0.05, 1).unwrap();
+        let mut cov = Coverage::new(&samples, CoverageParams::with_threshold(0.005, 0.05)).unwrap();
+        cov.begin_station();
+        let s = cov.end_station(Point3::new(-3.0, 0.5, 0.5), &index);
+        for (i, p) in cov.samples().iter().enumerate() {
+            let missing = s.missing_samples.contains(&(i as u32));
+            if (p.x - 2.0).abs() < 1e-9 {
+                assert!(!missing, "hidden face counted missing at {p}");
+            }
+            if p.x.abs() < 1e-9 {
+                assert!(missing, "visible face not missing at {p}");
+            }
+        }
+        let face = 1.0 / cov.area_per_sample();
+        assert!(
+            (s.occluded as f64 - face).abs() < 0.2 * face,
+            "{}",
+            s.occluded
+        );
+    }
+}

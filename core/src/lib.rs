@@ -9,8 +9,10 @@ pub mod stats;
 
 pub use c2m::{C2mIndex, C2mParams, Closest, Cursor};
 pub use design::{Design, DesignError, MeshReport, Units};
+pub mod c2c;
 pub mod cloud;
 pub mod coverage;
+pub mod icp;
 pub mod m3c2;
 pub mod probes;
 pub mod sampling;

@@ -3,7 +3,7 @@
 
 mod load;
 pub mod shapes;
-mod topology;
+pub(crate) mod topology;
 
 use std::collections::HashMap;
 use std::path::Path;

@@ -7,8 +7,7 @@
 //! design there. At the end of a station each sample is classified:
 //!
 //! - **observed**: a scan point within the threshold, or the design surface is buried under
-//!   material (the nearest point, within reach, stands out along the normal by more than the
-//!   threshold);
+//!   material (the nearest point, within reach, lies outside within 60° of the normal);
 //! - **missing**: no such point, and the sample faces a station in range at an acceptable
 //!   incidence with a clear line of sight: the scanner should have seen material there;
 //! - **occluded**: it faces a station in range but the design itself blocks the view;
@@ -267,10 +266,11 @@ impl Coverage {
         design: &C2mIndex,
     ) -> SampleClass {
         let t = self.params.threshold;
-        // Seen where it should be, or buried: the nearest point stands out along the normal by
-        // more than the threshold. A point merely beside the sample (at the rim of a hole) is
-        // neither.
-        if nearest.d2 <= t * t || nearest.along > t {
+        // Seen where it should be, or buried: the nearest point lies outside, within 60° of the
+        // normal. A point merely beside the sample (at the rim of a hole) is neither.
+        if nearest.d2 <= t * t
+            || (nearest.d2.is_finite() && nearest.along > 0.5 * nearest.d2.sqrt())
+        {
             return SampleClass::Observed;
         }
         let p = self.grid.points()[i];
@@ -399,14 +399,10 @@ mod tests {
     fn a_face_hidden_behind_another_part_is_occluded() {
         // Two boxes side by side in x; the station looks along +x from the left, so the right
         // box's left face is hidden behind the left box.
-        let a = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
-        let b = shapes::cuboid(Point3::new(2.0, 0.0, 0.0), Point3::new(3.0, 1.0, 1.0));
-        let mut v = a.vertices.clone();
-        let off = v.len() as u32;
-        v.extend(&b.vertices);
-        let mut t = a.triangles.clone();
-        t.extend(b.triangles.iter().map(|t| t.map(|i| i + off)));
-        let d = crate::Design::from_indexed(v, t, 1.0).unwrap();
+        let d = shapes::merge(&[
+            shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0)),
+            shapes::cuboid(Point3::new(2.0, 0.0, 0.0), Point3::new(3.0, 1.0, 1.0)),
+        ]);
         let index = C2mIndex::build(&d, C2mParams::default()).unwrap();
         let samples = DesignSamples::generate(&d, 0.05, 1).unwrap();
         let mut cov = Coverage::new(&samples, CoverageParams::with_threshold(0.005, 0.05)).unwrap();

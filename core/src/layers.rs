@@ -200,7 +200,8 @@ fn cap(
     let mut out: Vec<u32> = Vec::new();
     for &o in &outers {
         let mut ring: Vec<u32> = loops[o].clone();
-        let mut rings = vec![0..ring.len()];
+        let mut rings: Vec<std::ops::Range<usize>> = Vec::with_capacity(1 + holes_of.len());
+        rings.push(0..ring.len());
         for &h in holes_of.get(&o).map(Vec::as_slice).unwrap_or(&[]) {
             let start = ring.len();
             ring.extend(&loops[h]);

@@ -200,7 +200,7 @@ impl C2mIndex {
     pub fn blocks_sight(&self, eye: &Point3<f64>, target: &Point3<f64>, margin: f64) -> bool {
         let d = target - eye;
         let len = d.norm();
-        if !(len > 2.0 * margin) {
+        if len.partial_cmp(&(2.0 * margin)) != Some(std::cmp::Ordering::Greater) {
             return false;
         }
         let dir = d / len;

@@ -117,3 +117,50 @@ pub fn icosphere(center: Point3<f64>, radius: f64, subdivisions: u32) -> Design 
     let v = v.iter().map(|d| center + d * radius).collect();
     Design::from_indexed(v, t, 1.0).expect("a sphere has area")
 }
+
+/// A truncated cone standing on the plane z = `base.z`: radius `r_base` at the bottom, `r_top`
+/// at `height` above, `segments` facets around, closed by a top disc. With `bottom` false it is
+/// open underneath, to stand on another part's face without an internal face.
+pub fn frustum(
+    base: Point3<f64>,
+    r_base: f64,
+    r_top: f64,
+    height: f64,
+    segments: u32,
+    bottom: bool,
+) -> Design {
+    let n = segments.max(3);
+    let mut v = Vec::with_capacity(2 * n as usize + 2);
+    for (r, z) in [(r_base, base.z), (r_top, base.z + height)] {
+        for i in 0..n {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            v.push(Point3::new(base.x + r * a.cos(), base.y + r * a.sin(), z));
+        }
+    }
+    v.push(Point3::new(base.x, base.y, base.z + height));
+    v.push(base);
+    let (top, bot) = (2 * n, 2 * n + 1);
+    let mut t = Vec::new();
+    for i in 0..n {
+        let j = (i + 1) % n;
+        t.push([i, j, n + j]);
+        t.push([i, n + j, n + i]);
+        t.push([top, n + i, n + j]);
+        if bottom {
+            t.push([bot, j, i]);
+        }
+    }
+    Design::from_indexed(v, t, 1.0).expect("a frustum has area")
+}
+
+/// Several designs as one mesh (no boolean union: faces inside another part stay).
+pub fn merge(parts: &[Design]) -> Design {
+    let mut v = Vec::new();
+    let mut t = Vec::new();
+    for p in parts {
+        let off = v.len() as u32;
+        v.extend(&p.vertices);
+        t.extend(p.triangles.iter().map(|tri| tri.map(|i| i + off)));
+    }
+    Design::from_indexed(v, t, 1.0).expect("parts have area")
+}

@@ -133,7 +133,7 @@ fn compare_one(
     let cloud1_p = project(cloud1, core, &normal, params, ids, offsets);
     let cloud2_p = project(cloud2, core, &normal, params, ids, offsets);
     let distance =
-        (cloud1_p.count > 0 && cloud2_p.count > 0).then(|| cloud2_p.position - cloud1_p.position);
+        (cloud1_p.count > 0 && cloud2_p.count > 0).then_some(cloud2_p.position - cloud1_p.position);
     let enough =
         cloud1_p.count >= params.min_points.max(1) && cloud2_p.count >= params.min_points.max(1);
     let lod = (distance.is_some() && enough).then(|| {

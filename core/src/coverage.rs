@@ -7,7 +7,9 @@
 //! design there. At the end of a station each sample is classified:
 //!
 //! - **observed**: a scan point within the threshold, or the design surface is buried under
-//!   material (the nearest point, within reach, lies outside within 60° of the normal);
+//!   material: a scan point outside it, within reach, on the sample's normal line (within the
+//!   threshold of it). The nearest point alone cannot tell: beside an edge of a part printed
+//!   too tall, the nearest point is on the wall next to the sample, not on the top above it;
 //! - **missing**: no such point, and the sample faces a station in range at an acceptable
 //!   incidence with a clear line of sight: the scanner should have seen material there;
 //! - **occluded**: it faces a station in range but the design itself blocks the view;
@@ -91,19 +93,28 @@ struct Nearest {
     d2: f64,
     /// That point's offset along the sample's outward normal, metres.
     along: f64,
+    /// A point stood outside the design on the sample's normal line.
+    buried: bool,
 }
 
 impl Nearest {
     const NONE: Self = Self {
         d2: f64::INFINITY,
         along: 0.0,
+        buried: false,
     };
 
     #[inline]
     fn offer(&mut self, d2: f64, along: f64) {
         if d2 < self.d2 || (d2 == self.d2 && along > self.along) {
-            *self = Self { d2, along };
+            self.d2 = d2;
+            self.along = along;
         }
+    }
+
+    fn merge(&mut self, o: &Self) {
+        self.offer(o.d2, o.along);
+        self.buried |= o.buried;
     }
 }
 
@@ -183,6 +194,7 @@ impl Coverage {
     /// Takes a chunk of scan points already in the design frame.
     pub fn ingest(&mut self, points: &[Point3<f64>]) {
         let reach2 = self.params.reach * self.params.reach;
+        let t2 = self.params.threshold * self.params.threshold;
         self.grid.offer(
             &mut self.scratch,
             &mut self.station,
@@ -192,7 +204,9 @@ impl Coverage {
                     let v = p - s;
                     let d2 = v.norm_squared();
                     if d2 <= reach2 {
-                        st.offer(d2, v.dot(n));
+                        let along = v.dot(n);
+                        st.offer(d2, along);
+                        st.buried |= along > 0.0 && d2 - along * along <= t2;
                     }
                 }
             },
@@ -204,7 +218,7 @@ impl Coverage {
     pub fn end_station(&mut self, origin: Point3<f64>, design: &C2mIndex) -> CoverageSummary {
         let summary = self.classify(&self.station, std::slice::from_ref(&origin), design);
         for (t, s) in self.total.iter_mut().zip(&self.station) {
-            t.offer(s.d2, s.along);
+            t.merge(s);
         }
         self.origins.push(origin);
         summary
@@ -266,11 +280,7 @@ impl Coverage {
         design: &C2mIndex,
     ) -> SampleClass {
         let t = self.params.threshold;
-        // Seen where it should be, or buried: the nearest point lies outside, within 60° of the
-        // normal. A point merely beside the sample (at the rim of a hole) is neither.
-        if nearest.d2 <= t * t
-            || (nearest.d2.is_finite() && nearest.along > 0.5 * nearest.d2.sqrt())
-        {
+        if nearest.d2 <= t * t || nearest.buried {
             return SampleClass::Observed;
         }
         let p = self.grid.points()[i];

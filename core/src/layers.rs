@@ -320,7 +320,14 @@ impl LayerBands {
         if !(layer_height > 0.0 && base.is_finite() && top.is_finite() && top > base) {
             return None;
         }
-        let n = ((top - base) / layer_height).ceil().clamp(1.0, 1e6) as usize;
+        // A design top a float's width above a whole number of layers (f32 STL) adds no band.
+        let layers = (top - base) / layer_height;
+        let n = if (layers - layers.round()).abs() < 1e-6 {
+            layers.round()
+        } else {
+            layers.ceil()
+        }
+        .clamp(1.0, 1e6) as usize;
         Some(Self {
             base,
             layer_height,
@@ -329,10 +336,30 @@ impl LayerBands {
         })
     }
 
+    /// The same bands with nothing in them.
+    pub fn clone_empty(&self) -> Self {
+        Self {
+            base: self.base,
+            layer_height: self.layer_height,
+            bands: vec![Band::default(); self.bands.len()],
+            outside: 0,
+        }
+    }
+
+    /// The lowest band's bottom and the layer height, metres.
+    pub fn geometry(&self) -> (f64, f64) {
+        (self.base, self.layer_height)
+    }
+
     #[inline]
     pub fn push(&mut self, z: f64, value: f64) {
-        let x = (z - self.base) / self.layer_height;
-        if !(x >= 0.0 && x < self.bands.len() as f64) {
+        let n = self.bands.len() as f64;
+        let mut x = (z - self.base) / self.layer_height;
+        // The top of the last band belongs to it (the design's top face lies there).
+        if x >= n && x < n + 1e-6 {
+            x = n - 1e-9;
+        }
+        if !(x >= 0.0 && x < n) {
             self.outside += 1;
             return;
         }

@@ -16,6 +16,7 @@ use crate::deviations_ply::DeviationsPly;
 use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
 use crate::scan_file::read_scan;
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
+use crate::suite::{self, Method, Methods, Suite, SuiteConfig};
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
 const CHUNK: usize = 1 << 16;
@@ -47,9 +48,43 @@ pub struct InspectArgs {
     /// Metres; default 10 × tolerance.
     #[arg(long)]
     max_distance: Option<f64>,
-    /// Output folder for report.json and deviations.ply.
+    /// Output folder for report.json, deviations.ply, and with coverage or M3C2, missing.ply
+    /// and m3c2.ply.
     #[arg(long, default_value = "out/inspect")]
     out: PathBuf,
+    /// Comparisons to run: any of c2m, c2c, coverage, m3c2 (comma-separated), or all. C2M
+    /// always runs: it places and validates every point.
+    #[arg(long, default_value = "c2m", value_parser = suite::parse_methods)]
+    method: Methods,
+    /// Design sampling for coverage, M3C2 core points and C2C without a reference, metres.
+    #[arg(long, default_value_t = 0.005)]
+    spacing: f64,
+    /// M3C2 cylinder diameter, metres.
+    #[arg(long, default_value_t = 0.01)]
+    projection_diameter: f64,
+    /// M3C2 cylinder half-length: the largest deviation it can measure. Metres; default the
+    /// maximum distance.
+    #[arg(long)]
+    max_depth: Option<f64>,
+    /// Normal scale (diameter) for two-cloud M3C2 against --reference. Metres; default the
+    /// projection diameter.
+    #[arg(long)]
+    normal_diameter: Option<f64>,
+    /// A design sample with no scan point this close, that a station should have seen, is
+    /// missing. Metres; default 3 × the default pose σ (1 mm), at least the tolerance / 2.
+    #[arg(long)]
+    coverage_threshold: Option<f64>,
+    /// Compare with the design as printed so far: cut at this height (design frame z,
+    /// metres) and capped. Points above it count as excess.
+    #[arg(long)]
+    printed_height: Option<f64>,
+    /// Statistics per layer band of this height (metres), from the design's lowest point.
+    #[arg(long)]
+    layer_height: Option<f64>,
+    /// A reference cloud in the design frame (PLY, LAS, XYZ; metres) for C2C and two-cloud
+    /// M3C2. Without it C2C measures to design samples.
+    #[arg(long)]
+    reference: Option<PathBuf>,
 }
 
 pub fn run(args: InspectArgs) -> Result<ExitCode> {
@@ -66,13 +101,61 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         (None, None) => bail!("give --stations FILE or --scan FILE"),
     };
 
+    let positive = |name: &str, v: Option<f64>| -> Result<()> {
+        match v {
+            Some(v) if !(v > 0.0 && v.is_finite()) => {
+                bail!("{name} must be a positive number of metres, got {v}")
+            }
+            _ => Ok(()),
+        }
+    };
+    positive("--spacing", Some(args.spacing))?;
+    positive("--projection-diameter", Some(args.projection_diameter))?;
+    positive("--max-depth", args.max_depth)?;
+    positive("--normal-diameter", args.normal_diameter)?;
+    positive("--coverage-threshold", args.coverage_threshold)?;
+    positive("--layer-height", args.layer_height)?;
+    let mut methods: Vec<Method> = args.method.0.clone();
+    methods.push(Method::C2m);
+    methods.sort();
+    methods.dedup();
+    if args.reference.is_some()
+        && !methods
+            .iter()
+            .any(|m| matches!(m, Method::C2c | Method::M3c2))
+    {
+        bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
+    }
+
     let started = Instant::now();
-    let design = Design::load(&args.design, args.units)?;
+    let full_design = Design::load(&args.design, args.units)?;
     let mut warnings = Vec::new();
-    let design_warnings = design.report.warnings();
+    let design_warnings = full_design.report.warnings();
     for w in &design_warnings {
         eprintln!("warning: design: {w}");
     }
+    let design = match args.printed_height {
+        Some(h) => {
+            let (cut, report) =
+                asbuilt_core::layers::cut_at(&full_design, h).context("--printed-height")?;
+            eprintln!(
+                "design cut at {h} m: {} triangles, cap of {} triangles over {} outlines",
+                cut.triangles.len(),
+                report.cap_triangles,
+                report.loops
+            );
+            if report.open_chains > 0 {
+                let w = format!(
+                    "the cut at {h} m crosses {} open outline(s) of the design (it has holes):                      those are not capped, so points on the printed top there measure to the walls",
+                    report.open_chains
+                );
+                eprintln!("warning: {w}");
+                warnings.push(w);
+            }
+            cut
+        }
+        None => full_design,
+    };
     let index = C2mIndex::build(
         &design,
         C2mParams {
@@ -97,6 +180,28 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     let config = InspectConfig::with_tolerance(args.tolerance);
     let (design_lo, design_hi) = design.bounds();
     let design_size = (design_hi - design_lo).norm();
+
+    let coverage_threshold = args
+        .coverage_threshold
+        .unwrap_or((3.0 * DEFAULT_POSITION_SIGMA).max(0.5 * args.tolerance));
+    let max_depth = args.max_depth.unwrap_or(max_distance);
+    let mut suite = Suite::new(
+        &design,
+        SuiteConfig {
+            methods: methods.clone(),
+            tolerance: args.tolerance,
+            spacing: args.spacing,
+            projection_diameter: args.projection_diameter,
+            max_depth,
+            normal_diameter: args.normal_diameter.unwrap_or(args.projection_diameter),
+            coverage_threshold: coverage_threshold.min(max_distance),
+            reach: max_distance,
+            layer_height: args.layer_height,
+            printed_height: args.printed_height,
+            reference: args.reference.clone(),
+            seed: 1,
+        },
+    )?;
 
     let mut sections = Vec::new();
     let mut total = Tally::new(config.stats);
@@ -131,6 +236,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         );
         bar.set_message(station.id.clone());
         let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
+        suite.begin_station();
         let mut bounds = (
             Point3::from([f64::INFINITY; 3]),
             Point3::from([f64::NEG_INFINITY; 3]),
@@ -146,6 +252,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
                 bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
             }
             ply.write(n as u16, out)?;
+            suite.chunk(out);
             bar.inc(chunk.len() as u64);
         }
         bar.finish_and_clear();
@@ -170,10 +277,15 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         report.position_sigma = station.position_sigma;
         total.merge(inspector.tally());
         total_malformed += notes.malformed_lines;
-        let section = Section::from_report(
+        let mut section = Section::from_report(
             &report,
             Some(station.scan.display().to_string()),
             notes.malformed_lines,
+        );
+        section.suite = suite.end_station(
+            Point3::from(station.t_design_scanner.translation.vector),
+            station.position_sigma,
+            &index,
         );
         eprintln!(
             "station {:<10} {:>8} points  median |d| {} mm  ({:.2} s)",
@@ -188,9 +300,11 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         sections.push(section);
     }
     let written = ply.finish()?;
+    let totals = suite.finish(&index, &args.out)?;
 
-    let overall =
+    let mut overall =
         Section::from_report(&total.report(0, u32::MAX, "overall"), None, total_malformed);
+    overall.suite = totals.section;
 
     if overall.matched == 0 {
         warnings.push(format!(
@@ -214,9 +328,19 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             tolerance_m: args.tolerance,
             max_distance_m: max_distance,
             histogram_range_m: config.stats.histogram_range,
+            spacing_m: args.spacing,
+            coverage_threshold_m: coverage_threshold.min(max_distance),
+            projection_diameter_m: args.projection_diameter,
+            max_depth_m: max_depth,
+            printed_height_m: args.printed_height,
+            layer_height_m: args.layer_height,
+            reference: args.reference.as_ref().map(|p| p.display().to_string()),
         },
+        methods: methods.iter().map(|m| m.name()).collect(),
         stations: sections,
         overall,
+        layers: totals.layers,
+        m3c2_two_cloud: totals.m3c2_two_cloud,
         warnings,
     };
     let json_path = args.out.join("report.json");

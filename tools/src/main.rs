@@ -2,10 +2,12 @@
 
 mod deviations_ply;
 mod inspect;
+mod ply_out;
 mod publish;
 mod report;
 mod scan_file;
 mod stations;
+mod suite;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -26,7 +28,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Compare scans with the design: signed distances per point, statistics per station.
-    Inspect(inspect::InspectArgs),
+    Inspect(Box<inspect::InspectArgs>),
     /// Stream scans with known poses into a running asbuilt-agent, station by station.
     Publish(publish::PublishArgs),
     /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
@@ -42,7 +44,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Inspect(args) => inspect::run(args),
+        Command::Inspect(args) => inspect::run(*args),
         Command::Publish(args) => publish::run(args),
         Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
     };

@@ -3,13 +3,22 @@
 use asbuilt_protocol::{Histogram, RejectCounts, StationReport};
 use serde::Serialize;
 
+use crate::suite::{LayerRow, SuiteSection, TwoCloudSection};
+
 #[derive(Debug, Serialize)]
 pub struct Report {
     pub asbuilt_version: &'static str,
     pub design: DesignSection,
     pub parameters: Parameters,
+    /// The comparisons that ran; C2M always does, since it places and validates the points.
+    pub methods: Vec<&'static str>,
     pub stations: Vec<Section>,
     pub overall: Section,
+    /// Per layer band, lowest first, with `--layer-height`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub layers: Option<Vec<LayerRow>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2_two_cloud: Option<TwoCloudSection>,
     pub warnings: Vec<String>,
 }
 
@@ -30,6 +39,16 @@ pub struct Parameters {
     pub tolerance_m: f64,
     pub max_distance_m: f64,
     pub histogram_range_m: f64,
+    pub spacing_m: f64,
+    pub coverage_threshold_m: f64,
+    pub projection_diameter_m: f64,
+    pub max_depth_m: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub printed_height_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub layer_height_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<String>,
 }
 
 /// One station, or the whole job. Distances in metres; NaN (no matched point) is `null`.
@@ -55,6 +74,8 @@ pub struct Section {
     pub above_tolerance: u64,
     pub below_tolerance: u64,
     pub histogram: HistogramSection,
+    #[serde(flatten)]
+    pub suite: SuiteSection,
 }
 
 #[derive(Debug, Serialize)]
@@ -119,6 +140,7 @@ impl Section {
                 overflow: h.overflow,
                 bins: h.bins.to_vec(),
             },
+            suite: SuiteSection::default(),
         }
     }
 }

@@ -1,0 +1,782 @@
+//! The deviation suite behind `asbuilt inspect --method`: which comparisons run beside C2M,
+//! what each keeps while stations stream through, and what each adds to `report.json`. Every
+//! computation is asbuilt-core's; this only feeds and collects.
+
+use std::num::NonZeroUsize;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use asbuilt_core::c2c::{self, C2cParams};
+use asbuilt_core::cloud::CloudIndex;
+use asbuilt_core::coverage::{Coverage, CoverageParams, CoverageSummary, SampleClass};
+use asbuilt_core::layers::{BandRow, LayerBands};
+use asbuilt_core::m3c2::classic::{self, ClassicParams};
+use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams, StreamingSummary};
+use asbuilt_core::sampling::DesignSamples;
+use asbuilt_core::stats::{DeviationAccumulator, StatsConfig};
+use asbuilt_core::{C2mIndex, Design};
+use asbuilt_protocol::{DeviationFlags, DeviationStats, PointDeviation};
+use nalgebra::{Point3, Vector3};
+use serde::Serialize;
+
+use crate::ply_out::{self, Column};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Method {
+    C2m,
+    C2c,
+    Coverage,
+    M3c2,
+}
+
+impl Method {
+    pub const ALL: [Method; 4] = [Method::C2m, Method::C2c, Method::Coverage, Method::M3c2];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::C2m => "c2m",
+            Method::C2c => "c2c",
+            Method::Coverage => "coverage",
+            Method::M3c2 => "m3c2",
+        }
+    }
+}
+
+/// A `--method` list, sorted, without repeats.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Methods(pub Vec<Method>);
+
+/// `c2m,c2c,coverage,m3c2` in any subset, or `all`.
+pub fn parse_methods(text: &str) -> Result<Methods, String> {
+    let mut out = Vec::new();
+    for word in text.split(',').map(str::trim).filter(|w| !w.is_empty()) {
+        if word.eq_ignore_ascii_case("all") {
+            out.extend(Method::ALL);
+            continue;
+        }
+        match Method::ALL
+            .iter()
+            .find(|m| m.name().eq_ignore_ascii_case(word))
+        {
+            Some(m) => out.push(*m),
+            None => {
+                return Err(format!(
+                    "unknown method {word:?}: use any of c2m, c2c, coverage, m3c2, or all"
+                ));
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err("no method given: use any of c2m, c2c, coverage, m3c2, or all".into());
+    }
+    out.sort();
+    out.dedup();
+    Ok(Methods(out))
+}
+
+#[derive(Debug, Clone)]
+pub struct SuiteConfig {
+    pub methods: Vec<Method>,
+    pub tolerance: f64,
+    pub spacing: f64,
+    pub projection_diameter: f64,
+    pub max_depth: f64,
+    pub normal_diameter: f64,
+    pub coverage_threshold: f64,
+    pub reach: f64,
+    pub layer_height: Option<f64>,
+    pub printed_height: Option<f64>,
+    pub reference: Option<PathBuf>,
+    pub seed: u64,
+}
+
+impl SuiteConfig {
+    pub fn has(&self, m: Method) -> bool {
+        self.methods.contains(&m)
+    }
+}
+
+/// Unsigned or signed distance statistics of one method. Metres.
+#[derive(Debug, Serialize)]
+pub struct DistanceSection {
+    pub matched: u64,
+    pub no_match: u64,
+    pub mean: Option<f64>,
+    pub std: Option<f64>,
+    pub rms: Option<f64>,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    pub median_abs: Option<f64>,
+    pub p95_abs: Option<f64>,
+    pub within_tolerance: u64,
+}
+
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+impl DistanceSection {
+    fn new(s: &DeviationStats, no_match: u64) -> Self {
+        Self {
+            matched: s.count,
+            no_match,
+            mean: finite(s.mean),
+            std: finite(s.std),
+            rms: finite(s.rms),
+            min: finite(s.min),
+            max: finite(s.max),
+            median_abs: finite(s.median_abs),
+            p95_abs: finite(s.p95_abs),
+            within_tolerance: s.within,
+        }
+    }
+}
+
+#[derive(Debug, Serialize)]
+pub struct CoverageSection {
+    /// Design samples, each standing for `area_per_sample_m2`.
+    pub observed: u64,
+    pub missing: u64,
+    pub occluded: u64,
+    pub not_scanned: u64,
+    pub missing_area_m2: f64,
+    pub area_per_sample_m2: f64,
+    /// Signed distance from each design sample to the nearest scan point within reach
+    /// (negative: the scan lies inside the design). Overall only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reverse_c2c: Option<DistanceSection>,
+}
+
+impl CoverageSection {
+    fn new(s: &CoverageSummary, area: f64) -> Self {
+        Self {
+            observed: s.observed,
+            missing: s.missing,
+            occluded: s.occluded,
+            not_scanned: s.not_scanned,
+            missing_area_m2: s.missing_area_m2,
+            area_per_sample_m2: area,
+            reverse_c2c: None,
+        }
+    }
+}
+
+#[derive(Debug, Serialize)]
+pub struct M3c2Section {
+    pub core_points: u64,
+    pub with_points: u64,
+    pub significant: u64,
+    pub mean_distance: Option<f64>,
+    pub min_distance: Option<f64>,
+    pub max_distance: Option<f64>,
+    pub registration_sigma_m: f64,
+}
+
+impl M3c2Section {
+    fn new(s: &StreamingSummary, sigma: f64) -> Self {
+        Self {
+            core_points: s.core_points,
+            with_points: s.with_points,
+            significant: s.significant,
+            mean_distance: s.mean_distance,
+            min_distance: s.min_distance,
+            max_distance: s.max_distance,
+            registration_sigma_m: sigma,
+        }
+    }
+}
+
+/// What the suite adds to one station's (or the job's) section.
+#[derive(Debug, Default, Serialize)]
+pub struct SuiteSection {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c2c: Option<DistanceSection>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<CoverageSection>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2: Option<M3c2Section>,
+    /// Points more than the tolerance above the printed height: excess material, or layers
+    /// printed after the height was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub above_printed_height: Option<u64>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct BandStats {
+    pub count: u32,
+    pub mean: f64,
+    pub std: Option<f64>,
+}
+
+impl From<&BandRow> for BandStats {
+    fn from(r: &BandRow) -> Self {
+        Self {
+            count: r.count,
+            mean: r.mean,
+            std: r.std,
+        }
+    }
+}
+
+/// One row of the per-layer table.
+#[derive(Debug, Serialize)]
+pub struct LayerRow {
+    pub layer: u32,
+    pub z_min: f64,
+    pub z_max: f64,
+    /// Where the scan's points in this band top out (98th percentile of their heights).
+    pub top_m: Option<f64>,
+    pub c2m: Option<BandStats>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c2c: Option<BandStats>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2: Option<BandStats>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub missing_area_m2: Option<f64>,
+}
+
+/// Two-cloud M3C2 between `--reference` and the scans, at core points subsampled from the
+/// reference.
+#[derive(Debug, Serialize)]
+pub struct TwoCloudSection {
+    pub reference: String,
+    pub reference_points: usize,
+    pub scan_points: usize,
+    pub core_points: usize,
+    pub with_distance: usize,
+    pub significant: usize,
+    pub mean_distance: Option<f64>,
+    pub normal_diameter_m: f64,
+}
+
+/// The job-level additions.
+#[derive(Debug, Default, Serialize)]
+pub struct SuiteTotals {
+    #[serde(flatten)]
+    pub section: SuiteSection,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub layers: Option<Vec<LayerRow>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2_two_cloud: Option<TwoCloudSection>,
+}
+
+struct C2cRun {
+    reference: CloudIndex,
+    params: C2cParams,
+    station: DeviationAccumulator,
+    total: DeviationAccumulator,
+    station_no_match: u64,
+    total_no_match: u64,
+    out: Vec<Option<f64>>,
+}
+
+struct Layers {
+    c2m: LayerBands,
+    c2c: LayerBands,
+}
+
+pub struct Suite {
+    config: SuiteConfig,
+    c2c: Option<C2cRun>,
+    coverage: Option<Coverage>,
+    m3c2: Option<StreamingM3c2>,
+    layers: Option<Layers>,
+    /// Reference and every scan point kept, only for two-cloud M3C2 (offline, in memory).
+    two_cloud: Option<(CloudIndex, Vec<Point3<f64>>)>,
+    positions: Vec<Point3<f64>>,
+    missing_by_station: Vec<Vec<u32>>,
+    above_station: u64,
+    above_total: u64,
+    sigma_max: f64,
+}
+
+impl Suite {
+    /// `design` is what is compared with: the whole design or the part cut at the printed
+    /// height.
+    pub fn new(design: &Design, config: SuiteConfig) -> Result<Self> {
+        let needs_samples = config.has(Method::Coverage)
+            || config.has(Method::M3c2)
+            || (config.has(Method::C2c) && config.reference.is_none());
+        let samples = if needs_samples {
+            let s = DesignSamples::generate(design, config.spacing, config.seed)
+                .context("--spacing")?;
+            eprintln!(
+                "design samples: {} at {:.1} mm spacing ({:.2} cm² each)",
+                s.len(),
+                config.spacing * 1e3,
+                s.area_per_sample * 1e4
+            );
+            Some(s)
+        } else {
+            None
+        };
+        let reference = match &config.reference {
+            Some(path) if config.has(Method::C2c) || config.has(Method::M3c2) => {
+                let (pts, notes) = crate::scan_file::read_cloud(path)?;
+                if notes.malformed_lines > 0 {
+                    eprintln!(
+                        "warning: reference {}: {} unreadable lines skipped (first at line {})",
+                        path.display(),
+                        notes.malformed_lines,
+                        notes.first_malformed_line.unwrap_or(0)
+                    );
+                }
+                eprintln!("reference cloud {}: {} points", path.display(), pts.len());
+                Some(pts)
+            }
+            _ => None,
+        };
+        let stats = StatsConfig::with_tolerance(config.tolerance);
+        let c2c = if config.has(Method::C2c) {
+            let (points, local_plane_k) = match (&reference, &samples) {
+                (Some(r), _) => (r.as_slice(), None),
+                // Against design samples the nearest sample is up to a spacing off the surface;
+                // a local plane through six of them follows the face.
+                (None, Some(s)) => (s.points.as_slice(), NonZeroUsize::new(6)),
+                (None, None) => unreachable!("samples exist without a reference"),
+            };
+            let params = C2cParams {
+                max_distance: config.reach,
+                local_plane_k,
+            };
+            params.validate()?;
+            Some(C2cRun {
+                reference: CloudIndex::new(points)?,
+                params,
+                station: DeviationAccumulator::new(stats),
+                total: DeviationAccumulator::new(stats),
+                station_no_match: 0,
+                total_no_match: 0,
+                out: Vec::new(),
+            })
+        } else {
+            None
+        };
+        let coverage = match (&samples, config.has(Method::Coverage)) {
+            (Some(s), true) => Some(Coverage::new(
+                s,
+                CoverageParams::with_threshold(config.coverage_threshold, config.reach),
+            )?),
+            _ => None,
+        };
+        let m3c2 = match (&samples, config.has(Method::M3c2)) {
+            (Some(s), true) => Some(StreamingM3c2::new(
+                s,
+                StreamingParams {
+                    projection_diameter: config.projection_diameter,
+                    max_depth: config.max_depth,
+                    min_points: 5,
+                },
+            )?),
+            _ => None,
+        };
+        let layers = match config.layer_height {
+            Some(h) => {
+                let (lo, hi) = design.bounds();
+                let top = config.printed_height.unwrap_or(hi.z).min(hi.z);
+                let bands = LayerBands::new(lo.z, top, h).with_context(|| {
+                    format!("--layer-height {h} m does not fit the design's height")
+                })?;
+                Some(Layers {
+                    c2m: bands.clone(),
+                    c2c: bands,
+                })
+            }
+            None => None,
+        };
+        let two_cloud = match reference {
+            Some(r) if config.has(Method::M3c2) => Some((CloudIndex::new(&r)?, Vec::new())),
+            _ => None,
+        };
+        Ok(Self {
+            config,
+            c2c,
+            coverage,
+            m3c2,
+            layers,
+            two_cloud,
+            positions: Vec::new(),
+            missing_by_station: Vec::new(),
+            above_station: 0,
+            above_total: 0,
+            sigma_max: 0.0,
+        })
+    }
+
+    pub fn begin_station(&mut self) {
+        if let Some(c) = &mut self.c2c {
+            c.station = DeviationAccumulator::new(c.station.config());
+            c.station_no_match = 0;
+        }
+        if let Some(c) = &mut self.coverage {
+            c.begin_station();
+        }
+        if let Some(m) = &mut self.m3c2 {
+            m.begin_station();
+        }
+        self.above_station = 0;
+    }
+
+    /// Takes a processed chunk: the design-frame positions of its valid points and their C2M.
+    pub fn chunk(&mut self, devs: &[PointDeviation]) {
+        self.positions.clear();
+        for d in devs {
+            if d.flags.contains(DeviationFlags::REJECTED) {
+                continue;
+            }
+            let p = Point3::from(d.position);
+            self.positions.push(p);
+            if let Some(h) = self.config.printed_height
+                && p.z > h + self.config.tolerance
+            {
+                self.above_station += 1;
+            }
+            if let Some(l) = &mut self.layers
+                && d.distance.is_finite()
+            {
+                l.c2m.push(p.z, d.distance);
+            }
+        }
+        let positions = &self.positions;
+        if let Some(c) = &mut self.c2c {
+            c.out.resize(positions.len(), None);
+            c2c::distances(&c.reference, positions, &c.params, &mut c.out);
+            for (p, d) in positions.iter().zip(&c.out) {
+                match d {
+                    Some(d) => {
+                        c.station.push(*d);
+                        if let Some(l) = &mut self.layers {
+                            l.c2c.push(p.z, *d);
+                        }
+                    }
+                    None => c.station_no_match += 1,
+                }
+            }
+        }
+        if let Some(c) = &mut self.coverage {
+            c.ingest(positions);
+        }
+        if let Some(m) = &mut self.m3c2 {
+            m.ingest(positions);
+        }
+        if let Some((_, kept)) = &mut self.two_cloud {
+            kept.extend_from_slice(positions);
+        }
+    }
+
+    /// Closes a station scanned from `origin` with position σ `sigma`.
+    pub fn end_station(
+        &mut self,
+        origin: Point3<f64>,
+        sigma: f64,
+        index: &C2mIndex,
+    ) -> SuiteSection {
+        self.sigma_max = self.sigma_max.max(sigma);
+        self.above_total += self.above_station;
+        let mut s = SuiteSection {
+            above_printed_height: self.config.printed_height.map(|_| self.above_station),
+            ..Default::default()
+        };
+        if let Some(c) = &mut self.c2c {
+            s.c2c = Some(DistanceSection::new(
+                &c.station.finish(),
+                c.station_no_match,
+            ));
+            c.total.merge(&c.station);
+            c.total_no_match += c.station_no_match;
+        }
+        if let Some(c) = &mut self.coverage {
+            let summary = c.end_station(origin, index);
+            s.coverage = Some(CoverageSection::new(&summary, c.area_per_sample()));
+            self.missing_by_station.push(summary.missing_samples);
+        }
+        if let Some(m) = &mut self.m3c2 {
+            s.m3c2 = Some(M3c2Section::new(&m.end_station(sigma), sigma));
+        }
+        s
+    }
+
+    /// The job's sections; writes `missing.ply` and `m3c2.ply` into `out`.
+    pub fn finish(self, index: &C2mIndex, out: &Path) -> Result<SuiteTotals> {
+        let mut t = SuiteTotals {
+            section: SuiteSection {
+                above_printed_height: self.config.printed_height.map(|_| self.above_total),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        if let Some(c) = &self.c2c {
+            t.section.c2c = Some(DistanceSection::new(&c.total.finish(), c.total_no_match));
+        }
+        let mut missing_bands: Option<LayerBands> = None;
+        if let Some(c) = &self.coverage {
+            eprintln!("coverage: classifying {} design samples", c.samples().len());
+            let outcomes = c.outcomes(index);
+            let summary = c.total(index);
+            let mut section = CoverageSection::new(&summary, c.area_per_sample());
+            let mut rev =
+                DeviationAccumulator::new(StatsConfig::with_tolerance(self.config.tolerance));
+            let mut none = 0;
+            for o in &outcomes {
+                match o.reverse_distance {
+                    Some(d) => rev.push(d),
+                    None => none += 1,
+                }
+            }
+            section.reverse_c2c = Some(DistanceSection::new(&rev.finish(), none));
+            t.section.coverage = Some(section);
+            write_missing(
+                &out.join("missing.ply"),
+                c.samples(),
+                &self.missing_by_station,
+                &outcomes,
+            )?;
+            if let Some(l) = &self.layers {
+                let mut b = l.c2m.clone_empty();
+                for o in outcomes.iter().filter(|o| o.class == SampleClass::Missing) {
+                    b.push(o.position.z, c.area_per_sample());
+                }
+                missing_bands = Some(b);
+            }
+        }
+        let mut m3c2_bands: Option<LayerBands> = None;
+        if let Some(m) = &self.m3c2 {
+            let sigma = self.sigma_max;
+            t.section.m3c2 = Some(M3c2Section::new(&m.total(sigma), sigma));
+            let results = m.results(sigma);
+            ply_out::write(
+                &out.join("m3c2.ply"),
+                "asbuilt design-referenced M3C2: core points on the design (metres), distance \
+                 along the design normal (positive: outside), NaN where the cylinder is empty",
+                &[
+                    Column::Double("x"),
+                    Column::Double("y"),
+                    Column::Double("z"),
+                    Column::Float("nx"),
+                    Column::Float("ny"),
+                    Column::Float("nz"),
+                    Column::Float("distance"),
+                    Column::Float("lod95"),
+                    Column::Float("spread"),
+                    Column::Float("count"),
+                    Column::Float("significant"),
+                ],
+                results.iter().map(|r| {
+                    vec![
+                        r.position.x,
+                        r.position.y,
+                        r.position.z,
+                        r.normal.x,
+                        r.normal.y,
+                        r.normal.z,
+                        r.distance.unwrap_or(f64::NAN),
+                        r.lod95.unwrap_or(f64::NAN),
+                        r.spread.unwrap_or(f64::NAN),
+                        r.count as f64,
+                        r.significant as u8 as f64,
+                    ]
+                }),
+            )?;
+            if let Some(l) = &self.layers {
+                let mut b = l.c2m.clone_empty();
+                for r in &results {
+                    if let Some(d) = r.distance {
+                        b.push(r.position.z, d);
+                    }
+                }
+                m3c2_bands = Some(b);
+            }
+        }
+        if let Some(l) = &self.layers {
+            t.layers = Some(layer_table(
+                &l.c2m,
+                self.c2c.as_ref().map(|_| &l.c2c),
+                m3c2_bands.as_ref(),
+                missing_bands.as_ref(),
+            ));
+        }
+        if let Some((reference, scan)) = self.two_cloud {
+            t.m3c2_two_cloud = Some(two_cloud(&self.config, reference, scan, out)?);
+        }
+        Ok(t)
+    }
+}
+
+fn layer_table(
+    c2m: &LayerBands,
+    c2c: Option<&LayerBands>,
+    m3c2: Option<&LayerBands>,
+    missing: Option<&LayerBands>,
+) -> Vec<LayerRow> {
+    let rows = |b: Option<&LayerBands>| -> std::collections::BTreeMap<u32, BandRow> {
+        b.map(|b| b.rows().into_iter().map(|r| (r.layer, r)).collect())
+            .unwrap_or_default()
+    };
+    let (a, b, c, d) = (rows(Some(c2m)), rows(c2c), rows(m3c2), rows(missing));
+    let mut layers: Vec<u32> = a
+        .keys()
+        .chain(b.keys())
+        .chain(c.keys())
+        .chain(d.keys())
+        .copied()
+        .collect();
+    layers.sort_unstable();
+    layers.dedup();
+    let (z0, h) = c2m.geometry();
+    layers
+        .into_iter()
+        .map(|k| LayerRow {
+            layer: k,
+            z_min: z0 + k as f64 * h,
+            z_max: z0 + (k + 1) as f64 * h,
+            top_m: a.get(&k).map(|r| r.top),
+            c2m: a.get(&k).map(BandStats::from),
+            c2c: c2c.map(|_| b.get(&k).map(BandStats::from)).unwrap_or(None),
+            m3c2: m3c2.map(|_| c.get(&k).map(BandStats::from)).unwrap_or(None),
+            missing_area_m2: missing.map(|_| d.get(&k).map_or(0.0, |r| r.mean * r.count as f64)),
+        })
+        .collect()
+}
+
+/// Missing samples of each station (`station` = its index) and of the job (`station` = −1).
+fn write_missing(
+    path: &Path,
+    samples: &[Point3<f64>],
+    per_station: &[Vec<u32>],
+    outcomes: &[asbuilt_core::coverage::SampleOutcome],
+) -> Result<u64> {
+    let stations = per_station.iter().enumerate().flat_map(|(k, ids)| {
+        ids.iter().map(move |&i| {
+            let p = samples[i as usize];
+            vec![
+                p.x,
+                p.y,
+                p.z,
+                f64::NAN,
+                f64::NAN,
+                f64::NAN,
+                f64::NAN,
+                k as f64,
+            ]
+        })
+    });
+    let total = outcomes
+        .iter()
+        .filter(|o| o.class == SampleClass::Missing)
+        .map(|o| {
+            vec![
+                o.position.x,
+                o.position.y,
+                o.position.z,
+                o.normal.x,
+                o.normal.y,
+                o.normal.z,
+                o.reverse_distance.unwrap_or(f64::NAN),
+                -1.0,
+            ]
+        });
+    ply_out::write(
+        path,
+        "asbuilt missing material: design samples (metres) a station should have seen with no \
+         scan point within the coverage threshold. station = -1: the whole job, with normal and \
+         reverse_c2c (signed distance to the nearest scan point, NaN: none within reach); \
+         station = k: what station k alone missed",
+        &[
+            Column::Double("x"),
+            Column::Double("y"),
+            Column::Double("z"),
+            Column::Float("nx"),
+            Column::Float("ny"),
+            Column::Float("nz"),
+            Column::Float("reverse_c2c"),
+            Column::Float("station"),
+        ],
+        stations.chain(total),
+    )
+}
+
+fn two_cloud(
+    config: &SuiteConfig,
+    reference: CloudIndex,
+    scan: Vec<Point3<f64>>,
+    out: &Path,
+) -> Result<TwoCloudSection> {
+    let path = config
+        .reference
+        .as_ref()
+        .expect("two-cloud runs with a reference");
+    if scan.is_empty() {
+        bail!("two-cloud M3C2: no valid scan point to compare with the reference");
+    }
+    // Core points: the first reference point in each cell of the sample spacing.
+    let mut seen = std::collections::HashSet::new();
+    let cores: Vec<Point3<f64>> = (0..reference.len() as u32)
+        .map(|i| reference.point(i))
+        .filter(|p| seen.insert((p / config.spacing).map(|v| v.floor() as i64).coords))
+        .collect();
+    eprintln!(
+        "two-cloud M3C2: {} core points from {} reference points against {} scan points",
+        cores.len(),
+        reference.len(),
+        scan.len()
+    );
+    let scan_index = CloudIndex::new(&scan)?;
+    let mut params = ClassicParams::new(
+        config.normal_diameter,
+        config.projection_diameter,
+        config.max_depth,
+    );
+    params.orientation = Vector3::z();
+    let results = classic::compare(&reference, &scan_index, &cores, &params)?;
+    let with: Vec<f64> = results.iter().filter_map(|r| r.distance).collect();
+    ply_out::write(
+        &out.join("m3c2_two_cloud.ply"),
+        "asbuilt two-cloud M3C2 from the reference to the scans: core points subsampled from the \
+         reference, distance along the normal (NaN where a cylinder is empty)",
+        &[
+            Column::Double("x"),
+            Column::Double("y"),
+            Column::Double("z"),
+            Column::Float("distance"),
+            Column::Float("lod95"),
+            Column::Float("significant"),
+        ],
+        cores.iter().zip(&results).map(|(p, r)| {
+            vec![
+                p.x,
+                p.y,
+                p.z,
+                r.distance.unwrap_or(f64::NAN),
+                r.lod95.unwrap_or(f64::NAN),
+                r.significant as u8 as f64,
+            ]
+        }),
+    )?;
+    Ok(TwoCloudSection {
+        reference: path.display().to_string(),
+        reference_points: reference.len(),
+        scan_points: scan.len(),
+        core_points: cores.len(),
+        with_distance: with.len(),
+        significant: results.iter().filter(|r| r.significant).count(),
+        mean_distance: (!with.is_empty()).then(|| with.iter().sum::<f64>() / with.len() as f64),
+        normal_diameter_m: config.normal_diameter,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn methods_parse_as_a_subset_or_all() {
+        assert_eq!(parse_methods("c2m").unwrap().0, vec![Method::C2m]);
+        assert_eq!(
+            parse_methods("m3c2, C2C,c2c").unwrap().0,
+            vec![Method::C2c, Method::M3c2]
+        );
+        assert_eq!(parse_methods("all").unwrap().0, Method::ALL.to_vec());
+        assert!(parse_methods("icp").unwrap_err().contains("unknown method"));
+        assert!(parse_methods("").is_err());
+    }
+}

@@ -350,9 +350,13 @@ mod tests {
             .filter(|p| !hole(p))
             .collect();
         cov.begin_station();
+        cov.ingest(&scan[..10_000]);
+        let held = cov.bytes();
         for c in scan.chunks(10_000) {
             cov.ingest(c);
         }
+        // Per-sample state and one chunk's scratch: nothing grows with the scan.
+        assert_eq!(cov.bytes(), held);
         let s = cov.end_station(Point3::new(0.5, 0.5, 3.0), &index);
         // The hole's centre part (more than 5 mm from any scan point) is 0.19 × 0.29 m.
         let truth = (0.2 - 0.01) * (0.3 - 0.01);

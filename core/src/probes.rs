@@ -34,13 +34,17 @@ pub struct ProbeGrid {
     lookup: FxHashMap<u64, u32>,
 }
 
-/// Per-chunk buffers, reused so that a steady stream of chunks allocates nothing new.
+/// Per-chunk buffers, sized by the largest chunk and the number of probe cells, and reused:
+/// a stream of chunks no larger than the first allocates nothing new.
 #[derive(Default)]
 pub struct Scratch {
     keyed: Vec<(u64, u32)>,
     sorted: Vec<Point3<f64>>,
     runs: FxHashMap<u64, (u32, u32)>,
     active: Vec<u32>,
+    /// Per probe cell, the chunk that last activated it.
+    mark: Vec<u32>,
+    generation: u32,
 }
 
 impl Scratch {
@@ -48,7 +52,7 @@ impl Scratch {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.sorted.capacity() * size_of::<Point3<f64>>()
             + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32)>())
-            + self.active.capacity() * size_of::<u32>()
+            + (self.active.capacity() + self.mark.capacity()) * size_of::<u32>()
     }
 }
 
@@ -203,8 +207,26 @@ impl ProbeGrid {
             sorted,
             runs,
             active,
+            mark,
+            generation,
         } = scratch;
+        if mark.len() != self.cells.len() {
+            *mark = vec![0; self.cells.len()];
+            *generation = 0;
+        }
+        *generation = generation.wrapping_add(1);
+        if *generation == 0 {
+            mark.fill(0);
+            *generation = 1;
+        }
         keyed.clear();
+        sorted.clear();
+        runs.clear();
+        active.clear();
+        keyed.reserve(chunk.len());
+        sorted.reserve(chunk.len());
+        runs.reserve(chunk.len());
+        active.reserve(self.cells.len());
         keyed.extend(
             chunk
                 .iter()
@@ -212,10 +234,7 @@ impl ProbeGrid {
                 .filter_map(|(i, p)| self.key(p).map(|k| (k, i as u32))),
         );
         keyed.sort_unstable();
-        sorted.clear();
         sorted.extend(keyed.iter().map(|&(_, i)| chunk[i as usize]));
-        runs.clear();
-        active.clear();
         let mut start = 0usize;
         while start < keyed.len() {
             let key = keyed[start].0;
@@ -224,11 +243,17 @@ impl ProbeGrid {
                 end += 1;
             }
             runs.insert(key, (start as u32, end as u32));
-            active.extend(Self::neighbours(key).filter_map(|k| self.lookup.get(&k).copied()));
+            for k in Self::neighbours(key) {
+                if let Some(&c) = self.lookup.get(&k)
+                    && mark[c as usize] != *generation
+                {
+                    mark[c as usize] = *generation;
+                    active.push(c);
+                }
+            }
             start = end;
         }
         active.sort_unstable();
-        active.dedup();
 
         // Cells are sorted by key and hold consecutive probes, so the active cells cut `state`
         // into disjoint slices in order.

@@ -297,6 +297,10 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
                 .unwrap_or("-".into()),
             t0.elapsed().as_secs_f64()
         );
+        let extra = method_line(&section.suite);
+        if !extra.is_empty() {
+            eprintln!("        {:<10} {extra}", "");
+        }
         sections.push(section);
     }
     let written = ply.finish()?;
@@ -409,4 +413,37 @@ fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Stat
 fn format_ratio(r: f64) -> String {
     let r = if r < 1.0 { 1.0 / r } else { r };
     format!("{r:.0}")
+}
+
+/// One line per station for the methods beside C2M, in millimetres and square centimetres.
+fn method_line(s: &suite::SuiteSection) -> String {
+    let mut parts = Vec::new();
+    if let Some(c) = &s.c2c {
+        parts.push(format!(
+            "C2C median {} mm",
+            c.median_abs
+                .map(|v| format!("{:.3}", v * 1e3))
+                .unwrap_or("-".into())
+        ));
+    }
+    if let Some(c) = &s.coverage {
+        parts.push(format!(
+            "coverage: {} observed, {} missing ({:.1} cm²), {} occluded, {} not scanned",
+            c.observed,
+            c.missing,
+            c.missing_area_m2 * 1e4,
+            c.occluded,
+            c.not_scanned
+        ));
+    }
+    if let Some(m) = &s.m3c2 {
+        parts.push(format!(
+            "M3C2: {} of {} core points measured, {} significant",
+            m.with_points, m.core_points, m.significant
+        ));
+    }
+    if let Some(a) = s.above_printed_height {
+        parts.push(format!("{a} points above the printed height"));
+    }
+    parts.join("; ")
 }

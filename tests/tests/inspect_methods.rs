@@ -228,6 +228,54 @@ fn the_design_cut_at_the_printed_height_is_compared_and_what_stands_above_is_exc
     assert_eq!(r["parameters"]["printed_height_m"], 0.1);
 }
 
+/// A reference cloud 1 mm above the scan: C2C to it is 1 mm, and two-cloud M3C2 from it to
+/// the scan is −1 mm along the top's +z normal.
+#[test]
+fn a_reference_cloud_drives_c2c_and_two_cloud_m3c2() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box_stl(&dir.path().join("box.stl"), [0.0; 3], [0.4, 0.3, 0.2]);
+    let scan = write_scan(&dir.path().join("scan.xyz"));
+    let reference = dir.path().join("reference.xyz");
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&reference).unwrap());
+    writeln!(f, "X Y Z").unwrap();
+    for p in &scan {
+        writeln!(f, "{:.6} {:.6} {:.6}", p[0], p[1], p[2] + 0.001).unwrap();
+    }
+    drop(f);
+    let (r, out) = inspect(
+        dir.path(),
+        &[
+            "--method",
+            "c2c,m3c2",
+            "--reference",
+            reference.to_str().unwrap(),
+            "--spacing",
+            "0.01",
+            "--normal-diameter",
+            "0.008",
+        ],
+    );
+    let c2c = &r["overall"]["c2c"];
+    assert!(
+        (c2c["median_abs"].as_f64().unwrap() - 0.001).abs() < 2e-5,
+        "{c2c}"
+    );
+    let two = &r["m3c2_two_cloud"];
+    assert_eq!(two["reference_points"], scan.len());
+    let rows = ply_rows(&out.join("m3c2_two_cloud.ply"));
+    assert_eq!(rows.len() as u64, two["core_points"].as_u64().unwrap());
+    let top: Vec<f64> = rows
+        .iter()
+        .filter(|r| {
+            r["z"] > 0.2 && r["x"] > 0.01 && r["x"] < 0.39 && r["y"] > 0.01 && r["y"] < 0.29
+        })
+        .filter(|r| !(r["x"] > 0.09 && r["x"] < 0.21 && r["y"] > 0.09 && r["y"] < 0.21))
+        .map(|r| r["distance"])
+        .collect();
+    assert!(top.len() > 100);
+    assert!((median(top) + 0.001).abs() < 1e-5);
+}
+
 #[test]
 fn bad_method_arguments_are_refused_with_what_to_do() {
     let out = Command::new(env!("CARGO_BIN_EXE_e2e-asbuilt"))
@@ -241,4 +289,16 @@ fn bad_method_arguments_are_refused_with_what_to_do() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("unknown method \"icp\""), "{err}");
+
+    let out = Command::new(env!("CARGO_BIN_EXE_e2e-asbuilt"))
+        .args([
+            "inspect", "--design", "x.stl", "--units", "m", "--scan", "s.xyz",
+        ])
+        .args(["--translation", "0,0,0", "--rotation-xyzw", "0,0,0,1"])
+        .args(["--method", "coverage", "--reference", "r.xyz"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("add --method c2c or --method m3c2"), "{err}");
 }

@@ -85,6 +85,11 @@ pub struct InspectArgs {
     /// M3C2. Without it C2C measures to design samples.
     #[arg(long)]
     reference: Option<PathBuf>,
+    /// C2C local model: a least-squares plane through this many nearest reference points (the
+    /// smaller of the plane and nearest-point distances is kept). 0 for nearest point only.
+    /// Default 6 against design samples, 0 against --reference.
+    #[arg(long)]
+    local_plane: Option<usize>,
 }
 
 pub fn run(args: InspectArgs) -> Result<ExitCode> {
@@ -94,13 +99,6 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             args.tolerance
         );
     }
-    let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
-    let stations = match (&args.stations, &args.scan) {
-        (Some(path), _) => stations::load(path)?,
-        (None, Some(scan)) => single_station(&args, scan)?,
-        (None, None) => bail!("give --stations FILE or --scan FILE"),
-    };
-
     let positive = |name: &str, v: Option<f64>| -> Result<()> {
         match v {
             Some(v) if !(v > 0.0 && v.is_finite()) => {
@@ -126,6 +124,13 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     {
         bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
     }
+
+    let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
+    let stations = match (&args.stations, &args.scan) {
+        (Some(path), _) => stations::load(path)?,
+        (None, Some(scan)) => single_station(&args, scan)?,
+        (None, None) => bail!("give --stations FILE or --scan FILE"),
+    };
 
     let started = Instant::now();
     let full_design = Design::load(&args.design, args.units)?;
@@ -199,6 +204,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             layer_height: args.layer_height,
             printed_height: args.printed_height,
             reference: args.reference.clone(),
+            local_plane: args.local_plane,
             seed: 1,
         },
     )?;

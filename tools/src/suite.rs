@@ -87,6 +87,9 @@ pub struct SuiteConfig {
     pub layer_height: Option<f64>,
     pub printed_height: Option<f64>,
     pub reference: Option<PathBuf>,
+    /// C2C local plane neighbours; `None` for the default (6 against samples, off against a
+    /// reference), `Some(0)` for nearest point only.
+    pub local_plane: Option<usize>,
     pub seed: u64,
 }
 
@@ -328,18 +331,19 @@ impl Suite {
         };
         let stats = StatsConfig::with_tolerance(config.tolerance);
         let c2c = if config.has(Method::C2c) {
-            let (points, local_plane_k) = match (&reference, &samples) {
-                (Some(r), _) => (r.as_slice(), None),
+            let (points, default_k) = match (&reference, &samples) {
+                (Some(r), _) => (r.as_slice(), 0),
                 // Against design samples the nearest sample is up to a spacing off the surface;
                 // a local plane through six of them follows the face.
-                (None, Some(s)) => (s.points.as_slice(), NonZeroUsize::new(6)),
+                (None, Some(s)) => (s.points.as_slice(), 6),
                 (None, None) => unreachable!("samples exist without a reference"),
             };
+            let local_plane_k = NonZeroUsize::new(config.local_plane.unwrap_or(default_k));
             let params = C2cParams {
                 max_distance: config.reach,
                 local_plane_k,
             };
-            params.validate()?;
+            params.validate().context("--local-plane")?;
             Some(C2cRun {
                 reference: CloudIndex::new(points)?,
                 params,

@@ -1,0 +1,4 @@
+//! The pieces of the `asbuilt` command that other crates and tests use: reading and writing
+//! scan files. The subcommands themselves live in the binary.
+
+pub mod scan_io;

@@ -1,0 +1,210 @@
+//! Scan files in, point clouds out: what scanners export and what CloudCompare opens.
+//!
+//! Every reader streams: [`ScanFile::stream`] hands out chunks of at most the asked size, so a
+//! 20 M-point file never sits in memory. A file may hold several scans (E57, PTX), each with its
+//! own pose; [`ScanInfo::pose`] says where a scan's pose came from, so a station needs no pose of
+//! its own in `stations.toml`.
+//!
+//! Points are `ScanPoint`s: f32 in the scan's own frame. Files written in a world frame (LAS,
+//! georeferenced PLY/XYZ are not: they carry no pose) are read relative to a local origin that the
+//! pose restores, so f32 keeps its precision far from the origin.
+
+mod e57;
+mod las;
+mod ply;
+mod ptx;
+pub mod write;
+mod xyz;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, bail};
+use asbuilt_protocol::ScanPoint;
+use nalgebra::Isometry3;
+
+pub use ptx::PtxScan;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    E57,
+    Las,
+    Ptx,
+    Ply,
+    Xyz,
+}
+
+impl Format {
+    pub fn from_path(path: &Path) -> Result<Self> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        Ok(match ext.as_str() {
+            "e57" => Format::E57,
+            "las" | "laz" => Format::Las,
+            "ptx" => Format::Ptx,
+            "ply" => Format::Ply,
+            "xyz" | "txt" | "pts" | "asc" | "csv" => Format::Xyz,
+            _ => bail!(
+                "{}: unknown scan format .{ext}: use .e57, .las/.laz, .ptx, .ply or .xyz/.pts/.txt",
+                path.display()
+            ),
+        })
+    }
+}
+
+/// Where a scan's pose came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoseSource {
+    /// The E57 point cloud's `pose` element.
+    E57,
+    /// The PTX scan header's 4 × 4 matrix.
+    PtxHeader,
+    /// Coordinates already in the file's frame, read relative to a local origin.
+    FileFrame,
+}
+
+impl PoseSource {
+    pub fn describe(self) -> &'static str {
+        match self {
+            PoseSource::E57 => "the E57 scan pose",
+            PoseSource::PtxHeader => "the PTX header's transform",
+            PoseSource::FileFrame => "the file's own frame (points already registered)",
+        }
+    }
+}
+
+/// One scan inside a file.
+#[derive(Debug, Clone)]
+pub struct ScanInfo {
+    pub index: usize,
+    pub name: String,
+    /// Points the file declares for this scan, if it declares them.
+    pub points: Option<u64>,
+    /// `p_file = pose · p_scan`, when the file says where the scan was taken.
+    pub pose: Option<(Isometry3<f64>, PoseSource)>,
+    /// Where the scan starts in the file (PTX: the byte offset of its header, and the lines
+    /// before it).
+    offset: u64,
+    first_line: u64,
+}
+
+/// What a reader had to leave out or flag, besides the points it handed out.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct ReadNotes {
+    pub malformed_lines: u64,
+    pub first_malformed_line: Option<u64>,
+    /// Points the scanner marked invalid (no return); handed out flagged, never dropped.
+    pub invalid: u64,
+}
+
+impl ReadNotes {
+    fn malformed(&mut self, line: u64) {
+        self.malformed_lines += 1;
+        self.first_malformed_line.get_or_insert(line);
+    }
+}
+
+pub struct ScanFile {
+    pub path: PathBuf,
+    pub format: Format,
+    pub scans: Vec<ScanInfo>,
+}
+
+/// The chunk size used when a caller has no reason to pick another.
+pub const DEFAULT_CHUNK: usize = 1 << 16;
+
+impl ScanFile {
+    /// Reads the file's headers: which scans it holds, their sizes and poses.
+    pub fn open(path: &Path) -> Result<Self> {
+        if !path.is_file() {
+            bail!("scan file {} does not exist", path.display());
+        }
+        let format = Format::from_path(path)?;
+        let scans = match format {
+            Format::E57 => e57::scans(path)?,
+            Format::Las => las::scans(path)?,
+            Format::Ptx => ptx::scans(path)?,
+            Format::Ply => ply::scans(path)?,
+            Format::Xyz => xyz::scans(path),
+        };
+        Ok(Self {
+            path: path.to_path_buf(),
+            format,
+            scans,
+        })
+    }
+
+    /// Hands scan `index`'s points to `sink` in chunks of at most `chunk` points.
+    pub fn stream(
+        &self,
+        index: usize,
+        chunk: usize,
+        sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
+    ) -> Result<ReadNotes> {
+        let chunk = chunk.max(1);
+        let Some(info) = self.scans.get(index) else {
+            bail!(
+                "{} holds {} scan(s); there is no scan {index}",
+                self.path.display(),
+                self.scans.len()
+            );
+        };
+        match self.format {
+            Format::E57 => e57::stream(&self.path, info, chunk, sink),
+            Format::Las => las::stream(&self.path, info, chunk, sink),
+            Format::Ptx => ptx::stream(&self.path, info, chunk, sink),
+            Format::Ply => ply::stream(&self.path, chunk, sink),
+            Format::Xyz => xyz::stream(&self.path, chunk, sink),
+        }
+    }
+
+    /// Every point of one scan in memory: for small files and tests.
+    pub fn read_all(&self, index: usize) -> Result<(Vec<ScanPoint>, ReadNotes)> {
+        let mut all = Vec::new();
+        let notes = self.stream(index, DEFAULT_CHUNK, &mut |c| {
+            all.extend_from_slice(c);
+            Ok(())
+        })?;
+        Ok((all, notes))
+    }
+}
+
+/// A chunk buffer that hands itself to `sink` whenever it is full.
+struct Batcher<'a> {
+    buf: Vec<ScanPoint>,
+    chunk: usize,
+    sink: &'a mut dyn FnMut(&[ScanPoint]) -> Result<()>,
+}
+
+impl<'a> Batcher<'a> {
+    fn new(chunk: usize, sink: &'a mut dyn FnMut(&[ScanPoint]) -> Result<()>) -> Self {
+        Self {
+            buf: Vec::with_capacity(chunk),
+            chunk,
+            sink,
+        }
+    }
+
+    #[inline]
+    fn push(&mut self, p: ScanPoint) -> Result<()> {
+        self.buf.push(p);
+        if self.buf.len() == self.chunk {
+            (self.sink)(&self.buf)?;
+            self.buf.clear();
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<()> {
+        if !self.buf.is_empty() {
+            (self.sink)(&self.buf)?;
+            self.buf.clear();
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 use asbuilt_core::station::InspectConfig;
 use asbuilt_core::{C2mIndex, C2mParams, Design};
 use asbuilt_protocol::{
-    AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation, ScanPoint,
-    StationReport, unix_time_ns,
+    AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
+    PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationReport, unix_time_ns,
 };
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -200,6 +200,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         dead_nodes,
     };
     let mut terminated = false;
+    let mut held = HeldControl::default();
     while !terminated {
         let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
         match result {
@@ -214,7 +215,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         if let Err(e) = ports.inbox.try_wait(|_| {}) {
             warn!("inbox: {e:?}");
         }
-        terminated = drain(&ports, &mut lifecycle, &mut out);
+        terminated = drain(&ports, &mut lifecycle, &mut out, &mut held);
         let now = Instant::now();
         lifecycle.on_tick(now, &mut out);
         if now >= status.next {
@@ -239,6 +240,16 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     })
 }
 
+/// A Begin or pose for a new station that arrived while every station slot was taken. It waits
+/// here, and its queue is not read further, until a slot frees (a station completes or times
+/// out): a publisher running ahead of the agent is held back by its full queue instead of
+/// forcing open stations closed before their chunks, still queued, are read.
+#[derive(Default)]
+struct HeldControl {
+    event: Option<StationEvent>,
+    pose: Option<PoseSnapshot>,
+}
+
 /// Reads every queue until all are empty. Station events and poses go first, and again before
 /// any chunk whose station is not ready, because the cell sends a station's Begin and pose
 /// before its chunks but on other services. Returns true when a stop was requested.
@@ -246,9 +257,10 @@ fn drain(
     ports: &AgentPorts,
     lifecycle: &mut Lifecycle<'_, ChunkSample>,
     out: &mut IpcOutputs<'_>,
+    held: &mut HeldControl,
 ) -> bool {
     loop {
-        let mut any = drain_control(ports, lifecycle, out);
+        let mut any = drain_control(ports, lifecycle, out, held);
         loop {
             let sample = match ports.chunks.receive() {
                 Ok(Some(s)) => s,
@@ -260,7 +272,7 @@ fn drain(
             };
             any = true;
             if !lifecycle.is_ready_for(sample.user_header()) {
-                drain_control(ports, lifecycle, out);
+                drain_control(ports, lifecycle, out, held);
             }
             lifecycle.on_chunk(sample, Instant::now(), out);
             if SignalHandler::termination_requested() {
@@ -279,34 +291,44 @@ fn drain_control(
     ports: &AgentPorts,
     lifecycle: &mut Lifecycle<'_, ChunkSample>,
     out: &mut IpcOutputs<'_>,
-) -> bool {
-    let events = drain_queue(&ports.stations, "station events", |ev| {
-        lifecycle.on_event(ev, Instant::now(), out)
-    });
-    let poses = drain_queue(&ports.poses, "poses", |p| {
-        lifecycle.on_pose(p, Instant::now(), out)
-    });
-    events || poses
-}
-
-/// Hands every queued message to `f`; true when there was any.
-fn drain_queue<T: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend>(
-    queue: &iceoryx2::port::subscriber::Subscriber<Ipc, T, ()>,
-    what: &str,
-    mut f: impl FnMut(&T),
+    held: &mut HeldControl,
 ) -> bool {
     let mut any = false;
-    loop {
-        match queue.receive() {
-            Ok(Some(m)) => {
-                any = true;
-                f(m.payload());
-            }
-            Ok(None) => return any,
-            Err(e) => {
-                warn!("{what}: {e:?}");
-                return any;
-            }
+    while let Some(ev) = held
+        .event
+        .take()
+        .or_else(|| next(&ports.stations, "station events"))
+    {
+        let begins = ev.kind() == Some(StationEventKind::Begin);
+        if begins && !lifecycle.has_room_for(ev.job, ev.station) {
+            held.event = Some(ev);
+            break;
+        }
+        any = true;
+        lifecycle.on_event(&ev, Instant::now(), out);
+    }
+    while let Some(p) = held.pose.take().or_else(|| next(&ports.poses, "poses")) {
+        if !lifecycle.has_room_for(p.job, p.station) {
+            held.pose = Some(p);
+            break;
+        }
+        any = true;
+        lifecycle.on_pose(&p, Instant::now(), out);
+    }
+    any
+}
+
+/// The next message of a queue, copied out of shared memory.
+fn next<T: Copy + std::fmt::Debug + iceoryx2::prelude::ZeroCopySend>(
+    queue: &iceoryx2::port::subscriber::Subscriber<Ipc, T, ()>,
+    what: &str,
+) -> Option<T> {
+    match queue.receive() {
+        Ok(Some(m)) => Some(*m.payload()),
+        Ok(None) => None,
+        Err(e) => {
+            warn!("{what}: {e:?}");
+            None
         }
     }
 }

@@ -172,6 +172,15 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
 
     /// True when a chunk with this header can be processed now (its station is open with a
     /// pose). The daemon reads the event and pose queues before giving up on a chunk.
+    /// Whether a Begin or pose for this station can be taken without closing another station
+    /// early: it is open or reported already, or a slot is free.
+    pub fn has_room_for(&self, job: u64, station: u32) -> bool {
+        let key = (job, station);
+        self.find(&key).is_some()
+            || self.closed.contains(&key)
+            || self.open.len() < self.limits.open_stations
+    }
+
     pub fn is_ready_for(&self, h: &ChunkHeader) -> bool {
         self.find(&(h.job, h.station))
             .is_some_and(|i| self.open[i].pose.is_some())

@@ -14,9 +14,9 @@ use nalgebra::Point3;
 
 use crate::deviations_ply::DeviationsPly;
 use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
-use crate::scan_file::read_scan;
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use crate::suite::{self, Method, Methods, Suite, SuiteConfig};
+use asbuilt_tools::scan_io::ScanFile;
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
 const CHUNK: usize = 1 << 16;
@@ -32,8 +32,10 @@ pub struct InspectArgs {
     /// Stations file: [[station]] with id, scan, translation, rotation_xyzw.
     #[arg(long, conflicts_with = "scan", required_unless_present = "scan")]
     stations: Option<PathBuf>,
-    /// A single scan (PLY or XYZ, metres) instead of a stations file.
-    #[arg(long, requires = "translation", requires = "rotation_xyzw")]
+    /// A single scan file instead of a stations file: E57, LAS/LAZ, PTX, PLY or XYZ (metres).
+    /// A file that holds poses (E57, PTX, LAS) needs no --translation/--rotation-xyzw; every
+    /// scan in it becomes a station.
+    #[arg(long)]
     scan: Option<PathBuf>,
     /// With --scan: x,y,z of the scanner in the design frame, metres.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
@@ -217,9 +219,53 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
 
     for (n, station) in stations.iter().enumerate() {
         let t0 = Instant::now();
-        let (points, notes) = match read_scan(&station.scan) {
-            Ok(v) => v,
+        let file = match ScanFile::open(&station.scan) {
+            Ok(f) => f,
             Err(e) => {
+                eprintln!("error: station {}: {e:#}", station.id);
+                failed.push(station.id.clone());
+                continue;
+            }
+        };
+        eprintln!("station {}: pose from {}", station.id, station.pose_source);
+        let declared = file.scans[station.scan_index].points;
+        let bar = match declared {
+            Some(n) => ProgressBar::new(n).with_style(
+                ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} points ({per_sec})")
+                    .expect("valid template")
+                    .progress_chars("=> "),
+            ),
+            None => ProgressBar::no_length().with_style(
+                ProgressStyle::with_template("{msg:>12} {spinner} {pos} points ({per_sec})")
+                    .expect("valid template"),
+            ),
+        };
+        bar.set_message(station.id.clone());
+        let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
+        suite.begin_station();
+        let mut bounds = (
+            Point3::from([f64::INFINITY; 3]),
+            Point3::from([f64::NEG_INFINITY; 3]),
+        );
+        let read = file.stream(station.scan_index, CHUNK, &mut |chunk| {
+            let out = &mut buffer[..chunk.len()];
+            inspector.process(chunk, out);
+            for d in out
+                .iter()
+                .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
+            {
+                let p = Point3::from(d.position);
+                bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
+            }
+            ply.write(n as u16, out)?;
+            suite.chunk(out);
+            bar.inc(chunk.len() as u64);
+            Ok(())
+        });
+        let notes = match read {
+            Ok(notes) => notes,
+            Err(e) => {
+                bar.finish_and_clear();
                 eprintln!("error: station {}: {e:#}", station.id);
                 failed.push(station.id.clone());
                 continue;
@@ -234,32 +280,6 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             );
             eprintln!("warning: {w}");
             warnings.push(w);
-        }
-        let bar = ProgressBar::new(points.len() as u64).with_style(
-            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} points ({per_sec})")
-                .expect("valid template")
-                .progress_chars("=> "),
-        );
-        bar.set_message(station.id.clone());
-        let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
-        suite.begin_station();
-        let mut bounds = (
-            Point3::from([f64::INFINITY; 3]),
-            Point3::from([f64::NEG_INFINITY; 3]),
-        );
-        for chunk in points.chunks(CHUNK) {
-            let out = &mut buffer[..chunk.len()];
-            inspector.process(chunk, out);
-            for d in out
-                .iter()
-                .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
-            {
-                let p = Point3::from(d.position);
-                bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
-            }
-            ply.write(n as u16, out)?;
-            suite.chunk(out);
-            bar.inc(chunk.len() as u64);
         }
         bar.finish_and_clear();
 
@@ -381,26 +401,29 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
 }
 
 fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Station>> {
-    let t = args
-        .translation
-        .as_deref()
-        .context("--scan needs --translation x,y,z")?;
-    let r = args
-        .rotation_xyzw
-        .as_deref()
-        .context("--scan needs --rotation-xyzw x,y,z,w")?;
-    if t.len() != 3 {
-        bail!(
-            "--translation takes three numbers x,y,z (metres), got {}",
-            t.len()
-        );
-    }
-    if r.len() != 4 {
-        bail!(
-            "--rotation-xyzw takes four numbers x,y,z,w, got {}",
-            r.len()
-        );
-    }
+    let (translation, rotation_xyzw) =
+        match (args.translation.as_deref(), args.rotation_xyzw.as_deref()) {
+            (None, None) => (None, None),
+            (Some(t), Some(r)) => {
+                if t.len() != 3 {
+                    bail!(
+                        "--translation takes three numbers x,y,z (metres), got {}",
+                        t.len()
+                    );
+                }
+                if r.len() != 4 {
+                    bail!(
+                        "--rotation-xyzw takes four numbers x,y,z,w, got {}",
+                        r.len()
+                    );
+                }
+                (Some([t[0], t[1], t[2]]), Some([r[0], r[1], r[2], r[3]]))
+            }
+            _ => bail!(
+                "give both --translation x,y,z and --rotation-xyzw x,y,z,w, or neither to use the \
+             pose the scan file holds"
+            ),
+        };
     let file = stations::StationsFile {
         station: vec![stations::StationEntry {
             id: scan
@@ -408,8 +431,9 @@ fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Stat
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_else(|| "scan".into()),
             scan: scan.to_path_buf(),
-            translation: Some([t[0], t[1], t[2]]),
-            rotation_xyzw: Some([r[0], r[1], r[2], r[3]]),
+            scan_index: None,
+            translation,
+            rotation_xyzw,
             position_sigma: Some(DEFAULT_POSITION_SIGMA),
         }],
     };

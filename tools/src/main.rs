@@ -5,7 +5,6 @@ mod inspect;
 mod ply_out;
 mod publish;
 mod report;
-mod scan_file;
 mod stations;
 mod suite;
 

@@ -14,14 +14,18 @@ use asbuilt_protocol::{
 use clap::Args;
 use iceoryx2::prelude::*;
 
-use crate::scan_file::read_scan;
 use crate::stations;
+use asbuilt_tools::scan_io::ScanFile;
 
 #[derive(Args)]
 pub struct PublishArgs {
-    /// Stations file: [[station]] with id, scan, translation, rotation_xyzw (design frame).
-    #[arg(long)]
-    stations: PathBuf,
+    /// Stations file: [[station]] with id, scan, and a pose (translation, rotation_xyzw) unless
+    /// the scan file holds one.
+    #[arg(long, conflicts_with = "files", required_unless_present = "files")]
+    stations: Option<PathBuf>,
+    /// Scan files that hold their poses (E57, PTX, LAS): every scan in them is a station, in
+    /// order, with the file's pose.
+    files: Vec<PathBuf>,
     /// Service prefix of the agent (its services.prefix).
     #[arg(long, default_value = "asbuilt")]
     prefix: String,
@@ -56,7 +60,10 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     if args.chunk_points == 0 {
         bail!("--chunk-points must be at least 1");
     }
-    let stations = stations::load(&args.stations)?;
+    let stations = match &args.stations {
+        Some(path) => stations::load(path)?,
+        None => stations::from_files(&args.files)?,
+    };
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new()
         .create::<Ipc>()
@@ -80,13 +87,15 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     let mut expected = Vec::new();
     for (n, st) in stations.iter().enumerate() {
         let station = n as u32;
-        let (points, _) = read_scan(&st.scan)?;
-        let chunks = points.len().div_ceil(args.chunk_points);
+        let file = ScanFile::open(&st.scan)?;
+        eprintln!("station {}: pose from {}", st.id, st.pose_source);
+        let declared = file.scans[st.scan_index].points;
+        let chunks = declared.map_or(0, |n| n.div_ceil(args.chunk_points as u64));
 
         let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
         begin.name = FixedText::truncated(&st.id);
         begin.expected_chunks = chunks as u32;
-        begin.expected_points = points.len() as u64;
+        begin.expected_points = declared.unwrap_or(0);
         begin.timestamp_ns = unix_time_ns();
         ports.send_event(&begin)?;
 
@@ -97,23 +106,42 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         pose.timestamp_ns = unix_time_ns();
         ports.send_pose(&pose)?;
 
-        for (seq, chunk) in points.chunks(args.chunk_points).enumerate() {
-            let mut h = ChunkHeader::new(args.job, station, seq as u64, chunk.len() as u32);
-            h.timestamp_ns = unix_time_ns();
-            h.last = u8::from(seq + 1 == chunks);
-            ports.send_chunk(&h, chunk)?;
-            sent_points += chunk.len() as u64;
-            if let Some(rate) = rate {
-                let due = Duration::from_secs_f64(sent_points as f64 / rate);
-                if let Some(ahead) = due.checked_sub(started.elapsed()) {
-                    std::thread::sleep(ahead);
+        // One chunk is held back so that the last one goes out flagged as last.
+        let mut held: Vec<asbuilt_protocol::ScanPoint> = Vec::with_capacity(args.chunk_points);
+        let mut seq = 0u64;
+        let mut station_points = 0u64;
+        let mut send =
+            |chunk: &[asbuilt_protocol::ScanPoint], last: bool, seq: &mut u64| -> Result<()> {
+                let mut h = ChunkHeader::new(args.job, station, *seq, chunk.len() as u32);
+                h.timestamp_ns = unix_time_ns();
+                h.last = u8::from(last);
+                ports.send_chunk(&h, chunk)?;
+                *seq += 1;
+                sent_points += chunk.len() as u64;
+                if let Some(rate) = rate {
+                    let due = Duration::from_secs_f64(sent_points as f64 / rate);
+                    if let Some(ahead) = due.checked_sub(started.elapsed()) {
+                        std::thread::sleep(ahead);
+                    }
                 }
+                Ok(())
+            };
+        file.stream(st.scan_index, args.chunk_points, &mut |chunk| {
+            if !held.is_empty() {
+                send(&held, false, &mut seq)?;
             }
+            held.clear();
+            held.extend_from_slice(chunk);
+            station_points += chunk.len() as u64;
+            Ok(())
+        })?;
+        if !held.is_empty() {
+            send(&held, true, &mut seq)?;
         }
         let mut end = StationEvent::new(StationEventKind::End, args.job, station);
         end.name = begin.name;
-        end.expected_chunks = chunks as u32;
-        end.expected_points = points.len() as u64;
+        end.expected_chunks = seq as u32;
+        end.expected_points = station_points;
         end.timestamp_ns = unix_time_ns();
         ports.send_event(&end)?;
         expected.push(station);

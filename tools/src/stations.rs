@@ -3,6 +3,7 @@
 use std::path::{Component, Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use asbuilt_tools::scan_io::ScanFile;
 use nalgebra::{Isometry3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
@@ -16,9 +17,14 @@ pub struct StationsFile {
 #[serde(deny_unknown_fields)]
 pub struct StationEntry {
     pub id: String,
-    /// A PLY or XYZ file; relative paths are relative to the stations file.
+    /// A scan file (E57, LAS/LAZ, PTX, PLY, XYZ); relative paths are relative to the stations
+    /// file.
     pub scan: PathBuf,
-    /// Metres.
+    /// Which scan of a file that holds several (E57, PTX), from 0. Without it every scan of
+    /// the file becomes a station, named `id/scan name`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scan_index: Option<usize>,
+    /// Metres. With `rotation_xyzw`, the pose; without both, the pose the file holds.
     pub translation: Option<[f64; 3]>,
     /// Unit quaternion, scalar last.
     pub rotation_xyzw: Option<[f64; 4]>,
@@ -32,6 +38,10 @@ pub struct StationEntry {
 pub struct Station {
     pub id: String,
     pub scan: PathBuf,
+    /// Which scan of the file.
+    pub scan_index: usize,
+    /// Where the pose came from, for the log.
+    pub pose_source: String,
     pub t_design_scanner: Isometry3<f64>,
     /// The pose as written, so a publisher sends exactly the numbers `inspect` used.
     pub translation: [f64; 3],
@@ -72,28 +82,6 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
         } else {
             base.join(&s.scan)
         };
-        if !scan.is_file() {
-            problems.push(format!(
-                "station {:?}: scan file {} does not exist",
-                s.id,
-                scan.display()
-            ));
-        }
-        let (Some(t), Some(r)) = (s.translation, s.rotation_xyzw) else {
-            problems.push(format!(
-                "station {:?} has no pose: give both translation = [x, y, z] (metres) and \
-                 rotation_xyzw = [x, y, z, w]",
-                s.id
-            ));
-            continue;
-        };
-        let pose = match asbuilt_core::frames::isometry(t, r) {
-            Ok(p) => p,
-            Err(e) => {
-                problems.push(format!("station {:?}: {e}", s.id));
-                continue;
-            }
-        };
         let sigma = s.position_sigma.unwrap_or(DEFAULT_POSITION_SIGMA);
         if !(sigma >= 0.0 && sigma.is_finite()) {
             problems.push(format!(
@@ -101,19 +89,126 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
                 s.id
             ));
         }
-        out.push(Station {
-            id: s.id,
-            scan,
-            t_design_scanner: pose,
-            translation: t,
-            rotation_xyzw: r,
-            position_sigma: sigma,
-        });
+        let given = match (s.translation, s.rotation_xyzw) {
+            (Some(t), Some(r)) => Some((t, r)),
+            (None, None) => None,
+            _ => {
+                problems.push(format!(
+                    "station {:?}: give both translation = [x, y, z] (metres) and \
+                     rotation_xyzw = [x, y, z, w], or neither to use the file's pose",
+                    s.id
+                ));
+                continue;
+            }
+        };
+        if let Some((t, r)) = given
+            && let Err(e) = asbuilt_core::frames::isometry(t, r)
+        {
+            problems.push(format!("station {:?}: {e}", s.id));
+        }
+        let file = match ScanFile::open(&scan) {
+            Ok(f) => f,
+            Err(e) => {
+                problems.push(format!("station {:?}: {e:#}", s.id));
+                continue;
+            }
+        };
+        let indices: Vec<usize> = match s.scan_index {
+            Some(i) if i < file.scans.len() => vec![i],
+            Some(i) => {
+                problems.push(format!(
+                    "station {:?}: scan_index {i}, but {} holds {} scan(s) (0 to {})",
+                    s.id,
+                    scan.display(),
+                    file.scans.len(),
+                    file.scans.len() - 1
+                ));
+                continue;
+            }
+            None => (0..file.scans.len()).collect(),
+        };
+        if given.is_some() && indices.len() > 1 {
+            problems.push(format!(
+                "station {:?}: {} holds {} scans and one pose is given: add scan_index to say \
+                 which scan the pose is for",
+                s.id,
+                scan.display(),
+                indices.len()
+            ));
+            continue;
+        }
+        for i in indices {
+            let info = &file.scans[i];
+            let id = if file.scans.len() > 1 && s.scan_index.is_none() {
+                format!("{}/{}", s.id, info.name)
+            } else {
+                s.id.clone()
+            };
+            let (t, r, source) = match (given, info.pose) {
+                (Some((t, r)), _) => (t, r, origin.to_string()),
+                (None, Some((pose, src))) => {
+                    let v = pose.translation.vector;
+                    let q = pose.rotation.quaternion().coords;
+                    (
+                        [v.x, v.y, v.z],
+                        [q.x, q.y, q.z, q.w],
+                        format!("{} in {}", src.describe(), scan.display()),
+                    )
+                }
+                (None, None) => {
+                    problems.push(format!(
+                        "station {:?} has no pose: give translation = [x, y, z] (metres) and \
+                         rotation_xyzw = [x, y, z, w], or use a file that holds its pose (E57, \
+                         PTX, LAS)",
+                        s.id
+                    ));
+                    continue;
+                }
+            };
+            let pose = match asbuilt_core::frames::isometry(t, r) {
+                Ok(p) => p,
+                Err(e) => {
+                    problems.push(format!("station {id:?}: {e}"));
+                    continue;
+                }
+            };
+            out.push(Station {
+                id,
+                scan: scan.clone(),
+                scan_index: i,
+                pose_source: source,
+                t_design_scanner: pose,
+                translation: t,
+                rotation_xyzw: r,
+                position_sigma: sigma,
+            });
+        }
     }
     if !problems.is_empty() {
         bail!("{origin}:\n  - {}", problems.join("\n  - "));
     }
     Ok(out)
+}
+
+/// Stations from scan files that hold their poses: every scan of every file, in order.
+pub fn from_files(files: &[PathBuf]) -> Result<Vec<Station>> {
+    let file = StationsFile {
+        station: files
+            .iter()
+            .map(|f| StationEntry {
+                id: f
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "scan".into()),
+                scan: f.clone(),
+                scan_index: None,
+                translation: None,
+                rotation_xyzw: None,
+                position_sigma: None,
+            })
+            .collect(),
+    };
+    resolve(file, Path::new("."), "scan files")
 }
 
 /// Converts a Stanford/Scanalyze `.conf` (`bmesh FILE tx ty tz qx qy qz qw`, where
@@ -148,6 +243,7 @@ pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
         let c = q.quaternion().coords; // (x, y, z, w)
         let scan = dir.join(f[1]);
         station.push(StationEntry {
+            scan_index: None,
             id: Path::new(f[1])
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())

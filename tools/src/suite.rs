@@ -315,7 +315,7 @@ impl Suite {
         };
         let reference = match &config.reference {
             Some(path) if config.has(Method::C2c) || config.has(Method::M3c2) => {
-                let (pts, notes) = crate::scan_file::read_cloud(path)?;
+                let (pts, notes) = asbuilt_tools::scan_io::read_cloud(path)?;
                 if notes.malformed_lines > 0 {
                     eprintln!(
                         "warning: reference {}: {} unreadable lines skipped (first at line {})",

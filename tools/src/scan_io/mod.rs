@@ -171,6 +171,41 @@ impl ScanFile {
     }
 }
 
+/// A reference cloud in the file's frame at f64: every valid point of every scan, placed by the
+/// scan's pose when the file holds one. In memory: for reference clouds, not for scans.
+pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes)> {
+    let file = ScanFile::open(path)?;
+    let mut out = Vec::new();
+    let mut notes = ReadNotes::default();
+    for info in &file.scans {
+        let pose = info.pose.map(|p| p.0).unwrap_or_else(Isometry3::identity);
+        let n = file.stream(info.index, DEFAULT_CHUNK, &mut |chunk| {
+            out.extend(
+                chunk
+                    .iter()
+                    .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
+                    .map(|p| {
+                        pose * nalgebra::Point3::new(
+                            p.xyz[0] as f64,
+                            p.xyz[1] as f64,
+                            p.xyz[2] as f64,
+                        )
+                    }),
+            );
+            Ok(())
+        })?;
+        notes.malformed_lines += n.malformed_lines;
+        notes.invalid += n.invalid;
+        if notes.first_malformed_line.is_none() {
+            notes.first_malformed_line = n.first_malformed_line;
+        }
+    }
+    if out.is_empty() {
+        bail!("cloud {} has no valid point", path.display());
+    }
+    Ok((out, notes))
+}
+
 /// A chunk buffer that hands itself to `sink` whenever it is full.
 struct Batcher<'a> {
     buf: Vec<ScanPoint>,

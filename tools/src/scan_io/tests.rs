@@ -346,3 +346,20 @@ fn the_stanford_scans_stream_in_chunks_as_they_read_whole() {
     .unwrap();
     assert_eq!(chunks, vec![10_000, 10_000, 10_000, 10_000, 256]);
 }
+
+#[test]
+fn xyz_keeps_good_points_around_bad_lines_and_nan() {
+    let text = "3\n# comment\n1 2 3\n4,5,6,0.5\nnan 0 0\nbroken line\n7 8 9\n";
+    let mut pts = Vec::new();
+    let notes = xyz::parse(text.as_bytes(), Path::new("t.xyz"), 2, &mut |c| {
+        pts.extend_from_slice(c);
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(pts.len(), 4);
+    assert!(pts[2].xyz[0].is_nan());
+    assert_eq!(pts[1].intensity, 0.5);
+    assert_eq!(notes.malformed_lines, 1);
+    assert_eq!(notes.first_malformed_line, Some(6));
+    assert!(xyz::parse("a b c\n".as_bytes(), Path::new("t.xyz"), 2, &mut |_| Ok(())).is_err());
+}

@@ -10,6 +10,7 @@ pub mod stats;
 pub use c2m::{C2mIndex, C2mParams, Closest, Cursor};
 pub use design::{Design, DesignError, MeshReport, Units};
 pub mod c2c;
+pub mod calibration;
 pub mod cloud;
 pub mod coverage;
 pub mod icp;

@@ -86,7 +86,7 @@ pub fn fit_known_radius(points: &[Point3<f64>], r: f64, start: Point3<f64>) -> O
 /// shell also scores, but only along a circle).
 pub fn detect(points: &[Point3<f64>], params: &DetectParams) -> Vec<SphereFit> {
     let r = params.radius;
-    if points.len() < params.min_inliers || !(r > 0.0) {
+    if points.len() < params.min_inliers || r.is_nan() || r <= 0.0 {
         return Vec::new();
     }
     let Ok(full) = CloudIndex::new(points) else {
@@ -125,7 +125,7 @@ pub fn detect(points: &[Point3<f64>], params: &DetectParams) -> Vec<SphereFit> {
             candidates.push((score, c));
         }
     }
-    candidates.sort_by(|a, b| b.0.cmp(&a.0));
+    candidates.sort_by_key(|c| std::cmp::Reverse(c.0));
     let mut found: Vec<SphereFit> = Vec::new();
     let mut tried: Vec<Point3<f64>> = Vec::new();
     for (_, c) in candidates {
@@ -165,7 +165,7 @@ pub fn detect(points: &[Point3<f64>], params: &DetectParams) -> Vec<SphereFit> {
         }
         found.push(f);
     }
-    found.sort_by(|a, b| b.inliers.cmp(&a.inliers));
+    found.sort_by_key(|f| std::cmp::Reverse(f.inliers));
     found
 }
 

@@ -1,5 +1,7 @@
 //! `asbuilt`: the command line. Thin: every computation lives in asbuilt-core.
 
+mod calibrate;
+mod convert;
 mod deviations_ply;
 mod inspect;
 mod ply_out;
@@ -28,6 +30,10 @@ struct Cli {
 enum Command {
     /// Compare scans with the design: signed distances per point, statistics per station.
     Inspect(Box<inspect::InspectArgs>),
+    /// Estimate t_design_base or t_flange_scanner from sphere targets with known centres.
+    Calibrate(calibrate::CalibrateArgs),
+    /// Convert scan files (E57, LAS/LAZ, PTX, PLY, XYZ) into one file of another format.
+    Convert(convert::ConvertArgs),
     /// Stream scans with known poses into a running asbuilt-agent, station by station.
     Publish(publish::PublishArgs),
     /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
@@ -45,6 +51,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(*args),
         Command::Publish(args) => publish::run(args),
+        Command::Calibrate(args) => calibrate::run(args),
+        Command::Convert(args) => convert::run(args),
         Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
     };
     match result {

@@ -13,8 +13,9 @@ pub struct RigidFit {
     /// One-sigma uncertainty of the translation per axis at the targets' centroid, metres:
     /// σ̂ / √n with σ̂² = Σ|r|² / degrees of freedom.
     pub translation_sigma: Vector3<f64>,
-    /// Pairs whose leave-one-out residual (their distance from the fit made without them) is
-    /// beyond `FLAG_SIGMAS` √3 σ̂ of that fit and more than `FLAG_FLOOR`: index and residual.
+    /// Targets (groups; pair indices for ungrouped fits) whose leave-one-out residual (the
+    /// largest distance of their pairs from the fit made without them) is beyond
+    /// `FLAG_SIGMAS` √3 σ̂ of that fit and more than `FLAG_FLOOR`: group and residual.
     pub misfits: Vec<(usize, f64)>,
 }
 
@@ -45,6 +46,18 @@ pub enum RigidError {
 /// The least-squares rigid transform with `to ≈ T · from`. Needs at least 3 targets that are
 /// not on one line.
 pub fn fit(from: &[Point3<f64>], to: &[Point3<f64>]) -> Result<RigidFit, RigidError> {
+    let groups: Vec<usize> = (0..from.len()).collect();
+    fit_grouped(from, to, &groups)
+}
+
+/// [`fit`] where pairs share a target (`groups[i]`, the same sphere seen from several
+/// stations): a target is left out with all its pairs when it is judged, and `misfits` name
+/// groups.
+pub fn fit_grouped(
+    from: &[Point3<f64>],
+    to: &[Point3<f64>],
+    groups: &[usize],
+) -> Result<RigidFit, RigidError> {
     check(
         from,
         to,
@@ -52,13 +65,24 @@ pub fn fit(from: &[Point3<f64>], to: &[Point3<f64>]) -> Result<RigidFit, RigidEr
         "three targets off one line fix a rigid transform",
     )?;
     let t = kabsch(from, to)?;
-    Ok(finish(from, to, t, 6, |f, t| kabsch(f, t).ok()))
+    Ok(finish(from, to, groups, t, 6, |f, t| kabsch(f, t).ok()))
 }
 
 /// The translation with `to ≈ R · from + t` for a known rotation `rotation`.
 pub fn fit_translation(
     from: &[Point3<f64>],
     to: &[Point3<f64>],
+    rotation: UnitQuaternion<f64>,
+) -> Result<RigidFit, RigidError> {
+    let groups: Vec<usize> = (0..from.len()).collect();
+    fit_translation_grouped(from, to, &groups, rotation)
+}
+
+/// [`fit_translation`] with pairs grouped by target, as in [`fit_grouped`].
+pub fn fit_translation_grouped(
+    from: &[Point3<f64>],
+    to: &[Point3<f64>],
+    groups: &[usize],
     rotation: UnitQuaternion<f64>,
 ) -> Result<RigidFit, RigidError> {
     check(from, to, 1, "one target fixes a translation")?;
@@ -73,7 +97,7 @@ pub fn fit_translation(
         Some(Isometry3::from_parts(Translation3::from(d), rotation))
     };
     let t = solve(from, to).expect("a mean exists");
-    Ok(finish(from, to, t, 3, solve))
+    Ok(finish(from, to, groups, t, 3, solve))
 }
 
 fn check(
@@ -139,6 +163,7 @@ fn kabsch(from: &[Point3<f64>], to: &[Point3<f64>]) -> Result<Isometry3<f64>, Ri
 fn finish(
     from: &[Point3<f64>],
     to: &[Point3<f64>],
+    groups: &[usize],
     transform: Isometry3<f64>,
     params: usize,
     refit: impl Fn(&[Point3<f64>], &[Point3<f64>]) -> Option<Isometry3<f64>>,
@@ -155,24 +180,32 @@ fn finish(
     // Leave one out: a wrong target pulls the fit towards itself, so each target is judged by
     // the fit made without it, against the noise that fit shows (σ̂ per axis of the rest).
     let mut misfits = Vec::new();
-    let rest_dof = (3 * (n - 1)).saturating_sub(params);
-    if rest_dof > 0 {
-        for i in 0..n {
-            let f: Vec<Point3<f64>> = (0..n).filter(|&j| j != i).map(|j| from[j]).collect();
-            let t: Vec<Point3<f64>> = (0..n).filter(|&j| j != i).map(|j| to[j]).collect();
-            let Some(without) = refit(&f, &t) else {
-                continue;
-            };
-            let rest: f64 = f
-                .iter()
-                .zip(&t)
-                .map(|(a, b)| (without * a - b).norm_squared())
-                .sum();
-            let sigma_rest = (rest / rest_dof as f64).sqrt();
-            let r = (without * from[i] - to[i]).norm();
-            if r > FLAG_SIGMAS * 3f64.sqrt() * sigma_rest && r > FLAG_FLOOR {
-                misfits.push((i, r));
-            }
+    let mut ids: Vec<usize> = groups.to_vec();
+    ids.sort_unstable();
+    ids.dedup();
+    for &g in &ids {
+        let keep: Vec<usize> = (0..n).filter(|&j| groups[j] != g).collect();
+        let rest_dof = (3 * keep.len()).saturating_sub(params);
+        if rest_dof == 0 {
+            continue;
+        }
+        let f: Vec<Point3<f64>> = keep.iter().map(|&j| from[j]).collect();
+        let t: Vec<Point3<f64>> = keep.iter().map(|&j| to[j]).collect();
+        let Some(without) = refit(&f, &t) else {
+            continue;
+        };
+        let rest: f64 = f
+            .iter()
+            .zip(&t)
+            .map(|(a, b)| (without * a - b).norm_squared())
+            .sum();
+        let sigma_rest = (rest / rest_dof as f64).sqrt();
+        let r = (0..n)
+            .filter(|&j| groups[j] == g)
+            .map(|j| (without * from[j] - to[j]).norm())
+            .fold(0.0, f64::max);
+        if r > FLAG_SIGMAS * 3f64.sqrt() * sigma_rest && r > FLAG_FLOOR {
+            misfits.push((g, r));
         }
     }
     RigidFit {

@@ -14,18 +14,34 @@ pub struct DeviationsPly {
     body_path: PathBuf,
     body: BufWriter<File>,
     count: u64,
+    /// The same points as text with a header line, for tools that read ASCII.
+    ascii: Option<BufWriter<File>>,
 }
 
 impl DeviationsPly {
-    pub fn create(path: &Path) -> Result<Self> {
+    /// `ascii`: also write `deviations.txt` beside it, `//X Y Z C2M Triangle Station Feature
+    /// Flags` then one point per line (CloudCompare reads the `//` line as column names).
+    pub fn create(path: &Path, ascii: bool) -> Result<Self> {
         let body_path = path.with_extension("ply.body");
         let body = File::create(&body_path)
             .with_context(|| format!("cannot write {}", body_path.display()))?;
+        let ascii = if ascii {
+            let p = path.with_extension("txt");
+            let mut w = BufWriter::with_capacity(
+                1 << 20,
+                File::create(&p).with_context(|| format!("cannot write {}", p.display()))?,
+            );
+            writeln!(w, "//X Y Z C2M Triangle Station Feature Flags")?;
+            Some(w)
+        } else {
+            None
+        };
         Ok(Self {
             path: path.to_path_buf(),
             body_path,
             body: BufWriter::with_capacity(1 << 20, body),
             count: 0,
+            ascii,
         })
     }
 
@@ -45,12 +61,28 @@ impl DeviationsPly {
             rec[34] = d.feature;
             rec[35] = d.flags.0;
             self.body.write_all(&rec)?;
+            if let Some(a) = &mut self.ascii {
+                writeln!(
+                    a,
+                    "{:.6} {:.6} {:.6} {:.7} {} {station} {} {}",
+                    d.position[0],
+                    d.position[1],
+                    d.position[2],
+                    d.distance,
+                    d.triangle,
+                    d.feature,
+                    d.flags.0
+                )?;
+            }
             self.count += 1;
         }
         Ok(())
     }
 
     pub fn finish(mut self) -> Result<u64> {
+        if let Some(a) = &mut self.ascii {
+            a.flush()?;
+        }
         self.body.flush()?;
         drop(self.body);
         let mut out = BufWriter::new(

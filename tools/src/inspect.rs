@@ -87,6 +87,9 @@ pub struct InspectArgs {
     /// M3C2. Without it C2C measures to design samples.
     #[arg(long)]
     reference: Option<PathBuf>,
+    /// Also write deviations.txt: the same points as ASCII with a header line.
+    #[arg(long)]
+    ascii: bool,
     /// C2C local model: a least-squares plane through this many nearest reference points (the
     /// smaller of the plane and nearest-point distances is kept). 0 for nearest point only.
     /// Default 6 against design samples, 0 against --reference.
@@ -183,7 +186,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
 
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
-    let mut ply = DeviationsPly::create(&args.out.join("deviations.ply"))?;
+    let mut ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
     let config = InspectConfig::with_tolerance(args.tolerance);
     let (design_lo, design_hi) = design.bounds();
     let design_size = (design_hi - design_lo).norm();

@@ -1,0 +1,120 @@
+//! Scan files as a user feeds them to the command line: a PTX job whose poses are in its headers
+//! needs no stations file, and `convert` turns the shared E57 bunny into files CloudCompare opens.
+
+use std::process::Command;
+
+use asbuilt_protocol::ScanPoint;
+use asbuilt_tests::{shared_data, write_box_stl};
+use asbuilt_tools::scan_io::write::{self, OutScan};
+use nalgebra::{Isometry3, Point3, Vector3};
+
+const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
+
+/// The top and front of a 1 × 0.5 × 0.4 m box as two scans taken from two poses.
+fn write_ptx_job(path: &std::path::Path) -> usize {
+    let poses = [
+        Isometry3::new(Vector3::new(0.5, -2.0, 1.0), Vector3::new(0.3, 0.0, 0.2)),
+        Isometry3::new(Vector3::new(-1.0, 0.3, 1.5), Vector3::new(0.0, -0.4, 1.2)),
+    ];
+    let mut scans = Vec::new();
+    for (k, pose) in poses.iter().enumerate() {
+        let mut pts = Vec::new();
+        for i in 0..100 {
+            for j in 0..50 {
+                let (x, y) = (i as f64 * 0.01 + 0.005, j as f64 * 0.01 + 0.005);
+                let p = if k == 0 {
+                    Point3::new(x, 0.0, y * 0.8)
+                } else {
+                    Point3::new(x, y, 0.4)
+                };
+                let q = pose.inverse() * p;
+                pts.push(ScanPoint::new(q.x as f32, q.y as f32, q.z as f32));
+            }
+        }
+        scans.push((
+            OutScan {
+                name: format!("scan {k}"),
+                pose: *pose,
+                points: pts.len() as u64,
+            },
+            pts,
+        ));
+    }
+    let total = scans.iter().map(|s| s.1.len() as u64).sum();
+    let mut w = write::create(path, total).unwrap();
+    for (s, pts) in &scans {
+        w.write_scan(s, &mut |emit| emit(pts)).unwrap();
+    }
+    w.finish().unwrap();
+    total as usize
+}
+
+#[test]
+fn a_ptx_job_is_inspected_with_the_poses_in_its_headers() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box_stl(&dir.path().join("box.stl"), [0.0; 3], [1.0, 0.5, 0.4]);
+    let points = write_ptx_job(&dir.path().join("job.ptx"));
+    let out = dir.path().join("out");
+    let o = Command::new(ASBUILT)
+        .arg("inspect")
+        .args(["--design", dir.path().join("box.stl").to_str().unwrap()])
+        .args([
+            "--units",
+            "m",
+            "--scan",
+            dir.path().join("job.ptx").to_str().unwrap(),
+        ])
+        .args(["--out", out.to_str().unwrap(), "--ascii"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("station job/scan 0: pose from the PTX header's transform"),
+        "{err}"
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let stations = r["stations"].as_array().unwrap();
+    assert_eq!(stations.len(), 2);
+    assert_eq!(stations[1]["id"], "job/scan 1");
+    for s in stations {
+        assert_eq!(s["matched"], 5000);
+        // f32 scanner coordinates a few metres out: well under 0.01 mm.
+        assert!(s["p95_abs"].as_f64().unwrap() < 1e-5, "{s}");
+    }
+    let text = std::fs::read_to_string(out.join("deviations.txt")).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("//X Y Z C2M Triangle Station Feature Flags")
+    );
+    assert_eq!(lines.count(), points);
+}
+
+#[test]
+fn convert_writes_the_e57_bunny_as_ply_ascii_and_ptx() {
+    let dir = tempfile::tempdir().unwrap();
+    let bunny = shared_data().join("e57/bunnyFloat.e57");
+    for name in ["bunny.ply", "bunny.txt", "bunny.ptx", "bunny.las"] {
+        let out = dir.path().join(name);
+        let o = Command::new(ASBUILT)
+            .arg("convert")
+            .arg(&bunny)
+            .args(["--out", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let back = asbuilt_tools::scan_io::ScanFile::open(&out).unwrap();
+        let (pts, _) = back.read_all(0).unwrap();
+        assert_eq!(pts.len(), 30_571, "{name}");
+    }
+    let head = std::fs::read(dir.path().join("bunny.ply")).unwrap();
+    let head = String::from_utf8_lossy(&head[..300]);
+    assert!(head.contains("property float intensity") && head.contains("property ushort scan"));
+    let o = Command::new(ASBUILT)
+        .args(["convert", "a.e57", "--out", "b.docx"])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown scan format .docx"));
+}

@@ -118,3 +118,42 @@ fn convert_writes_the_e57_bunny_as_ply_ascii_and_ptx() {
         .unwrap();
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown scan format .docx"));
 }
+
+/// `asbuilt publish FILE` streams every scan of a file that holds its poses into a running
+/// agent, one station each.
+#[test]
+fn publish_streams_a_ptx_job_into_the_agent() {
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("box.stl");
+    write_box_stl(&stl, [0.0; 3], [1.0, 0.5, 0.4]);
+    write_ptx_job(&dir.path().join("job.ptx"));
+    let prefix = asbuilt_tests::unique_prefix("ptx");
+    let agent = asbuilt_tests::Agent::start(
+        env!("CARGO_BIN_EXE_e2e-asbuilt-agent"),
+        &prefix,
+        &format!(
+            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n",
+            stl.display().to_string()
+        ),
+    );
+    let o = Command::new(ASBUILT)
+        .arg("publish")
+        .arg(dir.path().join("job.ptx"))
+        .args(["--prefix", &prefix, "--chunk-points", "1000"])
+        .output()
+        .unwrap();
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "{out}\n{err}\nagent:\n{}", agent.log());
+    assert!(
+        err.contains("station job/scan 1: pose from the PTX header's transform"),
+        "{err}"
+    );
+    assert_eq!(
+        out.matches("Complete: 5000 points, 5000 matched").count(),
+        2,
+        "{out}"
+    );
+}

@@ -43,17 +43,29 @@ fn stations() -> Vec<Isometry3<f64>> {
 
 /// One PTX file with one scan per station of the given sphere centres (design frame).
 fn write_scene(path: &Path, centres: &[Point3<f64>]) {
-    let base_from_design = truth().inverse();
+    let base: Vec<Point3<f64>> = centres.iter().map(|c| truth().inverse() * c).collect();
+    write_scans(path, &base, &stations(), &stations());
+}
+
+/// Spheres at `centres` (robot base frame) scanned from `scanners` (scanner poses in the base
+/// frame); each scan's header holds the matching pose of `written`.
+fn write_scans(
+    path: &Path,
+    centres: &[Point3<f64>],
+    scanners: &[Isometry3<f64>],
+    written: &[Isometry3<f64>],
+) {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let noise = Normal::new(0.0, 0.0003).unwrap();
-    let scans: Vec<(OutScan, Vec<ScanPoint>)> = stations()
+    let scans: Vec<(OutScan, Vec<ScanPoint>)> = scanners
         .iter()
+        .zip(written)
         .enumerate()
-        .map(|(k, pose)| {
+        .map(|(k, (pose, header))| {
             let eye = Point3::from(pose.translation.vector);
             let mut pts: Vec<Point3<f64>> = centres
                 .iter()
-                .flat_map(|c| visible_cap(base_from_design * c, R, eye, 0.003))
+                .flat_map(|c| visible_cap(*c, R, eye, 0.003))
                 .collect();
             for i in 0..150 {
                 for j in 0..150 {
@@ -75,7 +87,7 @@ fn write_scene(path: &Path, centres: &[Point3<f64>]) {
             (
                 OutScan {
                     name: format!("station {k}"),
-                    pose: *pose,
+                    pose: *header,
                     points: local.len() as u64,
                 },
                 local,
@@ -216,4 +228,48 @@ fn targets_on_one_line_are_refused_and_fixed_orientation_still_works() {
             .unwrap();
     let t = Vector3::from(w.calibration.t_design_base.translation);
     assert!((t - truth().translation.vector).norm() < 0.0005, "{t}");
+}
+
+#[derive(serde::Deserialize)]
+struct WrittenFlange {
+    calibration: CalibFlange,
+}
+#[derive(serde::Deserialize)]
+struct CalibFlange {
+    t_flange_scanner: Pose,
+}
+
+/// The scanner's mount on the flange, from targets known in the robot base frame and the
+/// flange's pose at three stations.
+#[test]
+fn the_scanner_mount_on_the_flange_is_recovered() {
+    let dir = tempfile::tempdir().unwrap();
+    let mount = Isometry3::new(
+        Vector3::new(0.05, -0.12, 0.31),
+        Vector3::new(0.2, -1.4, 0.1),
+    );
+    let flanges = [
+        Isometry3::new(Vector3::new(0.3, 0.2, 1.5), Vector3::new(0.1, -0.2, 0.4)),
+        Isometry3::new(Vector3::new(1.8, -0.6, 1.2), Vector3::new(-0.1, 0.1, 2.1)),
+        Isometry3::new(Vector3::new(0.9, -1.2, 1.8), Vector3::new(0.3, 0.2, -0.6)),
+    ];
+    let scanners: Vec<_> = flanges.iter().map(|f| f * mount).collect();
+    // Targets in the base frame, in front of every scanner.
+    let base: Vec<Point3<f64>> = targets().iter().map(|c| truth().inverse() * c).collect();
+    write_scans(&dir.path().join("scene.ptx"), &base, &scanners, &flanges);
+    write_targets(&dir.path().join("targets.toml"), &base);
+    let o = calibrate(dir.path(), &["--solve", "flange-scanner"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let w: WrittenFlange =
+        toml::from_str(&std::fs::read_to_string(dir.path().join("calibration.toml")).unwrap())
+            .unwrap();
+    let got = asbuilt_core::frames::isometry(
+        w.calibration.t_flange_scanner.translation,
+        w.calibration.t_flange_scanner.rotation_xyzw,
+    )
+    .unwrap();
+    let off = got * mount.inverse();
+    assert!(off.translation.vector.norm() < 0.0005, "{off}");
+    assert!(off.rotation.angle() < 1e-3, "{off}");
 }

@@ -12,6 +12,7 @@
 pub mod codec;
 mod deviation;
 mod pose;
+pub mod recording;
 mod report;
 mod scan;
 mod station;

@@ -1,0 +1,571 @@
+//! The MCAP recording of a job: which channels it has, what each message's bytes are, and
+//! what the metadata records hold. The agent's recorder, `asbuilt pack`, `replay`, `recover`
+//! and `report` all write or read through this module, so a recording means the same to each.
+//!
+//! - One channel per message stream, topic as the iceoryx2 service without its prefix
+//!   (`/scanner/chunks`), message encoding [`MESSAGE_ENCODING`] (the [`codec`](crate::codec)
+//!   records: a postcard varint version, then the message).
+//! - Each channel's schema is named for the message type and version
+//!   (`asbuilt.ScanChunk.v1`); its data is a text that lists the fields ([`schema_text`]),
+//!   encoding [`SCHEMA_ENCODING`].
+//! - Metadata record [`METADATA_JOB`]: agent version, configuration, design file and its
+//!   SHA-256, calibrations. The design file itself is attached as [`ATTACHMENT_DESIGN`].
+//! - `log_time` is when the message was received (or, for a packed file, when a scanner at the
+//!   packed rate would have sent it); `publish_time` is the message's own timestamp.
+
+use std::collections::BTreeMap;
+use std::io::{Seek, Write};
+
+use crate::codec::{self, DecodeError, Message};
+use crate::{
+    AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
+    StationEvent, StationReport,
+};
+
+pub const MESSAGE_ENCODING: &str = "asbuilt-postcard";
+pub const SCHEMA_ENCODING: &str = "asbuilt-fields-text";
+pub const PROFILE: &str = "asbuilt";
+pub const METADATA_JOB: &str = "asbuilt.job";
+pub const ATTACHMENT_DESIGN: &str = "design";
+
+/// The channels of a recording.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Channel {
+    Poses,
+    ScanChunks,
+    StationEvents,
+    Deviations,
+    Reports,
+    Status,
+}
+
+impl Channel {
+    pub const ALL: [Channel; 6] = [
+        Channel::Poses,
+        Channel::ScanChunks,
+        Channel::StationEvents,
+        Channel::Deviations,
+        Channel::Reports,
+        Channel::Status,
+    ];
+
+    /// The cell's messages to the agent: what a replay sends again.
+    pub const INPUTS: [Channel; 3] = [Channel::Poses, Channel::ScanChunks, Channel::StationEvents];
+
+    pub fn topic(self) -> &'static str {
+        match self {
+            Channel::Poses => "/robot/poses",
+            Channel::ScanChunks => "/scanner/chunks",
+            Channel::StationEvents => "/job/stations",
+            Channel::Deviations => "/agent/deviations",
+            Channel::Reports => "/agent/reports",
+            Channel::Status => "/agent/status",
+        }
+    }
+
+    pub fn from_topic(topic: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.topic() == topic)
+    }
+
+    pub fn schema_name(self) -> &'static str {
+        match self {
+            Channel::Poses => PoseSnapshot::TYPE_NAME,
+            Channel::ScanChunks => "asbuilt.ScanChunk.v1",
+            Channel::StationEvents => StationEvent::TYPE_NAME,
+            Channel::Deviations => "asbuilt.DeviationChunk.v1",
+            Channel::Reports => StationReport::TYPE_NAME,
+            Channel::Status => AgentStatus::TYPE_NAME,
+        }
+    }
+}
+
+/// The schema data of a channel: its fields, in encoding order, with units.
+pub fn schema_text(channel: Channel) -> &'static str {
+    match channel {
+        Channel::Poses => {
+            "asbuilt.PoseSnapshot v1, postcard: version u16 (varint, also first), mode u8 \
+             (0 flange in base, 1 fixed orientation, 2 scanner in design), _reserved u8, \
+             station u32, job u64, sequence u64, timestamp_ns u64, translation [f64; 3] m, \
+             rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m"
+        }
+        Channel::ScanChunks => {
+            "asbuilt.ScanChunk v1, postcard: version u16 (varint), then ChunkHeader { version \
+             u16, _reserved u16, station u32, job u64, sequence u64, timestamp_ns u64, \
+             point_count u32, last u8, _reserved2 [u8; 3] }, then a sequence (varint length) of \
+             ScanPoint { xyz [f32; 3] m scanner frame, intensity f32, flags u16 (bit 0 invalid), \
+             returns u8, _reserved u8 }"
+        }
+        Channel::StationEvents => {
+            "asbuilt.StationEvent v1, postcard: version u16 (varint, also first), kind u8 \
+             (0 begin, 1 end), _reserved u8, station u32, job u64, timestamp_ns u64, layer u32, \
+             expected_chunks u32, expected_points u64, printed_height f64 m (NaN: not printing), \
+             name [u8; 48] with length u8"
+        }
+        Channel::Deviations => {
+            "asbuilt.DeviationChunk v1, postcard: version u16 (varint), then DeviationHeader, \
+             then a sequence (varint length) of PointDeviation { position [f64; 3] m design \
+             frame, distance f64 m signed (NaN: no match), triangle u32, feature u8, flags u8 }; \
+             see asbuilt-protocol's deviation.rs for the header's fields"
+        }
+        Channel::Reports => {
+            "asbuilt.StationReport v1, postcard: the fields of asbuilt-protocol's \
+             StationReport in declaration order (statistics in metres, counts, histogram)"
+        }
+        Channel::Status => {
+            "asbuilt.AgentStatus v1, postcard: the fields of asbuilt-protocol's AgentStatus in \
+             declaration order (points/s, queues, rejects and drops by reason)"
+        }
+    }
+}
+
+/// One decoded message of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Recorded {
+    Pose(PoseSnapshot),
+    Chunk(ChunkHeader, Vec<ScanPoint>),
+    Event(StationEvent),
+    Deviations(DeviationHeader, Vec<PointDeviation>),
+    Report(StationReport),
+    Status(AgentStatus),
+}
+
+impl Recorded {
+    pub fn channel(&self) -> Channel {
+        match self {
+            Recorded::Pose(_) => Channel::Poses,
+            Recorded::Chunk(..) => Channel::ScanChunks,
+            Recorded::Event(_) => Channel::StationEvents,
+            Recorded::Deviations(..) => Channel::Deviations,
+            Recorded::Report(_) => Channel::Reports,
+            Recorded::Status(_) => Channel::Status,
+        }
+    }
+
+    pub fn decode(channel: Channel, bytes: &[u8]) -> Result<Self, DecodeError> {
+        Ok(match channel {
+            Channel::Poses => Recorded::Pose(codec::decode(bytes)?),
+            Channel::ScanChunks => {
+                let (h, p) = codec::decode_scan_chunk(bytes)?;
+                Recorded::Chunk(h, p)
+            }
+            Channel::StationEvents => Recorded::Event(codec::decode(bytes)?),
+            Channel::Deviations => {
+                let (h, p) = codec::decode_deviation_chunk(bytes)?;
+                Recorded::Deviations(h, p)
+            }
+            Channel::Reports => Recorded::Report(codec::decode(bytes)?),
+            Channel::Status => Recorded::Status(codec::decode(bytes)?),
+        })
+    }
+
+    pub fn encode(&self) -> Vec<u8> {
+        match self {
+            Recorded::Pose(m) => codec::encode(m),
+            Recorded::Chunk(h, p) => codec::encode_scan_chunk(h, p),
+            Recorded::Event(m) => codec::encode(m),
+            Recorded::Deviations(h, p) => codec::encode_deviation_chunk(h, p),
+            Recorded::Report(m) => codec::encode(m),
+            Recorded::Status(m) => codec::encode(m),
+        }
+    }
+
+    /// The message's own timestamp, nanoseconds since the Unix epoch (0 when it has none).
+    pub fn timestamp_ns(&self) -> u64 {
+        match self {
+            Recorded::Pose(m) => m.timestamp_ns,
+            Recorded::Chunk(h, _) => h.timestamp_ns,
+            Recorded::Event(m) => m.timestamp_ns,
+            Recorded::Deviations(h, _) => h.timestamp_ns,
+            Recorded::Report(_) => 0,
+            Recorded::Status(m) => m.timestamp_ns,
+        }
+    }
+}
+
+/// What the `asbuilt.job` metadata record holds.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct JobMetadata {
+    pub writer: String,
+    pub asbuilt_version: String,
+    pub design_path: String,
+    pub design_units: String,
+    pub design_sha256: String,
+    /// The agent's configuration file as it was, or how a packed file was made.
+    pub config: String,
+    /// `t_design_base`, `t_flange_scanner` and `r_base_flange_xyzw`, as written in the config.
+    pub calibrations: String,
+}
+
+impl JobMetadata {
+    pub fn to_map(&self) -> BTreeMap<String, String> {
+        [
+            ("writer", &self.writer),
+            ("asbuilt_version", &self.asbuilt_version),
+            ("design_path", &self.design_path),
+            ("design_units", &self.design_units),
+            ("design_sha256", &self.design_sha256),
+            ("config", &self.config),
+            ("calibrations", &self.calibrations),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v.clone()))
+        .collect()
+    }
+
+    pub fn from_map(m: &BTreeMap<String, String>) -> Self {
+        let g = |k: &str| m.get(k).cloned().unwrap_or_default();
+        Self {
+            writer: g("writer"),
+            asbuilt_version: g("asbuilt_version"),
+            design_path: g("design_path"),
+            design_units: g("design_units"),
+            design_sha256: g("design_sha256"),
+            config: g("config"),
+            calibrations: g("calibrations"),
+        }
+    }
+}
+
+/// An MCAP file in the recording layout: every channel declared up front.
+pub struct RecordingWriter<W: Write + Seek> {
+    mcap: mcap::Writer<W>,
+    channels: BTreeMap<Channel, u16>,
+    sequence: u32,
+}
+
+/// Messages are collected into chunks of about this many bytes (LZ4); a station's end always
+/// closes one, so a crash loses at most the station in progress.
+pub const CHUNK_BYTES: u64 = 4 << 20;
+
+impl<W: Write + Seek> RecordingWriter<W> {
+    pub fn new(w: W) -> Result<Self, mcap::McapError> {
+        let mut mcap = mcap::WriteOptions::new()
+            .profile(PROFILE)
+            .library(format!("asbuilt {}", env!("CARGO_PKG_VERSION")))
+            .compression(Some(mcap::Compression::Lz4))
+            .chunk_size(Some(CHUNK_BYTES))
+            .create(w)?;
+        let mut channels = BTreeMap::new();
+        for c in Channel::ALL {
+            let schema =
+                mcap.add_schema(c.schema_name(), SCHEMA_ENCODING, schema_text(c).as_bytes())?;
+            let id = mcap.add_channel(schema, c.topic(), MESSAGE_ENCODING, &BTreeMap::new())?;
+            channels.insert(c, id);
+        }
+        Ok(Self {
+            mcap,
+            channels,
+            sequence: 0,
+        })
+    }
+
+    /// Writes already-encoded message bytes.
+    pub fn write_raw(
+        &mut self,
+        channel: Channel,
+        log_time: u64,
+        publish_time: u64,
+        bytes: &[u8],
+    ) -> Result<(), mcap::McapError> {
+        self.sequence = self.sequence.wrapping_add(1);
+        self.mcap.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: self.channels[&channel],
+                sequence: self.sequence,
+                log_time,
+                publish_time,
+            },
+            bytes,
+        )
+    }
+
+    pub fn write(&mut self, log_time: u64, message: &Recorded) -> Result<(), mcap::McapError> {
+        self.write_raw(
+            message.channel(),
+            log_time,
+            message.timestamp_ns(),
+            &message.encode(),
+        )
+    }
+
+    pub fn metadata(&mut self, meta: &JobMetadata) -> Result<(), mcap::McapError> {
+        self.mcap.write_metadata(&mcap::records::Metadata {
+            name: METADATA_JOB.to_string(),
+            metadata: meta.to_map(),
+        })
+    }
+
+    pub fn attach_design(
+        &mut self,
+        name: &str,
+        bytes: &[u8],
+        time: u64,
+    ) -> Result<(), mcap::McapError> {
+        self.mcap.attach(&mcap::Attachment {
+            log_time: time,
+            create_time: time,
+            name: format!("{ATTACHMENT_DESIGN}/{name}"),
+            media_type: "application/octet-stream".into(),
+            data: std::borrow::Cow::Borrowed(bytes),
+        })
+    }
+
+    /// Ends the current chunk and flushes it to the file.
+    pub fn flush(&mut self) -> Result<(), mcap::McapError> {
+        self.mcap.flush()
+    }
+
+    /// Writes the summary and footer.
+    pub fn finish(mut self) -> Result<W, mcap::McapError> {
+        self.mcap.finish()?;
+        Ok(self.mcap.into_inner())
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error("not a readable MCAP file: {0}")]
+    Mcap(#[from] mcap::McapError),
+    #[error("message {index} on {topic}: {source}")]
+    Decode {
+        index: usize,
+        topic: String,
+        source: DecodeError,
+    },
+}
+
+/// The messages of a recording in file order, decoded one at a time (chunks are decompressed as
+/// they are reached, so a large file is never held whole). Channels of other topics are skipped.
+pub fn messages(
+    bytes: &[u8],
+) -> Result<impl Iterator<Item = Result<(u64, Recorded), ReadError>> + '_, ReadError> {
+    let stream = mcap::MessageStream::new(bytes)?;
+    Ok(stream.enumerate().filter_map(|(index, m)| {
+        let m = match m {
+            Ok(m) => m,
+            Err(e) => return Some(Err(ReadError::Mcap(e))),
+        };
+        let channel = Channel::from_topic(&m.channel.topic)?;
+        Some(
+            Recorded::decode(channel, &m.data)
+                .map(|msg| (m.log_time, msg))
+                .map_err(|source| ReadError::Decode {
+                    index,
+                    topic: m.channel.topic.clone(),
+                    source,
+                }),
+        )
+    }))
+}
+
+/// The job metadata and the design attachments of a recording.
+pub fn job(bytes: &[u8]) -> Result<(Option<JobMetadata>, Vec<(String, Vec<u8>)>), ReadError> {
+    let mut metadata = None;
+    let mut attachments = Vec::new();
+    for record in mcap::read::LinearReader::new(bytes)? {
+        match record? {
+            mcap::records::Record::Metadata(m) if m.name == METADATA_JOB => {
+                metadata = Some(JobMetadata::from_map(&m.metadata));
+            }
+            mcap::records::Record::Attachment { header, data, .. } => {
+                attachments.push((header.name.clone(), data.into_owned()));
+            }
+            _ => {}
+        }
+    }
+    Ok((metadata, attachments))
+}
+
+/// Every complete record of a file whose writer died (no summary, no footer, a chunk cut off),
+/// rewritten into a valid recording. Returns the messages, metadata and attachments saved.
+pub fn recover<W: Write + Seek>(
+    broken: &[u8],
+    out: W,
+) -> Result<(W, RecoverCounts), mcap::McapError> {
+    let mut w = RecordingWriter::new(out)?;
+    let mut counts = RecoverCounts::default();
+    let mut topics: BTreeMap<u16, Channel> = BTreeMap::new();
+    let take = |record: mcap::records::Record<'_>,
+                w: &mut RecordingWriter<W>,
+                topics: &mut BTreeMap<u16, Channel>,
+                counts: &mut RecoverCounts|
+     -> Result<(), mcap::McapError> {
+        match record {
+            mcap::records::Record::Channel(c) => {
+                if let Some(ch) = Channel::from_topic(&c.topic) {
+                    topics.insert(c.id, ch);
+                }
+            }
+            mcap::records::Record::Message { header, data } => {
+                if let Some(&ch) = topics.get(&header.channel_id) {
+                    w.write_raw(ch, header.log_time, header.publish_time, &data)?;
+                    counts.messages += 1;
+                } else {
+                    counts.skipped += 1;
+                }
+            }
+            mcap::records::Record::Metadata(m) => {
+                w.mcap.write_metadata(&m)?;
+                counts.metadata += 1;
+            }
+            mcap::records::Record::Attachment { header, data, .. } => {
+                w.mcap.attach(&mcap::Attachment {
+                    log_time: header.log_time,
+                    create_time: header.create_time,
+                    name: header.name.clone(),
+                    media_type: header.media_type.clone(),
+                    data,
+                })?;
+                counts.attachments += 1;
+            }
+            _ => {}
+        }
+        Ok(())
+    };
+    let reader = mcap::read::LinearReader::new_with_options(
+        broken,
+        enumset::enum_set!(mcap::read::Options::IgnoreEndMagic),
+    )?;
+    for record in reader {
+        let record = match record {
+            Ok(r) => r,
+            Err(_) => {
+                counts.truncated = true;
+                break;
+            }
+        };
+        if let mcap::records::Record::Chunk { header, data } = record {
+            // A chunk is all or nothing: read it whole before keeping any of it.
+            let inner: Result<Vec<_>, _> = match mcap::read::ChunkReader::new(header, &data) {
+                Ok(r) => r.collect(),
+                Err(e) => Err(e),
+            };
+            match inner {
+                Ok(records) => {
+                    for r in records {
+                        take(r, &mut w, &mut topics, &mut counts)?;
+                    }
+                }
+                Err(_) => {
+                    counts.truncated = true;
+                    break;
+                }
+            }
+        } else {
+            take(record, &mut w, &mut topics, &mut counts)?;
+        }
+    }
+    Ok((w.finish()?, counts))
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RecoverCounts {
+    pub messages: u64,
+    pub metadata: u64,
+    pub attachments: u64,
+    /// Messages on channels this build does not know.
+    pub skipped: u64,
+    /// The file ended inside a record (its writer died); everything before was kept.
+    pub truncated: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{PoseMode, StationEventKind};
+
+    fn job_messages() -> Vec<Recorded> {
+        let mut out = Vec::new();
+        for station in 0..4u32 {
+            out.push(Recorded::Event(StationEvent::new(
+                StationEventKind::Begin,
+                7,
+                station,
+            )));
+            out.push(Recorded::Pose(PoseSnapshot::new(
+                7,
+                station,
+                PoseMode::DesignScanner,
+            )));
+            for seq in 0..3u64 {
+                let pts: Vec<ScanPoint> = (0..20_000)
+                    .map(|i| ScanPoint::new(i as f32 * 1e-3, station as f32, seq as f32))
+                    .collect();
+                let mut h = ChunkHeader::new(7, station, seq, pts.len() as u32);
+                h.last = u8::from(seq == 2);
+                out.push(Recorded::Chunk(h, pts));
+            }
+            out.push(Recorded::Event(StationEvent::new(
+                StationEventKind::End,
+                7,
+                station,
+            )));
+        }
+        out
+    }
+
+    fn write_job(flush_per_station: bool) -> (Vec<u8>, Vec<usize>) {
+        let mut w = RecordingWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+        w.metadata(&JobMetadata {
+            writer: "test".into(),
+            design_sha256: "abc".into(),
+            ..Default::default()
+        })
+        .unwrap();
+        w.attach_design("box.stl", b"solid box", 1).unwrap();
+        // Bytes written after each station, to cut the file at.
+        let mut marks = Vec::new();
+        for (i, m) in job_messages().iter().enumerate() {
+            w.write(i as u64, m).unwrap();
+            if flush_per_station
+                && matches!(m, Recorded::Event(e) if e.kind() == Some(StationEventKind::End))
+            {
+                w.flush().unwrap();
+                marks.push(i + 1);
+            }
+        }
+        (w.finish().unwrap().into_inner(), marks)
+    }
+
+    #[test]
+    fn a_recording_reads_back_message_for_message() {
+        let (bytes, _) = write_job(true);
+        let read: Vec<(u64, Recorded)> = messages(&bytes).unwrap().map(Result::unwrap).collect();
+        let want = job_messages();
+        assert_eq!(read.len(), want.len());
+        for (i, ((t, m), w)) in read.iter().zip(&want).enumerate() {
+            assert_eq!(*t, i as u64);
+            // Bytes, not values: a NaN printed height is not equal to itself.
+            assert_eq!(m.encode(), w.encode());
+        }
+        let (meta, att) = job(&bytes).unwrap();
+        assert_eq!(meta.unwrap().design_sha256, "abc");
+        assert_eq!(
+            att,
+            vec![("design/box.stl".to_string(), b"solid box".to_vec())]
+        );
+    }
+
+    #[test]
+    fn a_file_cut_at_60_percent_recovers_every_completed_station() {
+        let (bytes, _) = write_job(true);
+        let cut = &bytes[..bytes.len() * 6 / 10];
+        // The summary is gone: an ordinary read fails.
+        assert!(messages(cut).is_err() || messages(cut).unwrap().any(|m| m.is_err()));
+        let (fixed, counts) = recover(cut, std::io::Cursor::new(Vec::new())).unwrap();
+        assert!(counts.truncated);
+        assert_eq!((counts.metadata, counts.attachments), (1, 1));
+        let fixed = fixed.into_inner();
+        let read: Vec<(u64, Recorded)> = messages(&fixed).unwrap().map(Result::unwrap).collect();
+        // Whole stations only (each was flushed as one chunk), in order, and all of those
+        // whose chunk ended before the cut.
+        let per_station = job_messages().len() / 4;
+        assert_eq!(read.len() % per_station, 0, "{}", read.len());
+        assert!(read.len() >= per_station, "nothing recovered");
+        assert_eq!(counts.messages as usize, read.len());
+        let want = job_messages();
+        for ((_, m), w) in read.iter().zip(&want) {
+            assert_eq!(m.encode(), w.encode());
+        }
+    }
+}

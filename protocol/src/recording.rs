@@ -125,8 +125,8 @@ pub enum Recorded {
     Chunk(ChunkHeader, Vec<ScanPoint>),
     Event(StationEvent),
     Deviations(DeviationHeader, Vec<PointDeviation>),
-    Report(StationReport),
-    Status(AgentStatus),
+    Report(Box<StationReport>),
+    Status(Box<AgentStatus>),
 }
 
 impl Recorded {
@@ -153,8 +153,8 @@ impl Recorded {
                 let (h, p) = codec::decode_deviation_chunk(bytes)?;
                 Recorded::Deviations(h, p)
             }
-            Channel::Reports => Recorded::Report(codec::decode(bytes)?),
-            Channel::Status => Recorded::Status(codec::decode(bytes)?),
+            Channel::Reports => Recorded::Report(Box::new(codec::decode(bytes)?)),
+            Channel::Status => Recorded::Status(Box::new(codec::decode(bytes)?)),
         })
     }
 
@@ -164,8 +164,8 @@ impl Recorded {
             Recorded::Chunk(h, p) => codec::encode_scan_chunk(h, p),
             Recorded::Event(m) => codec::encode(m),
             Recorded::Deviations(h, p) => codec::encode_deviation_chunk(h, p),
-            Recorded::Report(m) => codec::encode(m),
-            Recorded::Status(m) => codec::encode(m),
+            Recorded::Report(m) => codec::encode(m.as_ref()),
+            Recorded::Status(m) => codec::encode(m.as_ref()),
         }
     }
 
@@ -358,8 +358,11 @@ pub fn messages(
     }))
 }
 
+/// A design file attached to a recording: its name and bytes.
+pub type DesignAttachment = (String, Vec<u8>);
+
 /// The job metadata and the design attachments of a recording.
-pub fn job(bytes: &[u8]) -> Result<(Option<JobMetadata>, Vec<(String, Vec<u8>)>), ReadError> {
+pub fn job(bytes: &[u8]) -> Result<(Option<JobMetadata>, Vec<DesignAttachment>), ReadError> {
     let mut metadata = None;
     let mut attachments = Vec::new();
     for record in mcap::read::LinearReader::new(bytes)? {

@@ -4,8 +4,11 @@ mod calibrate;
 mod convert;
 mod deviations_ply;
 mod inspect;
+mod pack;
 mod ply_out;
 mod publish;
+mod recover;
+mod replay;
 mod report;
 mod stations;
 mod suite;
@@ -36,6 +39,12 @@ enum Command {
     Convert(convert::ConvertArgs),
     /// Stream scans with known poses into a running asbuilt-agent, station by station.
     Publish(publish::PublishArgs),
+    /// Turn scan files with poses into a recording that replay and report accept.
+    Pack(pack::PackArgs),
+    /// Play a recording's inputs to a running agent, with the recorded timing or at full speed.
+    Replay(replay::ReplayArgs),
+    /// Save every complete message of a recording whose writer died.
+    Recover(recover::RecoverArgs),
     /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
     ImportConf {
         /// The .conf file.
@@ -53,6 +62,9 @@ fn main() -> ExitCode {
         Command::Publish(args) => publish::run(args),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Convert(args) => convert::run(args),
+        Command::Pack(args) => pack::run(args),
+        Command::Replay(args) => replay::run(args),
+        Command::Recover(args) => recover::run(args),
         Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
     };
     match result {

@@ -180,7 +180,7 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn collect_reports(
+pub(crate) fn collect_reports(
     ports: &CellPorts,
     job: u64,
     reports: &mut Vec<StationReport>,

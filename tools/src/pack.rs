@@ -1,0 +1,149 @@
+//! `asbuilt pack`: scan files with poses into a recording that `replay` plays to an agent and
+//! `report` inspects, as if a scanner on a robot had sent them at a given rate.
+
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use asbuilt_core::Units;
+use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
+use asbuilt_protocol::{
+    ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind, unix_time_ns,
+};
+use asbuilt_tools::scan_io::ScanFile;
+use clap::Args;
+use sha2::{Digest, Sha256};
+
+use crate::stations;
+
+#[derive(Args)]
+pub struct PackArgs {
+    /// Stations file: [[station]] with id, scan and a pose unless the scan file holds one.
+    #[arg(long)]
+    stations: PathBuf,
+    /// The design the job is inspected against; attached to the recording.
+    #[arg(long)]
+    design: PathBuf,
+    /// Units the design file is written in (m or mm).
+    #[arg(long)]
+    units: Units,
+    /// The recording to write.
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Job number carried by every message.
+    #[arg(long, default_value_t = 1)]
+    job: u64,
+    /// Points per scan chunk.
+    #[arg(long, default_value_t = 16_384)]
+    chunk_points: usize,
+    /// The scanner's rate, points per second: sets the recorded timing a replay at --speed 1
+    /// follows.
+    #[arg(long, default_value_t = 1_000_000.0)]
+    rate: f64,
+}
+
+pub fn run(args: PackArgs) -> Result<ExitCode> {
+    if args.chunk_points == 0 || args.chunk_points > u32::MAX as usize {
+        bail!("--chunk-points must be between 1 and {}", u32::MAX);
+    }
+    if !(args.rate > 0.0 && args.rate.is_finite()) {
+        bail!("--rate must be a positive number of points per second");
+    }
+    let stations = stations::load(&args.stations)?;
+    let design = std::fs::read(&args.design)
+        .with_context(|| format!("cannot read design {}", args.design.display()))?;
+    // Refuse a design the agent could not load, before writing anything.
+    asbuilt_core::Design::load(&args.design, args.units)?;
+    let file =
+        File::create(&args.out).with_context(|| format!("cannot write {}", args.out.display()))?;
+    let mut w = RecordingWriter::new(BufWriter::with_capacity(1 << 20, file))?;
+    let t0 = unix_time_ns();
+    w.metadata(&JobMetadata {
+        writer: "asbuilt pack".into(),
+        asbuilt_version: env!("CARGO_PKG_VERSION").into(),
+        design_path: args.design.display().to_string(),
+        design_units: format!("{:?}", args.units),
+        design_sha256: format!("{:x}", Sha256::digest(&design)),
+        config: format!(
+            "packed from {}\n\n{}",
+            args.stations.display(),
+            std::fs::read_to_string(&args.stations).unwrap_or_default()
+        ),
+        calibrations: "none: poses are the scanner in the design frame".into(),
+    })?;
+    let name = args
+        .design
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    w.attach_design(&name, &design, t0)?;
+
+    let mut sent = 0u64;
+    let clock = |sent: u64| t0 + (sent as f64 / args.rate * 1e9) as u64;
+    for (n, st) in stations.iter().enumerate() {
+        let station = n as u32;
+        let scan = ScanFile::open(&st.scan)?;
+        eprintln!("station {}: pose from {}", st.id, st.pose_source);
+        let declared = scan.scans[st.scan_index].points;
+        let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
+        begin.name = FixedText::truncated(&st.id);
+        begin.expected_points = declared.unwrap_or(0);
+        begin.expected_chunks = declared.map_or(0, |p| p.div_ceil(args.chunk_points as u64)) as u32;
+        begin.timestamp_ns = clock(sent);
+        w.write(begin.timestamp_ns, &Recorded::Event(begin))?;
+        let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
+        pose.translation = st.translation;
+        pose.rotation_xyzw = st.rotation_xyzw;
+        pose.position_sigma = st.position_sigma;
+        pose.timestamp_ns = clock(sent);
+        w.write(pose.timestamp_ns, &Recorded::Pose(pose))?;
+        // One chunk held back, so the last goes out flagged.
+        let mut held: Option<Vec<asbuilt_protocol::ScanPoint>> = None;
+        let mut seq = 0u64;
+        let mut points = 0u64;
+        let emit = |pts: Vec<asbuilt_protocol::ScanPoint>,
+                    last: bool,
+                    seq: &mut u64,
+                    sent: &mut u64,
+                    w: &mut RecordingWriter<_>|
+         -> Result<()> {
+            *sent += pts.len() as u64;
+            let mut h = ChunkHeader::new(args.job, station, *seq, pts.len() as u32);
+            h.last = u8::from(last);
+            h.timestamp_ns = clock(*sent);
+            w.write(h.timestamp_ns, &Recorded::Chunk(h, pts))?;
+            *seq += 1;
+            Ok(())
+        };
+        scan.stream(st.scan_index, args.chunk_points, &mut |chunk| {
+            if let Some(prev) = held.take() {
+                emit(prev, false, &mut seq, &mut sent, &mut w)?;
+            }
+            held = Some(chunk.to_vec());
+            points += chunk.len() as u64;
+            Ok(())
+        })?;
+        if let Some(prev) = held.take() {
+            emit(prev, true, &mut seq, &mut sent, &mut w)?;
+        }
+        let mut end = StationEvent::new(StationEventKind::End, args.job, station);
+        end.name = begin.name;
+        end.expected_chunks = seq as u32;
+        end.expected_points = points;
+        end.timestamp_ns = clock(sent);
+        w.write(end.timestamp_ns, &Recorded::Event(end))?;
+        // A station per chunk of the file: a cut file keeps every finished station.
+        w.flush()?;
+    }
+    w.finish()?;
+    eprintln!(
+        "wrote {} ({} stations, {sent} points, {:.1} s of scanning at {} points/s)",
+        args.out.display(),
+        stations.len(),
+        sent as f64 / args.rate,
+        args.rate
+    );
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,168 @@
+//! `asbuilt replay`: a recording's inputs (station events, poses, scan chunks) sent again to a
+//! running agent over iceoryx2, with the recorded timing or as fast as the agent takes them.
+//! A recording replayed into a fresh agent gives the same station reports.
+
+use std::collections::BTreeSet;
+use std::fs::File;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::recording::{self, Channel, Recorded};
+use asbuilt_protocol::{StationReport, StationStatus};
+use clap::Args;
+use iceoryx2::prelude::*;
+
+use crate::publish::collect_reports;
+use crate::report::Section;
+
+#[derive(Args)]
+pub struct ReplayArgs {
+    /// The recording (from the agent's recorder or `asbuilt pack`).
+    recording: PathBuf,
+    /// 1.0 keeps the recorded timing, 2.0 twice as fast; `max` sends as fast as the agent takes.
+    #[arg(long, default_value = "max")]
+    speed: String,
+    /// Service prefix of the agent (its services.prefix).
+    #[arg(long, default_value = "asbuilt")]
+    prefix: String,
+    /// Seconds to wait for the agent to come up, and for the last report.
+    #[arg(long, default_value_t = 30.0)]
+    wait: f64,
+    /// Also write the reports that came back as DIR/replay.json.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+pub fn run(args: ReplayArgs) -> Result<ExitCode> {
+    let speed = match args.speed.as_str() {
+        "max" => None,
+        s => Some(
+            s.parse::<f64>()
+                .ok()
+                .filter(|v| *v > 0.0 && v.is_finite())
+                .with_context(|| format!("--speed {s:?}: give a factor such as 1.0, or max"))?,
+        ),
+    };
+    let file = File::open(&args.recording)
+        .with_context(|| format!("cannot open {}", args.recording.display()))?;
+    // SAFETY: read only; see `recover`.
+    let bytes = unsafe { memmap2::Mmap::map(&file) }
+        .with_context(|| format!("cannot map {}", args.recording.display()))?;
+    let bad = |e: recording::ReadError| {
+        anyhow::anyhow!(
+            "{}: {e}. If its writer died, `asbuilt recover` saves what it can",
+            args.recording.display()
+        )
+    };
+    // First pass: the stations to expect and the largest chunk, without keeping messages.
+    let mut stations = BTreeSet::new();
+    let mut max_points = 1usize;
+    let mut inputs = 0u64;
+    for m in recording::messages(&bytes).map_err(bad)? {
+        let (_, m) = m.map_err(bad)?;
+        match &m {
+            Recorded::Event(e) => {
+                stations.insert((e.job, e.station));
+            }
+            Recorded::Chunk(h, p) => {
+                stations.insert((h.job, h.station));
+                max_points = max_points.max(p.len());
+            }
+            _ => {}
+        }
+        inputs += Channel::INPUTS.contains(&m.channel()) as u64;
+    }
+    if inputs == 0 {
+        bail!("{} holds no input to replay", args.recording.display());
+    }
+    set_log_level_from_env_or(LogLevel::Error);
+    let node = NodeBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
+    node.try_cleanup_dead_nodes();
+    let names = ServiceNames::new(&args.prefix);
+    let wait = Duration::from_secs_f64(args.wait);
+    let ports = CellPorts::open(&node, &names, max_points, wait)?;
+    eprintln!(
+        "replaying {} inputs of {} stations from {} to {}/… at speed {}",
+        inputs,
+        stations.len(),
+        args.recording.display(),
+        names.prefix,
+        args.speed
+    );
+    let started = Instant::now();
+    let mut first: Option<u64> = None;
+    let mut reports: Vec<StationReport> = Vec::new();
+    let jobs: BTreeSet<u64> = stations.iter().map(|s| s.0).collect();
+    let mut points = 0u64;
+    for m in recording::messages(&bytes).map_err(bad)? {
+        let (log_time, m) = m.map_err(bad)?;
+        if !Channel::INPUTS.contains(&m.channel()) {
+            continue;
+        }
+        if let Some(speed) = speed {
+            let t0 = *first.get_or_insert(log_time);
+            let due = Duration::from_secs_f64(log_time.saturating_sub(t0) as f64 / 1e9 / speed);
+            if let Some(ahead) = due.checked_sub(started.elapsed()) {
+                std::thread::sleep(ahead);
+            }
+        }
+        match &m {
+            Recorded::Event(e) => ports.send_event(e)?,
+            Recorded::Pose(p) => ports.send_pose(p)?,
+            Recorded::Chunk(h, p) => {
+                ports.send_chunk(h, p)?;
+                points += p.len() as u64;
+            }
+            _ => {}
+        }
+        for &job in &jobs {
+            collect_reports(&ports, job, &mut reports, Duration::ZERO)?;
+        }
+    }
+    let deadline = Instant::now() + wait;
+    while reports.len() < stations.len() && Instant::now() < deadline {
+        for &job in &jobs {
+            collect_reports(&ports, job, &mut reports, Duration::from_millis(50))?;
+        }
+    }
+    let secs = started.elapsed().as_secs_f64();
+    eprintln!(
+        "replayed {points} points in {secs:.2} s ({:.2} M points/s); {} of {} reports back",
+        points as f64 / secs / 1e6,
+        reports.len(),
+        stations.len()
+    );
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        reports.sort_by_key(|r| (r.job, r.station));
+        let sections: Vec<Section> = reports
+            .iter()
+            .map(|r| Section::from_report(r, None, 0))
+            .collect();
+        let path = dir.join("replay.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&sections)?)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if reports.len() < stations.len() {
+        eprintln!(
+            "error: {} station(s) got no report within {:.0} s",
+            stations.len() - reports.len(),
+            args.wait
+        );
+        return Ok(ExitCode::from(1));
+    }
+    let incomplete = reports
+        .iter()
+        .filter(|r| r.status() != Some(StationStatus::Complete))
+        .count();
+    if incomplete > 0 {
+        eprintln!("error: {incomplete} station(s) reported incomplete");
+        return Ok(ExitCode::from(1));
+    }
+    Ok(ExitCode::SUCCESS)
+}

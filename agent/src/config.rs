@@ -24,6 +24,38 @@ pub struct AgentConfig {
     pub services: ServicesConfig,
     pub limits: Limits,
     pub status: StatusConfig,
+    pub recorder: RecorderConfig,
+    /// The file as written, for the recording's metadata.
+    pub text: String,
+}
+
+/// `[recorder]`: the MCAP flight recorder. Off unless `dir` is given.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecorderConfig {
+    /// Where job recordings go (created if missing); relative to this file.
+    pub dir: Option<PathBuf>,
+    /// A job's file is closed and a `-partN` file begun beyond this size, MB.
+    pub max_file_mb: f64,
+    /// Record every Nth scan chunk (and its deviations): 1 all, 0 none (events, poses,
+    /// reports and status are always recorded).
+    pub scan_every: u32,
+    /// Below this much free disk space, scan and deviation chunks are no longer recorded, MB.
+    pub min_free_mb: f64,
+    /// Bytes of chunks waiting for the writer beyond which chunks are left out, MB.
+    pub queue_mb: f64,
+}
+
+impl Default for RecorderConfig {
+    fn default() -> Self {
+        Self {
+            dir: None,
+            max_file_mb: 2048.0,
+            scan_every: 1,
+            min_free_mb: 1024.0,
+            queue_mb: 256.0,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -170,6 +202,7 @@ const SECTIONS: &[&str] = &[
     "services",
     "limits",
     "status",
+    "recorder",
 ];
 
 impl AgentConfig {
@@ -209,6 +242,22 @@ impl AgentConfig {
         let limits: Limits = section(&table, "limits", &mut problems, true).unwrap_or_default();
         let status: StatusConfig =
             section(&table, "status", &mut problems, true).unwrap_or_default();
+        let mut recorder: RecorderConfig =
+            section(&table, "recorder", &mut problems, true).unwrap_or_default();
+        if let Some(d) = &mut recorder.dir
+            && d.is_relative()
+        {
+            *d = base.join(&*d);
+        }
+        for (key, v) in [
+            ("max_file_mb", recorder.max_file_mb),
+            ("min_free_mb", recorder.min_free_mb + 1.0),
+            ("queue_mb", recorder.queue_mb),
+        ] {
+            if !positive(v) {
+                problems.push(format!("recorder.{key}: give a positive number of MB"));
+            }
+        }
 
         let design = design.map(|mut d| {
             if d.path.is_relative() {
@@ -244,6 +293,8 @@ impl AgentConfig {
                 services,
                 limits,
                 status,
+                recorder,
+                text: text.to_string(),
             }),
             _ => Err(ConfigError {
                 file: source.display().to_string(),
@@ -424,6 +475,8 @@ mod tests {
             station_timeout_s = 0
             [recorder]
             path = "x"
+            [rerun]
+            url = "x"
             "#,
         )
         .unwrap_err();
@@ -437,11 +490,12 @@ mod tests {
             "services.prefix",
             "limits.open_stations",
             "limits.station_timeout_s",
-            "[recorder]: unknown section",
+            "[recorder]: unknown field `path`",
+            "[rerun]: unknown section",
         ] {
             assert!(text.contains(key), "{key} missing from:\n{text}");
         }
-        assert_eq!(err.problems.len(), 9, "{text}");
+        assert_eq!(err.problems.len(), 10, "{text}");
     }
 
     #[test]

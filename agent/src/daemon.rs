@@ -17,6 +17,7 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 use crate::config::AgentConfig;
 use crate::ipc::{AgentPorts, ChunkSample, Ipc, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
+use crate::recorder::Recorder;
 use crate::{error, info, warn};
 
 /// Station timeouts are checked this often at least.
@@ -48,6 +49,8 @@ impl ChunkSource for ChunkSample {
 
 struct IpcOutputs<'p> {
     ports: &'p AgentPorts,
+    /// Everything received and sent goes here too, when `[recorder]` is on.
+    recorder: Option<Recorder>,
     /// Where deviations go when no shared-memory sample can be loaned, so the station's
     /// statistics stay whole. Sized once for the largest accepted chunk.
     scratch: Vec<PointDeviation>,
@@ -72,6 +75,9 @@ impl Outputs for IpcOutputs<'_> {
             Ok(mut sample) => {
                 let header = fill(sample.payload_mut());
                 *sample.user_header_mut() = header;
+                if let Some(r) = &mut self.recorder {
+                    r.deviations(&header, sample.payload());
+                }
                 if let Err(e) = sample.send() {
                     warn!("deviation chunk {} not published: {e:?}", header.sequence);
                 }
@@ -80,6 +86,9 @@ impl Outputs for IpcOutputs<'_> {
             Err(e) => {
                 self.unloaned += 1;
                 let header = fill(&mut self.scratch[..n]);
+                if let Some(r) = &mut self.recorder {
+                    r.deviations(&header, &self.scratch[..n]);
+                }
                 warn!(
                     "deviation chunk {} computed but not published, no output sample free \
                      ({e:?}): subscribers are holding too many",
@@ -90,6 +99,9 @@ impl Outputs for IpcOutputs<'_> {
     }
 
     fn report(&mut self, report: &StationReport) {
+        if let Some(r) = &self.recorder {
+            r.report(report);
+        }
         if let Err(e) = self.ports.reports.send_copy(*report) {
             warn!("report of station {} not published: {e:?}", report.station);
         }
@@ -165,8 +177,28 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             station_timeout: limits.station_timeout(),
         },
     );
+    let recorder = match &config.recorder.dir {
+        Some(dir) => {
+            let r = Recorder::start(&config.recorder, job_metadata(config), &config.design.path)
+                .map_err(|e| {
+                    AgentError::Design(format!(
+                        "cannot start the recorder in {}: {e}",
+                        dir.display()
+                    ))
+                })?;
+            info!(
+                "recording every job to {} (files up to {} MB, every {} scan chunk(s))",
+                dir.display(),
+                config.recorder.max_file_mb,
+                config.recorder.scan_every
+            );
+            Some(r)
+        }
+        None => None,
+    };
     let mut out = IpcOutputs {
         ports: &ports,
+        recorder,
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
         unloaned: 0,
     };
@@ -227,6 +259,18 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     info!("stop requested: closing open stations with partial reports");
     lifecycle.shutdown(&mut out);
     status.publish(&ports, &lifecycle, &out, AgentState::ShuttingDown);
+    if let Some(mut r) = out.recorder.take() {
+        r.finish();
+        use std::sync::atomic::Ordering::Relaxed;
+        info!(
+            "recorder: {} file(s), {} scan chunks recorded, {} left out (queue or disk), {} \
+             skipped by scan_every",
+            r.counters.files.load(Relaxed),
+            r.counters.chunks_recorded.load(Relaxed),
+            r.counters.chunks_dropped.load(Relaxed),
+            r.counters.chunks_decimated.load(Relaxed)
+        );
+    }
     let c = lifecycle.counters;
     info!(
         "stopped after {:.1} s: {} stations reported, {} points processed",
@@ -274,6 +318,9 @@ fn drain(
             if !lifecycle.is_ready_for(sample.user_header()) {
                 drain_control(ports, lifecycle, out, held);
             }
+            if let Some(r) = &mut out.recorder {
+                r.chunk(sample.user_header(), sample.payload());
+            }
             lifecycle.on_chunk(sample, Instant::now(), out);
             if SignalHandler::termination_requested() {
                 return true;
@@ -305,6 +352,9 @@ fn drain_control(
             break;
         }
         any = true;
+        if let Some(r) = &out.recorder {
+            r.event(&ev);
+        }
         lifecycle.on_event(&ev, Instant::now(), out);
     }
     while let Some(p) = held.pose.take().or_else(|| next(&ports.poses, "poses")) {
@@ -313,6 +363,9 @@ fn drain_control(
             break;
         }
         any = true;
+        if let Some(r) = &out.recorder {
+            r.pose(&p);
+        }
         lifecycle.on_pose(&p, Instant::now(), out);
     }
     any
@@ -389,6 +442,9 @@ impl StatusReporter {
         self.last_points = s.points_processed;
         self.last_at = now;
         self.next = now + self.period;
+        if let Some(r) = &out.recorder {
+            r.status(&s);
+        }
         if let Err(e) = ports.status.send_copy(s) {
             warn!("status not published: {e:?}");
         }
@@ -426,4 +482,25 @@ fn log_health(s: &AgentStatus) {
         s.output.deviation_chunks + s.output.deviation_chunks_unloaned,
         s.output.reports
     );
+}
+
+/// What every recording of this agent says about how it was made.
+fn job_metadata(config: &AgentConfig) -> asbuilt_protocol::recording::JobMetadata {
+    use sha2::{Digest, Sha256};
+    let design = std::fs::read(&config.design.path).unwrap_or_default();
+    let calibrations = config
+        .text
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|t| t.get("calibration").map(|c| c.to_string()))
+        .unwrap_or_else(|| "none: identity transforms".into());
+    asbuilt_protocol::recording::JobMetadata {
+        writer: "asbuilt-agent".into(),
+        asbuilt_version: env!("CARGO_PKG_VERSION").into(),
+        design_path: config.design.path.display().to_string(),
+        design_units: config.design.units.clone(),
+        design_sha256: format!("{:x}", Sha256::digest(&design)),
+        config: config.text.clone(),
+        calibrations,
+    }
 }

@@ -3,13 +3,15 @@
 //!
 //! Layers, from the outside in: [`daemon`] runs the event loop over [`ipc`] ports; [`lifecycle`]
 //! decides what each message means for its station, with [`sequence`] doing the chunk
-//! bookkeeping; the geometry is `asbuilt-core`'s.
+//! bookkeeping; [`recorder`] writes everything to MCAP on a thread of its own; the geometry is
+//! `asbuilt-core`'s.
 
 pub mod config;
 pub mod daemon;
 pub mod ipc;
 pub mod lifecycle;
 pub mod log;
+pub mod recorder;
 pub mod sequence;
 
 pub use config::AgentConfig;

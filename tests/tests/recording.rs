@@ -226,3 +226,88 @@ fn an_independent_mcap_reader_reads_the_recording() {
     );
     assert!(out.contains("metadata asbuilt.job"), "{out}");
 }
+
+/// The agent records a job; the recording replayed into a fresh agent gives the same reports,
+/// bit for bit, as the ones recorded.
+#[test]
+fn a_recorded_job_replays_to_identical_reports() {
+    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
+    let config = format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+         max_distance = 0.005\n[recorder]\ndir = \"rec\"\n",
+        design.display().to_string()
+    );
+    let prefix = unique_prefix("record");
+    let mut agent = Agent::start(AGENT, &prefix, &config);
+    let publish = Command::new(ASBUILT)
+        .arg("publish")
+        .arg("--stations")
+        .arg(repo().join("examples/bunny/stations.toml"))
+        .args(["--prefix", &prefix, "--chunk-points", "10000"])
+        .output()
+        .unwrap();
+    assert!(
+        publish.status.success(),
+        "{}\nagent:\n{}",
+        String::from_utf8_lossy(&publish.stderr),
+        agent.log()
+    );
+    agent.signal("TERM");
+    assert!(
+        agent
+            .wait_exit(std::time::Duration::from_secs(30))
+            .success()
+    );
+    let log = agent.log();
+    assert!(log.contains("recorder: closed"), "{log}");
+    assert!(log.contains("43 scan chunks recorded, 0 left out"), "{log}");
+    let files: Vec<PathBuf> = std::fs::read_dir(agent.dir.path().join("rec"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    let bytes = std::fs::read(&files[0]).unwrap();
+    let recorded: Vec<Vec<u8>> = recording::messages(&bytes)
+        .unwrap()
+        .map(Result::unwrap)
+        .filter_map(|(_, m)| matches!(m, Recorded::Report(_)).then(|| m.encode()))
+        .collect();
+    assert_eq!(recorded.len(), 10);
+    let (meta, attachments) = recording::job(&bytes).unwrap();
+    let meta = meta.unwrap();
+    assert_eq!(meta.writer, "asbuilt-agent");
+    assert!(meta.config.contains("[recorder]"));
+    assert_eq!(meta.design_sha256.len(), 64);
+    assert_eq!(attachments.len(), 1);
+
+    // A fresh agent, without a recorder, fed the recording.
+    let prefix2 = unique_prefix("replayed");
+    let fresh = Agent::start(
+        AGENT,
+        &prefix2,
+        &config.replace("[recorder]\ndir = \"rec\"\n", ""),
+    );
+    let cell = asbuilt_tests::Cell::open(&prefix2, 16);
+    let o = Command::new(ASBUILT)
+        .arg("replay")
+        .arg(&files[0])
+        .args(["--prefix", &prefix2])
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "{}\nagent:\n{}",
+        String::from_utf8_lossy(&o.stderr),
+        fresh.log()
+    );
+    let replayed: Vec<Vec<u8>> = cell
+        .reports(10, std::time::Duration::from_secs(30))
+        .iter()
+        .map(|r| Recorded::Report(Box::new(*r)).encode())
+        .collect();
+    let sorted = |mut v: Vec<Vec<u8>>| {
+        v.sort();
+        v
+    };
+    assert_eq!(sorted(replayed), sorted(recorded));
+}

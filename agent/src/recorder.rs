@@ -1,0 +1,423 @@
+//! The flight recorder: everything the agent receives and sends, into one MCAP file per job
+//! (layout in `asbuilt_protocol::recording`), written by a thread of its own.
+//!
+//! The event loop only copies a message into a bounded queue and moves on: a slow disk never
+//! holds the robot back. When the bytes waiting exceed `recorder.queue_mb`, or the disk's free
+//! space falls below `recorder.min_free_mb`, scan and deviation chunks are left out (counted and
+//! logged); station events, poses, reports and status are always kept. Each station report
+//! ends an MCAP chunk and flushes it, so a crash loses at most the station in progress.
+
+use std::fs::File;
+use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
+use asbuilt_protocol::{
+    AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
+    StationEvent, StationReport, unix_time_ns,
+};
+
+use crate::config::RecorderConfig;
+use crate::{info, warn};
+
+/// Messages waiting for the writer; a chunk counts once, however many points it holds.
+const QUEUE: usize = 16_384;
+
+enum Item {
+    Message(u64, Recorded),
+    Flush,
+}
+
+/// What the recorder left out, for the status line and the log.
+#[derive(Debug, Default)]
+pub struct RecorderCounters {
+    pub chunks_recorded: AtomicU64,
+    /// Chunks left out because the queue was over its byte budget or the disk nearly full.
+    pub chunks_dropped: AtomicU64,
+    /// Chunks left out by `scan_every`.
+    pub chunks_decimated: AtomicU64,
+    pub bytes_written: AtomicU64,
+    pub files: AtomicU64,
+}
+
+pub struct Recorder {
+    tx: Option<SyncSender<Item>>,
+    thread: Option<JoinHandle<()>>,
+    queued: Arc<AtomicUsize>,
+    budget: usize,
+    scan_every: u64,
+    seen_chunks: u64,
+    /// Set by the writer when free disk space is below the guard.
+    disk_low: Arc<std::sync::atomic::AtomicBool>,
+    pub counters: Arc<RecorderCounters>,
+}
+
+impl Recorder {
+    /// Starts the writer thread. `design` is attached to every file with `meta`.
+    pub fn start(cfg: &RecorderConfig, meta: JobMetadata, design: &Path) -> std::io::Result<Self> {
+        let dir = cfg.dir.clone().expect("started only when recording is on");
+        std::fs::create_dir_all(&dir)?;
+        let design_bytes = std::fs::read(design)?;
+        let design_name = design
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "design".into());
+        let (tx, rx) = sync_channel(QUEUE);
+        let queued = Arc::new(AtomicUsize::new(0));
+        let counters = Arc::new(RecorderCounters::default());
+        let disk_low = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let writer = Writer {
+            dir,
+            max_bytes: (cfg.max_file_mb * 1e6) as u64,
+            min_free: (cfg.min_free_mb * 1e6) as u64,
+            meta,
+            design_name,
+            design: design_bytes,
+            queued: queued.clone(),
+            counters: counters.clone(),
+            disk_low: disk_low.clone(),
+            file: None,
+        };
+        let thread = std::thread::Builder::new()
+            .name("recorder".into())
+            .spawn(move || writer.run(rx))?;
+        Ok(Self {
+            tx: Some(tx),
+            thread: Some(thread),
+            queued,
+            budget: (cfg.queue_mb * 1e6) as usize,
+            scan_every: cfg.scan_every as u64,
+            seen_chunks: 0,
+            disk_low,
+            counters,
+        })
+    }
+
+    fn send(&self, item: Item, bytes: usize) -> bool {
+        let Some(tx) = &self.tx else { return false };
+        self.queued.fetch_add(bytes, Relaxed);
+        match tx.try_send(item) {
+            Ok(()) => true,
+            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+                self.queued.fetch_sub(bytes, Relaxed);
+                false
+            }
+        }
+    }
+
+    fn small(&self, msg: Recorded) {
+        if !self.send(Item::Message(unix_time_ns(), msg), 256) {
+            warn!("recorder: queue full, a control message was not recorded");
+        }
+    }
+
+    pub fn pose(&self, p: &PoseSnapshot) {
+        self.small(Recorded::Pose(*p));
+    }
+
+    pub fn event(&self, e: &StationEvent) {
+        self.small(Recorded::Event(*e));
+    }
+
+    pub fn status(&self, s: &AgentStatus) {
+        self.small(Recorded::Status(Box::new(*s)));
+    }
+
+    /// Reports are never dropped: the agent waits for queue room (only a stalled writer could
+    /// make it wait), then the station's chunk is closed and flushed.
+    pub fn report(&self, r: &StationReport) {
+        if let Some(tx) = &self.tx {
+            // Weighed as the writer will unweigh it: every small message counts 256 bytes.
+            self.queued.fetch_add(256, Relaxed);
+            let msg = Item::Message(unix_time_ns(), Recorded::Report(Box::new(*r)));
+            if tx.send(msg).is_err() {
+                self.queued.fetch_sub(256, Relaxed);
+            }
+            let _ = tx.send(Item::Flush);
+        }
+    }
+
+    /// Whether a bulk chunk of `bytes` may go in now; counts it when it may not.
+    fn admit(&mut self, bytes: usize) -> bool {
+        self.seen_chunks += 1;
+        if self.scan_every == 0 || !(self.seen_chunks - 1).is_multiple_of(self.scan_every) {
+            self.counters.chunks_decimated.fetch_add(1, Relaxed);
+            return false;
+        }
+        if self.disk_low.load(Relaxed)
+            || self.queued.load(Relaxed).saturating_add(bytes) > self.budget
+        {
+            let n = self.counters.chunks_dropped.fetch_add(1, Relaxed);
+            if n.is_power_of_two() {
+                warn!(
+                    "recorder: {} chunk(s) left out so far ({} MB waiting): {}",
+                    n + 1,
+                    self.queued.load(Relaxed) / 1_000_000,
+                    if self.disk_low.load(Relaxed) {
+                        "the disk is nearly full (recorder.min_free_mb)"
+                    } else {
+                        "the writer is behind (recorder.queue_mb)"
+                    }
+                );
+            }
+            return false;
+        }
+        true
+    }
+
+    pub fn chunk(&mut self, h: &ChunkHeader, points: &[ScanPoint]) {
+        let bytes = std::mem::size_of_val(points);
+        if self.admit(bytes) {
+            let msg = Recorded::Chunk(*h, points.to_vec());
+            if self.send(Item::Message(unix_time_ns(), msg), bytes) {
+                self.counters.chunks_recorded.fetch_add(1, Relaxed);
+            } else {
+                self.counters.chunks_dropped.fetch_add(1, Relaxed);
+            }
+        }
+    }
+
+    /// Deviation chunks follow the scan chunks they come from: the same decimation and guard.
+    pub fn deviations(&mut self, h: &DeviationHeader, points: &[PointDeviation]) {
+        let bytes = std::mem::size_of_val(points);
+        // Decimation counts scan chunks only; a deviation chunk is kept when its scan chunk was.
+        if self.scan_every == 0
+            || self.disk_low.load(Relaxed)
+            || self.queued.load(Relaxed).saturating_add(bytes) > self.budget
+        {
+            return;
+        }
+        let msg = Recorded::Deviations(*h, points.to_vec());
+        self.send(Item::Message(unix_time_ns(), msg), bytes);
+    }
+
+    /// Writes what is queued and closes the file with its summary.
+    pub fn finish(&mut self) {
+        self.tx.take();
+        if let Some(t) = self.thread.take()
+            && t.join().is_err()
+        {
+            warn!("recorder: the writer thread failed; the last file may need `asbuilt recover`");
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+/// Counts the bytes that reach the file, for rotation.
+struct Counting<W> {
+    inner: W,
+    bytes: Arc<AtomicU64>,
+}
+
+impl<W: Write> Write for Counting<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.bytes.fetch_add(n as u64, Relaxed);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl<W: Seek> Seek for Counting<W> {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(pos)
+    }
+}
+
+type FileWriter = RecordingWriter<Counting<BufWriter<File>>>;
+
+struct OpenFile {
+    writer: FileWriter,
+    bytes: Arc<AtomicU64>,
+    path: PathBuf,
+    job: u64,
+    part: u32,
+}
+
+struct Writer {
+    dir: PathBuf,
+    max_bytes: u64,
+    min_free: u64,
+    meta: JobMetadata,
+    design_name: String,
+    design: Vec<u8>,
+    queued: Arc<AtomicUsize>,
+    counters: Arc<RecorderCounters>,
+    disk_low: Arc<std::sync::atomic::AtomicBool>,
+    file: Option<OpenFile>,
+}
+
+fn job_of(m: &Recorded) -> Option<u64> {
+    match m {
+        Recorded::Pose(p) => Some(p.job),
+        Recorded::Chunk(h, _) => Some(h.job),
+        Recorded::Event(e) => Some(e.job),
+        Recorded::Deviations(h, _) => Some(h.job),
+        Recorded::Report(r) => Some(r.job),
+        Recorded::Status(_) => None,
+    }
+}
+
+impl Writer {
+    fn run(mut self, rx: Receiver<Item>) {
+        let mut since_check = 0u32;
+        while let Ok(item) = rx.recv() {
+            match item {
+                Item::Message(t, m) => {
+                    let bytes = match &m {
+                        Recorded::Chunk(_, p) => std::mem::size_of_val(p.as_slice()),
+                        Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
+                        _ => 256,
+                    };
+                    if let Err(e) = self.write(t, &m) {
+                        warn!("recorder: cannot write: {e}; this message is lost");
+                    }
+                    self.queued.fetch_sub(bytes, Relaxed);
+                    since_check += 1;
+                    if since_check >= 64 {
+                        since_check = 0;
+                        self.check_disk();
+                    }
+                }
+                Item::Flush => {
+                    if let Some(f) = &mut self.file
+                        && let Err(e) = f.writer.flush()
+                    {
+                        warn!("recorder: cannot flush {}: {e}", f.path.display());
+                    }
+                    self.check_disk();
+                }
+            }
+        }
+        self.close();
+    }
+
+    fn check_disk(&self) {
+        let Some(free) = free_bytes(&self.dir) else {
+            return;
+        };
+        let low = free < self.min_free;
+        if low != self.disk_low.swap(low, Relaxed) {
+            if low {
+                warn!(
+                    "recorder: {} has {} MB free, below recorder.min_free_mb: scan and deviation \
+                     chunks are no longer recorded (events, poses, reports and status still are)",
+                    self.dir.display(),
+                    free / 1_000_000
+                );
+            } else {
+                info!(
+                    "recorder: disk space is back above recorder.min_free_mb; recording scans again"
+                );
+            }
+        }
+    }
+
+    fn write(&mut self, t: u64, m: &Recorded) -> Result<(), String> {
+        if let Some(job) = job_of(m) {
+            let rotate = match &self.file {
+                None => true,
+                Some(f) => f.job != job || f.writer_bytes() > self.max_bytes,
+            };
+            if rotate {
+                let part = match &self.file {
+                    Some(f) if f.job == job => f.part + 1,
+                    _ => 1,
+                };
+                self.close();
+                self.open(job, part)?;
+            }
+        }
+        let Some(f) = &mut self.file else {
+            // Status before the first job: nothing to attach it to.
+            return Ok(());
+        };
+        f.writer.write(t, m).map_err(|e| e.to_string())?;
+        if matches!(m, Recorded::Chunk(..)) {
+            self.counters.bytes_written.store(f.writer_bytes(), Relaxed);
+        }
+        Ok(())
+    }
+
+    fn open(&mut self, job: u64, part: u32) -> Result<(), String> {
+        let stamp = unix_time_ns() / 1_000_000_000;
+        let name = if part == 1 {
+            format!("job-{job}-{stamp}.mcap")
+        } else {
+            format!("job-{job}-{stamp}-part{part}.mcap")
+        };
+        let path = self.dir.join(name);
+        let file = File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let bytes = Arc::new(AtomicU64::new(0));
+        let mut writer = RecordingWriter::new(Counting {
+            inner: BufWriter::with_capacity(1 << 20, file),
+            bytes: bytes.clone(),
+        })
+        .map_err(|e| e.to_string())?;
+        writer.metadata(&self.meta).map_err(|e| e.to_string())?;
+        writer
+            .attach_design(&self.design_name, &self.design, unix_time_ns())
+            .map_err(|e| e.to_string())?;
+        writer.flush().map_err(|e| e.to_string())?;
+        info!("recorder: job {job} → {}", path.display());
+        self.counters.files.fetch_add(1, Relaxed);
+        self.file = Some(OpenFile {
+            writer,
+            bytes,
+            path,
+            job,
+            part,
+        });
+        Ok(())
+    }
+
+    fn close(&mut self) {
+        if let Some(f) = self.file.take() {
+            let path = f.path.clone();
+            match f.writer.finish() {
+                Ok(mut w) => {
+                    let _ = w.flush();
+                    info!(
+                        "recorder: closed {} ({} MB)",
+                        path.display(),
+                        f.bytes.load(Relaxed) / 1_000_000
+                    );
+                }
+                Err(e) => warn!(
+                    "recorder: cannot finish {}: {e}; `asbuilt recover` saves its messages",
+                    path.display()
+                ),
+            }
+        }
+    }
+}
+
+impl OpenFile {
+    fn writer_bytes(&self) -> u64 {
+        self.bytes.load(Relaxed)
+    }
+}
+
+/// Free bytes on the file system holding `dir`.
+fn free_bytes(dir: &Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    let mut s: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c` is a valid NUL-terminated path and `s` a writable statvfs.
+    if unsafe { libc::statvfs(c.as_ptr(), &mut s) } != 0 {
+        return None;
+    }
+    Some(s.f_bavail as u64 * s.f_frsize as u64)
+}

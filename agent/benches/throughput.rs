@@ -9,6 +9,11 @@
 //!   from the moment the last chunk was handed over (End follows at once), with the agent
 //!   keeping up, so it includes processing that last chunk.
 //!
+//! - recorder on / off: a second agent with `[recorder]` on takes the same max-rate stations,
+//!   alternating round by round with the first, so machine noise hits both; the ratio of their
+//!   medians is the recorder's cost. Afterwards its recording is read back and its scan chunks
+//!   counted against those sent.
+//!
 //! Points: the bunny surface in scan-like order, plus Gaussian noise of σ 0.5 mm per axis, 65,536 per
 //! chunk, 4 M per station. Every round checks that the report is complete and nothing was dropped.
 
@@ -126,6 +131,25 @@ fn main() {
             .spawn()
             .unwrap(),
     );
+    // The same agent with the recorder on, on its own prefix.
+    let rec_prefix = format!("{prefix}-rec");
+    let rec_config = dir.path().join("agent-rec.toml");
+    std::fs::write(
+        &rec_config,
+        std::fs::read_to_string(&config)
+            .unwrap()
+            .replace(&prefix, &rec_prefix)
+            + "[recorder]\ndir = \"recordings\"\n",
+    )
+    .unwrap();
+    let rec_agent = AgentProcess(
+        Command::new(env!("CARGO_BIN_EXE_asbuilt-agent"))
+            .arg("--config")
+            .arg(&rec_config)
+            .stderr(std::fs::File::create(dir.path().join("agent-rec.log")).unwrap())
+            .spawn()
+            .unwrap(),
+    );
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
     let cell = CellPorts::open(
@@ -136,9 +160,16 @@ fn main() {
     )
     .unwrap();
 
+    let rec_cell = CellPorts::open(
+        &node,
+        &ServiceNames::new(&rec_prefix),
+        CHUNK,
+        Duration::from_secs(60),
+    )
+    .unwrap();
     let mut next = 0u32;
-    let mut run = |rate: Option<f64>| {
-        let (start, last, done, r) = station(&cell, next, &points, rate);
+    let mut run_on = |cell: &CellPorts, rate: Option<f64>| {
+        let (start, last, done, r) = station(cell, next, &points, rate);
         next += 1;
         assert_eq!(r.status(), Some(StationStatus::Complete), "{r:?}");
         assert_eq!(r.points_received, points.len() as u64);
@@ -147,6 +178,7 @@ fn main() {
             done.duration_since(last).as_secs_f64() * 1e3,
         )
     };
+    let mut run = |rate: Option<f64>| run_on(&cell, rate);
     run(None); // warm-up: page in the shared-memory pools
 
     println!(
@@ -171,6 +203,54 @@ fn main() {
             delay_max
         );
     }
+    run_on(&rec_cell, None); // warm-up of the recording agent
+    let mut off = Vec::new();
+    let mut on = Vec::new();
+    for _ in 0..rounds {
+        off.push(run_on(&cell, None).0);
+        on.push(run_on(&rec_cell, None).0);
+    }
+    let (off, on) = (median(off), median(on));
+    println!(
+        "recorder off {:.2} M points/s, on {:.2} M points/s (medians, alternating rounds): the \
+         recorder costs {:.1} %",
+        off / 1e6,
+        on / 1e6,
+        100.0 * (1.0 - on / off)
+    );
+    let recorded_stations = rounds + 1;
+    // Stop the recording agent so it closes its file, then count what it kept.
+    let _ = Command::new("kill")
+        .arg("-TERM")
+        .arg(rec_agent.0.id().to_string())
+        .status();
+    let mut rec_agent = rec_agent;
+    let _ = rec_agent.0.wait();
+    let files: Vec<_> = std::fs::read_dir(dir.path().join("recordings"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    let mut chunks = 0usize;
+    let mut deviations = 0usize;
+    let mut bytes = 0u64;
+    for f in &files {
+        let b = std::fs::read(f).unwrap();
+        bytes += b.len() as u64;
+        for m in asbuilt_protocol::recording::messages(&b).unwrap() {
+            match m.unwrap().1 {
+                asbuilt_protocol::recording::Recorded::Chunk(..) => chunks += 1,
+                asbuilt_protocol::recording::Recorded::Deviations(..) => deviations += 1,
+                _ => {}
+            }
+        }
+    }
+    let sent = recorded_stations * points.len().div_ceil(CHUNK);
+    println!(
+        "recording: {} file(s), {:.0} MB, {chunks} of {sent} scan chunks and {deviations} \
+         deviation chunks kept",
+        files.len(),
+        bytes as f64 / 1e6
+    );
     // Nothing dropped anywhere: the last status counts every input and output loss.
     let deadline = Instant::now() + Duration::from_secs(3);
     let mut status = None;

@@ -44,6 +44,10 @@ pub struct RecorderConfig {
     pub min_free_mb: f64,
     /// Bytes of chunks waiting for the writer beyond which chunks are left out, MB.
     pub queue_mb: f64,
+    /// Also record deviation chunks (2.5 × the bytes of the scans; a replay recomputes them).
+    pub deviations: bool,
+    /// LZ4-compress the file's chunks: about half the disk, for CPU the inspection also needs.
+    pub compress: bool,
 }
 
 impl Default for RecorderConfig {
@@ -54,6 +58,8 @@ impl Default for RecorderConfig {
             scan_every: 1,
             min_free_mb: 1024.0,
             queue_mb: 256.0,
+            deviations: false,
+            compress: false,
         }
     }
 }

@@ -51,6 +51,7 @@ pub struct Recorder {
     budget: usize,
     scan_every: u64,
     seen_chunks: u64,
+    deviations: bool,
     /// Set by the writer when free disk space is below the guard.
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     pub counters: Arc<RecorderCounters>,
@@ -73,6 +74,7 @@ impl Recorder {
         let writer = Writer {
             dir,
             max_bytes: (cfg.max_file_mb * 1e6) as u64,
+            compress: cfg.compress,
             min_free: (cfg.min_free_mb * 1e6) as u64,
             meta,
             design_name,
@@ -92,6 +94,7 @@ impl Recorder {
             budget: (cfg.queue_mb * 1e6) as usize,
             scan_every: cfg.scan_every as u64,
             seen_chunks: 0,
+            deviations: cfg.deviations,
             disk_low,
             counters,
         })
@@ -185,7 +188,8 @@ impl Recorder {
     pub fn deviations(&mut self, h: &DeviationHeader, points: &[PointDeviation]) {
         let bytes = std::mem::size_of_val(points);
         // Decimation counts scan chunks only; a deviation chunk is kept when its scan chunk was.
-        if self.scan_every == 0
+        if !self.deviations
+            || self.scan_every == 0
             || self.disk_low.load(Relaxed)
             || self.queued.load(Relaxed).saturating_add(bytes) > self.budget
         {
@@ -249,6 +253,7 @@ struct OpenFile {
 struct Writer {
     dir: PathBuf,
     max_bytes: u64,
+    compress: bool,
     min_free: u64,
     meta: JobMetadata,
     design_name: String,
@@ -361,10 +366,13 @@ impl Writer {
         let path = self.dir.join(name);
         let file = File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
         let bytes = Arc::new(AtomicU64::new(0));
-        let mut writer = RecordingWriter::new(Counting {
-            inner: BufWriter::with_capacity(1 << 20, file),
-            bytes: bytes.clone(),
-        })
+        let mut writer = RecordingWriter::with_compression(
+            Counting {
+                inner: BufWriter::with_capacity(1 << 20, file),
+                bytes: bytes.clone(),
+            },
+            self.compress,
+        )
         .map_err(|e| e.to_string())?;
         writer.metadata(&self.meta).map_err(|e| e.to_string())?;
         writer

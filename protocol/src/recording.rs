@@ -238,11 +238,17 @@ pub struct RecordingWriter<W: Write + Seek> {
 pub const CHUNK_BYTES: u64 = 4 << 20;
 
 impl<W: Write + Seek> RecordingWriter<W> {
+    /// An LZ4-compressed recording.
     pub fn new(w: W) -> Result<Self, mcap::McapError> {
+        Self::with_compression(w, true)
+    }
+
+    /// `compress: false` stores chunks as they are: twice the bytes, and no CPU spent on them.
+    pub fn with_compression(w: W, compress: bool) -> Result<Self, mcap::McapError> {
         let mut mcap = mcap::WriteOptions::new()
             .profile(PROFILE)
             .library(format!("asbuilt {}", env!("CARGO_PKG_VERSION")))
-            .compression(Some(mcap::Compression::Lz4))
+            .compression(compress.then_some(mcap::Compression::Lz4))
             .chunk_size(Some(CHUNK_BYTES))
             .create(w)?;
         let mut channels = BTreeMap::new();

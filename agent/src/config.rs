@@ -310,6 +310,26 @@ impl AgentConfig {
     }
 }
 
+/// The parts of a configuration that decide what a recorded job's reports are: the frames and
+/// the inspection settings. For reading a recording on a machine where the design path and the
+/// services mean nothing.
+pub fn recorded_settings(text: &str) -> Result<(FrameChain, InspectSettings), Vec<String>> {
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
+    let mut problems = Vec::new();
+    let calibration: CalibrationSection =
+        section(&table, "calibration", &mut problems, true).unwrap_or_default();
+    let inspect: InspectSettings =
+        section(&table, "inspect", &mut problems, true).unwrap_or_default();
+    let frames = frames(&calibration, &mut problems);
+    check_inspect(&inspect, &mut problems);
+    if problems.is_empty() {
+        Ok((frames, inspect))
+    } else {
+        Err(problems)
+    }
+}
+
 /// Deserialises one section, recording its problem instead of stopping at it.
 fn section<T: DeserializeOwned>(
     table: &toml::Table,

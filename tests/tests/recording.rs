@@ -311,3 +311,67 @@ fn a_recorded_job_replays_to_identical_reports() {
     };
     assert_eq!(sorted(replayed), sorted(recorded));
 }
+
+/// `asbuilt report` on the packed bunny writes the report.json `inspect` writes (every station
+/// and the overall section, bit for bit) and an HTML page that needs no network.
+#[test]
+fn a_recording_reports_what_inspect_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("bunny.mcap");
+    pack_bunny(&rec);
+    let out = dir.path().join("report");
+    run(&[
+        "report",
+        rec.to_str().unwrap(),
+        "--max-distance",
+        "0.005",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
+    let inspected = dir.path().join("inspect");
+    run(&[
+        "inspect",
+        "--design",
+        design.to_str().unwrap(),
+        "--units",
+        "m",
+        "--stations",
+        repo()
+            .join("examples/bunny/stations.toml")
+            .to_str()
+            .unwrap(),
+        "--max-distance",
+        "0.005",
+        "--out",
+        inspected.to_str().unwrap(),
+    ]);
+    let read = |p: PathBuf| -> Value {
+        serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    };
+    let (a, b) = (
+        read(out.join("report.json")),
+        read(inspected.join("report.json")),
+    );
+    let strip = |v: &Value| {
+        let mut v = v.clone();
+        v.as_object_mut().unwrap().remove("scan");
+        v
+    };
+    let sa = a["stations"].as_array().unwrap();
+    let sb = b["stations"].as_array().unwrap();
+    assert_eq!(sa.len(), 10);
+    for (x, y) in sa.iter().zip(sb) {
+        assert_eq!(strip(x), strip(y));
+    }
+    assert_eq!(strip(&a["overall"]), strip(&b["overall"]));
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("<td>bun000</td>") && html.contains("<svg"));
+    assert!(!html.contains("http://") && !html.contains("https://") && !html.contains("<script"));
+    // The bunny's one stray point (79 mm off) is a no-match: that station fails, the rest pass.
+    assert_eq!(
+        html.matches("<td>FAIL</td>").count(),
+        2,
+        "ear_back and overall"
+    );
+}

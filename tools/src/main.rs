@@ -3,6 +3,7 @@
 mod calibrate;
 mod convert;
 mod deviations_ply;
+mod html;
 mod inspect;
 mod pack;
 mod ply_out;
@@ -10,6 +11,7 @@ mod publish;
 mod recover;
 mod replay;
 mod report;
+mod report_cmd;
 mod stations;
 mod suite;
 
@@ -45,6 +47,8 @@ enum Command {
     Replay(replay::ReplayArgs),
     /// Save every complete message of a recording whose writer died.
     Recover(recover::RecoverArgs),
+    /// Inspect a recording again: report.json as inspect writes it, and an HTML report.
+    Report(report_cmd::ReportArgs),
     /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
     ImportConf {
         /// The .conf file.
@@ -65,6 +69,7 @@ fn main() -> ExitCode {
         Command::Pack(args) => pack::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Recover(args) => recover::run(args),
+        Command::Report(args) => report_cmd::run(args),
         Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
     };
     match result {

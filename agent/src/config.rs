@@ -35,7 +35,8 @@ pub struct AgentConfig {
 pub struct RecorderConfig {
     /// Where job recordings go (created if missing); relative to this file.
     pub dir: Option<PathBuf>,
-    /// A job's file is closed and a `-partN` file begun beyond this size, MB.
+    /// A job's file is closed and a `-partN` file begun when its messages pass this size, MB
+    /// (each part repeats the metadata and the design, so each replays on its own).
     pub max_file_mb: f64,
     /// Record every Nth scan chunk (and its deviations): 1 all, 0 none (events, poses,
     /// reports and status are always recorded).

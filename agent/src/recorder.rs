@@ -245,6 +245,8 @@ type FileWriter = RecordingWriter<Counting<BufWriter<File>>>;
 struct OpenFile {
     writer: FileWriter,
     bytes: Arc<AtomicU64>,
+    /// Bytes of the metadata and design attachment every file starts with.
+    preamble: u64,
     path: PathBuf,
     job: u64,
     part: u32,
@@ -277,6 +279,7 @@ fn job_of(m: &Recorded) -> Option<u64> {
 
 impl Writer {
     fn run(mut self, rx: Receiver<Item>) {
+        self.check_disk();
         let mut since_check = 0u32;
         while let Ok(item) = rx.recv() {
             match item {
@@ -334,7 +337,7 @@ impl Writer {
         if let Some(job) = job_of(m) {
             let rotate = match &self.file {
                 None => true,
-                Some(f) => f.job != job || f.writer_bytes() > self.max_bytes,
+                Some(f) => f.job != job || f.writer_bytes() - f.preamble > self.max_bytes,
             };
             if rotate {
                 let part = match &self.file {
@@ -381,8 +384,10 @@ impl Writer {
         writer.flush().map_err(|e| e.to_string())?;
         info!("recorder: job {job} → {}", path.display());
         self.counters.files.fetch_add(1, Relaxed);
+        let preamble = bytes.load(Relaxed);
         self.file = Some(OpenFile {
             writer,
+            preamble,
             bytes,
             path,
             job,

@@ -375,3 +375,87 @@ fn a_recording_reports_what_inspect_reports() {
         "ear_back and overall"
     );
 }
+
+/// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their
+/// messages, and the agent's log.
+fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
+    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
+    let config = format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+         max_distance = 0.005\n[recorder]\ndir = \"rec\"\n{recorder}\n",
+        design.display().to_string()
+    );
+    let prefix = unique_prefix("rec-limits");
+    let mut agent = Agent::start(AGENT, &prefix, &config);
+    let publish = Command::new(ASBUILT)
+        .arg("publish")
+        .arg("--stations")
+        .arg(repo().join("examples/bunny/stations.toml"))
+        .args(["--prefix", &prefix, "--chunk-points", "10000"])
+        .output()
+        .unwrap();
+    assert!(publish.status.success(), "{}", agent.log());
+    agent.signal("TERM");
+    assert!(
+        agent
+            .wait_exit(std::time::Duration::from_secs(30))
+            .success()
+    );
+    let log = agent.log();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(agent.dir.path().join("rec"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    let msgs = files
+        .iter()
+        .map(|f| {
+            let b = std::fs::read(f).unwrap();
+            recording::messages(&b)
+                .unwrap()
+                .map(Result::unwrap)
+                .collect()
+        })
+        .collect();
+    (agent, msgs, log)
+}
+
+#[test]
+fn a_long_job_rotates_into_parts_that_each_read_on_their_own() {
+    let (_agent, files, log) = record_bunny("max_file_mb = 2");
+    assert!(files.len() >= 3, "{} file(s)\n{log}", files.len());
+    let chunks: usize = files
+        .iter()
+        .flatten()
+        .filter(|(_, m)| matches!(m, Recorded::Chunk(..)))
+        .count();
+    let reports: usize = files
+        .iter()
+        .flatten()
+        .filter(|(_, m)| matches!(m, Recorded::Report(_)))
+        .count();
+    assert_eq!((chunks, reports), (43, 10));
+}
+
+#[test]
+fn a_nearly_full_disk_stops_the_scans_but_never_the_reports() {
+    let (_agent, files, log) = record_bunny("min_free_mb = 1e12");
+    assert!(
+        log.contains("scan and deviation chunks are no longer recorded"),
+        "{log}"
+    );
+    let all: Vec<&Recorded> = files.iter().flatten().map(|(_, m)| m).collect();
+    assert_eq!(
+        all.iter()
+            .filter(|m| matches!(m, Recorded::Chunk(..)))
+            .count(),
+        0
+    );
+    assert_eq!(
+        all.iter()
+            .filter(|m| matches!(m, Recorded::Report(_)))
+            .count(),
+        10
+    );
+    assert!(log.contains("0 scan chunks recorded, 43 left out"), "{log}");
+}

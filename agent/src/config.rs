@@ -25,8 +25,34 @@ pub struct AgentConfig {
     pub limits: Limits,
     pub status: StatusConfig,
     pub recorder: RecorderConfig,
+    pub viewer: ViewerConfig,
     /// The file as written, for the recording's metadata.
     pub text: String,
+}
+
+/// `[viewer]`: the rerun view. Off unless `rrd` or `url` is given.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ViewerConfig {
+    /// A `.rrd` file to write (relative to this file).
+    pub rrd: Option<PathBuf>,
+    /// A rerun viewer to stream to: `rerun+http://HOST:PORT/proxy`.
+    pub url: Option<String>,
+    /// Points shown per station, at most (decimated evenly).
+    pub max_points_per_station: usize,
+    /// Items waiting for the viewer beyond which new ones are dropped (and counted).
+    pub queue: usize,
+}
+
+impl Default for ViewerConfig {
+    fn default() -> Self {
+        Self {
+            rrd: None,
+            url: None,
+            max_points_per_station: 200_000,
+            queue: 256,
+        }
+    }
 }
 
 /// `[recorder]`: the MCAP flight recorder. Off unless `dir` is given.
@@ -210,6 +236,7 @@ const SECTIONS: &[&str] = &[
     "limits",
     "status",
     "recorder",
+    "viewer",
 ];
 
 impl AgentConfig {
@@ -251,6 +278,21 @@ impl AgentConfig {
             section(&table, "status", &mut problems, true).unwrap_or_default();
         let mut recorder: RecorderConfig =
             section(&table, "recorder", &mut problems, true).unwrap_or_default();
+        let mut viewer: ViewerConfig =
+            section(&table, "viewer", &mut problems, true).unwrap_or_default();
+        if let Some(d) = &mut viewer.rrd
+            && d.is_relative()
+        {
+            *d = base.join(&*d);
+        }
+        if let Some(u) = &viewer.url
+            && !u.starts_with("rerun+http://")
+            && !u.starts_with("rerun+https://")
+        {
+            problems.push(format!(
+                "viewer.url: {u:?} is not a rerun address; give rerun+http://HOST:PORT/proxy"
+            ));
+        }
         if let Some(d) = &mut recorder.dir
             && d.is_relative()
         {
@@ -301,6 +343,7 @@ impl AgentConfig {
                 limits,
                 status,
                 recorder,
+                viewer,
                 text: text.to_string(),
             }),
             _ => Err(ConfigError {

@@ -18,6 +18,7 @@ use crate::config::AgentConfig;
 use crate::ipc::{AgentPorts, ChunkSample, Ipc, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
 use crate::recorder::Recorder;
+use crate::viewer::{self, View, Viewer, ViewerSettings};
 use crate::{error, info, warn};
 
 /// Station timeouts are checked this often at least.
@@ -51,13 +52,42 @@ struct IpcOutputs<'p> {
     ports: &'p AgentPorts,
     /// Everything received and sent goes here too, when `[recorder]` is on.
     recorder: Option<Recorder>,
+    /// The rerun view, when `[viewer]` is on, and points shown so far per open station.
+    viewer: Option<Viewer>,
+    shown: std::collections::BTreeMap<(u64, u32), usize>,
+    frames: asbuilt_core::frames::FrameChain,
     /// Where deviations go when no shared-memory sample can be loaned, so the station's
     /// statistics stay whole. Sized once for the largest accepted chunk.
     scratch: Vec<PointDeviation>,
     unloaned: u64,
 }
 
+/// One name per station in the view, the same for its pose, points and report.
+fn view_name(job: u64, station: u32) -> String {
+    format!("job{job}/station{station}")
+}
+
 impl IpcOutputs<'_> {
+    /// A decimated share of a deviation chunk for the view: at most 1/16 of the per-station
+    /// budget per chunk, and nothing once the budget is spent.
+    fn view_points(&mut self, h: &DeviationHeader, devs: &[PointDeviation]) {
+        let Some(v) = &self.viewer else { return };
+        let max = v.max_points_per_station();
+        let shown = self.shown.entry((h.job, h.station)).or_insert(0);
+        if *shown >= max || devs.is_empty() {
+            return;
+        }
+        let per_chunk = (max / 16).max(1).min(max - *shown);
+        let (positions, distances) = viewer::decimate(devs, viewer::stride(devs.len(), per_chunk));
+        *shown += positions.len();
+        v.show(View::Points {
+            index: h.station,
+            name: view_name(h.job, h.station),
+            positions,
+            distances,
+        });
+    }
+
     fn notify(&self) {
         if let Err(e) = self.ports.outbox.notify() {
             warn!("cannot notify output subscribers: {e:?}");
@@ -78,6 +108,7 @@ impl Outputs for IpcOutputs<'_> {
                 if let Some(r) = &mut self.recorder {
                     r.deviations(&header, sample.payload());
                 }
+                self.view_points(&header, sample.payload());
                 if let Err(e) = sample.send() {
                     warn!("deviation chunk {} not published: {e:?}", header.sequence);
                 }
@@ -101,6 +132,14 @@ impl Outputs for IpcOutputs<'_> {
     fn report(&mut self, report: &StationReport) {
         if let Some(r) = &self.recorder {
             r.report(report);
+        }
+        if let Some(v) = &self.viewer {
+            self.shown.remove(&(report.job, report.station));
+            v.show(View::Report {
+                index: report.station,
+                name: view_name(report.job, report.station),
+                report: Box::new(*report),
+            });
         }
         if let Err(e) = self.ports.reports.send_copy(*report) {
             warn!("report of station {} not published: {e:?}", report.station);
@@ -141,6 +180,9 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         ix.bytes as f64 / 1e6,
         started.elapsed().as_secs_f64()
     );
+    // The view needs the mesh once; the index has everything else.
+    let design_view = (config.viewer.rrd.is_some() || config.viewer.url.is_some())
+        .then(|| (design.vertices.clone(), design.triangles.clone()));
     drop(design);
 
     let node = NodeBuilder::new()
@@ -196,9 +238,47 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         }
         None => None,
     };
+    let viewer = if config.viewer.rrd.is_some() || config.viewer.url.is_some() {
+        let v = Viewer::start(ViewerSettings {
+            rrd: config.viewer.rrd.clone(),
+            url: config.viewer.url.clone(),
+            max_points_per_station: config.viewer.max_points_per_station,
+            queue: config.viewer.queue,
+            tolerance: config.inspect.tolerance,
+        })
+        .map_err(|e| AgentError::Design(e.to_string()))?;
+        if let Some((vertices, triangles)) = design_view {
+            v.show(View::Design {
+                vertices,
+                triangles,
+            });
+        }
+        info!(
+            "viewer: {}{}{} (up to {} points per station)",
+            config
+                .viewer
+                .rrd
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
+            if config.viewer.rrd.is_some() && config.viewer.url.is_some() {
+                " and "
+            } else {
+                ""
+            },
+            config.viewer.url.clone().unwrap_or_default(),
+            config.viewer.max_points_per_station
+        );
+        Some(v)
+    } else {
+        None
+    };
     let mut out = IpcOutputs {
         ports: &ports,
         recorder,
+        viewer,
+        shown: Default::default(),
+        frames: config.frames.clone(),
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
         unloaned: 0,
     };
@@ -259,6 +339,11 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     info!("stop requested: closing open stations with partial reports");
     lifecycle.shutdown(&mut out);
     status.publish(&ports, &lifecycle, &out, AgentState::ShuttingDown);
+    if let Some(mut v) = out.viewer.take() {
+        v.finish();
+        let dropped = v.dropped.load(std::sync::atomic::Ordering::Relaxed);
+        info!("viewer: closed ({dropped} item(s) dropped while the viewer was behind)");
+    }
     if let Some(mut r) = out.recorder.take() {
         r.finish();
         use std::sync::atomic::Ordering::Relaxed;
@@ -365,6 +450,15 @@ fn drain_control(
         any = true;
         if let Some(r) = &out.recorder {
             r.pose(&p);
+        }
+        if let (Some(v), Ok(t)) = (&out.viewer, out.frames.t_design_scanner(&p)) {
+            v.show(View::Station {
+                index: p.station,
+                name: view_name(p.job, p.station),
+                layer: 0,
+                pose: t,
+                time_ns: p.timestamp_ns,
+            });
         }
         lifecycle.on_pose(&p, Instant::now(), out);
     }

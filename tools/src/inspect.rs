@@ -16,6 +16,7 @@ use crate::deviations_ply::DeviationsPly;
 use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use crate::suite::{self, Method, Methods, Suite, SuiteConfig};
+use asbuilt_agent::viewer::{self, View, Viewer, ViewerSettings};
 use asbuilt_tools::scan_io::ScanFile;
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
@@ -87,6 +88,15 @@ pub struct InspectArgs {
     /// M3C2. Without it C2C measures to design samples.
     #[arg(long)]
     reference: Option<PathBuf>,
+    /// Write the rerun view to this .rrd file (`rerun FILE.rrd` opens it).
+    #[arg(long)]
+    rerun: Option<PathBuf>,
+    /// Stream the rerun view to a viewer: rerun+http://HOST:PORT/proxy.
+    #[arg(long)]
+    rerun_url: Option<String>,
+    /// Points shown per station in the rerun view, at most (decimated evenly).
+    #[arg(long, default_value_t = 200_000)]
+    rerun_points: usize,
     /// Also write deviations.txt: the same points as ASCII with a header line.
     #[arg(long)]
     ascii: bool,
@@ -214,6 +224,24 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         },
     )?;
 
+    let viewer = if args.rerun.is_some() || args.rerun_url.is_some() {
+        let v = Viewer::start(ViewerSettings {
+            rrd: args.rerun.clone(),
+            url: args.rerun_url.clone(),
+            max_points_per_station: args.rerun_points,
+            // Offline nothing waits on the view: a deep queue keeps every item.
+            queue: 4096,
+            tolerance: args.tolerance,
+        })?;
+        v.show(View::Design {
+            vertices: design.vertices.clone(),
+            triangles: design.triangles.clone(),
+        });
+        Some(v)
+    } else {
+        None
+    };
+
     let mut sections = Vec::new();
     let mut total = Tally::new(config.stats);
     let mut total_malformed = 0u64;
@@ -246,6 +274,16 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         bar.set_message(station.id.clone());
         let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
         suite.begin_station();
+        if let Some(v) = &viewer {
+            v.show(View::Station {
+                index: n as u32,
+                name: station.id.clone(),
+                layer: 0,
+                pose: station.t_design_scanner,
+                time_ns: asbuilt_protocol::unix_time_ns(),
+            });
+        }
+        let view_step = viewer::stride(declared.unwrap_or(1_000_000) as usize, args.rerun_points);
         let mut bounds = (
             Point3::from([f64::INFINITY; 3]),
             Point3::from([f64::NEG_INFINITY; 3]),
@@ -262,6 +300,15 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             }
             ply.write(n as u16, out)?;
             suite.chunk(out);
+            if let Some(v) = &viewer {
+                let (positions, distances) = viewer::decimate(out, view_step);
+                v.show(View::Points {
+                    index: n as u32,
+                    name: station.id.clone(),
+                    positions,
+                    distances,
+                });
+            }
             bar.inc(chunk.len() as u64);
             Ok(())
         });
@@ -304,6 +351,13 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         }
         let mut report = inspector.report(0, n as u32, &station.id);
         report.position_sigma = station.position_sigma;
+        if let Some(v) = &viewer {
+            v.show(View::Report {
+                index: n as u32,
+                name: station.id.clone(),
+                report: Box::new(report),
+            });
+        }
         total.merge(inspector.tally());
         total_malformed += notes.malformed_lines;
         let mut section = Section::from_report(
@@ -334,6 +388,44 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     }
     let written = ply.finish()?;
     let totals = suite.finish(&index, &args.out)?;
+    if let Some(mut v) = viewer {
+        for (path, samples) in [
+            ("missing", &totals.missing_view),
+            ("m3c2", &totals.m3c2_view),
+        ] {
+            if !samples.is_empty() {
+                v.show(View::Samples {
+                    path: path.into(),
+                    positions: samples.iter().map(|s| s.0).collect(),
+                    values: samples.iter().map(|s| s.1).collect(),
+                    significant: (path == "m3c2").then(|| samples.iter().map(|s| s.2).collect()),
+                });
+            }
+        }
+        for row in totals.layers.iter().flatten() {
+            for (series, stats) in [
+                ("c2m_mean_mm", &row.c2m),
+                ("c2c_mean_mm", &row.c2c),
+                ("m3c2_mean_mm", &row.m3c2),
+            ] {
+                if let Some(st) = stats {
+                    v.show(View::LayerValue {
+                        series: series.into(),
+                        layer: row.layer,
+                        value: st.mean * 1e3,
+                    });
+                }
+            }
+        }
+        v.finish();
+        if let Some(p) = &args.rerun {
+            eprintln!(
+                "wrote {} (open it with `rerun {}`)",
+                p.display(),
+                p.display()
+            );
+        }
+    }
 
     let mut overall =
         Section::from_report(&total.report(0, u32::MAX, "overall"), None, total_malformed);

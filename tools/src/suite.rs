@@ -261,6 +261,12 @@ pub struct SuiteTotals {
     pub layers: Option<Vec<LayerRow>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
+    /// For the rerun view: missing samples with their reverse distance, and M3C2 core points
+    /// with distance and significance.
+    #[serde(skip)]
+    pub missing_view: Vec<(Point3<f64>, f32, bool)>,
+    #[serde(skip)]
+    pub m3c2_view: Vec<(Point3<f64>, f32, bool)>,
 }
 
 struct C2cRun {
@@ -529,6 +535,17 @@ impl Suite {
             }
             section.reverse_c2c = Some(DistanceSection::new(&rev.finish(), none));
             t.section.coverage = Some(section);
+            t.missing_view = outcomes
+                .iter()
+                .filter(|o| o.class == SampleClass::Missing)
+                .map(|o| {
+                    (
+                        o.position,
+                        o.reverse_distance.unwrap_or(f64::NAN) as f32,
+                        true,
+                    )
+                })
+                .collect();
             write_missing(
                 &out.join("missing.ply"),
                 c.samples(),
@@ -548,6 +565,10 @@ impl Suite {
             let sigma = self.sigma_max;
             t.section.m3c2 = Some(M3c2Section::new(&m.total(sigma), sigma));
             let results = m.results(sigma);
+            t.m3c2_view = results
+                .iter()
+                .filter_map(|r| r.distance.map(|d| (r.position, d as f32, r.significant)))
+                .collect();
             ply_out::write(
                 &out.join("m3c2.ply"),
                 "asbuilt design-referenced M3C2: core points on the design (metres), distance \

@@ -1,0 +1,391 @@
+//! The rerun view of a job, for someone who was not there: the design, each station where it
+//! stood, its points coloured by deviation, its statistics over time and its histogram.
+//!
+//! A thread of its own owns the rerun stream; callers hand it decimated copies through a
+//! bounded queue and never wait: when the queue is full the item is dropped and counted, so a
+//! slow or absent viewer never slows the agent. Positions are sent relative to a local origin
+//! (the design's centre), so f32 keeps sub-millimetre precision on a site far from 0.
+//!
+//! Entities: `design` (static mesh), `legend` (the colour scale), `stations/<name>` (the
+//! scanner's pose), `stations/<name>/deviations` (points), `stations/<name>/histogram`,
+//! `stats/{mean,median_abs,p95_abs}_mm` (time series), and from `asbuilt inspect` also
+//! `missing` (design samples) and `m3c2` (core points). Timelines: `station`, `layer`, `time`.
+//!
+//! Colours: a diverging scale centred on 0, saturated at ± the tolerance: blue (missing
+//! material) through white (on the design) to red (excess); grey for no match.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use asbuilt_protocol::StationReport;
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use crate::warn;
+
+/// Where the view goes, and how much of it.
+#[derive(Debug, Clone)]
+pub struct ViewerSettings {
+    /// A `.rrd` file to write.
+    pub rrd: Option<PathBuf>,
+    /// A viewer to stream to, `rerun+http://HOST:PORT/proxy`.
+    pub url: Option<String>,
+    /// Points shown per station, at most.
+    pub max_points_per_station: usize,
+    /// Items waiting for the viewer thread beyond which new ones are dropped.
+    pub queue: usize,
+    pub tolerance: f64,
+}
+
+/// One thing to show.
+pub enum View {
+    Design {
+        vertices: Vec<Point3<f64>>,
+        triangles: Vec<[u32; 3]>,
+    },
+    Station {
+        index: u32,
+        name: String,
+        layer: u32,
+        pose: Isometry3<f64>,
+        time_ns: u64,
+    },
+    /// Design-frame positions and their signed distance (NaN: no match).
+    Points {
+        index: u32,
+        name: String,
+        positions: Vec<Point3<f64>>,
+        distances: Vec<f32>,
+    },
+    Report {
+        index: u32,
+        name: String,
+        report: Box<StationReport>,
+    },
+    /// Design samples or core points with a value in metres and, for M3C2, significance.
+    Samples {
+        path: String,
+        positions: Vec<Point3<f64>>,
+        values: Vec<f32>,
+        significant: Option<Vec<bool>>,
+    },
+    /// A per-layer value as a time series on the `layer` timeline.
+    LayerValue {
+        series: String,
+        layer: u32,
+        value: f64,
+    },
+}
+
+pub struct Viewer {
+    tx: Option<SyncSender<View>>,
+    thread: Option<JoinHandle<()>>,
+    pub dropped: Arc<AtomicU64>,
+    settings: ViewerSettings,
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("cannot start the rerun view: {0}")]
+pub struct ViewerError(String);
+
+impl Viewer {
+    /// Opens the sinks the settings name; at least one is needed.
+    pub fn start(settings: ViewerSettings) -> Result<Self, ViewerError> {
+        let builder = rerun::RecordingStreamBuilder::new("asbuilt");
+        let err = |e: &dyn std::fmt::Display| ViewerError(e.to_string());
+        let rec = match (&settings.rrd, &settings.url) {
+            (Some(path), Some(url)) => {
+                let file = rerun::sink::FileSink::new(path).map_err(|e| err(&e))?;
+                let uri = url
+                    .parse()
+                    .map_err(|e: rerun::external::re_uri::Error| err(&e))?;
+                builder
+                    .set_sinks((file, rerun::sink::GrpcSink::new(uri)))
+                    .map_err(|e| err(&e))?
+            }
+            (Some(path), None) => builder.save(path).map_err(|e| err(&e))?,
+            (None, Some(url)) => builder
+                .connect_grpc_opts(url.clone())
+                .map_err(|e| err(&e))?,
+            (None, None) => return Err(ViewerError("give a .rrd file or a viewer URL".into())),
+        };
+        Ok(Self::with_stream(rec, settings))
+    }
+
+    /// Shows on an existing stream (tests use rerun's memory sink).
+    pub fn with_stream(rec: rerun::RecordingStream, settings: ViewerSettings) -> Self {
+        let (tx, rx) = sync_channel(settings.queue.max(1));
+        let tolerance = settings.tolerance;
+        let thread = std::thread::Builder::new()
+            .name("viewer".into())
+            .spawn(move || Painter::new(rec, tolerance).run(rx))
+            .expect("a thread can be started");
+        Self {
+            tx: Some(tx),
+            thread: Some(thread),
+            dropped: Arc::new(AtomicU64::new(0)),
+            settings,
+        }
+    }
+
+    pub fn max_points_per_station(&self) -> usize {
+        self.settings.max_points_per_station
+    }
+
+    /// Queues `view`, or drops and counts it when the viewer is behind.
+    pub fn show(&self, view: View) {
+        let Some(tx) = &self.tx else { return };
+        match tx.try_send(view) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+                let n = self.dropped.fetch_add(1, Relaxed);
+                if n.is_power_of_two() {
+                    warn!(
+                        "viewer: {} item(s) dropped so far: the viewer is behind",
+                        n + 1
+                    );
+                }
+            }
+        }
+    }
+
+    /// Sends what is queued and closes the stream (the `.rrd` is complete after this).
+    pub fn finish(&mut self) {
+        self.tx.take();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Viewer {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+/// Every `step`-th valid point of a deviation chunk: design-frame positions and distances.
+pub fn decimate(
+    devs: &[asbuilt_protocol::PointDeviation],
+    step: usize,
+) -> (Vec<Point3<f64>>, Vec<f32>) {
+    devs.iter()
+        .filter(|d| !d.flags.contains(asbuilt_protocol::DeviationFlags::REJECTED))
+        .step_by(step.max(1))
+        .map(|d| (Point3::from(d.position), d.distance as f32))
+        .unzip()
+}
+
+/// Every `stride`-th element, for at most `max` of `n`.
+pub fn stride(n: usize, max: usize) -> usize {
+    if max == 0 {
+        usize::MAX
+    } else {
+        n.div_ceil(max).max(1)
+    }
+}
+
+struct Painter {
+    rec: rerun::RecordingStream,
+    tolerance: f64,
+    origin: Vector3<f64>,
+}
+
+/// Blue (−tolerance) through white (0) to red (+tolerance), saturated beyond; grey for NaN.
+pub fn colour(d: f32, tolerance: f64) -> [u8; 3] {
+    if !d.is_finite() {
+        return [128, 128, 128];
+    }
+    let t = (d as f64 / tolerance).clamp(-1.0, 1.0);
+    let fade = |x: f64| (255.0 * (1.0 - x)).round() as u8;
+    if t >= 0.0 {
+        [255, fade(t), fade(t)]
+    } else {
+        [fade(-t), fade(-t), 255]
+    }
+}
+
+impl Painter {
+    fn new(rec: rerun::RecordingStream, tolerance: f64) -> Self {
+        let legend = format!(
+            "# asbuilt deviation colours\n\nSigned distance to the design, saturated at the \
+             tolerance (±{:.1} mm): **blue** −{:.1} mm and below (missing material), **white** \
+             0, **red** +{:.1} mm and above (excess material), **grey** no match within the \
+             maximum distance. Positions are relative to the design's centre.",
+            tolerance * 1e3,
+            tolerance * 1e3,
+            tolerance * 1e3
+        );
+        let _ = rec.log_static(
+            "legend",
+            &rerun::TextDocument::new(legend).with_media_type(rerun::MediaType::markdown()),
+        );
+        Self {
+            rec,
+            tolerance,
+            origin: Vector3::zeros(),
+        }
+    }
+
+    fn local(&self, p: &Point3<f64>) -> [f32; 3] {
+        let v = p.coords - self.origin;
+        [v.x as f32, v.y as f32, v.z as f32]
+    }
+
+    fn run(mut self, rx: Receiver<View>) {
+        while let Ok(v) = rx.recv() {
+            if let Err(e) = self.paint(v) {
+                warn!("viewer: {e}");
+            }
+        }
+        let _ = self.rec.flush_blocking();
+    }
+
+    fn paint(&mut self, v: View) -> Result<(), rerun::RecordingStreamError> {
+        match v {
+            View::Design {
+                vertices,
+                triangles,
+            } => {
+                if let Some(first) = vertices.first() {
+                    let (lo, hi) = vertices
+                        .iter()
+                        .fold((*first, *first), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
+                    self.origin = (lo.coords + hi.coords) * 0.5;
+                }
+                let positions: Vec<[f32; 3]> = vertices.iter().map(|p| self.local(p)).collect();
+                self.rec.log_static(
+                    "design",
+                    &rerun::Mesh3D::new(positions)
+                        .with_triangle_indices(triangles.iter().map(|t| (t[0], t[1], t[2])))
+                        .with_albedo_factor(rerun::Rgba32::from_unmultiplied_rgba(
+                            200, 200, 200, 90,
+                        )),
+                )?;
+            }
+            View::Station {
+                index,
+                name,
+                layer,
+                pose,
+                time_ns,
+            } => {
+                self.rec.set_time_sequence("station", index as i64);
+                self.rec.set_time_sequence("layer", layer as i64);
+                self.rec
+                    .set_timestamp_nanos_since_epoch("time", time_ns as i64);
+                let t = pose.translation.vector - self.origin;
+                let q = pose.rotation.quaternion();
+                self.rec.log(
+                    format!("stations/{name}"),
+                    &rerun::Transform3D::from_translation_rotation(
+                        [t.x as f32, t.y as f32, t.z as f32],
+                        rerun::Quaternion::from_xyzw([
+                            q.i as f32, q.j as f32, q.k as f32, q.w as f32,
+                        ]),
+                    ),
+                )?;
+            }
+            View::Points {
+                index,
+                name,
+                positions,
+                distances,
+            } => {
+                self.rec.set_time_sequence("station", index as i64);
+                let colours: Vec<rerun::Color> = distances
+                    .iter()
+                    .map(|&d| {
+                        let [r, g, b] = colour(d, self.tolerance);
+                        rerun::Color::from_rgb(r, g, b)
+                    })
+                    .collect();
+                let pts: Vec<[f32; 3]> = positions.iter().map(|p| self.local(p)).collect();
+                // Points are in the design frame: log them beside the station, not under its
+                // transform.
+                self.rec.log(
+                    format!("deviations/{name}"),
+                    &rerun::Points3D::new(pts)
+                        .with_colors(colours)
+                        .with_radii([rerun::Radius::new_ui_points(2.0)]),
+                )?;
+            }
+            View::Report {
+                index,
+                name,
+                report,
+            } => {
+                self.rec.set_time_sequence("station", index as i64);
+                let s = &report.stats;
+                for (series, v) in [
+                    ("mean_mm", s.mean),
+                    ("median_abs_mm", s.median_abs),
+                    ("p95_abs_mm", s.p95_abs),
+                ] {
+                    if v.is_finite() {
+                        self.rec
+                            .log(format!("stats/{series}"), &rerun::Scalars::new([v * 1e3]))?;
+                    }
+                }
+                let bins: Vec<f64> = report.histogram.bins.iter().map(|&b| b as f64).collect();
+                self.rec.log(
+                    format!("stations/{name}/histogram"),
+                    &rerun::BarChart::new(bins.as_slice()),
+                )?;
+            }
+            View::Samples {
+                path,
+                positions,
+                values,
+                significant,
+            } => {
+                let colours: Vec<rerun::Color> = values
+                    .iter()
+                    .zip(0..)
+                    .map(|(&d, i)| {
+                        let faint = significant.as_ref().is_some_and(|s| !s[i]);
+                        let [r, g, b] = colour(d, self.tolerance);
+                        rerun::Color::from_unmultiplied_rgba(r, g, b, if faint { 60 } else { 255 })
+                    })
+                    .collect();
+                let pts: Vec<[f32; 3]> = positions.iter().map(|p| self.local(p)).collect();
+                self.rec.log_static(
+                    path,
+                    &rerun::Points3D::new(pts)
+                        .with_colors(colours)
+                        .with_radii([rerun::Radius::new_ui_points(3.0)]),
+                )?;
+            }
+            View::LayerValue {
+                series,
+                layer,
+                value,
+            } => {
+                self.rec.set_time_sequence("layer", layer as i64);
+                if value.is_finite() {
+                    self.rec
+                        .log(format!("layers/{series}"), &rerun::Scalars::new([value]))?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_colour_scale_is_centred_and_saturates_at_the_tolerance() {
+        assert_eq!(colour(0.0, 0.005), [255, 255, 255]);
+        assert_eq!(colour(0.005, 0.005), [255, 0, 0]);
+        assert_eq!(colour(0.02, 0.005), [255, 0, 0]);
+        assert_eq!(colour(-0.005, 0.005), [0, 0, 255]);
+        assert_eq!(colour(f32::NAN, 0.005), [128, 128, 128]);
+        assert_eq!(stride(1000, 100), 10);
+        assert_eq!(stride(50, 100), 1);
+    }
+}

@@ -164,3 +164,99 @@ pub fn merge(parts: &[Design]) -> Design {
     }
     Design::from_indexed(v, t, 1.0).expect("parts have area")
 }
+
+/// The source study's printed wall: 173.4 mm thick, 2000 mm long, 980 mm high, standing on the
+/// plane z = 0 with its long side along x, centred on the origin in x and y. Metres.
+pub fn study_wall() -> Design {
+    let (l, t, h) = (2.0, 0.1734, 0.98);
+    cuboid(
+        Point3::new(-l / 2.0, -t / 2.0, 0.0),
+        Point3::new(l / 2.0, t / 2.0, h),
+    )
+}
+
+/// A column of elliptical section (semi-axes `a` along x and `b` along y) standing on z = 0,
+/// `height` tall, its section turning by `twist_deg` from bottom to top: a free-form part whose
+/// faces are nowhere parallel to an axis. `segments` around, `rings` up; closed by flat caps.
+pub fn twisted_column(
+    a: f64,
+    b: f64,
+    height: f64,
+    twist_deg: f64,
+    segments: u32,
+    rings: u32,
+) -> Design {
+    let (n, m) = (segments.max(3), rings.max(1));
+    let mut v = Vec::with_capacity(((m + 1) * n + 2) as usize);
+    for k in 0..=m {
+        let z = height * k as f64 / m as f64;
+        let turn = twist_deg.to_radians() * k as f64 / m as f64;
+        for i in 0..n {
+            let phi = std::f64::consts::TAU * i as f64 / n as f64;
+            let (x, y) = (a * phi.cos(), b * phi.sin());
+            let (s, c) = turn.sin_cos();
+            v.push(Point3::new(x * c - y * s, x * s + y * c, z));
+        }
+    }
+    let bottom = v.len() as u32;
+    v.push(Point3::new(0.0, 0.0, 0.0));
+    let top = v.len() as u32;
+    v.push(Point3::new(0.0, 0.0, height));
+    let id = |k: u32, i: u32| k * n + i % n;
+    let mut t = Vec::new();
+    for k in 0..m {
+        for i in 0..n {
+            t.push([id(k, i), id(k, i + 1), id(k + 1, i + 1)]);
+            t.push([id(k, i), id(k + 1, i + 1), id(k + 1, i)]);
+        }
+    }
+    for i in 0..n {
+        t.push([bottom, id(0, i + 1), id(0, i)]);
+        t.push([top, id(m, i), id(m, i + 1)]);
+    }
+    Design::from_indexed(v, t, 1.0).expect("a column has area")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::design::topology::Topology;
+
+    #[test]
+    fn the_study_wall_has_the_study_dimensions() {
+        let w = study_wall();
+        let (lo, hi) = w.bounds();
+        let size = hi - lo;
+        assert!((size.x - 2.0).abs() < 1e-12 && (size.y - 0.1734).abs() < 1e-12);
+        assert!((size.z - 0.98).abs() < 1e-12 && lo.z == 0.0);
+    }
+
+    #[test]
+    fn a_twisted_column_is_closed_outward_and_has_the_expected_area() {
+        let c = twisted_column(0.15, 0.1, 1.2, 90.0, 128, 60);
+        assert!(Topology::of(&c.triangles).is_closed_and_oriented());
+        let (lo, hi) = c.bounds();
+        assert!((hi.z - 1.2).abs() < 1e-12 && lo.z == 0.0);
+        // Outward: every side face's normal points away from the axis.
+        for tri in &c.triangles {
+            let [p, q, r] = tri.map(|i| c.vertices[i as usize]);
+            let n = (q - p).cross(&(r - p));
+            let centre = (p.coords + q.coords + r.coords) / 3.0;
+            if n.z.abs() < 0.5 * n.norm() {
+                assert!(n.x * centre.x + n.y * centre.y > 0.0);
+            }
+        }
+        // Untwisted, the side is an elliptic cylinder: perimeter (Ramanujan) × height.
+        let s = twisted_column(0.15, 0.1, 1.2, 0.0, 512, 1);
+        let (a, b) = (0.15f64, 0.1f64);
+        let h3 = 3.0 * (a - b).powi(2) / (a + b).powi(2);
+        let perimeter = std::f64::consts::PI * (a + b) * (1.0 + h3 / (10.0 + (4.0 - h3).sqrt()));
+        let caps = 2.0 * std::f64::consts::PI * a * b;
+        let area = perimeter * 1.2 + caps;
+        assert!(
+            (s.surface_area() - area).abs() < 1e-3 * area,
+            "{}",
+            s.surface_area()
+        );
+    }
+}

@@ -55,7 +55,7 @@ struct IpcOutputs<'p> {
     /// The rerun view, when `[viewer]` is on, and points shown so far per open station.
     viewer: Option<Viewer>,
     shown: std::collections::BTreeMap<(u64, u32), usize>,
-    frames: asbuilt_core::frames::FrameChain,
+    frames: &'p asbuilt_core::frames::FrameChain,
     /// Where deviations go when no shared-memory sample can be loaned, so the station's
     /// statistics stay whole. Sized once for the largest accepted chunk.
     scratch: Vec<PointDeviation>,
@@ -278,7 +278,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         recorder,
         viewer,
         shown: Default::default(),
-        frames: config.frames.clone(),
+        frames: &config.frames,
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
         unloaned: 0,
     };
@@ -578,10 +578,9 @@ fn log_health(s: &AgentStatus) {
     );
 }
 
-/// What every recording of this agent says about how it was made.
+/// What every recording of this agent says about how it was made. The recorder adds the
+/// design's hash from the bytes it attaches.
 fn job_metadata(config: &AgentConfig) -> asbuilt_protocol::recording::JobMetadata {
-    use sha2::{Digest, Sha256};
-    let design = std::fs::read(&config.design.path).unwrap_or_default();
     let calibrations = config
         .text
         .parse::<toml::Table>()
@@ -593,7 +592,7 @@ fn job_metadata(config: &AgentConfig) -> asbuilt_protocol::recording::JobMetadat
         asbuilt_version: env!("CARGO_PKG_VERSION").into(),
         design_path: config.design.path.display().to_string(),
         design_units: config.design.units.clone(),
-        design_sha256: format!("{:x}", Sha256::digest(&design)),
+        design_sha256: String::new(),
         config: config.text.clone(),
         calibrations,
     }

@@ -40,7 +40,6 @@ pub struct RecorderCounters {
     pub chunks_dropped: AtomicU64,
     /// Chunks left out by `scan_every`.
     pub chunks_decimated: AtomicU64,
-    pub bytes_written: AtomicU64,
     pub files: AtomicU64,
 }
 
@@ -59,10 +58,17 @@ pub struct Recorder {
 
 impl Recorder {
     /// Starts the writer thread. `design` is attached to every file with `meta`.
-    pub fn start(cfg: &RecorderConfig, meta: JobMetadata, design: &Path) -> std::io::Result<Self> {
+    /// `meta`'s design hash is filled from the bytes attached, read once here.
+    pub fn start(
+        cfg: &RecorderConfig,
+        mut meta: JobMetadata,
+        design: &Path,
+    ) -> std::io::Result<Self> {
+        use sha2::{Digest, Sha256};
         let dir = cfg.dir.clone().expect("started only when recording is on");
         std::fs::create_dir_all(&dir)?;
         let design_bytes = std::fs::read(design)?;
+        meta.design_sha256 = format!("{:x}", Sha256::digest(&design_bytes));
         let design_name = design
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -353,9 +359,6 @@ impl Writer {
             return Ok(());
         };
         f.writer.write(t, m).map_err(|e| e.to_string())?;
-        if matches!(m, Recorded::Chunk(..)) {
-            self.counters.bytes_written.store(f.writer_bytes(), Relaxed);
-        }
         Ok(())
     }
 

@@ -231,8 +231,10 @@ impl Coverage {
 
     /// Every sample's reverse distance and class over the job so far.
     pub fn outcomes(&self, design: &C2mIndex) -> Vec<SampleOutcome> {
+        use rayon::prelude::*;
         let g = &self.grid;
         (0..g.len())
+            .into_par_iter()
             .map(|i| {
                 let s = &self.total[i];
                 SampleOutcome {
@@ -243,6 +245,11 @@ impl Coverage {
                 }
             })
             .collect()
+    }
+
+    /// The summary of outcomes already classified, without casting their rays again.
+    pub fn summary_of(&self, outcomes: &[SampleOutcome]) -> CoverageSummary {
+        self.summarize(outcomes.iter().map(|o| o.class))
     }
 
     fn classify(
@@ -256,8 +263,12 @@ impl Coverage {
             .into_par_iter()
             .map(|i| self.class_of(i, &state[i], origins, design))
             .collect();
+        self.summarize(classes.into_iter())
+    }
+
+    fn summarize(&self, classes: impl Iterator<Item = SampleClass>) -> CoverageSummary {
         let mut s = CoverageSummary::default();
-        for (i, c) in classes.iter().enumerate() {
+        for (i, c) in classes.enumerate() {
             match c {
                 SampleClass::Observed => s.observed += 1,
                 SampleClass::Missing => {

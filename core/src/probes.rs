@@ -97,20 +97,9 @@ impl ProbeGrid {
         grid.points = keyed.iter().map(|&(_, i)| points[i as usize]).collect();
         grid.normals = keyed.iter().map(|&(_, i)| normals[i as usize]).collect();
         grid.ids = keyed.iter().map(|&(_, i)| i).collect();
-        let mut start = 0usize;
-        while start < keyed.len() {
-            let key = keyed[start].0;
-            let mut end = start;
-            while end < keyed.len() && keyed[end].0 == key {
-                end += 1;
-            }
+        for (key, start, end) in runs_of(&keyed) {
             grid.lookup.insert(key, grid.cells.len() as u32);
-            grid.cells.push(Cell {
-                key,
-                start: start as u32,
-                end: end as u32,
-            });
-            start = end;
+            grid.cells.push(Cell { key, start, end });
         }
         grid
     }
@@ -235,14 +224,8 @@ impl ProbeGrid {
         );
         keyed.sort_unstable();
         sorted.extend(keyed.iter().map(|&(_, i)| chunk[i as usize]));
-        let mut start = 0usize;
-        while start < keyed.len() {
-            let key = keyed[start].0;
-            let mut end = start;
-            while end < keyed.len() && keyed[end].0 == key {
-                end += 1;
-            }
-            runs.insert(key, (start as u32, end as u32));
+        for (key, start, end) in runs_of(keyed) {
+            runs.insert(key, (start, end));
             for k in Self::neighbours(key) {
                 if let Some(&c) = self.lookup.get(&k)
                     && mark[c as usize] != *generation
@@ -251,7 +234,6 @@ impl ProbeGrid {
                     active.push(c);
                 }
             }
-            start = end;
         }
         active.sort_unstable();
 
@@ -286,6 +268,15 @@ impl ProbeGrid {
             }
         });
     }
+}
+
+/// The runs of equal keys in a key-sorted list: key, first index, one past the last.
+fn runs_of(keyed: &[(u64, u32)]) -> impl Iterator<Item = (u64, u32, u32)> + '_ {
+    keyed.chunk_by(|a, b| a.0 == b.0).scan(0u32, |start, run| {
+        let s = *start;
+        *start += run.len() as u32;
+        Some((run[0].0, s, *start))
+    })
 }
 
 #[cfg(test)]

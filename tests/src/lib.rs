@@ -231,3 +231,26 @@ pub fn memory_kib(pid: u32) -> (u64, u64, u64) {
     };
     (field("VmRSS:"), field("RssAnon:"), field("VmHWM:"))
 }
+
+/// An agent configuration for the Stanford bunny at 5 mm tolerance and maximum distance, with
+/// `extra` sections appended.
+pub fn bunny_agent_config(extra: &str) -> String {
+    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
+    format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+         max_distance = 0.005\n{extra}",
+        design.display().to_string()
+    )
+}
+
+/// `asbuilt publish` of the ten bunny stations (examples/bunny) to `prefix`, 10,000 points per
+/// chunk; `asbuilt` is the command to run.
+pub fn publish_bunny(asbuilt: &str, prefix: &str) -> std::process::Output {
+    Command::new(asbuilt)
+        .arg("publish")
+        .arg("--stations")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/bunny/stations.toml"))
+        .args(["--prefix", prefix, "--chunk-points", "10000"])
+        .output()
+        .unwrap()
+}

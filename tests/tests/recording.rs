@@ -7,7 +7,7 @@ use std::process::Command;
 
 use asbuilt_protocol::StationEventKind;
 use asbuilt_protocol::recording::{self, Recorded};
-use asbuilt_tests::{Agent, shared_data, unique_prefix};
+use asbuilt_tests::{Agent, bunny_agent_config, publish_bunny, shared_data, unique_prefix};
 use serde_json::Value;
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
@@ -53,15 +53,7 @@ fn the_packed_bunny_replayed_through_the_agent_reports_what_inspect_reports() {
     pack_bunny(&rec);
     let design = shared_data().join("stanford-bunny/bun_zipper.ply");
     let prefix = unique_prefix("replay");
-    let agent = Agent::start(
-        AGENT,
-        &prefix,
-        &format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-             max_distance = 0.005\n",
-            design.display().to_string()
-        ),
-    );
+    let agent = Agent::start(AGENT, &prefix, &bunny_agent_config(""));
     let out = dir.path().join("replay");
     let o = Command::new(ASBUILT)
         .args(["replay", rec.to_str().unwrap(), "--prefix", &prefix])
@@ -231,21 +223,10 @@ fn an_independent_mcap_reader_reads_the_recording() {
 /// bit for bit, as the ones recorded.
 #[test]
 fn a_recorded_job_replays_to_identical_reports() {
-    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
-    let config = format!(
-        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-         max_distance = 0.005\n[recorder]\ndir = \"rec\"\n",
-        design.display().to_string()
-    );
+    let config = bunny_agent_config("[recorder]\ndir = \"rec\"\n");
     let prefix = unique_prefix("record");
     let mut agent = Agent::start(AGENT, &prefix, &config);
-    let publish = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(repo().join("examples/bunny/stations.toml"))
-        .args(["--prefix", &prefix, "--chunk-points", "10000"])
-        .output()
-        .unwrap();
+    let publish = publish_bunny(ASBUILT, &prefix);
     assert!(
         publish.status.success(),
         "{}\nagent:\n{}",
@@ -379,21 +360,10 @@ fn a_recording_reports_what_inspect_reports() {
 /// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their
 /// messages, and the agent's log.
 fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
-    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
-    let config = format!(
-        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-         max_distance = 0.005\n[recorder]\ndir = \"rec\"\n{recorder}\n",
-        design.display().to_string()
-    );
+    let config = bunny_agent_config(&format!("[recorder]\ndir = \"rec\"\n{recorder}\n"));
     let prefix = unique_prefix("rec-limits");
     let mut agent = Agent::start(AGENT, &prefix, &config);
-    let publish = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(repo().join("examples/bunny/stations.toml"))
-        .args(["--prefix", &prefix, "--chunk-points", "10000"])
-        .output()
-        .unwrap();
+    let publish = publish_bunny(ASBUILT, &prefix);
     assert!(publish.status.success(), "{}", agent.log());
     agent.signal("TERM");
     assert!(

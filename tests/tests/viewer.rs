@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use asbuilt_tests::{Agent, shared_data, unique_prefix};
+use asbuilt_tests::{Agent, bunny_agent_config, publish_bunny, shared_data, unique_prefix};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::LogMsg;
 
@@ -88,24 +88,13 @@ fn inspect_writes_a_view_of_the_bunny() {
 
 #[test]
 fn the_agent_writes_a_view_of_a_job() {
-    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
     let prefix = unique_prefix("viewer");
     let mut agent = Agent::start(
         AGENT,
         &prefix,
-        &format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-             max_distance = 0.005\n[viewer]\nrrd = \"job.rrd\"\nmax_points_per_station = 4000\n",
-            design.display().to_string()
-        ),
+        &bunny_agent_config("[viewer]\nrrd = \"job.rrd\"\nmax_points_per_station = 4000\n"),
     );
-    let publish = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(repo().join("examples/bunny/stations.toml"))
-        .args(["--prefix", &prefix, "--chunk-points", "10000"])
-        .output()
-        .unwrap();
+    let publish = publish_bunny(ASBUILT, &prefix);
     assert!(publish.status.success(), "{}", agent.log());
     agent.signal("TERM");
     assert!(

@@ -8,6 +8,7 @@ mod inspect;
 mod pack;
 mod ply_out;
 mod publish;
+mod recording_file;
 mod recover;
 mod replay;
 mod report;

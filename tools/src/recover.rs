@@ -24,12 +24,7 @@ pub fn run(args: RecoverArgs) -> Result<ExitCode> {
             args.fixed.display()
         );
     }
-    let file = File::open(&args.broken)
-        .with_context(|| format!("cannot open {}", args.broken.display()))?;
-    // SAFETY: the file is only read; a writer changing it underneath would give wrong bytes,
-    // which the MCAP reader rejects as a damaged record rather than misreading.
-    let bytes = unsafe { memmap2::Mmap::map(&file) }
-        .with_context(|| format!("cannot map {}", args.broken.display()))?;
+    let bytes = crate::recording_file::map(&args.broken)?;
     let out = File::create(&args.fixed)
         .with_context(|| format!("cannot write {}", args.fixed.display()))?;
     let (_, counts) = asbuilt_protocol::recording::recover(&bytes, BufWriter::new(out))

@@ -3,7 +3,6 @@
 //! A recording replayed into a fresh agent gives the same station reports.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::fs::File;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -46,17 +45,8 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
                 .with_context(|| format!("--speed {s:?}: give a factor such as 1.0, or max"))?,
         ),
     };
-    let file = File::open(&args.recording)
-        .with_context(|| format!("cannot open {}", args.recording.display()))?;
-    // SAFETY: read only; see `recover`.
-    let bytes = unsafe { memmap2::Mmap::map(&file) }
-        .with_context(|| format!("cannot map {}", args.recording.display()))?;
-    let bad = |e: recording::ReadError| {
-        anyhow::anyhow!(
-            "{}: {e}. If its writer died, `asbuilt recover` saves what it can",
-            args.recording.display()
-        )
-    };
+    let bytes = crate::recording_file::map(&args.recording)?;
+    let bad = |e| crate::recording_file::unreadable(&args.recording, e);
     // First pass: the stations to expect and the largest chunk, without keeping messages.
     let mut stations = BTreeSet::new();
     let mut max_points = 1usize;

@@ -97,7 +97,7 @@ pub struct HistogramSection {
     pub bins: Vec<u64>,
 }
 
-fn finite(v: f64) -> Option<f64> {
+pub(crate) fn finite(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
 }
 

@@ -6,7 +6,6 @@
 //! and scan chunks with the same inspector the agent runs.
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -43,17 +42,8 @@ struct Open<'a> {
 }
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
-    let file = File::open(&args.recording)
-        .with_context(|| format!("cannot open {}", args.recording.display()))?;
-    // SAFETY: read only; see `recover`.
-    let bytes = unsafe { memmap2::Mmap::map(&file) }
-        .with_context(|| format!("cannot map {}", args.recording.display()))?;
-    let bad = |e: recording::ReadError| {
-        anyhow::anyhow!(
-            "{}: {e}. If its writer died, `asbuilt recover` saves what it can",
-            args.recording.display()
-        )
-    };
+    let bytes = crate::recording_file::map(&args.recording)?;
+    let bad = |e| crate::recording_file::unreadable(&args.recording, e);
     let (meta, attachments) = recording::job(&bytes).map_err(bad)?;
     let meta = meta.with_context(|| {
         format!(

@@ -20,6 +20,7 @@ use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
 use crate::ply_out::{self, Column};
+use crate::report::finite;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Method {
@@ -112,10 +113,6 @@ pub struct DistanceSection {
     pub median_abs: Option<f64>,
     pub p95_abs: Option<f64>,
     pub within_tolerance: u64,
-}
-
-fn finite(v: f64) -> Option<f64> {
-    v.is_finite().then_some(v)
 }
 
 impl DistanceSection {
@@ -522,7 +519,7 @@ impl Suite {
         if let Some(c) = &self.coverage {
             eprintln!("coverage: classifying {} design samples", c.samples().len());
             let outcomes = c.outcomes(index);
-            let summary = c.total(index);
+            let summary = c.summary_of(&outcomes);
             let mut section = CoverageSection::new(&summary, c.area_per_sample());
             let mut rev =
                 DeviationAccumulator::new(StatsConfig::with_tolerance(self.config.tolerance));

@@ -34,10 +34,7 @@ pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
     let header = reader.header();
     Ok(vec![ScanInfo {
         index: 0,
-        name: path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
+        name: super::stem(path),
         points: Some(header.number_of_points()),
         offset: 0,
         first_line: 0,

@@ -22,8 +22,6 @@ use anyhow::{Result, bail};
 use asbuilt_protocol::ScanPoint;
 use nalgebra::Isometry3;
 
-pub use ptx::PtxScan;
-
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
     E57,
@@ -204,6 +202,13 @@ pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes)
         bail!("cloud {} has no valid point", path.display());
     }
     Ok((out, notes))
+}
+
+/// A single-scan file's scan name: its file name without the extension.
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// A chunk buffer that hands itself to `sink` whenever it is full.

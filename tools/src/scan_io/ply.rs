@@ -186,10 +186,7 @@ pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
         .with_context(|| format!("{} has no `vertex` element", path.display()))?;
     Ok(vec![ScanInfo {
         index: 0,
-        name: path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
+        name: super::stem(path),
         points: Some(vertex.count),
         pose: None,
         offset: 0,

@@ -15,10 +15,7 @@ use super::{Batcher, ReadNotes, ScanInfo};
 pub fn scans(path: &Path) -> Vec<ScanInfo> {
     vec![ScanInfo {
         index: 0,
-        name: path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
+        name: super::stem(path),
         points: None,
         pose: None,
         offset: 0,

@@ -1,0 +1,12 @@
+//! One integration-test binary for the whole workspace. Every binary here links the agent, the
+//! tools and rerun; one link instead of one per file keeps a cold CI build inside its disk and
+//! time budget. Run one group with `cargo test -p asbuilt-tests --test e2e autzen::`.
+
+mod agent;
+mod autzen;
+mod bunny;
+mod calibrate;
+mod inspect_methods;
+mod recording;
+mod scan_files;
+mod viewer;

@@ -18,3 +18,4 @@ pub mod layers;
 pub mod m3c2;
 pub mod probes;
 pub mod sampling;
+pub mod sim;

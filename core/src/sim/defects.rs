@@ -1,0 +1,300 @@
+//! Printing defects, each with the truth a test or a reviewer checks the agent's findings
+//! against.
+
+use nalgebra::{Point3, Vector2};
+
+use super::part::Part;
+
+/// One way a print departs from its design. Lengths in metres, layers 0-based from the bed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Defect {
+    /// Layers `first..=last` come out `width` wider (over-extrusion, > 0) or narrower (< 0),
+    /// half of it on each side.
+    Extrusion { first: u32, last: u32, width: f64 },
+    /// From layer `from` on, every layer is `per_layer` thicker (> 0) or thinner than nominal.
+    HeightDrift { from: u32, per_layer: f64 },
+    /// From layer `from` on, the layers sit shifted by `offset` (x, y).
+    LateralShift { from: u32, offset: [f64; 2] },
+    /// The top `layers` layers of the print, still fresh, settle so that the top ends `depth`
+    /// low, most of it in the top layer, and spread sideways by half of what they lose.
+    Sag { layers: u32, depth: f64 },
+    /// Layer `layer` is missing over `length` of its path around `centre`, along `direction`.
+    MissingSegment {
+        layer: u32,
+        centre: [f64; 2],
+        direction: [f64; 2],
+        length: f64,
+    },
+    /// The surface swells outward by up to `height` within `radius` of `centre`.
+    Bulge {
+        centre: [f64; 3],
+        radius: f64,
+        height: f64,
+    },
+}
+
+/// What a defect did to a print after `printed` layers, in the terms the agent reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Truth {
+    pub kind: &'static str,
+    /// The quantity the agent should measure: width deviation, top height deviation, shift,
+    /// missing length, bulge height. Signed, metres.
+    pub magnitude: f64,
+    /// Where: the middle of the affected surface in the design frame.
+    pub position: Point3<f64>,
+    /// Layers affected, inclusive.
+    pub layers: (u32, u32),
+    /// For a shift or a gap, the direction in the plane.
+    pub direction: Option<[f64; 2]>,
+}
+
+impl Defect {
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Defect::Extrusion { width, .. } if *width < 0.0 => "under-extrusion",
+            Defect::Extrusion { .. } => "over-extrusion",
+            Defect::HeightDrift { .. } => "height-drift",
+            Defect::LateralShift { .. } => "lateral-shift",
+            Defect::Sag { .. } => "sag",
+            Defect::MissingSegment { .. } => "missing-segment",
+            Defect::Bulge { .. } => "bulge",
+        }
+    }
+
+    /// The truth after `printed` layers; `None` when the defect has not been printed yet.
+    pub fn truth(&self, part: &Part, printed: u32) -> Option<Truth> {
+        let (lo, hi) = part.design.bounds();
+        let centre = nalgebra::center(&lo, &hi);
+        let top = printed.checked_sub(1)?;
+        let layers_z = |a: u32, b: u32| 0.5 * (part.layer_span(a).0 + part.layer_span(b).1);
+        let t = match *self {
+            Defect::Extrusion { first, last, width } => {
+                if first > top {
+                    return None;
+                }
+                let last = last.min(top);
+                Truth {
+                    kind: self.kind(),
+                    magnitude: width,
+                    position: Point3::new(centre.x, centre.y, layers_z(first, last)),
+                    layers: (first, last),
+                    direction: None,
+                }
+            }
+            Defect::HeightDrift { from, per_layer } => {
+                if from > top {
+                    return None;
+                }
+                Truth {
+                    kind: self.kind(),
+                    magnitude: per_layer * (printed - from) as f64,
+                    position: Point3::new(centre.x, centre.y, part.layer_span(top).1),
+                    layers: (from, top),
+                    direction: None,
+                }
+            }
+            Defect::LateralShift { from, offset } => {
+                if from > top {
+                    return None;
+                }
+                let v = Vector2::from(offset);
+                Truth {
+                    kind: self.kind(),
+                    magnitude: v.norm(),
+                    position: Point3::new(centre.x, centre.y, layers_z(from, top)),
+                    layers: (from, top),
+                    direction: Some((v / v.norm().max(f64::MIN_POSITIVE)).into()),
+                }
+            }
+            Defect::Sag { layers, depth } => {
+                let first = printed.saturating_sub(layers);
+                Truth {
+                    kind: self.kind(),
+                    magnitude: -depth,
+                    position: Point3::new(centre.x, centre.y, part.layer_span(top).1),
+                    layers: (first, top),
+                    direction: None,
+                }
+            }
+            Defect::MissingSegment {
+                layer,
+                centre: c,
+                direction,
+                length,
+            } => {
+                if layer > top {
+                    return None;
+                }
+                Truth {
+                    kind: self.kind(),
+                    magnitude: length,
+                    position: Point3::new(c[0], c[1], layers_z(layer, layer)),
+                    layers: (layer, layer),
+                    direction: Some(direction),
+                }
+            }
+            Defect::Bulge {
+                centre: c,
+                radius,
+                height,
+            } => {
+                let printed_top = part.layer_span(top).1;
+                if c[2] - radius > printed_top {
+                    return None;
+                }
+                let lh = part.layer_height;
+                let first = ((c[2] - radius) / lh).floor().max(0.0) as u32;
+                let last = (((c[2] + radius) / lh).ceil() as u32).min(printed) - 1;
+                Truth {
+                    kind: self.kind(),
+                    magnitude: height,
+                    position: Point3::from(c),
+                    layers: (first, last.max(first)),
+                    direction: None,
+                }
+            }
+        };
+        Some(t)
+    }
+}
+
+/// Per-layer effect of all defects after `printed` layers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LayerState {
+    pub z0: f64,
+    pub z1: f64,
+    /// Nominal span, which selects the design outline the printer followed.
+    pub nominal: (f64, f64),
+    /// Outward offset of the outline, per side.
+    pub offset: f64,
+    pub shift: [f64; 2],
+}
+
+pub(crate) fn layer_states(part: &Part, defects: &[Defect], printed: u32) -> Vec<LayerState> {
+    let mut out = Vec::with_capacity(printed as usize);
+    let mut z = 0.0;
+    for j in 0..printed {
+        let nominal = part.layer_span(j);
+        let mut h = nominal.1 - nominal.0;
+        let mut offset = 0.0;
+        let mut shift = [0.0; 2];
+        for d in defects {
+            match *d {
+                Defect::Extrusion { first, last, width } if (first..=last).contains(&j) => {
+                    offset += 0.5 * width;
+                }
+                Defect::HeightDrift { from, per_layer } if j >= from => h += per_layer,
+                Defect::LateralShift { from, offset: o } if j >= from => {
+                    shift[0] += o[0];
+                    shift[1] += o[1];
+                }
+                Defect::Sag { layers, depth } if layers > 0 => {
+                    let i = printed - 1 - j;
+                    if i < layers {
+                        let n = layers as f64;
+                        let loss = depth * 2.0 * (n - i as f64) / (n * (n + 1.0));
+                        h -= loss;
+                        offset += 0.5 * loss;
+                    }
+                }
+                _ => {}
+            }
+        }
+        out.push(LayerState {
+            z0: z,
+            z1: z + h,
+            nominal,
+            offset,
+            shift,
+        });
+        z += h;
+    }
+    out
+}
+
+/// Outward displacement of a bulge at `p`.
+pub(crate) fn bulge_at(defects: &[Defect], p: Point3<f64>) -> f64 {
+    defects
+        .iter()
+        .map(|d| match *d {
+            Defect::Bulge {
+                centre,
+                radius,
+                height,
+            } => {
+                let r = (p - Point3::from(centre)).norm();
+                if r < radius {
+                    height * 0.5 * (1.0 + (std::f64::consts::PI * r / radius).cos())
+                } else {
+                    0.0
+                }
+            }
+            _ => 0.0,
+        })
+        .sum()
+}
+
+/// The gaps of layer `j`: (centre, unit direction, length).
+pub(crate) fn gaps_of(defects: &[Defect], j: u32) -> Vec<([f64; 2], [f64; 2], f64)> {
+    defects
+        .iter()
+        .filter_map(|d| match *d {
+            Defect::MissingSegment {
+                layer,
+                centre,
+                direction,
+                length,
+            } if layer == j => {
+                let v = Vector2::from(direction);
+                let u = v / v.norm().max(f64::MIN_POSITIVE);
+                Some((centre, [u.x, u.y], length))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn height_drift_and_sag_change_the_layer_heights_as_specified() {
+        let p = Part::wall();
+        let s = layer_states(
+            &p,
+            &[Defect::HeightDrift {
+                from: 5,
+                per_layer: 0.001,
+            }],
+            10,
+        );
+        assert!((s[9].z1 - (0.2 + 0.005)).abs() < 1e-12);
+        assert!((s[4].z1 - 0.1).abs() < 1e-12);
+        let s = layer_states(
+            &p,
+            &[Defect::Sag {
+                layers: 3,
+                depth: 0.006,
+            }],
+            10,
+        );
+        assert!((s[9].z1 - (0.2 - 0.006)).abs() < 1e-12);
+        assert!((s[6].z1 - 0.14).abs() < 1e-12);
+        assert!(s[9].offset > s[8].offset && s[8].offset > s[7].offset);
+    }
+
+    #[test]
+    fn a_defect_not_yet_printed_has_no_truth() {
+        let p = Part::wall();
+        let d = Defect::Extrusion {
+            first: 20,
+            last: 25,
+            width: 0.01,
+        };
+        assert!(d.truth(&p, 10).is_none());
+        let t = d.truth(&p, 23).unwrap();
+        assert_eq!(t.layers, (20, 22));
+        assert_eq!(t.kind, "over-extrusion");
+    }
+}

@@ -1,0 +1,462 @@
+//! A terrestrial laser scanner on the robot: a spherical raster of rays (one vertical profile per
+//! azimuth step, as a phase-based scanner turns its head), the nearest as-built surface on each
+//! ray, range noise, incidence dropout and mixed pixels at edges.
+//!
+//! Rays are not cast one by one: each triangle is rasterised into the scanner's angular grid and
+//! every pixel under it gets an exact ray–triangle test, keeping the nearest hit. The raster is
+//! split into column strips that run in parallel, so a station costs tens of milliseconds.
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+
+use asbuilt_protocol::{ScanPoint, ScanPointFlags};
+
+use super::asbuilt::AsBuilt;
+
+/// The scanner's optics and noise. Defaults follow a Z+F IMAGER 5010 at "middle" resolution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScannerModel {
+    /// Angle between neighbouring rays, degrees (10,000 per turn).
+    pub step_deg: f64,
+    /// Lowest and highest elevation the head sees, degrees.
+    pub min_elevation_deg: f64,
+    pub max_elevation_deg: f64,
+    pub min_range: f64,
+    pub max_range: f64,
+    /// Range noise σ = `range_sigma` + `range_sigma_per_m` · range, metres.
+    pub range_sigma: f64,
+    pub range_sigma_per_m: f64,
+    /// Returns thin out from this incidence angle on and vanish at `dropout_end_deg`.
+    pub dropout_start_deg: f64,
+    pub dropout_end_deg: f64,
+    /// Probability that a pixel on an edge (a neighbour ≥ `edge_jump` farther or empty)
+    /// returns a mixed range between the two surfaces.
+    pub mixed_pixel_probability: f64,
+    pub edge_jump: f64,
+}
+
+impl Default for ScannerModel {
+    fn default() -> Self {
+        Self {
+            step_deg: 0.036,
+            min_elevation_deg: -60.0,
+            max_elevation_deg: 90.0,
+            min_range: 0.3,
+            max_range: 187.0,
+            range_sigma: 0.0003,
+            range_sigma_per_m: 0.00002,
+            dropout_start_deg: 70.0,
+            dropout_end_deg: 88.0,
+            mixed_pixel_probability: 0.05,
+            edge_jump: 0.05,
+        }
+    }
+}
+
+/// A scan: points in the scanner frame, in scan-line order (column by column, bottom to top).
+#[derive(Debug, Clone, Default)]
+pub struct Scan {
+    pub points: Vec<ScanPoint>,
+    /// Rays cast (pixels in the part's angular window) and how many returned nothing.
+    pub rays: u64,
+    pub dropped: u64,
+    pub mixed: u64,
+}
+
+const STRIP: usize = 32;
+
+struct Tri {
+    a: Vector3<f64>,
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+    n: Vector3<f64>,
+    cols: (i64, i64),
+    rows: (i64, i64),
+}
+
+/// Scans `part` from `t_design_scanner` (the true pose). `seed` makes noise repeatable.
+pub fn scan(
+    part: &AsBuilt,
+    t_design_scanner: &Isometry3<f64>,
+    model: &ScannerModel,
+    seed: u64,
+) -> Scan {
+    let inv = t_design_scanner.inverse();
+    let v: Vec<Vector3<f64>> = part.vertices.iter().map(|p| (inv * p).coords).collect();
+    if v.is_empty() {
+        return Scan::default();
+    }
+    let step = model.step_deg.to_radians();
+    let centre: Vector3<f64> = v.iter().sum::<Vector3<f64>>() / v.len() as f64;
+    let az0 = centre.y.atan2(centre.x);
+    let wrap = |a: f64| {
+        let mut d = a - az0;
+        while d > std::f64::consts::PI {
+            d -= std::f64::consts::TAU;
+        }
+        while d <= -std::f64::consts::PI {
+            d += std::f64::consts::TAU;
+        }
+        d
+    };
+    let angles = |p: &Vector3<f64>| (wrap(p.y.atan2(p.x)), p.z.atan2(p.xy().norm()));
+    let (el_lo, el_hi) = (
+        model.min_elevation_deg.to_radians(),
+        model.max_elevation_deg.to_radians(),
+    );
+
+    let mut tris: Vec<Tri> = Vec::with_capacity(part.triangles.len());
+    let (mut c_lo, mut c_hi, mut r_lo, mut r_hi) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+    for t in &part.triangles {
+        let [a, b, c] = t.map(|i| v[i as usize]);
+        let (e1, e2) = (b - a, c - a);
+        let n = e1.cross(&e2);
+        // Back faces never give the first return of a closed surface.
+        if n.dot(&a) >= 0.0 {
+            continue;
+        }
+        let (mut az_lo, mut az_hi, mut el_min, mut el_max) =
+            (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        for (p, q) in [(a, b), (b, c), (c, a)] {
+            // Edges are arcs in angle space: sample long ones so the box holds them.
+            let span = (p.normalize() - q.normalize()).norm();
+            let k = (span / 1f64.to_radians()).ceil().max(1.0) as usize;
+            for i in 0..k {
+                let (az, el) = angles(&(p + (q - p) * (i as f64 / k as f64)));
+                az_lo = az_lo.min(az);
+                az_hi = az_hi.max(az);
+                el_min = el_min.min(el);
+                el_max = el_max.max(el);
+            }
+        }
+        if az_hi - az_lo > std::f64::consts::PI || el_max < el_lo || el_min > el_hi {
+            continue;
+        }
+        let cols = (
+            (az_lo / step).floor() as i64 - 1,
+            (az_hi / step).ceil() as i64 + 1,
+        );
+        let rows = (
+            ((el_min.max(el_lo)) / step).floor() as i64 - 1,
+            ((el_max.min(el_hi)) / step).ceil() as i64 + 1,
+        );
+        c_lo = c_lo.min(cols.0);
+        c_hi = c_hi.max(cols.1);
+        r_lo = r_lo.min(rows.0);
+        r_hi = r_hi.max(rows.1);
+        tris.push(Tri {
+            a,
+            e1,
+            e2,
+            n: n.normalize(),
+            cols,
+            rows,
+        });
+    }
+    if tris.is_empty() {
+        return Scan::default();
+    }
+    let ncols = (c_hi - c_lo + 1) as usize;
+    let nrows = (r_hi - r_lo + 1) as usize;
+    let col_dir: Vec<(f64, f64)> = (0..ncols)
+        .map(|c| (az0 + (c_lo + c as i64) as f64 * step).sin_cos())
+        .collect();
+    let row_dir: Vec<(f64, f64)> = (0..nrows)
+        .map(|r| ((r_lo + r as i64) as f64 * step).sin_cos())
+        .collect();
+    let dir = |c: usize, r: usize| {
+        let ((sa, ca), (se, ce)) = (col_dir[c], row_dir[r]);
+        Vector3::new(ce * ca, ce * sa, se)
+    };
+
+    // Column-major depth buffer: range and triangle per pixel.
+    let mut range = vec![f32::INFINITY; ncols * nrows];
+    let mut hit = vec![u32::MAX; ncols * nrows];
+    let nstrips = ncols.div_ceil(STRIP);
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nstrips];
+    for (i, t) in tris.iter().enumerate() {
+        let s0 = ((t.cols.0 - c_lo).max(0) as usize) / STRIP;
+        let s1 = (((t.cols.1 - c_lo) as usize).min(ncols - 1)) / STRIP;
+        for b in &mut bins[s0..=s1] {
+            b.push(i as u32);
+        }
+    }
+    let (min_r, max_r) = (model.min_range, model.max_range);
+    range
+        .par_chunks_mut(STRIP * nrows)
+        .zip(hit.par_chunks_mut(STRIP * nrows))
+        .zip(bins.par_iter())
+        .enumerate()
+        .for_each(|(s, ((rng_buf, hit_buf), bin))| {
+            let first = s * STRIP;
+            let width = rng_buf.len() / nrows;
+            for &ti in bin {
+                let t = &tris[ti as usize];
+                let c0 = ((t.cols.0 - c_lo).max(first as i64) as usize).max(first);
+                let c1 = ((t.cols.1 - c_lo) as usize).min(first + width - 1);
+                let r0 = (t.rows.0 - r_lo).max(0) as usize;
+                let r1 = ((t.rows.1 - r_lo) as usize).min(nrows - 1);
+                for c in c0..=c1 {
+                    let col = (c - first) * nrows;
+                    for r in r0..=r1 {
+                        let d = dir(c, r);
+                        // Möller–Trumbore, origin at the scanner.
+                        let p = d.cross(&t.e2);
+                        let det = t.e1.dot(&p);
+                        if det.abs() < 1e-18 {
+                            continue;
+                        }
+                        let inv_det = 1.0 / det;
+                        let s = -t.a;
+                        let u = s.dot(&p) * inv_det;
+                        if !(0.0..=1.0).contains(&u) {
+                            continue;
+                        }
+                        let q = s.cross(&t.e1);
+                        let w = d.dot(&q) * inv_det;
+                        if w < 0.0 || u + w > 1.0 {
+                            continue;
+                        }
+                        let dist = t.e2.dot(&q) * inv_det;
+                        if dist > min_r && dist < max_r && (dist as f32) < rng_buf[col + r] {
+                            rng_buf[col + r] = dist as f32;
+                            hit_buf[col + r] = ti;
+                        }
+                    }
+                }
+            }
+        });
+
+    // Noise, dropout and mixed pixels, column by column with a generator per column so the
+    // result does not depend on how rayon splits the work.
+    let (dropout_lo, dropout_hi) = (
+        model.dropout_start_deg.to_radians().cos(),
+        model.dropout_end_deg.to_radians().cos(),
+    );
+    let range_at = |c: usize, r: usize| range[c * nrows + r];
+    let columns: Vec<(Vec<ScanPoint>, u64, u64)> = (0..ncols)
+        .into_par_iter()
+        .map(|c| {
+            let mut rng =
+                ChaCha8Rng::seed_from_u64(seed ^ (c as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let mut pts = Vec::new();
+            let (mut dropped, mut mixed) = (0, 0);
+            for r in 0..nrows {
+                let d0 = range_at(c, r);
+                if !d0.is_finite() {
+                    continue;
+                }
+                let t = &tris[hit[c * nrows + r] as usize];
+                let d = dir(c, r);
+                let cos_i = -t.n.dot(&d);
+                if cos_i < dropout_lo {
+                    let p = ((dropout_lo - cos_i) / (dropout_lo - dropout_hi)).clamp(0.0, 1.0);
+                    if rng.random::<f64>() < p {
+                        dropped += 1;
+                        continue;
+                    }
+                }
+                let mut dist = d0 as f64;
+                let mut edge: Option<f64> = None;
+                for (dc, dr) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
+                    let (cc, rr) = (c as i64 + dc, r as i64 + dr);
+                    if cc < 0 || rr < 0 || cc >= ncols as i64 || rr >= nrows as i64 {
+                        continue;
+                    }
+                    let o = range_at(cc as usize, rr as usize) as f64;
+                    if !o.is_finite() {
+                        edge = Some(edge.unwrap_or(dist + 0.5));
+                    } else if o - dist >= model.edge_jump {
+                        edge = Some(edge.map_or(o, |e: f64| e.min(o)));
+                    }
+                }
+                if let Some(far) = edge
+                    && rng.random::<f64>() < model.mixed_pixel_probability
+                {
+                    dist += rng.random::<f64>() * (far - dist);
+                    mixed += 1;
+                }
+                let sigma = model.range_sigma + model.range_sigma_per_m * dist;
+                dist += Normal::new(0.0, sigma)
+                    .map(|n| n.sample(&mut rng))
+                    .unwrap_or(0.0);
+                let p = d * dist;
+                pts.push(ScanPoint {
+                    xyz: [p.x as f32, p.y as f32, p.z as f32],
+                    intensity: (0.6 * cos_i / (1.0 + 0.01 * dist * dist)) as f32,
+                    flags: ScanPointFlags(0),
+                    returns: 0x11,
+                    _reserved: 0,
+                });
+            }
+            (pts, dropped, mixed)
+        })
+        .collect();
+    let mut out = Scan {
+        points: Vec::with_capacity(columns.iter().map(|c| c.0.len()).sum()),
+        rays: (ncols * nrows) as u64,
+        dropped: 0,
+        mixed: 0,
+    };
+    for (pts, dropped, mixed) in columns {
+        out.points.extend(pts);
+        out.dropped += dropped;
+        out.mixed += mixed;
+    }
+    out
+}
+
+/// Where the robot takes the scanner after printing up to `top` (metres): `count` stations on
+/// an ellipse around the part's footprint, `standoff` metres out from it and `lift` above the
+/// top, looking level (the scanner's own frame has z up and azimuth zero along design x).
+pub fn stations_around(
+    lo: Point3<f64>,
+    hi: Point3<f64>,
+    top: f64,
+    count: u32,
+    standoff: f64,
+    lift: f64,
+) -> Vec<Isometry3<f64>> {
+    let c = nalgebra::center(&lo, &hi);
+    let (rx, ry) = (
+        0.5 * (hi.x - lo.x) + standoff,
+        0.5 * (hi.y - lo.y) + standoff,
+    );
+    (0..count)
+        .map(|i| {
+            let a = std::f64::consts::FRAC_PI_4
+                + std::f64::consts::TAU * i as f64 / count.max(1) as f64;
+            Isometry3::from_parts(
+                Translation3::new(c.x + rx * a.cos(), c.y + ry * a.sin(), top + lift),
+                UnitQuaternion::identity(),
+            )
+        })
+        .collect()
+}
+
+/// The pose the scanner really had when the robot reports `nominal`: position noise of σ
+/// metres, and in six-DoF mode an orientation noise of `sigma_rad`.
+pub fn perturb(
+    nominal: &Isometry3<f64>,
+    sigma: f64,
+    sigma_rad: f64,
+    rng: &mut impl Rng,
+) -> Isometry3<f64> {
+    let n = Normal::new(0.0, 1.0).expect("unit normal");
+    let mut g = || n.sample(rng);
+    let dt = Vector3::new(g(), g(), g()) * sigma;
+    let dr = UnitQuaternion::from_scaled_axis(Vector3::new(g(), g(), g()) * sigma_rad);
+    Isometry3::from_parts(
+        Translation3::from(nominal.translation.vector + dt),
+        dr * nominal.rotation,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{Part, as_built};
+
+    fn quiet() -> ScannerModel {
+        ScannerModel {
+            range_sigma: 0.0,
+            range_sigma_per_m: 0.0,
+            mixed_pixel_probability: 0.0,
+            dropout_start_deg: 89.9,
+            dropout_end_deg: 90.0,
+            ..ScannerModel::default()
+        }
+    }
+
+    #[test]
+    fn noise_free_points_lie_on_the_surface_they_hit() {
+        let part = Part::wall();
+        let m = as_built(&part, &[], 10).unwrap();
+        let pose = Isometry3::translation(0.3, -2.0, 0.7);
+        let s = scan(&m, &pose, &quiet(), 1);
+        assert!(s.points.len() > 100_000, "{}", s.points.len());
+        let (hx, hy, top) = (1.0, 0.0867, 0.2);
+        for p in &s.points {
+            let q = pose * Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64);
+            // On the face toward the scanner (y = −hy), the top, or an end: never behind.
+            let on_front = (q.y + hy).abs() < 1e-5;
+            let on_top = (q.z - top).abs() < 1e-5;
+            let on_end = (q.x.abs() - hx).abs() < 1e-5;
+            assert!(on_front || on_top || on_end, "{q:?}");
+            assert!(q.y < hy - 1e-3 || on_top);
+        }
+    }
+
+    #[test]
+    fn the_scan_matches_brute_force_ray_casting() {
+        let part = Part::wall();
+        let m = as_built(&part, &[], 5).unwrap();
+        let pose = Isometry3::translation(-0.5, 1.5, 0.5);
+        let model = ScannerModel {
+            step_deg: 0.5,
+            ..quiet()
+        };
+        let s = scan(&m, &pose, &model, 1);
+        // Every returned ray, cast again against every triangle, hits at the same range.
+        for p in &s.points {
+            let d = Vector3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64);
+            let r = d.norm();
+            let dir = pose.rotation * (d / r);
+            let o = pose.translation.vector;
+            let mut best = f64::INFINITY;
+            for t in &m.triangles {
+                let [a, b, c] = t.map(|i| m.vertices[i as usize].coords - o);
+                let (e1, e2) = (b - a, c - a);
+                let pv = dir.cross(&e2);
+                let det = e1.dot(&pv);
+                if det.abs() < 1e-18 {
+                    continue;
+                }
+                let u = (-a).dot(&pv) / det;
+                let q = (-a).cross(&e1);
+                let w = dir.dot(&q) / det;
+                let tt = e2.dot(&q) / det;
+                if (0.0..=1.0).contains(&u) && w >= 0.0 && u + w <= 1.0 && tt > 0.0 {
+                    best = best.min(tt);
+                }
+            }
+            assert!((best - r).abs() < 1e-5, "{best} vs {r}");
+        }
+        assert!(s.points.len() > 1000);
+    }
+
+    #[test]
+    fn range_noise_has_the_configured_sigma_and_the_seed_repeats() {
+        let part = Part::wall();
+        let m = as_built(&part, &[], 10).unwrap();
+        let pose = Isometry3::translation(0.0, -2.0, 0.15);
+        let model = ScannerModel {
+            range_sigma: 0.001,
+            range_sigma_per_m: 0.0,
+            mixed_pixel_probability: 0.0,
+            ..ScannerModel::default()
+        };
+        let s = scan(&m, &pose, &model, 7);
+        let front: Vec<f64> = s
+            .points
+            .iter()
+            .map(|p| {
+                let q = pose * Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64);
+                q
+            })
+            .filter(|q| q.x.abs() < 0.3 && q.z > 0.05 && q.z < 0.15)
+            .map(|q| q.y + 0.0867)
+            .collect();
+        let n = front.len() as f64;
+        let mean = front.iter().sum::<f64>() / n;
+        let sd = (front.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
+        // Near-normal incidence: the range noise shows almost whole in y.
+        assert!((sd - 0.001).abs() < 0.0001, "σ {sd}");
+        assert!(mean.abs() < 0.0001);
+        let again = scan(&m, &pose, &model, 7);
+        assert_eq!(again.points, s.points);
+    }
+}

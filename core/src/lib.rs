@@ -13,6 +13,7 @@ pub mod c2c;
 pub mod calibration;
 pub mod cloud;
 pub mod coverage;
+pub mod findings;
 pub mod icp;
 pub mod layers;
 pub mod m3c2;

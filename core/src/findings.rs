@@ -1,0 +1,487 @@
+//! What a crew can act on, from design-referenced M3C2 and coverage over one scan layer's
+//! stations: per-layer width, shift and top height, connected areas out of tolerance, and
+//! missing material, each with where it is.
+//!
+//! Everything works on the design samples (memory grows with the design only):
+//! - **Width and shift per layer band**: on the side faces, a layer `w` wider and shifted by `t`
+//!   moves the surface along the outward normal `n` by `d = w/2 + n·t`. A least-squares fit of
+//!   `w/2, tₓ, t_y` to the M3C2 distances of the band (refitted once without outliers, so a
+//!   bulge does not bias it) gives both; one side alone cannot tell them apart and gives none.
+//! - **Top height**: the mean M3C2 distance on the cap at the printed height.
+//! - **Regions**: samples with a significant |distance| above the tolerance, linked when closer
+//!   than a few sample spacings; each region's extent, area and peak.
+//! - **Missing material**: samples classified missing by coverage, linked the same way.
+//!
+//! Samples whose cylinder reaches over a design edge (another sample with a normal more than
+//! 30° off lies within the cylinder's radius) are left out of fits and regions: there the
+//! cylinder averages two faces and shows a deviation that is not in the print.
+
+use nalgebra::{Matrix3, Point3, Vector3};
+use rustc_hash::FxHashMap;
+
+use crate::coverage::{SampleClass, SampleOutcome};
+use crate::m3c2::streaming::CoreResult;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FindingParams {
+    pub tolerance: f64,
+    /// Layer height, metres; without it there are no per-layer rows.
+    pub layer_height: Option<f64>,
+    /// Height printed so far, metres; NaN when unknown (no top row then).
+    pub printed_height: f64,
+    /// Spacing of the design samples, metres.
+    pub spacing: f64,
+    /// M3C2 cylinder radius, metres.
+    pub radius: f64,
+    /// Regions and missing areas with fewer samples are noise.
+    pub min_region_samples: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LayerRow {
+    pub layer: u32,
+    pub z_min: f64,
+    pub z_max: f64,
+    /// Side samples with an M3C2 distance.
+    pub samples: u32,
+    /// Mean M3C2 distance of those samples, metres.
+    pub mean: f64,
+    /// As built minus design, metres; `None` where the sides seen cannot separate width and
+    /// shift.
+    pub width_deviation: Option<f64>,
+    pub shift: Option<[f64; 2]>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TopRow {
+    /// Top of the print minus the printed height it should have, metres.
+    pub height_deviation: f64,
+    pub samples: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RegionKind {
+    /// Material outside the design (d > tolerance).
+    Excess,
+    /// The surface lies inside the design (d < −tolerance).
+    Deficit,
+    /// No material where a station should have seen it.
+    Missing,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Region {
+    pub kind: RegionKind,
+    pub samples: u32,
+    pub area_m2: f64,
+    pub centroid: Point3<f64>,
+    pub min: Point3<f64>,
+    pub max: Point3<f64>,
+    /// Largest |distance| with its sign, metres; NaN for missing material.
+    pub peak: f64,
+    pub peak_at: Point3<f64>,
+    pub mean: f64,
+    /// Layer bands it spans, when the layer height is known.
+    pub layers: Option<(u32, u32)>,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Findings {
+    pub layers: Vec<LayerRow>,
+    pub top: Option<TopRow>,
+    /// Out-of-tolerance areas, largest first.
+    pub regions: Vec<Region>,
+    /// Missing material, largest first.
+    pub missing: Vec<Region>,
+}
+
+impl Findings {
+    /// Layer rows whose width or shift is beyond `tolerance`.
+    pub fn layers_out_of_tolerance(&self, tolerance: f64) -> impl Iterator<Item = &LayerRow> {
+        self.layers.iter().filter(move |r| {
+            r.width_deviation.is_some_and(|w| w.abs() > tolerance)
+                || r.shift.is_some_and(|s| s[0].hypot(s[1]) > tolerance)
+        })
+    }
+}
+
+/// Side faces: the normal within 30° of horizontal.
+const SIDE_MAX_NZ: f64 = 0.5;
+/// The cap: the normal within 25° of up.
+const TOP_MIN_NZ: f64 = 0.9;
+
+pub fn find(
+    m3c2: &[CoreResult],
+    coverage: &[SampleOutcome],
+    area_per_sample: f64,
+    p: &FindingParams,
+) -> Findings {
+    let clean = off_edges(m3c2, p.radius + p.spacing);
+    let band_of = |z: f64| p.layer_height.map(|h| (z / h).floor().max(0.0) as u32);
+    let usable = |i: usize| clean[i] && m3c2[i].distance.is_some();
+
+    let mut out = Findings::default();
+    if let Some(h) = p.layer_height {
+        let mut bands: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
+        for (i, r) in m3c2.iter().enumerate() {
+            if usable(i) && r.normal.z.abs() < SIDE_MAX_NZ {
+                bands
+                    .entry((r.position.z / h).floor().max(0.0) as u32)
+                    .or_default()
+                    .push(i);
+            }
+        }
+        let mut keys: Vec<u32> = bands.keys().copied().collect();
+        keys.sort_unstable();
+        for layer in keys {
+            let idx = &bands[&layer];
+            let d = |i: usize| m3c2[i].distance.unwrap_or(0.0);
+            let mean = idx.iter().map(|&i| d(i)).sum::<f64>() / idx.len() as f64;
+            let fit = fit_width(m3c2, idx);
+            out.layers.push(LayerRow {
+                layer,
+                z_min: layer as f64 * h,
+                z_max: (layer + 1) as f64 * h,
+                samples: idx.len() as u32,
+                mean,
+                width_deviation: fit.map(|f| 2.0 * f.0),
+                shift: fit.map(|f| [f.1, f.2]),
+            });
+        }
+    }
+    if p.printed_height.is_finite() {
+        let band = p.layer_height.unwrap_or(p.spacing).max(p.spacing);
+        let top: Vec<f64> = (0..m3c2.len())
+            .filter(|&i| {
+                usable(i)
+                    && m3c2[i].normal.z > TOP_MIN_NZ
+                    && (m3c2[i].position.z - p.printed_height).abs() < 0.5 * band
+            })
+            .filter_map(|i| m3c2[i].distance)
+            .collect();
+        if !top.is_empty() {
+            out.top = Some(TopRow {
+                height_deviation: top.iter().sum::<f64>() / top.len() as f64,
+                samples: top.len() as u32,
+            });
+        }
+    }
+
+    let link = 2.5 * p.spacing;
+    for (kind, sign) in [(RegionKind::Excess, 1.0), (RegionKind::Deficit, -1.0)] {
+        let members: Vec<usize> = (0..m3c2.len())
+            .filter(|&i| {
+                usable(i)
+                    && m3c2[i].significant
+                    && sign * m3c2[i].distance.unwrap_or(0.0) > p.tolerance
+            })
+            .collect();
+        let pos: Vec<Point3<f64>> = members.iter().map(|&i| m3c2[i].position).collect();
+        for group in components(&pos, link) {
+            if group.len() < p.min_region_samples {
+                continue;
+            }
+            let ids: Vec<usize> = group.iter().map(|&g| members[g]).collect();
+            let d: Vec<f64> = ids
+                .iter()
+                .map(|&i| m3c2[i].distance.unwrap_or(0.0))
+                .collect();
+            let peak_k = (0..d.len())
+                .max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs()))
+                .unwrap_or(0);
+            let pts: Vec<Point3<f64>> = ids.iter().map(|&i| m3c2[i].position).collect();
+            let mut r = region(kind, &pts, area_per_sample, &band_of);
+            r.peak = d[peak_k];
+            r.peak_at = pts[peak_k];
+            r.mean = d.iter().sum::<f64>() / d.len() as f64;
+            out.regions.push(r);
+        }
+    }
+    let missing: Vec<Point3<f64>> = coverage
+        .iter()
+        .filter(|o| o.class == SampleClass::Missing)
+        .map(|o| o.position)
+        .collect();
+    for group in components(&missing, link) {
+        if group.len() >= p.min_region_samples {
+            let pts: Vec<Point3<f64>> = group.iter().map(|&g| missing[g]).collect();
+            out.missing
+                .push(region(RegionKind::Missing, &pts, area_per_sample, &band_of));
+        }
+    }
+    out.regions.sort_by(|a, b| b.samples.cmp(&a.samples));
+    out.missing.sort_by(|a, b| b.samples.cmp(&a.samples));
+    out
+}
+
+fn region(
+    kind: RegionKind,
+    pts: &[Point3<f64>],
+    area_per_sample: f64,
+    band_of: &dyn Fn(f64) -> Option<u32>,
+) -> Region {
+    let mut min = pts[0];
+    let mut max = pts[0];
+    let mut sum = Vector3::zeros();
+    for p in pts {
+        min = min.inf(p);
+        max = max.sup(p);
+        sum += p.coords;
+    }
+    Region {
+        kind,
+        samples: pts.len() as u32,
+        area_m2: pts.len() as f64 * area_per_sample,
+        centroid: Point3::from(sum / pts.len() as f64),
+        min,
+        max,
+        peak: f64::NAN,
+        peak_at: Point3::from(sum / pts.len() as f64),
+        mean: f64::NAN,
+        layers: band_of(min.z).zip(band_of(max.z)),
+    }
+}
+
+/// `w/2, tₓ, t_y` by least squares, refitted once without residuals beyond 3 robust σ.
+fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<(f64, f64, f64)> {
+    let solve = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64, f64)> {
+        let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
+        let mut n = 0usize;
+        for &i in idx.iter().filter(|&&i| keep(i)) {
+            let h = m3c2[i].normal.xy();
+            let h = h / h.norm().max(f64::MIN_POSITIVE);
+            let x = Vector3::new(1.0, h.x, h.y);
+            a += x * x.transpose();
+            b += x * m3c2[i].distance.unwrap_or(0.0);
+            n += 1;
+        }
+        if n < 6 {
+            return None;
+        }
+        // A shift along a direction no side faces (along a straight wall) cannot be seen: a
+        // small ridge on the shift keeps it at zero. The width is known only when the faces
+        // seen separate it from the shift: its Schur complement stays well off zero when the
+        // normals point in opposite directions.
+        let ridge = 1e-6 * n as f64;
+        a[(1, 1)] += ridge;
+        a[(2, 2)] += ridge;
+        let att = a.fixed_view::<2, 2>(1, 1).into_owned();
+        let atw = a.fixed_view::<2, 1>(1, 0).into_owned();
+        let schur = a[(0, 0)] - (atw.transpose() * att.try_inverse()? * atw)[(0, 0)];
+        if schur / n as f64 > 0.05 {
+            a.lu().solve(&b).map(|s| (s.x, s.y, s.z))
+        } else {
+            None
+        }
+    };
+    let first = solve(&|_| true)?;
+    let res = |i: usize| {
+        let h = m3c2[i].normal.xy();
+        let h = h / h.norm().max(f64::MIN_POSITIVE);
+        m3c2[i].distance.unwrap_or(0.0) - (first.0 + h.x * first.1 + h.y * first.2)
+    };
+    let mut abs: Vec<f64> = idx.iter().map(|&i| res(i).abs()).collect();
+    abs.sort_by(f64::total_cmp);
+    let sigma = 1.4826 * abs[abs.len() / 2];
+    let cut = (3.0 * sigma).max(1e-4);
+    solve(&|i| res(i).abs() <= cut).or(Some(first))
+}
+
+/// Samples whose cylinder sees only their own face: no sample of another face within `radius`
+/// (the cylinder's radius plus a sample spacing, since samples are that sparse).
+fn off_edges(m3c2: &[CoreResult], radius: f64) -> Vec<bool> {
+    let pos: Vec<Point3<f64>> = m3c2.iter().map(|r| r.position).collect();
+    let grid = Grid::new(&pos, radius);
+    let cos_max = 30f64.to_radians().cos();
+    (0..m3c2.len())
+        .map(|i| {
+            let mut ok = true;
+            grid.near(&pos, i, radius, |j| {
+                if m3c2[i].normal.dot(&m3c2[j].normal) < cos_max {
+                    ok = false;
+                }
+            });
+            ok
+        })
+        .collect()
+}
+
+/// Connected groups of points closer than `link`, as indices into `pts`.
+fn components(pts: &[Point3<f64>], link: f64) -> Vec<Vec<usize>> {
+    let grid = Grid::new(pts, link);
+    let mut parent: Vec<usize> = (0..pts.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for i in 0..pts.len() {
+        let mut near = Vec::new();
+        grid.near(pts, i, link, |j| near.push(j));
+        for j in near {
+            let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+            if a != b {
+                parent[a.max(b)] = a.min(b);
+            }
+        }
+    }
+    let mut groups: FxHashMap<usize, Vec<usize>> = FxHashMap::default();
+    for i in 0..pts.len() {
+        let r = root(&mut parent, i);
+        groups.entry(r).or_default().push(i);
+    }
+    let mut out: Vec<Vec<usize>> = groups.into_values().collect();
+    out.sort_by_key(|g| g[0]);
+    out
+}
+
+/// A hash grid of cell `cell` for radius queries over a fixed point set.
+struct Grid {
+    cell: f64,
+    cells: FxHashMap<[i64; 3], Vec<usize>>,
+}
+
+impl Grid {
+    fn new(pts: &[Point3<f64>], cell: f64) -> Self {
+        let mut cells: FxHashMap<[i64; 3], Vec<usize>> = FxHashMap::default();
+        for (i, p) in pts.iter().enumerate() {
+            cells.entry(Self::key(p, cell)).or_default().push(i);
+        }
+        Self { cell, cells }
+    }
+
+    fn key(p: &Point3<f64>, cell: f64) -> [i64; 3] {
+        [p.x, p.y, p.z].map(|v| (v / cell).floor() as i64)
+    }
+
+    /// Calls `f` for every other point within `r` (≤ the cell size) of point `i`.
+    fn near(&self, pts: &[Point3<f64>], i: usize, r: f64, mut f: impl FnMut(usize)) {
+        let k = Self::key(&pts[i], self.cell);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(v) = self.cells.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
+                        for &j in v {
+                            if j != i && (pts[j] - pts[i]).norm_squared() <= r * r {
+                                f(j);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Core results on the two long faces of a wall (normals ±y), with distances from a model.
+    fn wall_results(d: impl Fn(&Point3<f64>, &Vector3<f64>) -> f64) -> Vec<CoreResult> {
+        let mut out = Vec::new();
+        for side in [-1.0, 1.0] {
+            for i in 0..200 {
+                for k in 0..20 {
+                    let p = Point3::new(-1.0 + i as f64 * 0.01, side * 0.0867, k as f64 * 0.01);
+                    let n = Vector3::new(0.0, side, 0.0);
+                    out.push(CoreResult {
+                        position: p,
+                        normal: n,
+                        distance: Some(d(&p, &n)),
+                        spread: Some(0.0005),
+                        count: 50,
+                        lod95: Some(0.002),
+                        significant: d(&p, &n).abs() > 0.002,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    fn params() -> FindingParams {
+        FindingParams {
+            tolerance: 0.005,
+            layer_height: Some(0.02),
+            printed_height: f64::NAN,
+            spacing: 0.01,
+            radius: 0.005,
+            min_region_samples: 3,
+        }
+    }
+
+    #[test]
+    fn width_and_shift_are_separated_per_layer() {
+        // Layer 0: 8 mm wider; layer 1 (z 0.1..0.2 → bands 5..9): shifted 6 mm toward +y.
+        let r = wall_results(|p, n| if p.z < 0.1 { 0.004 } else { 0.006 * n.y });
+        let f = find(&r, &[], 1e-4, &params());
+        let row = |l: u32| f.layers.iter().find(|r| r.layer == l).unwrap();
+        assert!((row(2).width_deviation.unwrap() - 0.008).abs() < 1e-9);
+        assert!(row(2).shift.unwrap()[1].abs() < 1e-9);
+        assert!(row(7).width_deviation.unwrap().abs() < 1e-9);
+        assert!((row(7).shift.unwrap()[1] - 0.006).abs() < 1e-6);
+    }
+
+    #[test]
+    fn one_side_alone_gives_no_width() {
+        let r: Vec<CoreResult> = wall_results(|_, _| 0.003)
+            .into_iter()
+            .filter(|c| c.normal.y > 0.0)
+            .collect();
+        let f = find(&r, &[], 1e-4, &params());
+        assert!(f.layers.iter().all(|l| l.width_deviation.is_none()));
+    }
+
+    #[test]
+    fn a_bump_is_one_region_with_its_peak_and_extent() {
+        let c = Point3::new(0.3, 0.0867, 0.1);
+        let r = wall_results(|p, n| {
+            let d = (p - c).norm();
+            if n.y > 0.0 && d < 0.05 {
+                0.012 * (1.0 - d / 0.05)
+            } else {
+                0.0
+            }
+        });
+        let f = find(&r, &[], 1e-4, &params());
+        assert_eq!(f.regions.len(), 1, "{:?}", f.regions);
+        let g = &f.regions[0];
+        assert_eq!(g.kind, RegionKind::Excess);
+        assert!((g.peak - 0.012).abs() < 1e-9 && (g.peak_at - c).norm() < 1e-9);
+        // |d| > 5 mm within 0.05 · (1 − 5/12) of the centre.
+        let reach = 0.05 * (1.0 - 5.0 / 12.0);
+        let extent = g.max.x - g.min.x;
+        assert!(
+            extent <= 2.0 * reach && extent > 2.0 * reach - 0.02,
+            "{g:?}"
+        );
+        // The fit of that band ignores the bump.
+        let row = f.layers.iter().find(|r| r.layer == 5).unwrap();
+        assert!(row.width_deviation.unwrap().abs() < 1e-9, "{row:?}");
+    }
+
+    #[test]
+    fn samples_next_to_an_edge_are_left_out() {
+        let mut r = wall_results(|_, _| -0.02);
+        // An end face at x = 1 with normal +x, touching the last column of samples.
+        for (j, k) in (0..17).flat_map(|j| (0..20).map(move |k| (j, k))) {
+            r.push(CoreResult {
+                position: Point3::new(1.0, -0.08 + j as f64 * 0.01, k as f64 * 0.01),
+                normal: Vector3::x(),
+                distance: Some(-0.02),
+                spread: None,
+                count: 50,
+                lod95: None,
+                significant: true,
+            });
+        }
+        let f = find(&r, &[], 1e-4, &params());
+        let total: u32 = f.regions.iter().map(|g| g.samples).sum();
+        // Within 15 mm of the edge: the last column of each long face (x = 0.99) and the
+        // outermost rows of the end face (y = ±0.08), 20 samples high each.
+        assert_eq!(total, 2 * 200 * 20 - 2 * 20 + 17 * 20 - 2 * 20);
+    }
+}

@@ -26,8 +26,69 @@ pub struct AgentConfig {
     pub status: StatusConfig,
     pub recorder: RecorderConfig,
     pub viewer: ViewerConfig,
+    pub findings: FindingsConfig,
     /// The file as written, for the recording's metadata.
     pub text: String,
+}
+
+/// `[findings]`: M3C2 against the design and coverage over each scan layer's stations, turned
+/// into findings (per-layer width, shift and top height, regions out of tolerance, missing
+/// material) after every station. Off unless `enabled`; the state is per design sample, so
+/// memory grows with the design and the spacing, never with the scan.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FindingsConfig {
+    pub enabled: bool,
+    /// Spacing of the design samples (the M3C2 core points), metres.
+    pub spacing: f64,
+    /// M3C2 cylinder diameter, metres. Default: twice the spacing, at most half a layer height
+    /// (so the cylinders of a layer do not reach into the next).
+    pub projection_diameter: Option<f64>,
+    /// M3C2 cylinder half-length, metres: the largest deviation it can measure. Default: the
+    /// inspection's max distance.
+    pub max_depth: Option<f64>,
+    /// Nominal layer height, metres, for the per-layer rows. None: no per-layer rows.
+    pub layer_height: Option<f64>,
+    /// A design sample with a scan point this close is observed, metres. Default
+    /// max(3 mm, tolerance / 2).
+    pub coverage_threshold: Option<f64>,
+    /// Steeper views than this do not call a surface missing, degrees.
+    pub max_incidence_deg: f64,
+    /// Regions and missing areas of fewer samples are not reported.
+    pub min_region_samples: usize,
+    /// Missing areas smaller than this are not reported, m² (a ledge that sticks out shadows a
+    /// strip below it).
+    pub min_missing_area_m2: f64,
+}
+
+impl Default for FindingsConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            spacing: 0.01,
+            projection_diameter: None,
+            max_depth: None,
+            layer_height: None,
+            coverage_threshold: None,
+            max_incidence_deg: 65.0,
+            min_region_samples: 5,
+            min_missing_area_m2: 0.001,
+        }
+    }
+}
+
+impl FindingsConfig {
+    pub fn projection_diameter(&self) -> f64 {
+        self.projection_diameter.unwrap_or_else(|| {
+            let d = 2.0 * self.spacing;
+            self.layer_height.map_or(d, |h| d.min(0.5 * h))
+        })
+    }
+
+    pub fn coverage_threshold(&self, tolerance: f64) -> f64 {
+        self.coverage_threshold
+            .unwrap_or_else(|| (0.5 * tolerance).max(0.003))
+    }
 }
 
 /// `[viewer]`: the rerun view. Off unless `rrd` or `url` is given.
@@ -237,6 +298,7 @@ const SECTIONS: &[&str] = &[
     "status",
     "recorder",
     "viewer",
+    "findings",
 ];
 
 impl AgentConfig {
@@ -280,6 +342,9 @@ impl AgentConfig {
             section(&table, "recorder", &mut problems, true).unwrap_or_default();
         let mut viewer: ViewerConfig =
             section(&table, "viewer", &mut problems, true).unwrap_or_default();
+        let findings: FindingsConfig =
+            section(&table, "findings", &mut problems, true).unwrap_or_default();
+        check_findings(&findings, &mut problems);
         if let Some(d) = &mut viewer.rrd
             && d.is_relative()
         {
@@ -344,6 +409,7 @@ impl AgentConfig {
                 status,
                 recorder,
                 viewer,
+                findings,
                 text: text.to_string(),
             }),
             _ => Err(ConfigError {
@@ -423,6 +489,30 @@ fn frames(c: &CalibrationSection, problems: &mut Vec<String>) -> FrameChain {
         }
     }
     chain
+}
+
+fn check_findings(f: &FindingsConfig, problems: &mut Vec<String>) {
+    for (key, v) in [
+        ("spacing", Some(f.spacing)),
+        ("projection_diameter", f.projection_diameter),
+        ("max_depth", f.max_depth),
+        ("layer_height", f.layer_height),
+        ("coverage_threshold", f.coverage_threshold),
+    ] {
+        if let Some(v) = v
+            && !positive(v)
+        {
+            problems.push(format!(
+                "findings.{key}: give a positive number of metres, got {v}"
+            ));
+        }
+    }
+    if !(0.0..=89.0).contains(&f.max_incidence_deg) {
+        problems.push(format!(
+            "findings.max_incidence_deg: {} is not an angle in [0, 89] degrees",
+            f.max_incidence_deg
+        ));
+    }
 }
 
 fn positive(v: f64) -> bool {

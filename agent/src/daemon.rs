@@ -4,17 +4,20 @@
 
 use std::time::{Duration, Instant};
 
+use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectConfig;
-use asbuilt_core::{C2mIndex, C2mParams, Design};
+use asbuilt_core::{C2mParams, Design};
 use asbuilt_protocol::{
     AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
-    PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationReport, unix_time_ns,
+    PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
+    unix_time_ns,
 };
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 use iceoryx2_bb_posix::signal::SignalHandler;
 
 use crate::config::AgentConfig;
+use crate::findings::FindingsStage;
 use crate::ipc::{AgentPorts, ChunkSample, Ipc, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
 use crate::recorder::Recorder;
@@ -96,6 +99,38 @@ impl IpcOutputs<'_> {
 }
 
 impl Outputs for IpcOutputs<'_> {
+    fn findings(&mut self, f: &StationFindings) {
+        if let Some(r) = &self.recorder {
+            r.findings(f);
+        }
+        if let Some(v) = &self.viewer {
+            v.show(View::Findings {
+                index: f.station,
+                findings: Box::new(f.clone()),
+            });
+        }
+        let bytes = asbuilt_protocol::codec::encode(f);
+        match self.ports.findings.loan_slice_uninit(bytes.len()) {
+            Ok(mut sample) => {
+                let header = sample.user_header_mut();
+                header.job = f.job;
+                header.station = f.station;
+                header.layer = f.layer;
+                header.bytes = bytes.len() as u32;
+                let sample = sample.write_from_slice(&bytes);
+                if let Err(e) = sample.send() {
+                    warn!("findings of station {} not published: {e:?}", f.station);
+                }
+                self.notify();
+            }
+            Err(e) => warn!(
+                "findings of station {} ({} bytes) not published: {e:?}",
+                f.station,
+                bytes.len()
+            ),
+        }
+    }
+
     fn deviations(
         &mut self,
         n: usize,
@@ -161,15 +196,18 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     for w in design.report.warnings() {
         warn!("design: {w}");
     }
-    let index = C2mIndex::build(
-        &design,
+    // The view needs the mesh once; the index has everything else.
+    let design_view = (config.viewer.rrd.is_some() || config.viewer.url.is_some())
+        .then(|| (design.vertices.clone(), design.triangles.clone()));
+    let designs = PrintedDesigns::new(
+        design,
         C2mParams {
             max_distance: config.inspect.max_distance(),
             cell_size: config.inspect.cell_size,
         },
     )
     .map_err(|e| AgentError::Design(e.to_string()))?;
-    let ix = index.stats();
+    let ix = designs.full().index.stats();
     info!(
         "design {} ({}): {} triangles, index {} cells of {:.2} mm, {:.0} MB, ready in {:.1} s",
         config.design.path.display(),
@@ -180,10 +218,6 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         ix.bytes as f64 / 1e6,
         started.elapsed().as_secs_f64()
     );
-    // The view needs the mesh once; the index has everything else.
-    let design_view = (config.viewer.rrd.is_some() || config.viewer.url.is_some())
-        .then(|| (design.vertices.clone(), design.triangles.clone()));
-    drop(design);
 
     let node = NodeBuilder::new()
         .name(&"asbuilt-agent".try_into().expect("valid node name"))
@@ -208,8 +242,8 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
 
     let mut inspect = InspectConfig::with_tolerance(config.inspect.tolerance);
     inspect.max_range = config.inspect.max_range;
-    let mut lifecycle: Lifecycle<'_, ChunkSample> = Lifecycle::new(
-        &index,
+    let mut lifecycle: Lifecycle<ChunkSample> = Lifecycle::new(
+        designs,
         config.frames.clone(),
         inspect,
         LifecycleLimits {
@@ -219,6 +253,24 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             station_timeout: limits.station_timeout(),
         },
     );
+    if config.findings.enabled {
+        let f = &config.findings;
+        info!(
+            "findings: on, design samples every {:.1} mm, M3C2 cylinders {:.1} mm wide, {}",
+            f.spacing * 1e3,
+            f.projection_diameter() * 1e3,
+            f.layer_height
+                .map_or("no layer height (no per-layer rows)".to_string(), |h| {
+                    format!("layers of {:.1} mm", h * 1e3)
+                })
+        );
+        lifecycle = lifecycle.with_findings(FindingsStage::new(
+            f.clone(),
+            config.inspect.tolerance,
+            config.inspect.max_distance(),
+            limits.max_points_per_chunk,
+        ));
+    }
     let recorder = match &config.recorder.dir {
         Some(dir) => {
             let r = Recorder::start(&config.recorder, job_metadata(config), &config.design.path)
@@ -384,7 +436,7 @@ struct HeldControl {
 /// before its chunks but on other services. Returns true when a stop was requested.
 fn drain(
     ports: &AgentPorts,
-    lifecycle: &mut Lifecycle<'_, ChunkSample>,
+    lifecycle: &mut Lifecycle<ChunkSample>,
     out: &mut IpcOutputs<'_>,
     held: &mut HeldControl,
 ) -> bool {
@@ -421,7 +473,7 @@ fn drain(
 
 fn drain_control(
     ports: &AgentPorts,
-    lifecycle: &mut Lifecycle<'_, ChunkSample>,
+    lifecycle: &mut Lifecycle<ChunkSample>,
     out: &mut IpcOutputs<'_>,
     held: &mut HeldControl,
 ) -> bool {
@@ -512,7 +564,7 @@ impl StatusReporter {
     fn publish(
         &mut self,
         ports: &AgentPorts,
-        lifecycle: &Lifecycle<'_, ChunkSample>,
+        lifecycle: &Lifecycle<ChunkSample>,
         out: &IpcOutputs<'_>,
         state: AgentState,
     ) {

@@ -31,8 +31,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use asbuilt_protocol::{
-    AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
-    StationEvent, StationReport,
+    AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, MAX_FINDINGS_BYTES, PointDeviation,
+    PoseSnapshot, ScanPoint, StationEvent, StationReport,
 };
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -64,6 +64,7 @@ pub struct ServiceNames {
     pub inbox: String,
     pub deviations: String,
     pub reports: String,
+    pub findings: String,
     pub status: String,
     pub outbox: String,
 }
@@ -79,6 +80,7 @@ impl ServiceNames {
             inbox: n("agent/inbox"),
             deviations: n("agent/deviations"),
             reports: n("agent/reports"),
+            findings: n("agent/findings"),
             status: n("agent/status"),
             outbox: n("agent/outbox"),
         }
@@ -138,6 +140,8 @@ pub struct AgentPorts {
     pub inbox: Listener<Ipc>,
     pub deviations: Publisher<Ipc, [PointDeviation], DeviationHeader>,
     pub reports: Publisher<Ipc, StationReport, ()>,
+    /// Encoded [`asbuilt_protocol::StationFindings`] behind their header.
+    pub findings: Publisher<Ipc, [u8], FindingsHeader>,
     pub status: Publisher<Ipc, AgentStatus, ()>,
     pub outbox: Notifier<Ipc>,
     /// Deviation chunks and reports a full subscriber queue did not take.
@@ -252,6 +256,25 @@ impl AgentPorts {
             .set_backpressure_handler(counting_handler(report_drops.clone()))
             .create()
             .map_err(|e| err("cannot publish reports", e))?;
+        let findings = node
+            .service_builder(&service_name(&names.findings)?)
+            .publish_subscribe::<[u8]>()
+            .user_header::<FindingsHeader>()
+            .max_publishers(1)
+            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .history_size(REPORT_HISTORY)
+            .subscriber_max_buffer_size(REPORT_QUEUE)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.findings, &e))?
+            .publisher_builder()
+            .initial_max_slice_len(MAX_FINDINGS_BYTES)
+            .allocation_strategy(AllocationStrategy::Static)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .set_backpressure_handler(counting_handler(report_drops.clone()))
+            .create()
+            .map_err(|e| err("cannot publish findings", e))?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -270,6 +293,7 @@ impl AgentPorts {
             inbox,
             deviations,
             reports,
+            findings,
             status,
             outbox,
             deviation_drops,
@@ -287,6 +311,7 @@ pub struct CellPorts {
     pub inbox: Notifier<Ipc>,
     pub deviations: Subscriber<Ipc, [PointDeviation], DeviationHeader>,
     pub reports: Subscriber<Ipc, StationReport, ()>,
+    pub findings: Subscriber<Ipc, [u8], FindingsHeader>,
     pub status: Subscriber<Ipc, AgentStatus, ()>,
     pub outbox: Listener<Ipc>,
     chunk_service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
@@ -412,6 +437,15 @@ impl CellPorts {
             .subscriber_builder()
             .create()
             .map_err(|e| err("cannot subscribe to reports", e))?;
+        let findings = node
+            .service_builder(&service_name(&names.findings)?)
+            .publish_subscribe::<[u8]>()
+            .user_header::<FindingsHeader>()
+            .open()
+            .map_err(|e| err(&names.findings, e))?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("cannot subscribe to findings", e))?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -427,6 +461,7 @@ impl CellPorts {
             inbox,
             deviations,
             reports,
+            findings,
             status,
             outbox,
             chunk_service,

@@ -3,11 +3,13 @@
 //!
 //! Layers, from the outside in: [`daemon`] runs the event loop over [`ipc`] ports; [`lifecycle`]
 //! decides what each message means for its station, with [`sequence`] doing the chunk
-//! bookkeeping; [`recorder`] writes everything to MCAP on a thread of its own; the geometry is
+//! bookkeeping, and [`findings`] turning each scan layer's stations into findings a crew can act
+//! on; [`recorder`] writes everything to MCAP on a thread of its own; the geometry is
 //! `asbuilt-core`'s.
 
 pub mod config;
 pub mod daemon;
+pub mod findings;
 pub mod ipc;
 pub mod lifecycle;
 pub mod log;

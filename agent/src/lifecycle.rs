@@ -9,13 +9,18 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use asbuilt_core::C2mIndex;
+use std::sync::Arc;
+
 use asbuilt_core::frames::FrameChain;
+use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
 use asbuilt_core::station::{InspectConfig, StationInspector};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, InputRejects, Message, PointDeviation, PoseSnapshot,
-    RejectCounts, ScanPoint, StationEvent, StationEventKind, StationReport, StationStatus,
+    RejectCounts, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
+    StationStatus,
 };
+
+use crate::findings::FindingsStage;
 
 use crate::sequence::{ChunkVerdict, SequenceTracker};
 use crate::{info, warn};
@@ -36,6 +41,8 @@ pub trait Outputs {
         fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
     );
     fn report(&mut self, report: &StationReport);
+    /// Findings of a station's scan layer, after its report (when `[findings]` is on).
+    fn findings(&mut self, _findings: &StationFindings) {}
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -51,21 +58,25 @@ const CLOSED_MEMORY: usize = 64;
 
 type StationKey = (u64, u32);
 
-struct OpenStation<'a> {
+struct OpenStation {
     key: StationKey,
     begin: Option<StationEvent>,
     end: Option<StationEvent>,
     pose: Option<PoseSnapshot>,
     /// Sequence of a chunk flagged `last`.
     last_sequence: Option<u64>,
-    inspector: StationInspector<'a>,
+    inspector: StationInspector,
+    /// The design as printed when this station scanned (the whole design until told).
+    design: Arc<PrintedDesign>,
+    /// Whether the findings stage took this station (decided at its first chunk).
+    findings: Option<bool>,
     tracker: SequenceTracker,
     empty: u64,
     oversized: u64,
     last_activity: Instant,
 }
 
-impl OpenStation<'_> {
+impl OpenStation {
     fn expected_chunks(&self) -> u64 {
         let announced = self
             .end
@@ -118,26 +129,28 @@ pub struct Counters {
     pub input: InputRejects,
 }
 
-pub struct Lifecycle<'a, C> {
-    index: &'a C2mIndex,
+pub struct Lifecycle<C> {
+    designs: PrintedDesigns,
+    findings: Option<FindingsStage>,
     frames: FrameChain,
     config: InspectConfig,
     limits: LifecycleLimits,
-    open: Vec<OpenStation<'a>>,
+    open: Vec<OpenStation>,
     pending: VecDeque<Pending<C>>,
     closed: VecDeque<StationKey>,
     pub counters: Counters,
 }
 
-impl<'a, C: ChunkSource> Lifecycle<'a, C> {
+impl<C: ChunkSource> Lifecycle<C> {
     pub fn new(
-        index: &'a C2mIndex,
+        designs: PrintedDesigns,
         frames: FrameChain,
         config: InspectConfig,
         limits: LifecycleLimits,
     ) -> Self {
         Self {
-            index,
+            designs,
+            findings: None,
             frames,
             config,
             limits,
@@ -146,6 +159,12 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             closed: VecDeque::with_capacity(CLOSED_MEMORY),
             counters: Counters::default(),
         }
+    }
+
+    /// Turns on findings over each scan layer's stations.
+    pub fn with_findings(mut self, stage: FindingsStage) -> Self {
+        self.findings = Some(stage);
+        self
     }
 
     pub fn stations_open(&self) -> usize {
@@ -206,6 +225,7 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         match ev.kind() {
             Some(StationEventKind::Begin) => {
                 let i = self.open_slot(key, now, out);
+                self.print_height(i, ev.printed_height);
                 let s = &mut self.open[i];
                 if s.begin.is_some() {
                     warn!("job {} station {}: Begin repeated", key.0, key.1);
@@ -362,6 +382,27 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         }
     }
 
+    /// Compares station `i` with the design cut at the printed height, if the station has not
+    /// compared any point yet.
+    fn print_height(&mut self, i: usize, height: f64) {
+        let key = self.open[i].key;
+        if !height.is_finite() || self.open[i].inspector.tally().points_received > 0 {
+            return;
+        }
+        match self.designs.at(height) {
+            Ok(d) => {
+                let s = &mut self.open[i];
+                s.inspector.set_index(d.index.clone());
+                s.design = d;
+            }
+            Err(e) => warn!(
+                "job {} station {}: printed height {height} m: {e}; comparing with the whole \
+                 design",
+                key.0, key.1
+            ),
+        }
+    }
+
     fn find(&self, key: &StationKey) -> Option<usize> {
         self.open.iter().position(|s| &s.key == key)
     }
@@ -388,10 +429,12 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             pose: None,
             last_sequence: None,
             inspector: StationInspector::new(
-                self.index,
+                self.designs.full().index.clone(),
                 nalgebra::Isometry3::identity(),
                 self.config,
             ),
+            design: self.designs.full().clone(),
+            findings: None,
             tracker: SequenceTracker::new(),
             empty: 0,
             oversized: 0,
@@ -539,9 +582,18 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
             );
             return;
         }
+        let stage = &mut self.findings;
+        let in_findings = match (s.findings, stage.as_mut()) {
+            (Some(taken), _) => taken,
+            (None, Some(st)) => *s.findings.insert(st.begin(s.key, &s.design)),
+            (None, None) => false,
+        };
         let inspector = &mut s.inspector;
         out.deviations(n, &mut |buf| {
             let outcome = inspector.process(points, buf);
+            if in_findings && let Some(st) = stage.as_mut() {
+                st.ingest((h.job, h.station), buf);
+            }
             let mut d = DeviationHeader::new(h.job, h.station, h.sequence);
             d.timestamp_ns = h.timestamp_ns;
             d.point_count = n as u32;
@@ -591,6 +643,29 @@ impl<'a, C: ChunkSource> Lifecycle<'a, C> {
         });
         report.status = status as u8;
         out.report(&report);
+        if s.findings == Some(true)
+            && let Some(stage) = self.findings.as_mut()
+        {
+            let origin = s
+                .pose
+                .and_then(|p| self.frames.t_design_scanner(&p).ok())
+                .map(|t| nalgebra::Point3::from(t.translation.vector));
+            if let Some(f) = stage.end(key, origin, &report) {
+                info!(
+                    "job {} station {}: findings over {} station(s) of layer {}: top {:+.1} mm, \
+                     {} layer(s) out of tolerance, {} region(s), {} missing area(s)",
+                    key.0,
+                    key.1,
+                    f.stations,
+                    f.layer,
+                    f.top_height_deviation * 1e3,
+                    f.layers_out_of_tolerance().count(),
+                    f.regions.len(),
+                    f.missing.len()
+                );
+                out.findings(&f);
+            }
+        }
         self.counters.stations_reported += 1;
         self.counters.rejected_points += report.rejected;
         if self.closed.len() == CLOSED_MEMORY {
@@ -656,13 +731,13 @@ mod tests {
     }
 
     /// A 1 m cube centred at the origin; points on its top face, 2 mm above it.
-    fn cube() -> C2mIndex {
+    fn cube() -> PrintedDesigns {
         let d = shapes::cuboid(
             nalgebra::Point3::new(-0.5, -0.5, -0.5),
             nalgebra::Point3::new(0.5, 0.5, 0.5),
         );
-        C2mIndex::build(
-            &d,
+        PrintedDesigns::new(
+            d,
             C2mParams {
                 max_distance: 0.05,
                 cell_size: None,
@@ -700,7 +775,7 @@ mod tests {
     #[test]
     fn a_clean_station_reports_complete_when_its_last_chunk_is_in() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         lc.on_event(&event(StationEventKind::Begin, 7, 0), t, &mut out);
         lc.on_pose(&pose(7), t, &mut out);
         for s in 0..3 {
@@ -719,7 +794,7 @@ mod tests {
         assert_eq!(lc.stations_open(), 0);
     }
 
-    fn setup(index: &C2mIndex) -> (Lifecycle<'_, Owned>, Collect, Instant) {
+    fn setup(index: PrintedDesigns) -> (Lifecycle<Owned>, Collect, Instant) {
         let lc = Lifecycle::new(index, FrameChain::default(), cfg(), limits());
         (lc, Collect::default(), Instant::now())
     }
@@ -731,7 +806,7 @@ mod tests {
     #[test]
     fn chunks_before_their_pose_wait_and_are_then_processed() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         lc.on_chunk(chunk(3, 0, 10), t, &mut out);
         lc.on_event(&event(StationEventKind::Begin, 3, 2), t, &mut out);
         lc.on_chunk(chunk(3, 1, 10), t, &mut out);
@@ -747,7 +822,7 @@ mod tests {
     #[test]
     fn a_station_without_pose_is_reported_with_every_point_counted() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         lc.on_event(&event(StationEventKind::Begin, 3, 0), t, &mut out);
         for s in 0..6 {
             lc.on_chunk(chunk(3, s, 10), t, &mut out);
@@ -767,7 +842,7 @@ mod tests {
     #[test]
     fn bad_chunks_are_counted_by_reason_and_good_points_kept() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         lc.on_event(&event(StationEventKind::Begin, 1, 0), t, &mut out);
         lc.on_pose(&pose(1), t, &mut out);
         let mut c = chunk(1, 0, 10);
@@ -813,7 +888,7 @@ mod tests {
     #[test]
     fn silence_closes_a_station_as_timed_out_and_late_chunks_are_counted() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         lc.on_event(&event(StationEventKind::Begin, 2, 0), t, &mut out);
         lc.on_pose(&pose(2), t, &mut out);
         lc.on_chunk(chunk(2, 0, 10), t, &mut out);
@@ -831,7 +906,7 @@ mod tests {
     #[test]
     fn shutdown_writes_partial_reports() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         lc.on_pose(&pose(4), t, &mut out);
         lc.on_chunk(chunk(4, 0, 10), t, &mut out);
         lc.shutdown(&mut out);
@@ -842,7 +917,7 @@ mod tests {
     #[test]
     fn too_many_open_stations_close_the_least_recent_one() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         for (k, s) in [1u32, 2, 3].into_iter().enumerate() {
             lc.on_event(
                 &event(StationEventKind::Begin, s, 0),
@@ -859,7 +934,7 @@ mod tests {
     #[test]
     fn a_bad_pose_is_rejected_and_the_station_waits_for_a_good_one() {
         let index = cube();
-        let (mut lc, mut out, t) = setup(&index);
+        let (mut lc, mut out, t) = setup(index);
         let mut p = pose(5);
         p.rotation_xyzw = [0.0, 0.0, 0.0, 3.0];
         lc.on_pose(&p, t, &mut out);

@@ -18,7 +18,7 @@ use std::thread::JoinHandle;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
-    StationEvent, StationReport, unix_time_ns,
+    StationEvent, StationFindings, StationReport, unix_time_ns,
 };
 
 use crate::config::RecorderConfig;
@@ -139,11 +139,19 @@ impl Recorder {
     /// Reports are never dropped: the agent waits for queue room (only a stalled writer could
     /// make it wait), then the station's chunk is closed and flushed.
     pub fn report(&self, r: &StationReport) {
+        self.flushed(Recorded::Report(Box::new(*r)));
+    }
+
+    pub fn findings(&self, f: &StationFindings) {
+        self.flushed(Recorded::Findings(Box::new(f.clone())));
+    }
+
+    /// A result that is never left out, followed by a flush so a crash keeps it.
+    fn flushed(&self, msg: Recorded) {
         if let Some(tx) = &self.tx {
             // Weighed as the writer will unweigh it: every small message counts 256 bytes.
             self.queued.fetch_add(256, Relaxed);
-            let msg = Item::Message(unix_time_ns(), Recorded::Report(Box::new(*r)));
-            if tx.send(msg).is_err() {
+            if tx.send(Item::Message(unix_time_ns(), msg)).is_err() {
                 self.queued.fetch_sub(256, Relaxed);
             }
             let _ = tx.send(Item::Flush);
@@ -279,6 +287,7 @@ fn job_of(m: &Recorded) -> Option<u64> {
         Recorded::Event(e) => Some(e.job),
         Recorded::Deviations(h, _) => Some(h.job),
         Recorded::Report(r) => Some(r.job),
+        Recorded::Findings(f) => Some(f.job),
         Recorded::Status(_) => None,
     }
 }

@@ -71,6 +71,12 @@ pub enum View {
         values: Vec<f32>,
         significant: Option<Vec<bool>>,
     },
+    /// A scan layer's findings: regions and missing material as boxes, per-layer width and
+    /// top height as series.
+    Findings {
+        index: u32,
+        findings: Box<asbuilt_protocol::StationFindings>,
+    },
     /// A per-layer value as a time series on the `layer` timeline.
     LayerValue {
         series: String,
@@ -357,6 +363,54 @@ impl Painter {
                         .with_colors(colours)
                         .with_radii([rerun::Radius::new_ui_points(3.0)]),
                 )?;
+            }
+            View::Findings { index, findings } => {
+                let f = &*findings;
+                self.rec.set_time_sequence("station", index as i64);
+                self.rec.set_time_sequence("layer", f.layer as i64);
+                let mut centres = Vec::new();
+                let mut halves = Vec::new();
+                let mut colours = Vec::new();
+                let mut labels = Vec::new();
+                for r in f.regions.iter().chain(f.missing.iter()) {
+                    let (lo, hi) = (Point3::from(r.min), Point3::from(r.max));
+                    centres.push(self.local(&nalgebra::center(&lo, &hi)));
+                    let h = (hi - lo) * 0.5;
+                    // A flat region still gets a visible box.
+                    halves.push([h.x, h.y, h.z].map(|v| v.max(0.002) as f32));
+                    let [red, g, b] = match r.kind {
+                        asbuilt_protocol::RegionKind::Excess => [255, 60, 60],
+                        asbuilt_protocol::RegionKind::Deficit => [60, 60, 255],
+                        asbuilt_protocol::RegionKind::Missing => [255, 200, 0],
+                    };
+                    colours.push(rerun::Color::from_rgb(red, g, b));
+                    labels.push(if r.peak.is_finite() {
+                        format!("{} {:+.1} mm", r.kind.as_str(), r.peak * 1e3)
+                    } else {
+                        format!("{} {:.0} cm²", r.kind.as_str(), r.area_m2 * 1e4)
+                    });
+                }
+                self.rec.log(
+                    "findings/regions",
+                    &rerun::Boxes3D::from_centers_and_half_sizes(centres, halves)
+                        .with_colors(colours)
+                        .with_labels(labels),
+                )?;
+                if f.top_height_deviation.is_finite() {
+                    self.rec.log(
+                        "layers/top_height_deviation_mm",
+                        &rerun::Scalars::new([f.top_height_deviation * 1e3]),
+                    )?;
+                }
+                for row in &f.layers {
+                    if row.width_deviation.is_finite() {
+                        self.rec.set_time_sequence("layer", row.layer as i64);
+                        self.rec.log(
+                            "layers/width_deviation_mm",
+                            &rerun::Scalars::new([row.width_deviation * 1e3]),
+                        )?;
+                    }
+                }
             }
             View::LayerValue {
                 series,

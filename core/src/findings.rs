@@ -35,6 +35,12 @@ pub struct FindingParams {
     pub radius: f64,
     /// Regions and missing areas with fewer samples are noise.
     pub min_region_samples: usize,
+    /// Coverage's threshold, metres: a coherent surface farther than this along the normal is
+    /// excess or deficit, not missing material.
+    pub coverage_threshold: f64,
+    /// Missing areas smaller than this are left out, m²: a ledge that sticks out shadows a strip
+    /// below it that the design says a station should see.
+    pub min_missing_area_m2: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -197,20 +203,44 @@ pub fn find(
             out.regions.push(r);
         }
     }
+    // Coverage calls a sample missing when no scan point lies within its threshold. Where M3C2
+    // finds a coherent surface beyond the threshold, the material is there, only out of place
+    // (excess buries the sample, under-extrusion hides it inside): that is a region, not missing
+    // material. A gap leaves at most a mix of its neighbours' and its floor's points, with a
+    // spread no surface has.
+    let key = |p: &Point3<f64>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    let by_position: FxHashMap<[u64; 3], usize> = m3c2
+        .iter()
+        .enumerate()
+        .map(|(i, r)| (key(&r.position), i))
+        .collect();
+    let t = p.coverage_threshold;
+    let out_of_place = |o: &SampleOutcome| {
+        by_position.get(&key(&o.position)).is_some_and(|&i| {
+            let r = &m3c2[i];
+            match (r.distance, r.spread) {
+                (Some(d), Some(s)) if r.count >= 5 => d > t || (d < -t && s < t),
+                _ => false,
+            }
+        })
+    };
     let missing: Vec<Point3<f64>> = coverage
         .iter()
-        .filter(|o| o.class == SampleClass::Missing)
+        .filter(|o| o.class == SampleClass::Missing && !out_of_place(o))
         .map(|o| o.position)
         .collect();
+    let min_missing = p
+        .min_region_samples
+        .max((p.min_missing_area_m2 / area_per_sample).ceil() as usize);
     for group in components(&missing, link) {
-        if group.len() >= p.min_region_samples {
+        if group.len() >= min_missing {
             let pts: Vec<Point3<f64>> = group.iter().map(|&g| missing[g]).collect();
             out.missing
                 .push(region(RegionKind::Missing, &pts, area_per_sample, &band_of));
         }
     }
-    out.regions.sort_by(|a, b| b.samples.cmp(&a.samples));
-    out.missing.sort_by(|a, b| b.samples.cmp(&a.samples));
+    out.regions.sort_by_key(|r| std::cmp::Reverse(r.samples));
+    out.missing.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out
 }
 
@@ -410,6 +440,8 @@ mod tests {
             spacing: 0.01,
             radius: 0.005,
             min_region_samples: 3,
+            coverage_threshold: 0.003,
+            min_missing_area_m2: 0.0,
         }
     }
 

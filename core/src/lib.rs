@@ -17,6 +17,7 @@ pub mod findings;
 pub mod icp;
 pub mod layers;
 pub mod m3c2;
+pub mod printed;
 pub mod probes;
 pub mod sampling;
 pub mod sim;

@@ -97,25 +97,30 @@ impl Tally {
     }
 }
 
-pub struct StationInspector<'a> {
-    index: &'a C2mIndex,
+/// Inspects one station's chunks against a design index: borrowed (`&C2mIndex`) by a tool that
+/// inspects one design, shared (`Arc<C2mIndex>`) by the agent, whose stations see the design cut
+/// at different printed heights.
+pub struct StationInspector<I = std::sync::Arc<C2mIndex>> {
+    index: I,
     t_design_scanner: Isometry3<f64>,
     config: InspectConfig,
     tally: Tally,
 }
 
-impl<'a> StationInspector<'a> {
-    pub fn new(
-        index: &'a C2mIndex,
-        t_design_scanner: Isometry3<f64>,
-        config: InspectConfig,
-    ) -> Self {
+impl<I: std::ops::Deref<Target = C2mIndex>> StationInspector<I> {
+    pub fn new(index: I, t_design_scanner: Isometry3<f64>, config: InspectConfig) -> Self {
         Self {
             index,
             t_design_scanner,
             config,
             tally: Tally::new(config.stats),
         }
+    }
+
+    /// Compares the chunks that follow with another design: the design as printed, once the
+    /// station says how high the print is.
+    pub fn set_index(&mut self, index: I) {
+        self.index = index;
     }
 
     /// Sets the scanner pose for the chunks that follow (a station can open before its pose).
@@ -138,7 +143,7 @@ impl<'a> StationInspector<'a> {
     /// Processes one chunk; `out[i]` receives the deviation of `points[i]`.
     pub fn process(&mut self, points: &[ScanPoint], out: &mut [PointDeviation]) -> ChunkOutcome {
         assert_eq!(points.len(), out.len(), "one deviation per scan point");
-        let index = self.index;
+        let index: &C2mIndex = &self.index;
         let t = self.t_design_scanner;
         let config = self.config;
         let chunk = points

@@ -11,6 +11,7 @@
 
 pub mod codec;
 mod deviation;
+mod findings;
 mod pose;
 pub mod recording;
 mod report;
@@ -21,6 +22,10 @@ mod text;
 
 pub use codec::{DecodeError, Message};
 pub use deviation::{DeviationFlags, DeviationHeader, Feature, PointDeviation};
+pub use findings::{
+    FindingsHeader, LayerFinding, MAX_FINDINGS_BYTES, MAX_LAYER_ROWS, MAX_REGIONS, RegionFinding,
+    RegionKind, StationFindings,
+};
 pub use pose::{PoseMode, PoseSnapshot};
 pub use report::{
     ChunkCounts, DeviationStats, HISTOGRAM_BINS, Histogram, RejectCounts, StationReport,

@@ -19,7 +19,7 @@ use std::io::{Seek, Write};
 use crate::codec::{self, DecodeError, Message};
 use crate::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
-    StationEvent, StationReport,
+    StationEvent, StationFindings, StationReport,
 };
 
 pub const MESSAGE_ENCODING: &str = "asbuilt-postcard";
@@ -37,16 +37,18 @@ pub enum Channel {
     Deviations,
     Reports,
     Status,
+    Findings,
 }
 
 impl Channel {
-    pub const ALL: [Channel; 6] = [
+    pub const ALL: [Channel; 7] = [
         Channel::Poses,
         Channel::ScanChunks,
         Channel::StationEvents,
         Channel::Deviations,
         Channel::Reports,
         Channel::Status,
+        Channel::Findings,
     ];
 
     /// The cell's messages to the agent: what a replay sends again.
@@ -60,6 +62,7 @@ impl Channel {
             Channel::Deviations => "/agent/deviations",
             Channel::Reports => "/agent/reports",
             Channel::Status => "/agent/status",
+            Channel::Findings => "/agent/findings",
         }
     }
 
@@ -75,6 +78,7 @@ impl Channel {
             Channel::Deviations => "asbuilt.DeviationChunk.v1",
             Channel::Reports => StationReport::TYPE_NAME,
             Channel::Status => AgentStatus::TYPE_NAME,
+            Channel::Findings => StationFindings::TYPE_NAME,
         }
     }
 }
@@ -115,6 +119,11 @@ pub fn schema_text(channel: Channel) -> &'static str {
             "asbuilt.AgentStatus v1, postcard: the fields of asbuilt-protocol's AgentStatus in \
              declaration order (points/s, queues, rejects and drops by reason)"
         }
+        Channel::Findings => {
+            "asbuilt.StationFindings v1, postcard: the fields of asbuilt-protocol's \
+             StationFindings in declaration order (per-layer width, shift and top height, \
+             regions out of tolerance and missing material; metres, design frame)"
+        }
     }
 }
 
@@ -127,6 +136,7 @@ pub enum Recorded {
     Deviations(DeviationHeader, Vec<PointDeviation>),
     Report(Box<StationReport>),
     Status(Box<AgentStatus>),
+    Findings(Box<StationFindings>),
 }
 
 impl Recorded {
@@ -138,6 +148,7 @@ impl Recorded {
             Recorded::Deviations(..) => Channel::Deviations,
             Recorded::Report(_) => Channel::Reports,
             Recorded::Status(_) => Channel::Status,
+            Recorded::Findings(_) => Channel::Findings,
         }
     }
 
@@ -155,6 +166,7 @@ impl Recorded {
             }
             Channel::Reports => Recorded::Report(Box::new(codec::decode(bytes)?)),
             Channel::Status => Recorded::Status(Box::new(codec::decode(bytes)?)),
+            Channel::Findings => Recorded::Findings(Box::new(codec::decode(bytes)?)),
         })
     }
 
@@ -166,6 +178,7 @@ impl Recorded {
             Recorded::Deviations(h, p) => codec::encode_deviation_chunk(h, p),
             Recorded::Report(m) => codec::encode(m.as_ref()),
             Recorded::Status(m) => codec::encode(m.as_ref()),
+            Recorded::Findings(m) => codec::encode(m.as_ref()),
         }
     }
 
@@ -176,7 +189,7 @@ impl Recorded {
             Recorded::Chunk(h, _) => h.timestamp_ns,
             Recorded::Event(m) => m.timestamp_ns,
             Recorded::Deviations(h, _) => h.timestamp_ns,
-            Recorded::Report(_) => 0,
+            Recorded::Report(_) | Recorded::Findings(_) => 0,
             Recorded::Status(m) => m.timestamp_ns,
         }
     }

@@ -20,6 +20,11 @@ fn mm(v: Option<f64>) -> String {
         .unwrap_or_else(|| "–".into())
 }
 
+/// Millimetres of a value that may be NaN (not measured).
+fn mmf(v: f64) -> String {
+    mm(Some(v).filter(|v| v.is_finite()))
+}
+
 pub fn passes(s: &Section, tolerance: f64) -> bool {
     s.matched > 0 && s.no_match == 0 && s.p95_abs.is_some_and(|p| p <= tolerance)
 }
@@ -114,6 +119,7 @@ pub fn page(r: &Report, source: &str) -> String {
             histogram(s, tol)
         );
     }
+    let findings = findings_html(&r.findings);
     let warnings: String = r
         .warnings
         .iter()
@@ -136,7 +142,7 @@ pub fn page(r: &Report, source: &str) -> String {
          <table><tr><th>station</th><th>points</th><th>rejected</th><th>no match</th><th>mean</th>\
          <th>std</th><th>|d| median</th><th>|d| 95 %</th><th>in tolerance %</th><th>verdict</th>\
          </tr>{rows}</table><h2>Histograms</h2><p>Signed deviation, green within the tolerance \
-         (dashed lines), red excess, blue missing material.</p>{cards}\
+         (dashed lines), red excess, blue missing material.</p>{cards}{findings}\
          <h2>Warnings</h2><ul>{warnings}</ul></body></html>\n",
         source = esc(source),
         design = esc(&r.design.path),
@@ -146,4 +152,88 @@ pub fn page(r: &Report, source: &str) -> String {
         maxmm = r.parameters.max_distance_m * 1e3,
         ver = r.asbuilt_version,
     )
+}
+
+/// The agent's findings per scan layer: what a crew should look at, with positions.
+fn findings_html(all: &[asbuilt_protocol::StationFindings]) -> String {
+    if all.is_empty() {
+        return String::new();
+    }
+    let mut out = String::from(
+        "<h2>Findings</h2><p>Per scan layer, over all its stations: design-referenced M3C2 and \
+         coverage. Positions in the design frame, metres; deviations in millimetres.</p>",
+    );
+    let f3 = |p: [f64; 3]| format!("{:.3}, {:.3}, {:.3}", p[0], p[1], p[2]);
+    for f in all {
+        let t = f.tolerance;
+        let _ = write!(
+            out,
+            "<h3>Layer {} (printed {:.3} m, {} station(s))</h3><p>Top height deviation: {}.</p>",
+            f.layer,
+            f.printed_height,
+            f.stations,
+            if f.top_height_deviation.is_finite() {
+                format!(
+                    "{:+.1} mm{}",
+                    f.top_height_deviation * 1e3,
+                    if f.top_height_deviation.abs() > t {
+                        " (out of tolerance)"
+                    } else {
+                        ""
+                    }
+                )
+            } else {
+                "top not seen".into()
+            }
+        );
+        let rows: String = f
+            .layers_out_of_tolerance()
+            .map(|l| {
+                format!(
+                    "<tr class=\"fail\"><td>{}</td><td>{:.3}–{:.3}</td><td>{}</td><td>{}, {}</td>\
+                     <td>FAIL</td></tr>",
+                    l.layer,
+                    l.z_min,
+                    l.z_max,
+                    mmf(l.width_deviation),
+                    mmf(l.shift[0]),
+                    mmf(l.shift[1])
+                )
+            })
+            .collect();
+        if !rows.is_empty() {
+            let _ = write!(
+                out,
+                "<table><tr><th>layer</th><th>z (m)</th><th>width</th><th>shift x, y</th>\
+                 <th>verdict</th></tr>{rows}</table>"
+            );
+        }
+        let regions: String = f
+            .regions
+            .iter()
+            .chain(f.missing.iter())
+            .map(|g| {
+                format!(
+                    "<tr class=\"fail\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.0}</td>\
+                     <td>{}</td><td>FAIL</td></tr>",
+                    g.kind.as_str(),
+                    f3(g.centroid),
+                    f3(g.min),
+                    f3(g.max),
+                    g.area_m2 * 1e4,
+                    mmf(g.peak)
+                )
+            })
+            .collect();
+        if regions.is_empty() && f.count() == 0 {
+            out.push_str("<p>No findings beyond the tolerance.</p>");
+        } else if !regions.is_empty() {
+            let _ = write!(
+                out,
+                "<table><tr><th>kind</th><th>centre</th><th>from</th><th>to</th><th>area cm²</th>\
+                 <th>peak</th><th>verdict</th></tr>{regions}</table>"
+            );
+        }
+    }
+    out
 }

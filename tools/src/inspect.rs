@@ -466,6 +466,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         overall,
         layers: totals.layers,
         m3c2_two_cloud: totals.m3c2_two_cloud,
+        findings: Vec::new(),
         warnings,
     };
     let json_path = args.out.join("report.json");

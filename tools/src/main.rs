@@ -2,6 +2,7 @@
 
 mod calibrate;
 mod convert;
+mod demo;
 mod deviations_ply;
 mod html;
 mod inspect;
@@ -13,6 +14,7 @@ mod recover;
 mod replay;
 mod report;
 mod report_cmd;
+mod sim_cmd;
 mod stations;
 mod suite;
 
@@ -34,6 +36,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The whole system on a simulated print cell: an agent, a printing robot with a scanner,
+    /// the recording, the rerun view and the report, in out/demo/.
+    Demo(Box<demo::DemoArgs>),
+    /// Publish a simulated print job (a part printed with defects, scanned by a robot-mounted
+    /// scanner) to a running agent.
+    Sim(Box<sim_cmd::SimArgs>),
+    /// Run the agent in this process, as `asbuilt-agent --config FILE` does.
+    Agent {
+        /// The agent configuration (TOML); see agent/agent.example.toml.
+        #[arg(long, short)]
+        config: PathBuf,
+    },
     /// Compare scans with the design: signed distances per point, statistics per station.
     Inspect(Box<inspect::InspectArgs>),
     /// Estimate t_design_base or t_flange_scanner from sphere targets with known centres.
@@ -63,6 +77,9 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => demo::run(*args),
+        Command::Sim(args) => sim_cmd::run(*args),
+        Command::Agent { config } => run_agent(&config),
         Command::Inspect(args) => inspect::run(*args),
         Command::Publish(args) => publish::run(args),
         Command::Calibrate(args) => calibrate::run(args),
@@ -99,4 +116,15 @@ fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<
     std::fs::write(out, text)?;
     eprintln!("wrote {} stations to {}", file.station.len(), out.display());
     Ok(())
+}
+
+fn run_agent(config: &std::path::Path) -> anyhow::Result<ExitCode> {
+    let config = asbuilt_agent::AgentConfig::load(config)?;
+    let summary = asbuilt_agent::daemon::run(&config)?;
+    asbuilt_agent::info!(
+        "exit: {} stations, {} points",
+        summary.stations_reported,
+        summary.points_processed
+    );
+    Ok(ExitCode::SUCCESS)
 }

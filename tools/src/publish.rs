@@ -43,7 +43,7 @@ pub struct PublishArgs {
     wait: f64,
 }
 
-fn parse_rate(s: &str) -> Result<Option<f64>> {
+pub(crate) fn parse_rate(s: &str) -> Result<Option<f64>> {
     if s == "max" {
         return Ok(None);
     }

@@ -19,6 +19,9 @@ pub struct Report {
     pub layers: Option<Vec<LayerRow>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
+    /// The agent's findings, the latest of each scan layer (from a recording).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub findings: Vec<asbuilt_protocol::StationFindings>,
     pub warnings: Vec<String>,
 }
 

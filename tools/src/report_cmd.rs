@@ -11,8 +11,9 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_core::frames::FrameChain;
+use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
-use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
+use asbuilt_core::{C2mParams, Design, Units};
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{PointDeviation, StationEventKind};
 use clap::Args;
@@ -34,14 +35,36 @@ pub struct ReportArgs {
     max_distance: Option<f64>,
 }
 
-struct Open<'a> {
-    inspector: StationInspector<'a>,
+struct Open {
+    inspector: StationInspector,
     name: String,
     has_pose: bool,
     sigma: f64,
 }
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
+    write(
+        &args.recording,
+        &args.out,
+        args.tolerance,
+        args.max_distance,
+    )?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Writes `out/report.json` and `out/report.html` for `recording`.
+pub fn write(
+    recording_path: &std::path::Path,
+    out: &std::path::Path,
+    tolerance: Option<f64>,
+    max_distance: Option<f64>,
+) -> Result<()> {
+    let args = ReportArgs {
+        recording: recording_path.to_path_buf(),
+        out: out.to_path_buf(),
+        tolerance,
+        max_distance,
+    };
     let bytes = crate::recording_file::map(&args.recording)?;
     let bad = |e| crate::recording_file::unreadable(&args.recording, e);
     let (meta, attachments) = recording::job(&bytes).map_err(bad)?;
@@ -81,22 +104,26 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     if !(tolerance > 0.0 && max_distance > 0.0) {
         bail!("--tolerance and --max-distance must be positive metres");
     }
-    let index = C2mIndex::build(
-        &design,
+    let design_report = design.report.clone();
+    let (design_vertices, design_triangles) = (design.vertices.len(), design.triangles.len());
+    // Stations scanned while printing were compared with the design as printed then.
+    let mut designs = PrintedDesigns::new(
+        design,
         C2mParams {
             max_distance,
             cell_size: settings.cell_size,
         },
     )?;
+    let mut findings: BTreeMap<(u64, u64), asbuilt_protocol::StationFindings> = BTreeMap::new();
     let mut config = InspectConfig::with_tolerance(tolerance);
     config.max_range = settings.max_range;
 
-    let mut open: BTreeMap<(u64, u32), Open<'_>> = BTreeMap::new();
+    let mut open: BTreeMap<(u64, u32), Open> = BTreeMap::new();
     let mut done: Vec<((u64, u32), Section)> = Vec::new();
     let mut total = Tally::new(config.stats);
     let mut buffer: Vec<PointDeviation> = Vec::new();
     let close =
-        |key: (u64, u32), o: Open<'_>, done: &mut Vec<((u64, u32), Section)>, total: &mut Tally| {
+        |key: (u64, u32), o: Open, done: &mut Vec<((u64, u32), Section)>, total: &mut Tally| {
             let mut r = o.inspector.report(key.0, key.1, &o.name);
             r.position_sigma = o.sigma;
             total.merge(o.inspector.tally());
@@ -109,9 +136,17 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
                 let key = (e.job, e.station);
                 match e.kind() {
                     Some(StationEventKind::Begin) => {
+                        let printed = designs.at(e.printed_height).unwrap_or_else(|err| {
+                            eprintln!(
+                                "warning: job {} station {}: printed height {} m: {err}; compared \
+                                 with the whole design",
+                                e.job, e.station, e.printed_height
+                            );
+                            designs.full().clone()
+                        });
                         let o = open.entry(key).or_insert_with(|| Open {
                             inspector: StationInspector::new(
-                                &index,
+                                printed.index.clone(),
                                 nalgebra::Isometry3::identity(),
                                 config,
                             ),
@@ -162,6 +197,10 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
                     close(key, o, &mut done, &mut total);
                 }
             }
+            // The latest findings of each scan layer cover all its stations so far.
+            Recorded::Findings(f) => {
+                findings.insert((f.job, f.printed_height.to_bits()), *f);
+            }
             _ => {}
         }
     }
@@ -174,8 +213,8 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     if done.is_empty() {
         bail!("{} holds no station", args.recording.display());
     }
-    let ix = index.stats();
-    let mut warnings = design.report.warnings();
+    let ix = designs.full().index.stats();
+    let mut warnings = design_report.warnings();
     if unfinished > 0 {
         warnings.push(format!(
             "{unfinished} station(s) have no end in the recording: reported as far as recorded"
@@ -186,9 +225,9 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         design: DesignSection {
             path: meta.design_path.clone(),
             units: format!("{units:?}"),
-            vertices: design.vertices.len(),
-            triangles: design.triangles.len(),
-            warnings: design.report.warnings(),
+            vertices: design_vertices,
+            triangles: design_triangles,
+            warnings: design_report.warnings(),
             index_cell_size_m: ix.cell_size,
             index_cells: ix.cells,
             index_bytes: ix.bytes,
@@ -210,6 +249,11 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         overall: Section::from_report(&total.report(0, u32::MAX, "overall"), None, 0),
         layers: None,
         m3c2_two_cloud: None,
+        findings: {
+            let mut f: Vec<_> = findings.into_values().collect();
+            f.sort_by_key(|a| (a.job, a.layer));
+            f
+        },
         warnings,
     };
     std::fs::create_dir_all(&args.out)
@@ -225,5 +269,5 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
     .with_context(|| format!("cannot write {}", html.display()))?;
     print!("{}", summary_table(&report));
     eprintln!("wrote {} and {}", json.display(), html.display());
-    Ok(ExitCode::SUCCESS)
+    Ok(())
 }

@@ -443,10 +443,7 @@ mod tests {
         let front: Vec<f64> = s
             .points
             .iter()
-            .map(|p| {
-                let q = pose * Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64);
-                q
-            })
+            .map(|p| pose * Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64))
             .filter(|q| q.x.abs() < 0.3 && q.z > 0.05 && q.z < 0.15)
             .map(|q| q.y + 0.0867)
             .collect();

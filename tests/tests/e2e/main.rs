@@ -9,4 +9,5 @@ mod calibrate;
 mod inspect_methods;
 mod recording;
 mod scan_files;
+mod sim;
 mod viewer;

@@ -1,0 +1,200 @@
+//! Findings a crew can act on, sent after each station's report: per-layer width, shift and top
+//! height, areas out of tolerance and missing material, each with its position. They cover
+//! every station of the scan layer so far (the stations sharing the station's printed height).
+//!
+//! The findings are variable in size, so on iceoryx2 they travel as their postcard encoding in
+//! a byte slice behind a [`FindingsHeader`]; the same bytes are the MCAP record.
+
+use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
+
+use crate::codec::Message;
+
+pub const MAX_LAYER_ROWS: usize = 256;
+pub const MAX_REGIONS: usize = 64;
+/// Upper bound of an encoded [`StationFindings`], bytes.
+pub const MAX_FINDINGS_BYTES: usize = 64 * 1024;
+
+/// The user header of a findings sample; the encoded [`StationFindings`] follow as bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
+#[type_name("asbuilt.FindingsHeader.v1")]
+#[repr(C)]
+pub struct FindingsHeader {
+    pub version: u16,
+    pub _reserved: u16,
+    pub station: u32,
+    pub job: u64,
+    pub layer: u32,
+    /// Length of the encoded findings that follow.
+    pub bytes: u32,
+}
+crate::codec::message!(FindingsHeader, "asbuilt.FindingsHeader.v1", 1);
+
+impl Default for FindingsHeader {
+    fn default() -> Self {
+        Self {
+            version: Self::VERSION,
+            _reserved: 0,
+            station: 0,
+            job: 0,
+            layer: 0,
+            bytes: 0,
+        }
+    }
+}
+
+/// One layer band's side faces. Metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LayerFinding {
+    pub layer: u32,
+    pub z_min: f64,
+    pub z_max: f64,
+    pub samples: u32,
+    /// Mean M3C2 distance on the band's sides.
+    pub mean: f64,
+    /// As built minus design; NaN where the stations saw too little to tell width from shift.
+    pub width_deviation: f64,
+    /// Shift of the band in x and y; NaN as above.
+    pub shift: [f64; 2],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RegionKind {
+    /// Material outside the design.
+    Excess,
+    /// The surface lies inside the design.
+    Deficit,
+    /// No material where a station should have seen some.
+    Missing,
+}
+
+impl RegionKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RegionKind::Excess => "excess",
+            RegionKind::Deficit => "deficit",
+            RegionKind::Missing => "missing",
+        }
+    }
+}
+
+/// A connected area of the design. Positions in the design frame, metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RegionFinding {
+    pub kind: RegionKind,
+    pub samples: u32,
+    pub area_m2: f64,
+    pub centroid: [f64; 3],
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+    /// Largest |deviation| with its sign; NaN for missing material.
+    pub peak: f64,
+    pub peak_at: [f64; 3],
+    pub mean: f64,
+    /// First and last layer band; `u32::MAX` when the layer height is unknown.
+    pub layers: [u32; 2],
+}
+
+/// What the agent found over one scan layer's stations so far.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StationFindings {
+    pub version: u16,
+    pub job: u64,
+    /// The station whose report these follow.
+    pub station: u32,
+    pub layer: u32,
+    /// NaN when not printing.
+    pub printed_height: f64,
+    pub tolerance: f64,
+    /// Stations of this scan layer that went into the findings.
+    pub stations: u32,
+    /// Top of the print minus the printed height; NaN when the top was not seen.
+    pub top_height_deviation: f64,
+    pub top_samples: u32,
+    pub layers: heapless::Vec<LayerFinding, MAX_LAYER_ROWS>,
+    /// Areas out of tolerance, largest first.
+    pub regions: heapless::Vec<RegionFinding, MAX_REGIONS>,
+    /// Missing material, largest first.
+    pub missing: heapless::Vec<RegionFinding, MAX_REGIONS>,
+    /// Regions or missing areas left out because the lists were full.
+    pub truncated: u32,
+}
+crate::codec::message!(StationFindings, "asbuilt.StationFindings.v1", 1);
+
+impl StationFindings {
+    pub fn new(job: u64, station: u32) -> Self {
+        Self {
+            version: Self::VERSION,
+            job,
+            station,
+            layer: 0,
+            printed_height: f64::NAN,
+            tolerance: 0.0,
+            stations: 0,
+            top_height_deviation: f64::NAN,
+            top_samples: 0,
+            layers: heapless::Vec::new(),
+            regions: heapless::Vec::new(),
+            missing: heapless::Vec::new(),
+            truncated: 0,
+        }
+    }
+
+    /// Layer rows whose width or shift is beyond the tolerance.
+    pub fn layers_out_of_tolerance(&self) -> impl Iterator<Item = &LayerFinding> {
+        let t = self.tolerance;
+        self.layers
+            .iter()
+            .filter(move |r| r.width_deviation.abs() > t || r.shift[0].hypot(r.shift[1]) > t)
+    }
+
+    /// Everything a crew should look at: layers out of tolerance, a top out of tolerance,
+    /// regions and missing material.
+    pub fn count(&self) -> usize {
+        self.layers_out_of_tolerance().count()
+            + usize::from(self.top_height_deviation.abs() > self.tolerance)
+            + self.regions.len()
+            + self.missing.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec;
+
+    #[test]
+    fn full_findings_fit_the_byte_bound_and_round_trip() {
+        let mut f = StationFindings::new(3, 4);
+        let row = LayerFinding {
+            layer: 1,
+            z_min: 0.0,
+            z_max: 0.02,
+            samples: 10,
+            mean: 0.001,
+            width_deviation: f64::NAN,
+            shift: [0.0, 0.0],
+        };
+        let region = RegionFinding {
+            kind: RegionKind::Missing,
+            samples: 5,
+            area_m2: 0.01,
+            centroid: [1.0; 3],
+            min: [0.0; 3],
+            max: [2.0; 3],
+            peak: f64::NAN,
+            peak_at: [1.0; 3],
+            mean: f64::NAN,
+            layers: [1, 2],
+        };
+        while f.layers.push(row).is_ok() {}
+        while f.regions.push(region).is_ok() {}
+        while f.missing.push(region).is_ok() {}
+        let bytes = codec::encode(&f);
+        assert!(bytes.len() <= MAX_FINDINGS_BYTES, "{}", bytes.len());
+        let back: StationFindings = codec::decode(&bytes).unwrap();
+        assert_eq!(back.layers.len(), MAX_LAYER_ROWS);
+        assert_eq!(back.regions[0].kind, RegionKind::Missing);
+        assert!(back.layers[0].width_deviation.is_nan());
+    }
+}

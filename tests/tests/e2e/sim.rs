@@ -1,0 +1,327 @@
+//! The simulated print cell against the real agent over iceoryx2: each defect injected alone is
+//! found where it was injected, with the right sign and a magnitude within 20 % (or 1 mm); a
+//! print without defects raises nothing at a 5 mm tolerance; and a smaller `asbuilt demo` runs
+//! from start to finish.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use asbuilt_core::sim::{Defect, Part, Truth};
+use asbuilt_protocol::{RegionKind, StationFindings, StationStatus};
+use asbuilt_tests::{Agent, Cell, unique_prefix};
+use asbuilt_tools::sim::{self, SimJob, SimOutcome};
+
+const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
+const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
+const TOLERANCE: f64 = 0.005;
+
+/// Runs `job` through a fresh agent with findings on; returns the findings of the last scan
+/// layer, after all its stations.
+fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("design.stl");
+    write_stl(&stl, &job.part.design);
+    let prefix = unique_prefix(test);
+    let config = format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = {TOLERANCE}\n\
+         max_distance = 0.03\n[limits]\nmax_points_per_chunk = {}\n[findings]\nenabled = true\n\
+         layer_height = {}\n",
+        stl.display().to_string(),
+        job.chunk_points,
+        job.part.layer_height
+    );
+    let agent = Agent::start_in(AGENT, &prefix, &config, dir);
+    let cell = Cell::open(&prefix, job.chunk_points);
+    let out = sim::run(job, &cell.ports, true, Duration::from_secs(60), &mut |_| {})
+        .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()));
+    let n = job.plan().len();
+    assert_eq!(out.reports.len(), n, "agent log:\n{}", agent.log());
+    assert!(
+        out.reports
+            .iter()
+            .all(|r| r.status() == Some(StationStatus::Complete))
+    );
+    assert_eq!(out.findings.len(), n, "agent log:\n{}", agent.log());
+    let last = out
+        .findings
+        .iter()
+        .max_by_key(|f| (f.layer, f.stations))
+        .unwrap()
+        .clone();
+    (out, last)
+}
+
+fn write_stl(path: &Path, d: &asbuilt_core::Design) {
+    let mut s = String::from("solid part\n");
+    for t in &d.triangles {
+        let [a, b, c] = t.map(|i| d.vertices[i as usize]);
+        let n = (b - a).cross(&(c - a)).normalize();
+        s += &format!("facet normal {} {} {}\nouter loop\n", n.x, n.y, n.z);
+        for p in [a, b, c] {
+            s += &format!("vertex {:.9} {:.9} {:.9}\n", p.x, p.y, p.z);
+        }
+        s += "endloop\nendfacet\n";
+    }
+    s += "endsolid part\n";
+    std::fs::write(path, s).unwrap();
+}
+
+/// A wall printed to `layers`, scanned once at the end from four stations, at a coarser angular
+/// step than the Z+F's so that a debug build runs it in seconds (still ~3 mm between points).
+fn wall_job(layers: u32, defects: Vec<Defect>) -> SimJob {
+    let mut job = SimJob::new(Part::wall(), layers);
+    job.scan_after = vec![layers];
+    job.defects = defects;
+    job.scanner.step_deg = 0.07;
+    job.rate = None;
+    job.seed = 7;
+    job
+}
+
+fn truth_of(job: &SimJob) -> Truth {
+    let k = *job.scan_after.last().unwrap();
+    let t = job.truth();
+    assert_eq!(t.len(), 1);
+    assert_eq!(t[0].0, k);
+    t[0].1.clone()
+}
+
+fn within(found: f64, truth: f64) -> bool {
+    (found - truth).abs() <= (0.2 * truth.abs()).max(0.001)
+}
+
+#[test]
+fn a_defect_free_print_raises_nothing_at_5_mm() {
+    let job = wall_job(12, vec![]);
+    let (out, f) = run("sim_clean", &job);
+    assert_eq!(f.stations, 4);
+    assert_eq!(f.count(), 0, "false alarms: {f:#?}");
+    assert!(
+        f.top_height_deviation.abs() < 0.002,
+        "{}",
+        f.top_height_deviation
+    );
+    // Every band is measured from both sides, within noise of the design.
+    let measured: Vec<_> = f
+        .layers
+        .iter()
+        .filter(|l| l.width_deviation.is_finite())
+        .collect();
+    assert!(measured.len() >= 10, "{:?}", f.layers);
+    for l in measured {
+        assert!(l.width_deviation.abs() < 0.002, "{l:?}");
+    }
+    assert!(out.reports.iter().all(|r| r.stats.p95_abs < TOLERANCE));
+}
+
+#[test]
+fn over_and_under_extrusion_are_found_per_layer_with_their_sign() {
+    for (test, width) in [("sim_over", 0.012), ("sim_under", -0.010)] {
+        let job = wall_job(
+            10,
+            vec![Defect::Extrusion {
+                first: 3,
+                last: 5,
+                width,
+            }],
+        );
+        let t = truth_of(&job);
+        let (_, f) = run(test, &job);
+        for layer in 3..=5 {
+            let row = f.layers.iter().find(|l| l.layer == layer).unwrap();
+            assert!(within(row.width_deviation, t.magnitude), "{row:?} vs {t:?}");
+        }
+        let flagged: Vec<u32> = f.layers_out_of_tolerance().map(|l| l.layer).collect();
+        assert_eq!(flagged, [3, 4, 5], "{:#?}", f.layers);
+        let kind = if width > 0.0 {
+            RegionKind::Excess
+        } else {
+            RegionKind::Deficit
+        };
+        // One band all around the wall (faces and ends), in those layers, each face out by
+        // half the width.
+        let big: Vec<_> = f
+            .regions
+            .iter()
+            .filter(|r| r.kind == kind && r.area_m2 > 0.05)
+            .collect();
+        assert_eq!(big.len(), 1, "{:#?}", f.regions);
+        let r = big[0];
+        assert!(r.min[1] < -0.08 && r.max[1] > 0.08, "{r:?}");
+        assert!(r.min[2] >= 0.055 && r.max[2] <= 0.125, "{r:?}");
+        assert!(within(2.0 * r.mean, t.magnitude), "{r:?}");
+    }
+}
+
+#[test]
+fn height_drift_shows_as_the_top_too_high() {
+    let job = wall_job(
+        12,
+        vec![Defect::HeightDrift {
+            from: 4,
+            per_layer: 0.001,
+        }],
+    );
+    let t = truth_of(&job);
+    let (_, f) = run("sim_drift", &job);
+    assert!(
+        within(f.top_height_deviation, t.magnitude),
+        "{} vs {t:?}",
+        f.top_height_deviation
+    );
+    assert!(f.count() >= 1);
+}
+
+#[test]
+fn sag_shows_as_the_top_too_low() {
+    let job = wall_job(
+        12,
+        vec![Defect::Sag {
+            layers: 3,
+            depth: 0.008,
+        }],
+    );
+    let t = truth_of(&job);
+    let (_, f) = run("sim_sag", &job);
+    assert!(
+        within(f.top_height_deviation, t.magnitude),
+        "{} vs {t:?}",
+        f.top_height_deviation
+    );
+    assert!(f.top_height_deviation < -TOLERANCE);
+}
+
+#[test]
+fn a_lateral_shift_is_found_from_the_layer_it_starts() {
+    let job = wall_job(
+        12,
+        vec![Defect::LateralShift {
+            from: 6,
+            offset: [0.0, 0.008],
+        }],
+    );
+    let t = truth_of(&job);
+    let (_, f) = run("sim_shift", &job);
+    for l in &f.layers {
+        let shift = l.shift[1];
+        if l.layer >= 7 && l.layer <= 10 {
+            assert!(within(shift, t.magnitude), "{l:?}");
+            assert!(l.width_deviation.abs() < 0.002, "{l:?}");
+        } else if l.layer <= 4 {
+            assert!(shift.abs() < 0.002, "{l:?}");
+        }
+    }
+    // The +y face is out, the −y face in: one region of each sign, above layer 6.
+    for (kind, y) in [(RegionKind::Excess, 1.0), (RegionKind::Deficit, -1.0)] {
+        let r = f
+            .regions
+            .iter()
+            .find(|r| r.kind == kind && r.area_m2 > 0.05)
+            .unwrap_or_else(|| panic!("no {kind:?} region: {:#?}", f.regions));
+        assert!(r.centroid[1] * y > 0.0 && r.min[2] >= 0.115, "{r:?}");
+    }
+}
+
+#[test]
+fn a_missing_segment_is_found_where_it_is_missing() {
+    let job = wall_job(
+        12,
+        vec![Defect::MissingSegment {
+            layer: 8,
+            centre: [0.3, 0.0],
+            direction: [1.0, 0.0],
+            length: 0.25,
+        }],
+    );
+    let t = truth_of(&job);
+    let (_, f) = run("sim_gap", &job);
+    assert!(!f.missing.is_empty(), "{f:#?}");
+    let m = &f.missing[0];
+    assert!(
+        (m.centroid[0] - t.position.x).abs() < 0.05,
+        "{m:?} vs {t:?}"
+    );
+    assert!(
+        m.min[2] >= 0.16 - 0.005 && m.max[2] <= 0.18 + 0.005,
+        "{m:?}"
+    );
+    // Along the path it spans the gap, less the coverage threshold at each end.
+    let extent = m.max[0] - m.min[0];
+    assert!(within(extent, t.magnitude), "{extent} vs {}", t.magnitude);
+}
+
+#[test]
+fn a_bulge_is_found_with_its_peak_and_place() {
+    let job = wall_job(
+        14,
+        vec![Defect::Bulge {
+            centre: [-0.4, -0.0867, 0.14],
+            radius: 0.1,
+            height: 0.015,
+        }],
+    );
+    let t = truth_of(&job);
+    let (_, f) = run("sim_bulge", &job);
+    let r = f
+        .regions
+        .iter()
+        .find(|r| r.kind == RegionKind::Excess)
+        .unwrap_or_else(|| panic!("{:#?}", f.regions));
+    assert!(within(r.peak, t.magnitude), "{r:?} vs {t:?}");
+    let at = nalgebra::Point3::from(r.peak_at);
+    assert!((at - t.position).norm() < 0.03, "{r:?} vs {t:?}");
+    assert_eq!(f.missing.len(), 0, "{:#?}", f.missing);
+}
+
+#[test]
+fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
+    let out = tempfile::tempdir().unwrap();
+    let o = Command::new(ASBUILT)
+        .args([
+            "demo",
+            "--scan-after",
+            "6,12",
+            "--stations",
+            "2",
+            "--step-deg",
+            "0.1",
+            "--rate",
+            "max",
+            "--defect",
+            "over-extrusion:layers=2-3,width=12mm",
+            "--out",
+        ])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    for f in [
+        "demo.rrd",
+        "report.json",
+        "report.html",
+        "truth.json",
+        "agent.log",
+    ] {
+        assert!(out.path().join(f).is_file(), "{f} missing; {err}");
+    }
+    let mcaps = std::fs::read_dir(out.path().join("recording"))
+        .unwrap()
+        .count();
+    assert!(mcaps >= 1);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["stations"].as_array().unwrap().len(), 4);
+    let findings = report["findings"].as_array().unwrap();
+    assert_eq!(findings.len(), 2);
+    let rows = findings[1]["layers"].as_array().unwrap();
+    let w = rows.iter().find(|r| r["layer"] == 2).unwrap()["width_deviation"]
+        .as_f64()
+        .unwrap();
+    assert!(within(w, 0.012), "{w}");
+    assert!(
+        err.contains("rerun ") && err.contains("report.html"),
+        "{err}"
+    );
+}

@@ -1,0 +1,271 @@
+//! `asbuilt demo`: the whole system with one command and no hardware. An agent in its own
+//! process (this executable's `agent` subcommand) with the recorder, the rerun view and findings
+//! on; the simulated print cell in this process, talking to it over real iceoryx2 services; then
+//! the report of the recording, and where to look.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_tools::sim::{SimJob, SimOutcome};
+use clap::Args;
+use iceoryx2::prelude::*;
+
+use crate::sim_cmd::{self, JobArgs};
+
+#[derive(Args)]
+pub struct DemoArgs {
+    #[command(flatten)]
+    job: JobArgs,
+    /// Where the recording, the .rrd, report.json and the HTML report go.
+    #[arg(long, default_value = "out/demo")]
+    out: PathBuf,
+    /// Print without defects (without --defect, the demo injects over-extrusion, a bulge, a
+    /// missing segment and height drift).
+    #[arg(long)]
+    no_defects: bool,
+    /// Also stream the view to a running rerun viewer: rerun+http://HOST:PORT/proxy.
+    #[arg(long)]
+    rerun_url: Option<String>,
+    /// Tolerance, metres.
+    #[arg(long, default_value_t = 0.005)]
+    tolerance: f64,
+}
+
+/// The demo's defects on the wall; on other parts the kinds alone, placed by default.
+fn default_defects(part: &str) -> Vec<String> {
+    if part == "wall" {
+        vec![
+            "over-extrusion:layers=2-4,width=12mm".into(),
+            "bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm".into(),
+            "missing-segment:layer=18,x=0.45,y=0,length=0.25".into(),
+            "height-drift:from=20,per-layer=1.5mm".into(),
+        ]
+    } else {
+        vec![
+            "over-extrusion:layers=2-4,width=12mm".into(),
+            "bulge".into(),
+            "missing-segment:layer=18,length=0.1".into(),
+        ]
+    }
+}
+
+pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
+    if args.job.defects.is_empty() && !args.no_defects {
+        args.job.defects = default_defects(&args.job.part);
+    }
+    let job = args.job.job()?;
+    if !(args.tolerance > 0.0 && args.tolerance < 0.1) {
+        bail!("--tolerance {}: give metres in (0, 0.1)", args.tolerance);
+    }
+    let out = &args.out;
+    prepare(out)?;
+    let design = out.join("design.stl");
+    write_stl(&design, &job.part.design)?;
+    let prefix = format!("asbuilt-demo-{}", std::process::id());
+    let config = out.join("agent.toml");
+    std::fs::write(&config, agent_config(&job, &prefix, &args))
+        .with_context(|| format!("cannot write {}", config.display()))?;
+    sim_cmd::write_truth(&out.join("truth.json"), &job)?;
+
+    let log = out.join("agent.log");
+    let mut agent = start_agent(&config, &log)?;
+    let outcome = talk_to_agent(&job, &prefix, &mut agent, &log);
+    stop_agent(&mut agent)?;
+    let outcome = outcome?;
+
+    let recording = newest_mcap(&out.join("recording"))?;
+    crate::report_cmd::write(&recording, out, None, None)?;
+    summary(&job, &outcome, out, &recording);
+    Ok(if outcome.reports.len() == job.plan().len() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+/// Creates `out`, removing what an earlier demo left there (and nothing else).
+fn prepare(out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    for f in [
+        "demo.rrd",
+        "report.json",
+        "report.html",
+        "agent.log",
+        "agent.toml",
+        "truth.json",
+        "design.stl",
+    ] {
+        let _ = std::fs::remove_file(out.join(f));
+    }
+    let _ = std::fs::remove_dir_all(out.join("recording"));
+    Ok(())
+}
+
+fn write_stl(path: &Path, d: &asbuilt_core::Design) -> Result<()> {
+    let tri = |t: &[u32; 3]| {
+        let [a, b, c] = t.map(|i| d.vertices[i as usize]);
+        let n = (b - a).cross(&(c - a)).normalize();
+        let v =
+            |p: nalgebra::Point3<f64>| stl_io::Vertex::new([p.x as f32, p.y as f32, p.z as f32]);
+        stl_io::Triangle {
+            normal: stl_io::Normal::new([n.x as f32, n.y as f32, n.z as f32]),
+            vertices: [v(a), v(b), v(c)],
+        }
+    };
+    let mut f = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
+    );
+    stl_io::write_stl(&mut f, d.triangles.iter().map(tri))
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
+    let url = args
+        .rerun_url
+        .as_ref()
+        .map(|u| format!("url = {u:?}\n"))
+        .unwrap_or_default();
+    format!(
+        "# Written by `asbuilt demo`: the agent the demo ran, as agent/agent.example.toml explains.\n\
+         [design]\npath = \"design.stl\"\nunits = \"m\"\n\n\
+         [inspect]\ntolerance = {tol}\nmax_distance = 0.03\n\n\
+         [services]\nprefix = \"{prefix}\"\n\n\
+         [limits]\nmax_points_per_chunk = {chunk}\n\n\
+         [status]\nperiod_s = 5.0\n\n\
+         [recorder]\ndir = \"recording\"\n\n\
+         [viewer]\nrrd = \"demo.rrd\"\n{url}\n\
+         [findings]\nenabled = true\nlayer_height = {h}\n",
+        tol = args.tolerance,
+        chunk = job.chunk_points,
+        h = job.part.layer_height,
+    )
+}
+
+fn start_agent(config: &Path, log: &Path) -> Result<Child> {
+    let exe = std::env::current_exe().context("cannot find this executable to start the agent")?;
+    let log_file =
+        std::fs::File::create(log).with_context(|| format!("cannot write {}", log.display()))?;
+    Command::new(exe)
+        .arg("agent")
+        .arg("--config")
+        .arg(config)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(log_file)
+        .spawn()
+        .context("cannot start the agent")
+}
+
+fn talk_to_agent(job: &SimJob, prefix: &str, agent: &mut Child, log: &Path) -> Result<SimOutcome> {
+    set_log_level_from_env_or(LogLevel::Error);
+    let node = NodeBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
+    let names = ServiceNames::new(prefix);
+    let started = Instant::now();
+    let ports = loop {
+        match CellPorts::open(&node, &names, job.chunk_points, Duration::from_millis(500)) {
+            Ok(p) => break p,
+            Err(e) => {
+                if let Some(status) = agent.try_wait()? {
+                    bail!(
+                        "the agent stopped ({status}) before it served; its log ({}):\n{}",
+                        log.display(),
+                        tail(log)
+                    );
+                }
+                if started.elapsed() > Duration::from_secs(60) {
+                    bail!("the agent did not come up within 60 s: {e}");
+                }
+            }
+        }
+    };
+    eprintln!(
+        "agent up (pid {}, services {prefix}/…, log {})",
+        agent.id(),
+        log.display()
+    );
+    sim_cmd::run_with_progress(job, &ports, true, Duration::from_secs(60))
+}
+
+fn stop_agent(agent: &mut Child) -> Result<()> {
+    if agent.try_wait()?.is_some() {
+        return Ok(());
+    }
+    // SIGTERM: the agent closes its stations, the recorder and the view, then exits.
+    // SAFETY: kill with a pid of our own child and a valid signal number.
+    unsafe {
+        libc::kill(agent.id() as libc::pid_t, libc::SIGTERM);
+    }
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < deadline {
+        if agent.try_wait()?.is_some() {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    agent.kill().ok();
+    bail!("the agent did not stop within 60 s of SIGTERM; killed")
+}
+
+fn newest_mcap(dir: &Path) -> Result<PathBuf> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("the agent wrote no recording in {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    found.sort();
+    found
+        .pop()
+        .with_context(|| format!("the agent wrote no recording in {}", dir.display()))
+}
+
+fn tail(log: &Path) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let lines: Vec<&str> = text.lines().collect();
+    lines[lines.len().saturating_sub(20)..].join("\n")
+}
+
+/// Injected against found, and where to look.
+fn summary(job: &SimJob, o: &SimOutcome, out: &Path, recording: &Path) {
+    eprintln!("\ninjected (truth.json) and what the agent reported, per scan layer:");
+    let by_layer = o.findings_by_layer();
+    for &k in &job.scan_after {
+        eprintln!("  after layer {k}:");
+        for d in &job.defects {
+            if let Some(t) = d.truth(&job.part, k) {
+                eprintln!(
+                    "    injected {:<16} {:+.1} mm at ({:.2}, {:.2}, {:.2}), layers {}–{}",
+                    t.kind,
+                    t.magnitude * 1e3,
+                    t.position.x,
+                    t.position.y,
+                    t.position.z,
+                    t.layers.0,
+                    t.layers.1
+                );
+            }
+        }
+        match by_layer.iter().find(|f| f.layer + 1 == k) {
+            Some(f) => eprintln!("  {}", sim_cmd::findings_line(f).trim_start()),
+            None => eprintln!("    no findings came back for this layer"),
+        }
+    }
+    eprintln!(
+        "\n{} in {:.0} s. Look at it:\n  rerun {}          # pip install rerun-sdk==0.36.*\n  \
+         open {}\n  {}\n  asbuilt replay {} --prefix asbuilt   # into your own agent",
+        if o.reports.len() == job.plan().len() {
+            "done"
+        } else {
+            "INCOMPLETE"
+        },
+        o.seconds,
+        out.join("demo.rrd").display(),
+        out.join("report.html").display(),
+        out.join("report.json").display(),
+        recording.display()
+    );
+}

@@ -1,0 +1,327 @@
+//! The simulated print cell on the wire: a job planned from a part, its defects and its scan
+//! layers, scanned by the simulated scanner and sent to a running agent over its iceoryx2
+//! services exactly as a robot controller, a scanner driver and job control would (Begin, pose,
+//! chunks in scan-line order at the scanner's rate, End), with the agent's reports and findings
+//! collected as they come back.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, bail};
+use asbuilt_agent::ipc::CellPorts;
+use asbuilt_core::sim::{
+    AsBuilt, Defect, Part, Scan, ScannerModel, Truth, as_built, perturb, scan, stations_around,
+};
+use asbuilt_protocol::{
+    ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind,
+    StationFindings, StationReport, codec, unix_time_ns,
+};
+use nalgebra::{Isometry3, Point3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// A print job to simulate.
+#[derive(Debug, Clone)]
+pub struct SimJob {
+    pub part: Part,
+    pub defects: Vec<Defect>,
+    /// Layer counts after which the robot scans, ascending.
+    pub scan_after: Vec<u32>,
+    pub stations_per_scan: u32,
+    /// Stations stand this far out from the part's footprint and this far above its top, m.
+    pub standoff: f64,
+    pub lift: f64,
+    /// `FixedOrientation` (the Z+F mounting) or `SixDof`.
+    pub pose_mode: PoseMode,
+    /// Pose error of the robot-mounted scanner, metres and radians (six-DoF only).
+    pub position_sigma: f64,
+    pub rotation_sigma: f64,
+    pub scanner: ScannerModel,
+    pub seed: u64,
+    pub job: u64,
+    pub chunk_points: usize,
+    /// Points per second, or `None` for as fast as the agent takes them.
+    pub rate: Option<f64>,
+}
+
+impl SimJob {
+    /// A short job on `part`: scans after a third, two thirds and all of `layers` layers, four
+    /// stations each, a Z+F at its native rate.
+    pub fn new(part: Part, layers: u32) -> Self {
+        let layers = layers.clamp(1, part.layers());
+        let mut scan_after: Vec<u32> = [layers / 3, 2 * layers / 3, layers]
+            .into_iter()
+            .filter(|&k| k > 0)
+            .collect();
+        scan_after.dedup();
+        Self {
+            part,
+            defects: Vec::new(),
+            scan_after,
+            stations_per_scan: 4,
+            standoff: 1.2,
+            lift: 0.5,
+            pose_mode: PoseMode::FixedOrientation,
+            position_sigma: 0.001,
+            rotation_sigma: 0.0002,
+            scanner: ScannerModel::default(),
+            seed: 1,
+            job: 1,
+            chunk_points: 16_384,
+            rate: Some(1.0e6),
+        }
+    }
+
+    /// Every station of the job, in the order the robot visits them.
+    pub fn plan(&self) -> Vec<PlannedStation> {
+        let (lo, hi) = self.part.design.bounds();
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        let mut out = Vec::new();
+        for &printed in &self.scan_after {
+            let printed = printed.clamp(1, self.part.layers());
+            let height = self.part.layer_span(printed - 1).1;
+            let poses = stations_around(
+                lo,
+                hi,
+                height,
+                self.stations_per_scan,
+                self.standoff,
+                self.lift,
+            );
+            for (k, nominal) in poses.into_iter().enumerate() {
+                let rot = match self.pose_mode {
+                    PoseMode::SixDof => self.rotation_sigma,
+                    _ => 0.0,
+                };
+                let truth = perturb(&nominal, self.position_sigma, rot, &mut rng);
+                out.push(PlannedStation {
+                    index: out.len() as u32,
+                    name: format!("L{printed:03}-S{}", k + 1),
+                    printed,
+                    printed_height: height,
+                    nominal,
+                    truth,
+                });
+            }
+        }
+        out
+    }
+
+    /// What each defect did by each scan layer.
+    pub fn truth(&self) -> Vec<(u32, Truth)> {
+        self.scan_after
+            .iter()
+            .flat_map(|&k| {
+                self.defects
+                    .iter()
+                    .filter_map(move |d| d.truth(&self.part, k).map(|t| (k, t)))
+            })
+            .collect()
+    }
+
+    /// The as-built part after `printed` layers.
+    pub fn as_built(&self, printed: u32) -> Result<AsBuilt> {
+        Ok(as_built(&self.part, &self.defects, printed)?)
+    }
+
+    /// The scan of one station, repeatable from the job's seed.
+    pub fn scan(&self, st: &PlannedStation, part: &AsBuilt) -> Scan {
+        scan(
+            part,
+            &st.truth,
+            &self.scanner,
+            self.seed
+                .wrapping_mul(1_000_003)
+                .wrapping_add(st.index as u64),
+        )
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct PlannedStation {
+    pub index: u32,
+    pub name: String,
+    /// Layers printed when it scans.
+    pub printed: u32,
+    /// Nominal height of the print then, metres.
+    pub printed_height: f64,
+    /// The pose the robot reports.
+    pub nominal: Isometry3<f64>,
+    /// Where the scanner really was.
+    pub truth: Isometry3<f64>,
+}
+
+impl PlannedStation {
+    pub fn origin(&self) -> Point3<f64> {
+        Point3::from(self.nominal.translation.vector)
+    }
+}
+
+/// What happened, as it happened.
+pub enum SimEvent<'a> {
+    Scanned {
+        station: &'a PlannedStation,
+        scan: &'a Scan,
+        seconds: f64,
+    },
+    Sent {
+        station: &'a PlannedStation,
+        points: u64,
+        seconds: f64,
+    },
+    Report(&'a StationReport),
+    Findings(&'a StationFindings),
+}
+
+#[derive(Debug, Default)]
+pub struct SimOutcome {
+    pub points_sent: u64,
+    pub seconds: f64,
+    pub reports: Vec<StationReport>,
+    pub findings: Vec<StationFindings>,
+}
+
+impl SimOutcome {
+    /// The latest findings of each scan layer (they cover its stations so far).
+    pub fn findings_by_layer(&self) -> Vec<&StationFindings> {
+        let mut out: Vec<&StationFindings> = Vec::new();
+        for f in &self.findings {
+            match out.iter_mut().find(|g| g.layer == f.layer) {
+                Some(g) if g.stations <= f.stations => *g = f,
+                Some(_) => {}
+                None => out.push(f),
+            }
+        }
+        out.sort_by_key(|f| f.layer);
+        out
+    }
+}
+
+/// Sends the job to the agent behind `ports`; waits up to `wait` for the last report (and for
+/// findings, when `expect_findings`).
+pub fn run(
+    job: &SimJob,
+    ports: &CellPorts,
+    expect_findings: bool,
+    wait: Duration,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<SimOutcome> {
+    if job.chunk_points == 0 {
+        bail!("chunks need at least one point");
+    }
+    let plan = job.plan();
+    let mut out = SimOutcome::default();
+    let started = Instant::now();
+    let mut current: Option<(u32, AsBuilt)> = None;
+    for st in &plan {
+        if current.as_ref().map(|c| c.0) != Some(st.printed) {
+            current = Some((st.printed, job.as_built(st.printed)?));
+        }
+        let part = &current.as_ref().expect("set above").1;
+        let t = Instant::now();
+        let s = job.scan(st, part);
+        on(SimEvent::Scanned {
+            station: st,
+            scan: &s,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let t = Instant::now();
+        send_station(job, st, &s, ports, &mut out, on)?;
+        on(SimEvent::Sent {
+            station: st,
+            points: s.points.len() as u64,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+    }
+    let deadline = Instant::now() + wait;
+    let done = |o: &SimOutcome| {
+        o.reports.len() >= plan.len() && (!expect_findings || o.findings.len() >= plan.len())
+    };
+    while !done(&out) && Instant::now() < deadline {
+        ports.wait_for_output(Duration::from_millis(100))?;
+        collect(job.job, ports, &mut out, on)?;
+    }
+    out.seconds = started.elapsed().as_secs_f64();
+    Ok(out)
+}
+
+fn send_station(
+    job: &SimJob,
+    st: &PlannedStation,
+    s: &Scan,
+    ports: &CellPorts,
+    out: &mut SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<()> {
+    let n = s.points.len();
+    let chunks = n.div_ceil(job.chunk_points);
+    let mut begin = StationEvent::new(StationEventKind::Begin, job.job, st.index);
+    begin.name = FixedText::truncated(&st.name);
+    begin.layer = st.printed - 1;
+    begin.printed_height = st.printed_height;
+    begin.expected_chunks = chunks as u32;
+    begin.expected_points = n as u64;
+    begin.timestamp_ns = unix_time_ns();
+    ports.send_event(&begin)?;
+
+    let mut pose = PoseSnapshot::new(job.job, st.index, job.pose_mode);
+    pose.translation = st.nominal.translation.vector.into();
+    let q = st.nominal.rotation.coords;
+    pose.rotation_xyzw = [q.x, q.y, q.z, q.w];
+    pose.position_sigma = job.position_sigma;
+    pose.timestamp_ns = unix_time_ns();
+    ports.send_pose(&pose)?;
+
+    let started = Instant::now();
+    for (seq, chunk) in s.points.chunks(job.chunk_points).enumerate() {
+        let mut h = ChunkHeader::new(job.job, st.index, seq as u64, chunk.len() as u32);
+        h.timestamp_ns = unix_time_ns();
+        h.last = u8::from(seq + 1 == chunks);
+        ports.send_chunk(&h, chunk)?;
+        out.points_sent += chunk.len() as u64;
+        if let Some(rate) = job.rate {
+            let due = Duration::from_secs_f64((seq + 1) as f64 * job.chunk_points as f64 / rate);
+            if let Some(ahead) = due.checked_sub(started.elapsed()) {
+                std::thread::sleep(ahead);
+            }
+        }
+        collect(job.job, ports, out, on)?;
+    }
+    let mut end = StationEvent::new(StationEventKind::End, job.job, st.index);
+    end.name = begin.name;
+    end.layer = begin.layer;
+    end.printed_height = begin.printed_height;
+    end.expected_chunks = chunks as u32;
+    end.expected_points = n as u64;
+    end.timestamp_ns = unix_time_ns();
+    ports.send_event(&end)?;
+    collect(job.job, ports, out, on)
+}
+
+/// Takes whatever the agent sent back; deviations are for other subscribers.
+fn collect(
+    job: u64,
+    ports: &CellPorts,
+    out: &mut SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<()> {
+    let bad = |e: &dyn std::fmt::Debug| anyhow::anyhow!("cannot read the agent's outputs: {e:?}");
+    while let Some(r) = ports.reports.receive().map_err(|e| bad(&e))? {
+        let r = *r.payload();
+        if r.job == job && !out.reports.iter().any(|x| x.station == r.station) {
+            on(SimEvent::Report(&r));
+            out.reports.push(r);
+        }
+    }
+    while let Some(sample) = ports.findings.receive().map_err(|e| bad(&e))? {
+        match codec::decode::<StationFindings>(sample.payload()) {
+            Ok(f) if f.job == job && !out.findings.iter().any(|x| x.station == f.station) => {
+                on(SimEvent::Findings(&f));
+                out.findings.push(f);
+            }
+            Ok(_) => {}
+            Err(e) => eprintln!("warning: findings from the agent cannot be read: {e}"),
+        }
+    }
+    while let Ok(Some(_)) = ports.deviations.receive() {}
+    Ok(())
+}

@@ -1,0 +1,415 @@
+//! `asbuilt sim`: a simulated print cell publishing a job to a running agent, and the parts of it
+//! `asbuilt demo` shares: part and defect arguments, the truth file, the progress lines.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_core::sim::{Defect, Part, Truth};
+use asbuilt_core::{Design, Units};
+use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
+use asbuilt_tools::sim::{SimEvent, SimJob, SimOutcome};
+use clap::Args;
+use iceoryx2::prelude::*;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// What to print and how; shared by `sim` and `demo`.
+#[derive(Args, Clone)]
+pub struct JobArgs {
+    /// The part: `wall` (the source study's 2 m shotcrete wall), `column` (a twisted
+    /// elliptical column), or a design file (STL, OBJ, PLY) standing on z = 0.
+    #[arg(long, default_value = "wall")]
+    pub part: String,
+    /// Units of a design file: m or mm.
+    #[arg(long)]
+    pub units: Option<String>,
+    /// Layer height of a design file, metres (the built-in parts print in 20 mm layers).
+    #[arg(long)]
+    pub layer_height: Option<f64>,
+    /// Layer counts after which the robot scans, e.g. 8,16,24.
+    #[arg(long, value_delimiter = ',', default_value = "8,16,24")]
+    pub scan_after: Vec<u32>,
+    /// Stations per scan layer, on an ellipse around the part.
+    #[arg(long, default_value_t = 4)]
+    pub stations: u32,
+    /// A defect, repeatable: KIND[:key=value,...]. Kinds: over-extrusion, under-extrusion
+    /// (layers=A-B, width), height-drift (from, per-layer), lateral-shift (from, dx, dy), sag
+    /// (layers, depth), missing-segment (layer, x, y, length, along=x|y), bulge (x, y, z,
+    /// radius, height). Lengths in metres or with mm. Example: over-extrusion:layers=3-6,width=12mm
+    #[arg(long = "defect")]
+    pub defects: Vec<String>,
+    /// Seed for pose noise and scanner noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Pose mode of the robot-mounted scanner: fixed (translation only, the Z+F mounting) or
+    /// 6dof.
+    #[arg(long, default_value = "fixed")]
+    pub pose_mode: String,
+    /// Pose error σ, metres.
+    #[arg(long, default_value_t = 0.001)]
+    pub pose_sigma: f64,
+    /// Points per second the scanner sends, or `max`.
+    #[arg(long, default_value = "1000000")]
+    pub rate: String,
+    /// Angle between rays, degrees (0.036: a Z+F IMAGER at "middle" resolution).
+    #[arg(long, default_value_t = 0.036)]
+    pub step_deg: f64,
+    /// Job number.
+    #[arg(long, default_value_t = 1)]
+    pub job: u64,
+}
+
+impl JobArgs {
+    pub fn part(&self) -> Result<Part> {
+        match self.part.as_str() {
+            "wall" => Ok(Part::wall()),
+            "column" => Ok(Part::column()),
+            file => {
+                let units: Units = self
+                    .units
+                    .as_deref()
+                    .context(
+                        "--units m|mm is required with a design file: units are never guessed",
+                    )?
+                    .parse()
+                    .map_err(|e| anyhow::anyhow!("--units: {e}"))?;
+                let h = self
+                    .layer_height
+                    .context("--layer-height METRES is required with a design file")?;
+                let design = Design::load(Path::new(file), units)?;
+                let name = Path::new(file)
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "part".into());
+                Ok(Part::from_design(&name, design, h)?)
+            }
+        }
+    }
+
+    pub fn job(&self) -> Result<SimJob> {
+        let part = self.part()?;
+        let mut job = SimJob::new(part, 1);
+        let layers = job.part.layers();
+        if self.scan_after.is_empty() || self.scan_after.iter().any(|&k| k == 0 || k > layers) {
+            bail!(
+                "--scan-after {:?}: give layer counts from 1 to {layers} (the {} has {layers} \
+                 layers of {} mm)",
+                self.scan_after,
+                job.part.name,
+                job.part.layer_height * 1e3
+            );
+        }
+        job.scan_after = self.scan_after.clone();
+        job.scan_after.sort_unstable();
+        job.scan_after.dedup();
+        if self.stations == 0 {
+            bail!("--stations must be at least 1");
+        }
+        job.stations_per_scan = self.stations;
+        job.defects = self
+            .defects
+            .iter()
+            .map(|d| parse_defect(d, &job.part))
+            .collect::<Result<_>>()?;
+        job.seed = self.seed;
+        job.job = self.job;
+        job.pose_mode = match self.pose_mode.as_str() {
+            "fixed" => PoseMode::FixedOrientation,
+            "6dof" => PoseMode::SixDof,
+            other => bail!("--pose-mode {other:?}: give fixed or 6dof"),
+        };
+        if !(self.pose_sigma >= 0.0 && self.pose_sigma < 0.1) {
+            bail!("--pose-sigma {}: give metres in [0, 0.1)", self.pose_sigma);
+        }
+        job.position_sigma = self.pose_sigma;
+        if !(self.step_deg >= 0.005 && self.step_deg <= 2.0) {
+            bail!("--step-deg {}: give degrees in [0.005, 2]", self.step_deg);
+        }
+        job.scanner.step_deg = self.step_deg;
+        job.rate = crate::publish::parse_rate(&self.rate)?;
+        Ok(job)
+    }
+}
+
+/// `KIND[:key=value,...]`, lengths in metres or with an `mm` suffix.
+pub fn parse_defect(spec: &str, part: &Part) -> Result<Defect> {
+    let (kind, rest) = spec.split_once(':').unwrap_or((spec, ""));
+    let mut kv = std::collections::BTreeMap::new();
+    for item in rest.split(',').filter(|s| !s.is_empty()) {
+        let (k, v) = item
+            .split_once('=')
+            .with_context(|| format!("--defect {spec:?}: {item:?} is not key=value"))?;
+        kv.insert(k.trim().to_string(), v.trim().to_string());
+    }
+    let bad = |what: &str| anyhow::anyhow!("--defect {spec:?}: {what}");
+    let len = |k: &str, default: f64| -> Result<f64> {
+        match kv.get(k) {
+            None => Ok(default),
+            Some(v) => {
+                let (num, scale) = match v.strip_suffix("mm") {
+                    Some(n) => (n, 1e-3),
+                    None => (v.strip_suffix('m').unwrap_or(v), 1.0),
+                };
+                num.parse::<f64>()
+                    .map(|x| x * scale)
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| bad(&format!("{k}={v} is not a length")))
+            }
+        }
+    };
+    let layer = |k: &str, default: u32| -> Result<u32> {
+        kv.get(k).map_or(Ok(default), |v| {
+            v.parse()
+                .map_err(|_| bad(&format!("{k}={v} is not a layer number")))
+        })
+    };
+    let n = part.layers();
+    let (lo, hi) = part.design.bounds();
+    let mid = nalgebra::center(&lo, &hi);
+    let d = match kind {
+        "over-extrusion" | "under-extrusion" => {
+            let (a, b) = match kv.get("layers") {
+                Some(r) => {
+                    let (a, b) = r.split_once('-').unwrap_or((r, r));
+                    (
+                        a.parse().map_err(|_| bad("layers=A-B"))?,
+                        b.parse().map_err(|_| bad("layers=A-B"))?,
+                    )
+                }
+                None => (n / 6, n / 6 + 3),
+            };
+            let w = len("width", 0.01)?.abs();
+            Defect::Extrusion {
+                first: a,
+                last: b,
+                width: if kind == "over-extrusion" { w } else { -w },
+            }
+        }
+        "height-drift" => Defect::HeightDrift {
+            from: layer("from", n / 3)?,
+            per_layer: len("per-layer", 0.001)?,
+        },
+        "lateral-shift" => Defect::LateralShift {
+            from: layer("from", n / 3)?,
+            offset: [len("dx", 0.0)?, len("dy", 0.008)?],
+        },
+        "sag" => Defect::Sag {
+            layers: layer("layers", 3)?.max(1),
+            depth: len("depth", 0.008)?,
+        },
+        "missing-segment" => Defect::MissingSegment {
+            layer: layer("layer", n / 2)?,
+            centre: [len("x", mid.x + 0.2 * (hi.x - lo.x))?, len("y", mid.y)?],
+            direction: match kv.get("along").map(String::as_str) {
+                None | Some("x") => [1.0, 0.0],
+                Some("y") => [0.0, 1.0],
+                Some(o) => return Err(bad(&format!("along={o}: give x or y"))),
+            },
+            length: len("length", 0.2)?,
+        },
+        "bulge" => Defect::Bulge {
+            centre: [
+                len("x", mid.x - 0.25 * (hi.x - lo.x))?,
+                len("y", lo.y)?,
+                len("z", 0.5 * part.height())?,
+            ],
+            radius: len("radius", 0.1)?,
+            height: len("height", 0.012)?,
+        },
+        other => {
+            return Err(bad(&format!(
+                "unknown kind {other:?}; kinds: over-extrusion, under-extrusion, height-drift, \
+                 lateral-shift, sag, missing-segment, bulge"
+            )));
+        }
+    };
+    Ok(d)
+}
+
+#[derive(Args)]
+pub struct SimArgs {
+    #[command(flatten)]
+    pub job: JobArgs,
+    /// Service prefix of the agent (its services.prefix).
+    #[arg(long, default_value = "asbuilt")]
+    pub prefix: String,
+    /// Seconds to wait for the agent, and for the last report.
+    #[arg(long, default_value_t = 30.0)]
+    pub wait: f64,
+    /// Write the injected defects and their truth per scan layer here (JSON).
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Also wait for the agent's findings (its [findings] section must be on).
+    #[arg(long)]
+    pub findings: bool,
+}
+
+pub fn run(args: SimArgs) -> Result<ExitCode> {
+    let job = args.job.job()?;
+    set_log_level_from_env_or(LogLevel::Error);
+    let node = NodeBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
+    node.try_cleanup_dead_nodes();
+    let names = ServiceNames::new(&args.prefix);
+    let wait = Duration::from_secs_f64(args.wait);
+    let ports = CellPorts::open(&node, &names, job.chunk_points, wait)?;
+    if let Some(p) = &args.truth {
+        write_truth(p, &job)?;
+    }
+    let outcome = run_with_progress(&job, &ports, args.findings, wait)?;
+    Ok(verdict(&job, &outcome))
+}
+
+/// Runs the job with a progress bar and a line per station report.
+pub fn run_with_progress(
+    job: &SimJob,
+    ports: &CellPorts,
+    expect_findings: bool,
+    wait: Duration,
+) -> Result<SimOutcome> {
+    let plan = job.plan();
+    eprintln!(
+        "simulating the {} ({} layers of {:.0} mm): {} station(s) after layers {:?}, {} defect(s), \
+         rate {}",
+        job.part.name,
+        job.part.layers(),
+        job.part.layer_height * 1e3,
+        plan.len(),
+        job.scan_after,
+        job.defects.len(),
+        job.rate
+            .map_or("max".to_string(), |r| format!("{:.1} M points/s", r / 1e6))
+    );
+    let bar = ProgressBar::new(plan.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let outcome = asbuilt_tools::sim::run(job, ports, expect_findings, wait, &mut |e| match e {
+        SimEvent::Scanned {
+            station,
+            scan,
+            seconds,
+        } => bar.set_message(format!(
+            "{}: scanned {} points in {:.2} s, sending",
+            station.name,
+            scan.points.len(),
+            seconds
+        )),
+        SimEvent::Sent { .. } => bar.inc(1),
+        SimEvent::Report(r) => bar.println(report_line(r)),
+        SimEvent::Findings(f) => bar.println(findings_line(f)),
+    })?;
+    bar.finish_and_clear();
+    eprintln!(
+        "sent {} points in {:.1} s; {} report(s), {} findings",
+        outcome.points_sent,
+        outcome.seconds,
+        outcome.reports.len(),
+        outcome.findings.len()
+    );
+    Ok(outcome)
+}
+
+pub fn report_line(r: &StationReport) -> String {
+    format!(
+        "  {:<10} layer {:>3} {:?}: {:>8} points, median |d| {:.2} mm, p95 {:.2} mm, {:.1} % in \
+         tolerance",
+        r.name.as_str(),
+        r.layer + 1,
+        r.status().unwrap_or(StationStatus::Incomplete),
+        r.points_received,
+        r.stats.median_abs * 1e3,
+        r.stats.p95_abs * 1e3,
+        100.0 * r.stats.within as f64 / r.stats.count.max(1) as f64
+    )
+}
+
+pub fn findings_line(f: &StationFindings) -> String {
+    let mut items = Vec::new();
+    if f.top_height_deviation.abs() > f.tolerance {
+        items.push(format!("top {:+.1} mm", f.top_height_deviation * 1e3));
+    }
+    for l in f.layers_out_of_tolerance() {
+        let w = l.width_deviation;
+        let s = l.shift[0].hypot(l.shift[1]);
+        items.push(if w.abs() > f.tolerance {
+            format!("layer {} width {:+.1} mm", l.layer, w * 1e3)
+        } else {
+            format!("layer {} shifted {:.1} mm", l.layer, s * 1e3)
+        });
+    }
+    for g in f.regions.iter() {
+        items.push(format!(
+            "{} {:+.1} mm at ({:.2}, {:.2}, {:.2})",
+            g.kind.as_str(),
+            g.peak * 1e3,
+            g.centroid[0],
+            g.centroid[1],
+            g.centroid[2]
+        ));
+    }
+    for g in f.missing.iter() {
+        items.push(format!(
+            "missing {:.0} cm² at ({:.2}, {:.2}, {:.2})",
+            g.area_m2 * 1e4,
+            g.centroid[0],
+            g.centroid[1],
+            g.centroid[2]
+        ));
+    }
+    format!(
+        "  findings after {} station(s) of layer {}: {}",
+        f.stations,
+        f.layer + 1,
+        if items.is_empty() {
+            "none beyond the tolerance".to_string()
+        } else {
+            items.join("; ")
+        }
+    )
+}
+
+fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {
+    let expected = job.plan().len();
+    if o.reports.len() < expected {
+        eprintln!(
+            "error: {} of {expected} station(s) got no report",
+            expected - o.reports.len()
+        );
+        return ExitCode::from(1);
+    }
+    ExitCode::SUCCESS
+}
+
+pub fn truth_json(job: &SimJob) -> serde_json::Value {
+    let t = |t: &Truth| {
+        serde_json::json!({
+            "kind": t.kind,
+            "magnitude_m": t.magnitude,
+            "position_m": [t.position.x, t.position.y, t.position.z],
+            "layers": [t.layers.0, t.layers.1],
+            "direction": t.direction,
+        })
+    };
+    serde_json::json!({
+        "part": job.part.name,
+        "layer_height_m": job.part.layer_height,
+        "scan_after_layers": job.scan_after,
+        "defects": job.defects.iter().map(|d| format!("{d:?}")).collect::<Vec<_>>(),
+        "truth": job.truth().iter().map(|(k, tr)| {
+            let mut v = t(tr);
+            v["after_layers"] = serde_json::json!(k);
+            v
+        }).collect::<Vec<_>>(),
+    })
+}
+
+pub fn write_truth(path: &Path, job: &SimJob) -> Result<()> {
+    std::fs::write(path, serde_json::to_string_pretty(&truth_json(job))?)
+        .with_context(|| format!("cannot write {}", path.display()))
+}

@@ -29,10 +29,14 @@ const MIN_POINTS: u32 = 5;
 /// Scan layers kept at once: the current one and the one before, for a late station.
 const EPOCHS: usize = 2;
 const SAMPLE_SEED: u64 = 1;
+/// The surface turning by more than this is an edge for M3C2's cylinders.
+const SHARP_EDGE_DEG: f64 = 30.0;
 
 struct Epoch {
     job: u64,
     design: Arc<PrintedDesign>,
+    /// Where M3C2 cylinders would average two faces.
+    sharp_edges: Vec<[Point3<f64>; 2]>,
     m3c2: StreamingM3c2,
     coverage: Coverage,
     area_per_sample: f64,
@@ -138,6 +142,7 @@ impl FindingsStage {
                 );
                 Some(Epoch {
                     job,
+                    sharp_edges: design.design.sharp_edges(SHARP_EDGE_DEG),
                     design: design.clone(),
                     m3c2,
                     coverage,
@@ -214,6 +219,7 @@ impl FindingsStage {
         let f = findings::find(
             &e.m3c2.results(sigma),
             &e.coverage.outcomes(&e.design.index),
+            &e.sharp_edges,
             e.area_per_sample,
             &FindingParams {
                 tolerance,

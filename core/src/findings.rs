@@ -12,9 +12,9 @@
 //!   than a few sample spacings; each region's extent, area and peak.
 //! - **Missing material**: samples classified missing by coverage, linked the same way.
 //!
-//! Samples whose cylinder reaches over a design edge (another sample with a normal more than
-//! 30° off lies within the cylinder's radius) are left out of fits and regions: there the
-//! cylinder averages two faces and shows a deviation that is not in the print.
+//! Samples whose cylinder reaches over a sharp design edge (the surface turns by more than 30°
+//! within the cylinder's radius) are left out of fits and regions: there the cylinder averages
+//! two faces and shows a deviation that is not in the print.
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use rustc_hash::FxHashMap;
@@ -116,13 +116,28 @@ const SIDE_MAX_NZ: f64 = 0.5;
 /// The cap: the normal within 25° of up.
 const TOP_MIN_NZ: f64 = 0.9;
 
+/// `sharp_edges`: the design's, from [`crate::Design::sharp_edges`].
 pub fn find(
     m3c2: &[CoreResult],
     coverage: &[SampleOutcome],
+    sharp_edges: &[[Point3<f64>; 2]],
     area_per_sample: f64,
     p: &FindingParams,
 ) -> Findings {
-    let clean = off_edges(m3c2, p.radius + p.spacing);
+    let key = |p: &Point3<f64>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    // Only what a station could see counts: a cylinder on a face no station faces holds
+    // nothing but stray points (mixed pixels behind an edge).
+    let seen: rustc_hash::FxHashSet<[u64; 3]> = coverage
+        .iter()
+        .filter(|o| matches!(o.class, SampleClass::Observed | SampleClass::Missing))
+        .map(|o| key(&o.position))
+        .collect();
+    let mut clean = off_edges(m3c2, sharp_edges, p.radius);
+    if !coverage.is_empty() {
+        for (c, r) in clean.iter_mut().zip(m3c2) {
+            *c &= seen.contains(&key(&r.position));
+        }
+    }
     let band_of = |z: f64| p.layer_height.map(|h| (z / h).floor().max(0.0) as u32);
     let usable = |i: usize| clean[i] && m3c2[i].distance.is_some();
 
@@ -208,7 +223,6 @@ pub fn find(
     // (excess buries the sample, under-extrusion hides it inside): that is a region, not missing
     // material. A gap leaves at most a mix of its neighbours' and its floor's points, with a
     // spread no surface has.
-    let key = |p: &Point3<f64>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
     let by_position: FxHashMap<[u64; 3], usize> = m3c2
         .iter()
         .enumerate()
@@ -317,23 +331,50 @@ fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<(f64, f64, f64)> {
     solve(&|i| res(i).abs() <= cut).or(Some(first))
 }
 
-/// Samples whose cylinder sees only their own face: no sample of another face within `radius`
-/// (the cylinder's radius plus a sample spacing, since samples are that sparse).
-fn off_edges(m3c2: &[CoreResult], radius: f64) -> Vec<bool> {
-    let pos: Vec<Point3<f64>> = m3c2.iter().map(|r| r.position).collect();
-    let grid = Grid::new(&pos, radius);
-    let cos_max = 30f64.to_radians().cos();
-    (0..m3c2.len())
-        .map(|i| {
-            let mut ok = true;
-            grid.near(&pos, i, radius, |j| {
-                if m3c2[i].normal.dot(&m3c2[j].normal) < cos_max {
-                    ok = false;
+/// Samples whose cylinder sees only their own face: farther than `radius` (and a millimetre)
+/// from every sharp edge.
+fn off_edges(m3c2: &[CoreResult], edges: &[[Point3<f64>; 2]], radius: f64) -> Vec<bool> {
+    use rayon::prelude::*;
+    let r = radius + 0.001;
+    // Edges bucketed by the cells their bounding boxes (grown by r) touch.
+    let cell = (4.0 * r).max(1e-6);
+    let key = |v: f64| (v / cell).floor() as i64;
+    let mut cells: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
+    for (k, e) in edges.iter().enumerate() {
+        let lo = e[0].inf(&e[1]).map(|v| key(v - r));
+        let hi = e[0].sup(&e[1]).map(|v| key(v + r));
+        let span = (hi - lo).map(|d| d + 1);
+        if span.x * span.y * span.z > 1_000_000 {
+            // A very long edge against tiny cells: check it everywhere.
+            cells.entry([i64::MIN; 3]).or_default().push(k as u32);
+            continue;
+        }
+        for x in lo.x..=hi.x {
+            for y in lo.y..=hi.y {
+                for z in lo.z..=hi.z {
+                    cells.entry([x, y, z]).or_default().push(k as u32);
                 }
-            });
-            ok
+            }
+        }
+    }
+    let everywhere = cells.get(&[i64::MIN; 3]).cloned().unwrap_or_default();
+    m3c2.par_iter()
+        .map(|c| {
+            let p = c.position;
+            let near = cells.get(&[key(p.x), key(p.y), key(p.z)]);
+            !near
+                .into_iter()
+                .flatten()
+                .chain(&everywhere)
+                .any(|&k| segment_distance(&p, &edges[k as usize]) <= r)
         })
         .collect()
+}
+
+fn segment_distance(p: &Point3<f64>, e: &[Point3<f64>; 2]) -> f64 {
+    let d = e[1] - e[0];
+    let t = ((p - e[0]).dot(&d) / d.norm_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
+    (p - (e[0] + d * t)).norm()
 }
 
 /// Connected groups of points closer than `link`, as indices into `pts`.
@@ -449,7 +490,7 @@ mod tests {
     fn width_and_shift_are_separated_per_layer() {
         // Layer 0: 8 mm wider; layer 1 (z 0.1..0.2 → bands 5..9): shifted 6 mm toward +y.
         let r = wall_results(|p, n| if p.z < 0.1 { 0.004 } else { 0.006 * n.y });
-        let f = find(&r, &[], 1e-4, &params());
+        let f = find(&r, &[], &[], 1e-4, &params());
         let row = |l: u32| f.layers.iter().find(|r| r.layer == l).unwrap();
         assert!((row(2).width_deviation.unwrap() - 0.008).abs() < 1e-9);
         assert!(row(2).shift.unwrap()[1].abs() < 1e-9);
@@ -463,7 +504,7 @@ mod tests {
             .into_iter()
             .filter(|c| c.normal.y > 0.0)
             .collect();
-        let f = find(&r, &[], 1e-4, &params());
+        let f = find(&r, &[], &[], 1e-4, &params());
         assert!(f.layers.iter().all(|l| l.width_deviation.is_none()));
     }
 
@@ -478,7 +519,7 @@ mod tests {
                 0.0
             }
         });
-        let f = find(&r, &[], 1e-4, &params());
+        let f = find(&r, &[], &[], 1e-4, &params());
         assert_eq!(f.regions.len(), 1, "{:?}", f.regions);
         let g = &f.regions[0];
         assert_eq!(g.kind, RegionKind::Excess);
@@ -497,23 +538,17 @@ mod tests {
 
     #[test]
     fn samples_next_to_an_edge_are_left_out() {
-        let mut r = wall_results(|_, _| -0.02);
-        // An end face at x = 1 with normal +x, touching the last column of samples.
-        for (j, k) in (0..17).flat_map(|j| (0..20).map(move |k| (j, k))) {
-            r.push(CoreResult {
-                position: Point3::new(1.0, -0.08 + j as f64 * 0.01, k as f64 * 0.01),
-                normal: Vector3::x(),
-                distance: Some(-0.02),
-                spread: None,
-                count: 50,
-                lod95: None,
-                significant: true,
-            });
-        }
-        let f = find(&r, &[], 1e-4, &params());
+        let r = wall_results(|_, _| -0.02);
+        // The wall's vertical edges at x = 0.995: the samples at x = 0.99 are 5 mm from them.
+        let edges = [-1.0, 1.0].map(|y| {
+            [
+                Point3::new(0.995, y * 0.0867, 0.0),
+                Point3::new(0.995, y * 0.0867, 0.2),
+            ]
+        });
+        let f = find(&r, &[], &edges, 1e-4, &params());
         let total: u32 = f.regions.iter().map(|g| g.samples).sum();
-        // Within 15 mm of the edge: the last column of each long face (x = 0.99) and the
-        // outermost rows of the end face (y = ±0.08), 20 samples high each.
-        assert_eq!(total, 2 * 200 * 20 - 2 * 20 + 17 * 20 - 2 * 20);
+        assert_eq!(total, 2 * 200 * 20 - 2 * 20);
+        assert!(f.regions.iter().all(|g| g.max.x < 0.985));
     }
 }

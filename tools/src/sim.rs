@@ -224,6 +224,18 @@ pub fn run(
             scan: &s,
             seconds: t.elapsed().as_secs_f64(),
         });
+        // The robot moves on once the scanner is done; the agent may still be busy with the
+        // last station's points. Waiting for its report keeps one station in flight, as a
+        // scanner that is carried from station to station sends them.
+        let previous = st.index.checked_sub(1);
+        let deadline = Instant::now() + wait;
+        while let Some(p) = previous
+            && !out.reports.iter().any(|r| r.station == p)
+            && Instant::now() < deadline
+        {
+            ports.wait_for_output(Duration::from_millis(50))?;
+            collect(job.job, ports, &mut out, on)?;
+        }
         let t = Instant::now();
         send_station(job, st, &s, ports, &mut out, on)?;
         on(SimEvent::Sent {

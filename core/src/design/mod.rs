@@ -196,6 +196,33 @@ impl Design {
             .sum()
     }
 
+    /// Edges where the surface turns by more than `min_angle_deg` (the faces' normals), and
+    /// boundary or non-manifold edges: where a neighbourhood on the surface stops being one face.
+    pub fn sharp_edges(&self, min_angle_deg: f64) -> Vec<[Point3<f64>; 2]> {
+        let mut faces: HashMap<(u32, u32), Vec<nalgebra::Vector3<f64>>> = HashMap::new();
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+            let n = (b - a).cross(&(c - a));
+            let n = n / n.norm().max(f64::MIN_POSITIVE);
+            for k in 0..3 {
+                let (u, v) = (t[k], t[(k + 1) % 3]);
+                faces.entry((u.min(v), u.max(v))).or_default().push(n);
+            }
+        }
+        let cos_max = min_angle_deg.to_radians().cos();
+        let mut out: Vec<[Point3<f64>; 2]> = faces
+            .into_iter()
+            .filter(|(_, n)| n.len() != 2 || n[0].dot(&n[1]) < cos_max)
+            .map(|((u, v), _)| [self.vertices[u as usize], self.vertices[v as usize]])
+            .collect();
+        out.sort_by(|a, b| {
+            (a[0].coords.as_slice(), a[1].coords.as_slice())
+                .partial_cmp(&(b[0].coords.as_slice(), b[1].coords.as_slice()))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        out
+    }
+
     /// Median triangle edge length, metres.
     pub fn median_edge(&self) -> f64 {
         let mut e: Vec<f64> = self

@@ -389,6 +389,9 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     }
 
     info!("stop requested: closing open stations with partial reports");
+    if let Some(c) = held.chunk.take() {
+        lifecycle.on_chunk(c, Instant::now(), &mut out);
+    }
     lifecycle.shutdown(&mut out);
     status.publish(&ports, &lifecycle, &out, AgentState::ShuttingDown);
     if let Some(mut v) = out.viewer.take() {
@@ -425,10 +428,21 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
 /// here, and its queue is not read further, until a slot frees (a station completes or times
 /// out): a publisher running ahead of the agent is held back by its full queue instead of
 /// forcing open stations closed before their chunks, still queued, are read.
+///
+/// A chunk of such a station waits here too, and the chunk queue is not read further: the
+/// publisher is held back by its full queue instead of its chunks being pushed out of the
+/// bounded buffer of chunks waiting for a pose.
 #[derive(Default)]
 struct HeldControl {
     event: Option<StationEvent>,
     pose: Option<PoseSnapshot>,
+    chunk: Option<ChunkSample>,
+}
+
+impl HeldControl {
+    fn waits_for_a_slot(&self) -> bool {
+        self.event.is_some() || self.pose.is_some()
+    }
 }
 
 /// Reads every queue until all are empty. Station events and poses go first, and again before
@@ -443,18 +457,25 @@ fn drain(
     loop {
         let mut any = drain_control(ports, lifecycle, out, held);
         loop {
-            let sample = match ports.chunks.receive() {
-                Ok(Some(s)) => s,
-                Ok(None) => break,
-                Err(e) => {
-                    warn!("scan chunks: {e:?}");
+            let sample = match held.chunk.take() {
+                Some(s) => s,
+                None => match ports.chunks.receive() {
+                    Ok(Some(s)) => s,
+                    Ok(None) => break,
+                    Err(e) => {
+                        warn!("scan chunks: {e:?}");
+                        break;
+                    }
+                },
+            };
+            if !lifecycle.is_ready_for(sample.user_header()) {
+                any |= drain_control(ports, lifecycle, out, held);
+                if held.waits_for_a_slot() && !lifecycle.is_ready_for(sample.user_header()) {
+                    held.chunk = Some(sample);
                     break;
                 }
-            };
-            any = true;
-            if !lifecycle.is_ready_for(sample.user_header()) {
-                drain_control(ports, lifecycle, out, held);
             }
+            any = true;
             if let Some(r) = &mut out.recorder {
                 r.chunk(sample.user_header(), sample.payload());
             }

@@ -41,6 +41,9 @@ pub struct SimJob {
     pub chunk_points: usize,
     /// Points per second, or `None` for as fast as the agent takes them.
     pub rate: Option<f64>,
+    /// Wait for a station's report before the next station begins, as a scanner carried from
+    /// station to station does. Off, the cell runs ahead of the agent as far as its queues let it.
+    pub one_station_at_a_time: bool,
 }
 
 impl SimJob {
@@ -68,6 +71,7 @@ impl SimJob {
             job: 1,
             chunk_points: 16_384,
             rate: Some(1.0e6),
+            one_station_at_a_time: true,
         }
     }
 
@@ -227,7 +231,10 @@ pub fn run(
         // The robot moves on once the scanner is done; the agent may still be busy with the
         // last station's points. Waiting for its report keeps one station in flight, as a
         // scanner that is carried from station to station sends them.
-        let previous = st.index.checked_sub(1);
+        let previous = st
+            .index
+            .checked_sub(1)
+            .filter(|_| job.one_station_at_a_time);
         let deadline = Instant::now() + wait;
         while let Some(p) = previous
             && !out.reports.iter().any(|r| r.station == p)

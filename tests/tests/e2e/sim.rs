@@ -325,3 +325,46 @@ fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
         "{err}"
     );
 }
+
+#[test]
+fn a_cell_running_far_ahead_of_the_agent_loses_no_point() {
+    // Twelve stations at full speed with no waiting, and findings making each station's close
+    // slow: Begins, poses and chunks pile up in the agent's queues while every station slot is
+    // taken. The agent holds the publisher back instead of pushing chunks out of its buffer.
+    let mut job = wall_job(6, vec![]);
+    job.scan_after = vec![2, 4, 6];
+    job.one_station_at_a_time = false;
+    job.chunk_points = 4096;
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("design.stl");
+    write_stl(&stl, &job.part.design);
+    let prefix = unique_prefix("sim_ahead");
+    let config = format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[limits]\nmax_points_per_chunk = 4096\n\
+         open_stations = 2\npending_chunks = 2\n[findings]\nenabled = true\nlayer_height = 0.02\n",
+        stl.display().to_string()
+    );
+    let agent = Agent::start_in(AGENT, &prefix, &config, dir);
+    let cell = Cell::open(&prefix, job.chunk_points);
+    let out = sim::run(
+        &job,
+        &cell.ports,
+        false,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!(out.reports.len(), 12, "agent log:\n{}", agent.log());
+    let received: u64 = out.reports.iter().map(|r| r.points_received).sum();
+    assert_eq!(received, out.points_sent, "{}", agent.log());
+    for r in &out.reports {
+        assert_eq!(
+            r.status(),
+            Some(StationStatus::Complete),
+            "{r:?}\n{}",
+            agent.log()
+        );
+        assert_eq!(r.rejected.total(), 0, "{r:?}");
+    }
+    assert!(!agent.log().contains("pushed out"), "{}", agent.log());
+}

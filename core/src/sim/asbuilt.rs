@@ -10,7 +10,7 @@ use super::defects::{Defect, LayerState, bulge_at, gaps_of, layer_states};
 use super::part::{PartError, Ring, signed_area2};
 
 /// Cap triangles longer than this are split, so a scanner's raster tests few pixels per triangle.
-const MAX_CAP_EDGE: f64 = 0.05;
+const MAX_CAP_EDGE: f64 = 0.15;
 
 /// The as-built part after `printed` layers with `defects`: triangles, outward, metres.
 #[derive(Debug, Clone)]

@@ -108,53 +108,56 @@ pub fn scan(
         model.max_elevation_deg.to_radians(),
     );
 
-    let mut tris: Vec<Tri> = Vec::with_capacity(part.triangles.len());
-    let (mut c_lo, mut c_hi, mut r_lo, mut r_hi) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
-    for t in &part.triangles {
-        let [a, b, c] = t.map(|i| v[i as usize]);
-        let (e1, e2) = (b - a, c - a);
-        let n = e1.cross(&e2);
-        // Back faces never give the first return of a closed surface.
-        if n.dot(&a) >= 0.0 {
-            continue;
-        }
-        let (mut az_lo, mut az_hi, mut el_min, mut el_max) =
-            (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for (p, q) in [(a, b), (b, c), (c, a)] {
-            // Edges are arcs in angle space: sample long ones so the box holds them.
-            let span = (p.normalize() - q.normalize()).norm();
-            let k = (span / 1f64.to_radians()).ceil().max(1.0) as usize;
-            for i in 0..k {
-                let (az, el) = angles(&(p + (q - p) * (i as f64 / k as f64)));
-                az_lo = az_lo.min(az);
-                az_hi = az_hi.max(az);
-                el_min = el_min.min(el);
-                el_max = el_max.max(el);
+    let tris: Vec<Tri> = part
+        .triangles
+        .par_iter()
+        .filter_map(|t| {
+            let [a, b, c] = t.map(|i| v[i as usize]);
+            let (e1, e2) = (b - a, c - a);
+            let n = e1.cross(&e2);
+            // Back faces never give the first return of a closed surface.
+            if n.dot(&a) >= 0.0 {
+                return None;
             }
-        }
-        if az_hi - az_lo > std::f64::consts::PI || el_max < el_lo || el_min > el_hi {
-            continue;
-        }
-        let cols = (
-            (az_lo / step).floor() as i64 - 1,
-            (az_hi / step).ceil() as i64 + 1,
-        );
-        let rows = (
-            ((el_min.max(el_lo)) / step).floor() as i64 - 1,
-            ((el_max.min(el_hi)) / step).ceil() as i64 + 1,
-        );
-        c_lo = c_lo.min(cols.0);
-        c_hi = c_hi.max(cols.1);
-        r_lo = r_lo.min(rows.0);
-        r_hi = r_hi.max(rows.1);
-        tris.push(Tri {
-            a,
-            e1,
-            e2,
-            n: n.normalize(),
-            cols,
-            rows,
-        });
+            let (mut az_lo, mut az_hi, mut el_min, mut el_max) =
+                (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+            for (p, q) in [(a, b), (b, c), (c, a)] {
+                // Edges are arcs in angle space: sample long ones so the box holds them.
+                let span = (p.normalize() - q.normalize()).norm();
+                let k = (span / 1f64.to_radians()).ceil().max(1.0) as usize;
+                for i in 0..k {
+                    let (az, el) = angles(&(p + (q - p) * (i as f64 / k as f64)));
+                    az_lo = az_lo.min(az);
+                    az_hi = az_hi.max(az);
+                    el_min = el_min.min(el);
+                    el_max = el_max.max(el);
+                }
+            }
+            if az_hi - az_lo > std::f64::consts::PI || el_max < el_lo || el_min > el_hi {
+                return None;
+            }
+            Some(Tri {
+                a,
+                e1,
+                e2,
+                n: n.normalize(),
+                cols: (
+                    (az_lo / step).floor() as i64 - 1,
+                    (az_hi / step).ceil() as i64 + 1,
+                ),
+                rows: (
+                    (el_min.max(el_lo) / step).floor() as i64 - 1,
+                    (el_max.min(el_hi) / step).ceil() as i64 + 1,
+                ),
+            })
+        })
+        .collect();
+    let (mut c_lo, mut c_hi, mut r_lo, mut r_hi) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+    for t in &tris {
+        c_lo = c_lo.min(t.cols.0);
+        c_hi = c_hi.max(t.cols.1);
+        r_lo = r_lo.min(t.rows.0);
+        r_hi = r_hi.max(t.rows.1);
     }
     if tris.is_empty() {
         return Scan::default();
@@ -201,25 +204,55 @@ pub fn scan(
                 let r1 = ((t.rows.1 - r_lo) as usize).min(nrows - 1);
                 for c in c0..=c1 {
                     let col = (c - first) * nrows;
-                    for r in r0..=r1 {
+                    // The column's rays lie in one vertical plane: the triangle meets it in a
+                    // segment, whose ends bound the rows worth testing.
+                    let (sa, ca) = col_dir[c];
+                    let m = Vector3::new(-sa, ca, 0.0);
+                    let vs = [t.a, t.a + t.e1, t.a + t.e2];
+                    let ds = vs.map(|v| m.dot(&v));
+                    if ds.iter().all(|&d| d > 0.0) || ds.iter().all(|&d| d < 0.0) {
+                        continue;
+                    }
+                    let (mut el_a, mut el_b) = (f64::MAX, f64::MIN);
+                    for k in 0..3 {
+                        let (i, j) = (k, (k + 1) % 3);
+                        if (ds[i] <= 0.0) != (ds[j] <= 0.0) || ds[i] == 0.0 {
+                            let f = if ds[i] == ds[j] {
+                                0.0
+                            } else {
+                                ds[i] / (ds[i] - ds[j])
+                            };
+                            let p = vs[i] + (vs[j] - vs[i]) * f;
+                            let el = p.z.atan2(ca * p.x + sa * p.y);
+                            el_a = el_a.min(el);
+                            el_b = el_b.max(el);
+                        }
+                    }
+                    let lo = ((el_a / step).floor() as i64 - 1 - r_lo).max(r0 as i64) as usize;
+                    let hi = ((el_b / step).ceil() as i64 + 1 - r_lo).min(r1 as i64);
+                    if hi < lo as i64 {
+                        continue;
+                    }
+                    // A triangle is convex: down a column its pixels are one run.
+                    let mut inside = false;
+                    for r in lo..=hi as usize {
                         let d = dir(c, r);
                         // Möller–Trumbore, origin at the scanner.
                         let p = d.cross(&t.e2);
                         let det = t.e1.dot(&p);
-                        if det.abs() < 1e-18 {
-                            continue;
-                        }
                         let inv_det = 1.0 / det;
                         let s = -t.a;
                         let u = s.dot(&p) * inv_det;
-                        if !(0.0..=1.0).contains(&u) {
-                            continue;
-                        }
                         let q = s.cross(&t.e1);
                         let w = d.dot(&q) * inv_det;
-                        if w < 0.0 || u + w > 1.0 {
+                        if det.abs() < 1e-18 || !(0.0..=1.0).contains(&u) || w < 0.0 || u + w > 1.0
+                        {
+                            if inside {
+                                break;
+                            }
                             continue;
                         }
+                        inside = true;
                         let dist = t.e2.dot(&q) * inv_det;
                         if dist > min_r && dist < max_r && (dist as f32) < rng_buf[col + r] {
                             rng_buf[col + r] = dist as f32;
@@ -280,9 +313,8 @@ pub fn scan(
                     mixed += 1;
                 }
                 let sigma = model.range_sigma + model.range_sigma_per_m * dist;
-                dist += Normal::new(0.0, sigma)
-                    .map(|n| n.sample(&mut rng))
-                    .unwrap_or(0.0);
+                let z: f64 = rand_distr::StandardNormal.sample(&mut rng);
+                dist += sigma * z;
                 let p = d * dist;
                 pts.push(ScanPoint {
                     xyz: [p.x as f32, p.y as f32, p.z as f32],

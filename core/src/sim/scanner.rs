@@ -202,11 +202,10 @@ pub fn scan(
                 let c1 = ((t.cols.1 - c_lo) as usize).min(first + width - 1);
                 let r0 = (t.rows.0 - r_lo).max(0) as usize;
                 let r1 = ((t.rows.1 - r_lo) as usize).min(nrows - 1);
-                for c in c0..=c1 {
+                for (c, &(sa, ca)) in col_dir.iter().enumerate().take(c1 + 1).skip(c0) {
                     let col = (c - first) * nrows;
                     // The column's rays lie in one vertical plane: the triangle meets it in a
                     // segment, whose ends bound the rows worth testing.
-                    let (sa, ca) = col_dir[c];
                     let m = Vector3::new(-sa, ca, 0.0);
                     let vs = [t.a, t.a + t.e1, t.a + t.e2];
                     let ds = vs.map(|v| m.dot(&v));

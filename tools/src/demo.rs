@@ -41,7 +41,7 @@ fn default_defects(part: &str) -> Vec<String> {
             "over-extrusion:layers=2-4,width=12mm".into(),
             "bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm".into(),
             "missing-segment:layer=18,x=0.45,y=0,length=0.25".into(),
-            "height-drift:from=20,per-layer=1.5mm".into(),
+            "height-drift:from=20,per-layer=0.5mm".into(),
         ]
     } else {
         vec![

@@ -29,7 +29,7 @@ pub struct JobArgs {
     #[arg(long)]
     pub layer_height: Option<f64>,
     /// Layer counts after which the robot scans, e.g. 8,16,24.
-    #[arg(long, value_delimiter = ',', default_value = "8,16,24")]
+    #[arg(long, value_delimiter = ',', default_value = "8,16,24,32,40,48")]
     pub scan_after: Vec<u32>,
     /// Stations per scan layer, on an ellipse around the part.
     #[arg(long, default_value_t = 4)]

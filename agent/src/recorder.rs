@@ -90,6 +90,8 @@ impl Recorder {
             disk_low: disk_low.clone(),
             file: None,
         };
+        // Before the first chunk can be offered: a disk that is already full must keep it out.
+        writer.check_disk();
         let thread = std::thread::Builder::new()
             .name("recorder".into())
             .spawn(move || writer.run(rx))?;

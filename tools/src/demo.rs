@@ -63,7 +63,7 @@ pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     let out = &args.out;
     prepare(out)?;
     let design = out.join("design.stl");
-    write_stl(&design, &job.part.design)?;
+    asbuilt_tools::sim::write_stl(&design, &job.part.design)?;
     let prefix = format!("asbuilt-demo-{}", std::process::id());
     let config = out.join("agent.toml");
     std::fs::write(&config, agent_config(&job, &prefix, &args))
@@ -102,24 +102,6 @@ fn prepare(out: &Path) -> Result<()> {
     }
     let _ = std::fs::remove_dir_all(out.join("recording"));
     Ok(())
-}
-
-fn write_stl(path: &Path, d: &asbuilt_core::Design) -> Result<()> {
-    let tri = |t: &[u32; 3]| {
-        let [a, b, c] = t.map(|i| d.vertices[i as usize]);
-        let n = (b - a).cross(&(c - a)).normalize();
-        let v =
-            |p: nalgebra::Point3<f64>| stl_io::Vertex::new([p.x as f32, p.y as f32, p.z as f32]);
-        stl_io::Triangle {
-            normal: stl_io::Normal::new([n.x as f32, n.y as f32, n.z as f32]),
-            vertices: [v(a), v(b), v(c)],
-        }
-    };
-    let mut f = std::io::BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
-    );
-    stl_io::write_stl(&mut f, d.triangles.iter().map(tri))
-        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {

@@ -43,6 +43,23 @@ pub struct PublishArgs {
     wait: f64,
 }
 
+/// The cell's side of a running agent's services, waiting up to `wait` for it to come up. The
+/// node must outlive the ports.
+pub(crate) fn connect(
+    names: &ServiceNames,
+    max_points_per_chunk: usize,
+    wait: Duration,
+) -> Result<(Node<Ipc>, CellPorts)> {
+    set_log_level_from_env_or(LogLevel::Error);
+    let node = NodeBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
+    // A publisher that crashed earlier may still hold a slot in the agent's services.
+    node.try_cleanup_dead_nodes();
+    let ports = CellPorts::open(&node, names, max_points_per_chunk, wait)?;
+    Ok((node, ports))
+}
+
 pub(crate) fn parse_rate(s: &str) -> Result<Option<f64>> {
     if s == "max" {
         return Ok(None);
@@ -64,15 +81,9 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         Some(path) => stations::load(path)?,
         None => stations::from_files(&args.files)?,
     };
-    set_log_level_from_env_or(LogLevel::Error);
-    let node = NodeBuilder::new()
-        .create::<Ipc>()
-        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
-    // A publisher that crashed earlier may still hold a slot in the agent's services.
-    node.try_cleanup_dead_nodes();
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let ports = CellPorts::open(&node, &names, args.chunk_points, wait)?;
+    let (_node, ports) = connect(&names, args.chunk_points, wait)?;
     eprintln!(
         "publishing {} stations to {}/… ({} points per chunk, rate {})",
         stations.len(),

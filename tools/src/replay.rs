@@ -8,11 +8,10 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_agent::ipc::ServiceNames;
 use asbuilt_protocol::recording::{self, Channel, Recorded};
 use asbuilt_protocol::{StationEvent, StationEventKind, StationReport, StationStatus};
 use clap::Args;
-use iceoryx2::prelude::*;
 
 use crate::publish::collect_reports;
 use crate::report::Section;
@@ -68,14 +67,9 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     if inputs == 0 {
         bail!("{} holds no input to replay", args.recording.display());
     }
-    set_log_level_from_env_or(LogLevel::Error);
-    let node = NodeBuilder::new()
-        .create::<Ipc>()
-        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
-    node.try_cleanup_dead_nodes();
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let ports = CellPorts::open(&node, &names, max_points, wait)?;
+    let (_node, ports) = crate::publish::connect(&names, max_points, wait)?;
     eprintln!(
         "replaying {} inputs of {} stations from {} to {}/… at speed {}",
         inputs,

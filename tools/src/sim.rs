@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::CellPorts;
 use asbuilt_core::sim::{
     AsBuilt, Defect, Part, Scan, ScannerModel, Truth, as_built, perturb, scan, stations_around,
@@ -343,4 +343,23 @@ fn collect(
     }
     while let Ok(Some(_)) = ports.deviations.receive() {}
     Ok(())
+}
+
+/// Writes a design as a binary STL in metres, for an agent to load.
+pub fn write_stl(path: &std::path::Path, d: &asbuilt_core::Design) -> Result<()> {
+    let tri = |t: &[u32; 3]| {
+        let [a, b, c] = t.map(|i| d.vertices[i as usize]);
+        let n = (b - a).cross(&(c - a)).normalize();
+        let v =
+            |p: nalgebra::Point3<f64>| stl_io::Vertex::new([p.x as f32, p.y as f32, p.z as f32]);
+        stl_io::Triangle {
+            normal: stl_io::Normal::new([n.x as f32, n.y as f32, n.z as f32]),
+            vertices: [v(a), v(b), v(c)],
+        }
+    };
+    let mut f = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
+    );
+    stl_io::write_stl(&mut f, d.triangles.iter().map(tri))
+        .with_context(|| format!("cannot write {}", path.display()))
 }

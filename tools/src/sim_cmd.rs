@@ -6,13 +6,12 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_agent::ipc::{CellPorts, ServiceNames};
 use asbuilt_core::sim::{Defect, Part, Truth};
 use asbuilt_core::{Design, Units};
 use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
 use asbuilt_tools::sim::{SimEvent, SimJob, SimOutcome};
 use clap::Args;
-use iceoryx2::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// What to print and how; shared by `sim` and `demo`.
@@ -249,14 +248,9 @@ pub struct SimArgs {
 
 pub fn run(args: SimArgs) -> Result<ExitCode> {
     let job = args.job.job()?;
-    set_log_level_from_env_or(LogLevel::Error);
-    let node = NodeBuilder::new()
-        .create::<Ipc>()
-        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
-    node.try_cleanup_dead_nodes();
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let ports = CellPorts::open(&node, &names, job.chunk_points, wait)?;
+    let (_node, ports) = crate::publish::connect(&names, job.chunk_points, wait)?;
     if let Some(p) = &args.truth {
         write_truth(p, &job)?;
     }

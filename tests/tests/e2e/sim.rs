@@ -3,7 +3,6 @@
 //! print without defects raises nothing at a 5 mm tolerance; and a smaller `asbuilt demo` runs
 //! from start to finish.
 
-use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
@@ -21,7 +20,7 @@ const TOLERANCE: f64 = 0.005;
 fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
     let dir = tempfile::tempdir().unwrap();
     let stl = dir.path().join("design.stl");
-    write_stl(&stl, &job.part.design);
+    sim::write_stl(&stl, &job.part.design).unwrap();
     let prefix = unique_prefix(test);
     let config = format!(
         "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = {TOLERANCE}\n\
@@ -50,21 +49,6 @@ fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
         .unwrap()
         .clone();
     (out, last)
-}
-
-fn write_stl(path: &Path, d: &asbuilt_core::Design) {
-    let mut s = String::from("solid part\n");
-    for t in &d.triangles {
-        let [a, b, c] = t.map(|i| d.vertices[i as usize]);
-        let n = (b - a).cross(&(c - a)).normalize();
-        s += &format!("facet normal {} {} {}\nouter loop\n", n.x, n.y, n.z);
-        for p in [a, b, c] {
-            s += &format!("vertex {:.9} {:.9} {:.9}\n", p.x, p.y, p.z);
-        }
-        s += "endloop\nendfacet\n";
-    }
-    s += "endsolid part\n";
-    std::fs::write(path, s).unwrap();
 }
 
 /// A wall printed to `layers`, scanned once at the end from four stations, at a coarser angular
@@ -337,7 +321,7 @@ fn a_cell_running_far_ahead_of_the_agent_loses_no_point() {
     job.chunk_points = 4096;
     let dir = tempfile::tempdir().unwrap();
     let stl = dir.path().join("design.stl");
-    write_stl(&stl, &job.part.design);
+    sim::write_stl(&stl, &job.part.design).unwrap();
     let prefix = unique_prefix("sim_ahead");
     let config = format!(
         "[design]\npath = {:?}\nunits = \"m\"\n[limits]\nmax_points_per_chunk = 4096\n\

@@ -9,7 +9,7 @@
 //!   bulge does not bias it) gives both; one side alone cannot tell them apart and gives none.
 //! - **Top height**: the mean M3C2 distance on the cap at the printed height.
 //! - **Regions**: samples with a significant |distance| above the tolerance, linked when closer
-//!   than a few sample spacings; each region's extent, area and peak.
+//!   than four sample spacings; each region's extent, area and peak.
 //! - **Missing material**: samples classified missing by coverage, linked the same way.
 //!
 //! Samples whose cylinder reaches over a sharp design edge (the surface turns by more than 30°
@@ -188,7 +188,9 @@ pub fn find(
         }
     }
 
-    let link = 2.5 * p.spacing;
+    // Samples are random, so a thin strip (the top of a sagging layer) needs a generous link to
+    // stay one region.
+    let link = 4.0 * p.spacing;
     for (kind, sign) in [(RegionKind::Excess, 1.0), (RegionKind::Deficit, -1.0)] {
         let members: Vec<usize> = (0..m3c2.len())
             .filter(|&i| {

@@ -295,8 +295,8 @@ pub fn run_with_progress(
             seconds
         )),
         SimEvent::Sent { .. } => bar.inc(1),
-        SimEvent::Report(r) => bar.println(report_line(r)),
-        SimEvent::Findings(f) => bar.println(findings_line(f)),
+        SimEvent::Report(r) => say(&bar, report_line(r)),
+        SimEvent::Findings(f) => say(&bar, findings_line(f)),
     })?;
     bar.finish_and_clear();
     eprintln!(
@@ -307,6 +307,15 @@ pub fn run_with_progress(
         outcome.findings.len()
     );
     Ok(outcome)
+}
+
+/// A line above the progress bar, or on stderr when there is no terminal to draw one on.
+fn say(bar: &ProgressBar, line: String) {
+    if bar.is_hidden() {
+        eprintln!("{line}");
+    } else {
+        bar.println(line);
+    }
 }
 
 pub fn report_line(r: &StationReport) -> String {
@@ -355,6 +364,13 @@ pub fn findings_line(f: &StationFindings) -> String {
             g.centroid[1],
             g.centroid[2]
         ));
+    }
+    // A line, not a table: the largest few; report.json and report.html have them all.
+    const SHOWN: usize = 8;
+    let more = items.len().saturating_sub(SHOWN);
+    items.truncate(SHOWN);
+    if more > 0 {
+        items.push(format!("{more} more in the report"));
     }
     format!(
         "  findings after {} station(s) of layer {}: {}",

@@ -168,8 +168,9 @@ fn findings_html(all: &[asbuilt_protocol::StationFindings]) -> String {
         let t = f.tolerance;
         let _ = write!(
             out,
-            "<h3>Layer {} (printed {:.3} m, {} station(s))</h3><p>Top height deviation: {}.</p>",
-            f.layer,
+            "<h3>After {} layers (printed {:.3} m, {} station(s))</h3><p>Top height deviation: \
+             {}. Layers below are numbered from 0 at the bed.</p>",
+            f.layer + 1,
             f.printed_height,
             f.stations,
             if f.top_height_deviation.is_finite() {

@@ -6,7 +6,6 @@
 //!
 //! `cargo bench -p asbuilt-agent --bench findings` (add `-- --quick` for one round)
 
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
@@ -19,18 +18,8 @@ use nalgebra::Isometry3;
 
 const CHUNK: usize = 65_536;
 
-struct AgentProcess(Child);
-impl Drop for AgentProcess {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+mod support;
+use support::{AgentProcess, median};
 
 /// Sends one scan layer; returns points/s from the first send to the last report, and the
 /// delays from each report to its findings (ms), when findings come.
@@ -140,14 +129,7 @@ fn main() {
             ),
         )
         .unwrap();
-        let agent = AgentProcess(
-            Command::new(env!("CARGO_BIN_EXE_asbuilt-agent"))
-                .arg("--config")
-                .arg(&config)
-                .stderr(Stdio::null())
-                .spawn()
-                .unwrap(),
-        );
+        let agent = AgentProcess::start(&config, None);
         (agent, prefix)
     };
     let (_off_agent, off_prefix) = start_agent("off", "");

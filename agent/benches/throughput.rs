@@ -18,7 +18,7 @@
 //! chunk, 4 M per station. Every round checks that the report is complete and nothing was dropped.
 
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
@@ -34,20 +34,14 @@ const STATION_POINTS: usize = 4 << 20;
 
 #[path = "../../core/benches/support/points.rs"]
 mod points;
+mod support;
+use support::{AgentProcess, median};
 
 fn surface_points(design: &Design, n: usize) -> Vec<ScanPoint> {
     points::noisy_surface_points(design, n)
         .iter()
         .map(|p| ScanPoint::new(p.x as f32, p.y as f32, p.z as f32))
         .collect()
-}
-
-struct AgentProcess(Child);
-impl Drop for AgentProcess {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 /// Sends one station; returns (first send, last chunk handed over, report).
@@ -98,11 +92,6 @@ fn station(
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let rounds = if quick { 1 } else { 5 };
@@ -123,14 +112,7 @@ fn main() {
         ),
     )
     .unwrap();
-    let _agent = AgentProcess(
-        Command::new(env!("CARGO_BIN_EXE_asbuilt-agent"))
-            .arg("--config")
-            .arg(&config)
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
+    let _agent = AgentProcess::start(&config, None);
     // The same agent with the recorder on, on its own prefix.
     let rec_prefix = format!("{prefix}-rec");
     let rec_config = dir.path().join("agent-rec.toml");
@@ -142,14 +124,7 @@ fn main() {
             + "[recorder]\ndir = \"recordings\"\n",
     )
     .unwrap();
-    let rec_agent = AgentProcess(
-        Command::new(env!("CARGO_BIN_EXE_asbuilt-agent"))
-            .arg("--config")
-            .arg(&rec_config)
-            .stderr(std::fs::File::create(dir.path().join("agent-rec.log")).unwrap())
-            .spawn()
-            .unwrap(),
-    );
+    let rec_agent = AgentProcess::start(&rec_config, Some(&dir.path().join("agent-rec.log")));
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
     let cell = CellPorts::open(

@@ -346,20 +346,20 @@ pub fn findings_line(f: &StationFindings) -> String {
             format!("layer {} shifted {:.1} mm", l.layer, s * 1e3)
         });
     }
-    for g in f.regions.iter() {
+    for g in f.missing.iter() {
         items.push(format!(
-            "{} {:+.1} mm at ({:.2}, {:.2}, {:.2})",
-            g.kind.as_str(),
-            g.peak * 1e3,
+            "missing {:.0} cm² at ({:.2}, {:.2}, {:.2})",
+            g.area_m2 * 1e4,
             g.centroid[0],
             g.centroid[1],
             g.centroid[2]
         ));
     }
-    for g in f.missing.iter() {
+    for g in f.regions.iter() {
         items.push(format!(
-            "missing {:.0} cm² at ({:.2}, {:.2}, {:.2})",
-            g.area_m2 * 1e4,
+            "{} {:+.1} mm at ({:.2}, {:.2}, {:.2})",
+            g.kind.as_str(),
+            g.peak * 1e3,
             g.centroid[0],
             g.centroid[1],
             g.centroid[2]

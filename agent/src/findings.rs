@@ -162,27 +162,20 @@ impl FindingsStage {
         }
     }
 
-    fn active(&mut self, key: StationKey) -> Option<&mut Epoch> {
-        self.epochs
-            .iter_mut()
-            .find(|e| e.job == key.0 && e.active == Some(key.1))
-    }
-
     /// A chunk's deviations (design-frame positions) of a station that began.
     pub fn ingest(&mut self, key: StationKey, devs: &[PointDeviation]) {
-        let mut scratch = std::mem::take(&mut self.scratch);
-        scratch.clear();
-        scratch.extend(
+        let Some(e) = active(&mut self.epochs, key) else {
+            return;
+        };
+        self.scratch.clear();
+        self.scratch.extend(
             devs.iter()
                 .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
                 .map(|d| Point3::from(d.position))
                 .filter(|p| p.coords.iter().all(|v| v.is_finite())),
         );
-        if let Some(e) = self.active(key) {
-            e.m3c2.ingest(&scratch);
-            e.coverage.ingest(&scratch);
-        }
-        self.scratch = scratch;
+        e.m3c2.ingest(&self.scratch);
+        e.coverage.ingest(&self.scratch);
     }
 
     /// Closes a station scanned from `origin` and returns the findings of its scan layer so
@@ -202,7 +195,7 @@ impl FindingsStage {
         let min_region_samples = self.config.min_region_samples;
         let coverage_threshold = self.config.coverage_threshold(tolerance);
         let min_missing_area_m2 = self.config.min_missing_area_m2;
-        let e = self.active(key)?;
+        let e = active(&mut self.epochs, key)?;
         e.active = None;
         let Some(origin) = origin else {
             // Without a pose the points never came; nothing to add.
@@ -234,6 +227,13 @@ impl FindingsStage {
         );
         Some(to_message(&f, key, e.stations, tolerance, report))
     }
+}
+
+/// The scan layer `key`'s station is sending to.
+fn active(epochs: &mut [Epoch], key: StationKey) -> Option<&mut Epoch> {
+    epochs
+        .iter_mut()
+        .find(|e| e.job == key.0 && e.active == Some(key.1))
 }
 
 fn height_text(h: f64) -> String {

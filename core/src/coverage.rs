@@ -132,6 +132,8 @@ pub struct CoverageSummary {
 /// One design sample's outcome.
 #[derive(Debug, Clone, Copy)]
 pub struct SampleOutcome {
+    /// This sample's index in the samples coverage was built from.
+    pub sample: u32,
     pub position: Point3<f64>,
     pub normal: Vector3<f64>,
     /// Signed distance to the nearest scan point, metres: negative when that point lies inside
@@ -238,6 +240,7 @@ impl Coverage {
             .map(|i| {
                 let s = &self.total[i];
                 SampleOutcome {
+                    sample: g.ids()[i],
                     position: g.points()[i],
                     normal: g.normals()[i],
                     reverse_distance: s.d2.is_finite().then(|| signed(s)),

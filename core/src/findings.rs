@@ -19,6 +19,7 @@
 use nalgebra::{Matrix3, Point3, Vector3};
 use rustc_hash::FxHashMap;
 
+use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
 use crate::m3c2::streaming::CoreResult;
 
@@ -101,16 +102,6 @@ pub struct Findings {
     pub missing: Vec<Region>,
 }
 
-impl Findings {
-    /// Layer rows whose width or shift is beyond `tolerance`.
-    pub fn layers_out_of_tolerance(&self, tolerance: f64) -> impl Iterator<Item = &LayerRow> {
-        self.layers.iter().filter(move |r| {
-            r.width_deviation.is_some_and(|w| w.abs() > tolerance)
-                || r.shift.is_some_and(|s| s[0].hypot(s[1]) > tolerance)
-        })
-    }
-}
-
 /// Side faces: the normal within 30° of horizontal.
 const SIDE_MAX_NZ: f64 = 0.5;
 /// The cap: the normal within 25° of up.
@@ -124,19 +115,26 @@ pub fn find(
     area_per_sample: f64,
     p: &FindingParams,
 ) -> Findings {
-    let key = |p: &Point3<f64>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    // Both were built from the same design samples: their sample indices line them up.
+    let samples = m3c2
+        .iter()
+        .map(|r| r.sample)
+        .chain(coverage.iter().map(|o| o.sample))
+        .max()
+        .map_or(0, |m| m as usize + 1);
+    let mut m3c2_of = vec![None; samples];
+    for (i, r) in m3c2.iter().enumerate() {
+        m3c2_of[r.sample as usize] = Some(i);
+    }
     // Only what a station could see counts: a cylinder on a face no station faces holds
     // nothing but stray points (mixed pixels behind an edge).
-    let seen: rustc_hash::FxHashSet<[u64; 3]> = coverage
-        .iter()
-        .filter(|o| matches!(o.class, SampleClass::Observed | SampleClass::Missing))
-        .map(|o| key(&o.position))
-        .collect();
+    let mut seen = vec![coverage.is_empty(); samples];
+    for o in coverage {
+        seen[o.sample as usize] = matches!(o.class, SampleClass::Observed | SampleClass::Missing);
+    }
     let mut clean = off_edges(m3c2, sharp_edges, p.radius);
-    if !coverage.is_empty() {
-        for (c, r) in clean.iter_mut().zip(m3c2) {
-            *c &= seen.contains(&key(&r.position));
-        }
+    for (c, r) in clean.iter_mut().zip(m3c2) {
+        *c &= seen[r.sample as usize];
     }
     let band_of = |z: f64| p.layer_height.map(|h| (z / h).floor().max(0.0) as u32);
     let usable = |i: usize| clean[i] && m3c2[i].distance.is_some();
@@ -225,14 +223,9 @@ pub fn find(
     // (excess buries the sample, under-extrusion hides it inside): that is a region, not missing
     // material. A gap leaves at most a mix of its neighbours' and its floor's points, with a
     // spread no surface has.
-    let by_position: FxHashMap<[u64; 3], usize> = m3c2
-        .iter()
-        .enumerate()
-        .map(|(i, r)| (key(&r.position), i))
-        .collect();
     let t = p.coverage_threshold;
     let out_of_place = |o: &SampleOutcome| {
-        by_position.get(&key(&o.position)).is_some_and(|&i| {
+        m3c2_of[o.sample as usize].is_some_and(|i| {
             let r = &m3c2[i];
             match (r.distance, r.spread) {
                 (Some(d), Some(s)) if r.count >= 5 => d > t || (d < -t && s < t),
@@ -381,7 +374,10 @@ fn segment_distance(p: &Point3<f64>, e: &[Point3<f64>; 2]) -> f64 {
 
 /// Connected groups of points closer than `link`, as indices into `pts`.
 fn components(pts: &[Point3<f64>], link: f64) -> Vec<Vec<usize>> {
-    let grid = Grid::new(pts, link);
+    let Ok(cloud) = CloudIndex::new(pts) else {
+        // Empty: no groups. (Design samples are finite, and far fewer than 2³² of them.)
+        return Vec::new();
+    };
     let mut parent: Vec<usize> = (0..pts.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -390,11 +386,11 @@ fn components(pts: &[Point3<f64>], link: f64) -> Vec<Vec<usize>> {
         }
         i
     }
-    for i in 0..pts.len() {
-        let mut near = Vec::new();
-        grid.near(pts, i, link, |j| near.push(j));
-        for j in near {
-            let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+    let mut near = Vec::new();
+    for (i, p) in pts.iter().enumerate() {
+        cloud.within(p, link, &mut near);
+        for &j in &near {
+            let (a, b) = (root(&mut parent, i), root(&mut parent, j as usize));
             if a != b {
                 parent[a.max(b)] = a.min(b);
             }
@@ -410,44 +406,6 @@ fn components(pts: &[Point3<f64>], link: f64) -> Vec<Vec<usize>> {
     out
 }
 
-/// A hash grid of cell `cell` for radius queries over a fixed point set.
-struct Grid {
-    cell: f64,
-    cells: FxHashMap<[i64; 3], Vec<usize>>,
-}
-
-impl Grid {
-    fn new(pts: &[Point3<f64>], cell: f64) -> Self {
-        let mut cells: FxHashMap<[i64; 3], Vec<usize>> = FxHashMap::default();
-        for (i, p) in pts.iter().enumerate() {
-            cells.entry(Self::key(p, cell)).or_default().push(i);
-        }
-        Self { cell, cells }
-    }
-
-    fn key(p: &Point3<f64>, cell: f64) -> [i64; 3] {
-        [p.x, p.y, p.z].map(|v| (v / cell).floor() as i64)
-    }
-
-    /// Calls `f` for every other point within `r` (≤ the cell size) of point `i`.
-    fn near(&self, pts: &[Point3<f64>], i: usize, r: f64, mut f: impl FnMut(usize)) {
-        let k = Self::key(&pts[i], self.cell);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(v) = self.cells.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                        for &j in v {
-                            if j != i && (pts[j] - pts[i]).norm_squared() <= r * r {
-                                f(j);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -461,6 +419,7 @@ mod tests {
                     let p = Point3::new(-1.0 + i as f64 * 0.01, side * 0.0867, k as f64 * 0.01);
                     let n = Vector3::new(0.0, side, 0.0);
                     out.push(CoreResult {
+                        sample: out.len() as u32,
                         position: p,
                         normal: n,
                         distance: Some(d(&p, &n)),

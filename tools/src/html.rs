@@ -101,14 +101,8 @@ pub fn page(r: &Report, source: &str) -> String {
             mm(s.std),
             mm(s.median_abs),
             mm(s.p95_abs),
-            if s.matched > 0 {
-                format!(
-                    "{:.1}",
-                    100.0 * s.within_tolerance as f64 / s.matched as f64
-                )
-            } else {
-                "–".into()
-            },
+            s.in_tolerance_percent()
+                .map_or("–".into(), |p| format!("{p:.1}")),
             if ok { "pass" } else { "FAIL" }
         );
         let _ = write!(

@@ -105,6 +105,11 @@ pub(crate) fn finite(v: f64) -> Option<f64> {
 }
 
 impl Section {
+    /// Matched points within the tolerance, per cent; `None` when nothing matched.
+    pub fn in_tolerance_percent(&self) -> Option<f64> {
+        (self.matched > 0).then(|| 100.0 * self.within_tolerance as f64 / self.matched as f64)
+    }
+
     pub fn from_report(r: &StationReport, scan: Option<String>, malformed_lines: u64) -> Self {
         let s = &r.stats;
         let rej: RejectCounts = r.rejected;
@@ -181,14 +186,9 @@ pub fn summary_table(report: &Report) -> String {
             (Some(a), Some(b)) => Some(if a.abs() > b.abs() { a } else { b }),
             _ => None,
         };
-        let in_tol = if s.matched > 0 {
-            format!(
-                "{:.1}",
-                100.0 * s.within_tolerance as f64 / s.matched as f64
-            )
-        } else {
-            "-".into()
-        };
+        let in_tol = s
+            .in_tolerance_percent()
+            .map_or("-".into(), |p| format!("{p:.1}"));
         out.push_str(&format!(
             "{:<12} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>9} {:>9} {:>8}\n",
             s.id,

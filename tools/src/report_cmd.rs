@@ -104,8 +104,6 @@ pub fn write(
     if !(tolerance > 0.0 && max_distance > 0.0) {
         bail!("--tolerance and --max-distance must be positive metres");
     }
-    let design_report = design.report.clone();
-    let (design_vertices, design_triangles) = (design.vertices.len(), design.triangles.len());
     // Stations scanned while printing were compared with the design as printed then.
     let mut designs = PrintedDesigns::new(
         design,
@@ -214,7 +212,8 @@ pub fn write(
         bail!("{} holds no station", args.recording.display());
     }
     let ix = designs.full().index.stats();
-    let mut warnings = design_report.warnings();
+    let design = &designs.full().design;
+    let mut warnings = design.report.warnings();
     if unfinished > 0 {
         warnings.push(format!(
             "{unfinished} station(s) have no end in the recording: reported as far as recorded"
@@ -225,9 +224,9 @@ pub fn write(
         design: DesignSection {
             path: meta.design_path.clone(),
             units: format!("{units:?}"),
-            vertices: design_vertices,
-            triangles: design_triangles,
-            warnings: design_report.warnings(),
+            vertices: design.vertices.len(),
+            triangles: design.triangles.len(),
+            warnings: design.report.warnings(),
             index_cell_size_m: ix.cell_size,
             index_cells: ix.cells,
             index_bytes: ix.bytes,

@@ -47,19 +47,13 @@ pub struct SimJob {
 }
 
 impl SimJob {
-    /// A short job on `part`: scans after a third, two thirds and all of `layers` layers, four
-    /// stations each, a Z+F at its native rate.
-    pub fn new(part: Part, layers: u32) -> Self {
-        let layers = layers.clamp(1, part.layers());
-        let mut scan_after: Vec<u32> = [layers / 3, 2 * layers / 3, layers]
-            .into_iter()
-            .filter(|&k| k > 0)
-            .collect();
-        scan_after.dedup();
+    /// A job on `part` without defects: one scan of the finished part from four stations, a Z+F
+    /// at its native rate. Callers set the scan layers and defects they want.
+    pub fn new(part: Part) -> Self {
         Self {
+            scan_after: vec![part.layers()],
             part,
             defects: Vec::new(),
-            scan_after,
             stations_per_scan: 4,
             standoff: 1.2,
             lift: 0.5,

@@ -89,7 +89,7 @@ impl JobArgs {
 
     pub fn job(&self) -> Result<SimJob> {
         let part = self.part()?;
-        let mut job = SimJob::new(part, 1);
+        let mut job = SimJob::new(part);
         let layers = job.part.layers();
         if self.scan_after.is_empty() || self.scan_after.iter().any(|&k| k == 0 || k > layers) {
             bail!(

@@ -35,6 +35,8 @@ pub struct StreamingError {
 /// One core point's result.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CoreResult {
+    /// This core point's index in the samples M3C2 was built from.
+    pub sample: u32,
     pub position: Point3<f64>,
     pub normal: Vector3<f64>,
     /// Mean offset of the scan along the normal, metres; `None` with no point in the cylinder.
@@ -160,6 +162,7 @@ impl StreamingM3c2 {
             _ => false,
         };
         CoreResult {
+            sample: self.grid.ids()[i],
             position: self.grid.points()[i],
             normal: self.grid.normals()[i],
             distance,

@@ -46,12 +46,33 @@ fn pack_bunny(out: &Path) {
     ]);
 }
 
+/// `asbuilt inspect` on the bunny stations into `out`; its report.json.
+fn inspect_bunny(out: &Path) -> Value {
+    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
+    run(&[
+        "inspect",
+        "--design",
+        design.to_str().unwrap(),
+        "--units",
+        "m",
+        "--stations",
+        repo()
+            .join("examples/bunny/stations.toml")
+            .to_str()
+            .unwrap(),
+        "--max-distance",
+        "0.005",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
+
 #[test]
 fn the_packed_bunny_replayed_through_the_agent_reports_what_inspect_reports() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("bunny.mcap");
     pack_bunny(&rec);
-    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
     let prefix = unique_prefix("replay");
     let agent = Agent::start(AGENT, &prefix, &bunny_agent_config(""));
     let out = dir.path().join("replay");
@@ -69,26 +90,7 @@ fn the_packed_bunny_replayed_through_the_agent_reports_what_inspect_reports() {
     let replayed: Vec<Value> =
         serde_json::from_str(&std::fs::read_to_string(out.join("replay.json")).unwrap()).unwrap();
 
-    let inspected = dir.path().join("inspect");
-    run(&[
-        "inspect",
-        "--design",
-        design.to_str().unwrap(),
-        "--units",
-        "m",
-        "--stations",
-        repo()
-            .join("examples/bunny/stations.toml")
-            .to_str()
-            .unwrap(),
-        "--max-distance",
-        "0.005",
-        "--out",
-        inspected.to_str().unwrap(),
-    ]);
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(inspected.join("report.json")).unwrap())
-            .unwrap();
+    let report = inspect_bunny(&dir.path().join("inspect"));
     let stations = report["stations"].as_array().unwrap();
     assert_eq!(replayed.len(), stations.len());
     for (a, b) in replayed.iter().zip(stations) {
@@ -309,31 +311,9 @@ fn a_recording_reports_what_inspect_reports() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    let design = shared_data().join("stanford-bunny/bun_zipper.ply");
-    let inspected = dir.path().join("inspect");
-    run(&[
-        "inspect",
-        "--design",
-        design.to_str().unwrap(),
-        "--units",
-        "m",
-        "--stations",
-        repo()
-            .join("examples/bunny/stations.toml")
-            .to_str()
-            .unwrap(),
-        "--max-distance",
-        "0.005",
-        "--out",
-        inspected.to_str().unwrap(),
-    ]);
-    let read = |p: PathBuf| -> Value {
-        serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
-    };
-    let (a, b) = (
-        read(out.join("report.json")),
-        read(inspected.join("report.json")),
-    );
+    let a: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let b = inspect_bunny(&dir.path().join("inspect"));
     let strip = |v: &Value| {
         let mut v = v.clone();
         v.as_object_mut().unwrap().remove("scan");

@@ -54,7 +54,7 @@ fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
 /// A wall printed to `layers`, scanned once at the end from four stations, at a coarser angular
 /// step than the Z+F's so that a debug build runs it in seconds (still ~3 mm between points).
 fn wall_job(layers: u32, defects: Vec<Defect>) -> SimJob {
-    let mut job = SimJob::new(Part::wall(), layers);
+    let mut job = SimJob::new(Part::wall());
     job.scan_after = vec![layers];
     job.defects = defects;
     job.scanner.step_deg = 0.07;

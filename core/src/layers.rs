@@ -36,8 +36,10 @@ pub enum CutError {
     Design(#[from] DesignError),
 }
 
+/// A point of the cut's outline: a design vertex exactly at the height, or where an edge
+/// crosses it.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
-enum CutVertex {
+pub(crate) enum CutVertex {
     Edge(u32, u32),
     Vertex(u32),
 }
@@ -86,36 +88,12 @@ pub fn cut_at(design: &Design, height: f64) -> Result<(Design, CutReport), CutEr
         if n_below == 0 {
             continue;
         }
-        let mut poly: Vec<u32> = Vec::with_capacity(4);
-        let (mut exit, mut entry) = (None, None);
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            if below(a) {
-                poly.push(a);
-            }
-            if below(a) != below(b) {
-                let (lo_i, hi_i) = if below(a) { (a, b) } else { (b, a) };
-                let cv = if v[hi_i as usize].z == height {
-                    CutVertex::Vertex(hi_i)
-                } else {
-                    CutVertex::Edge(lo_i.min(hi_i), lo_i.max(hi_i))
-                };
-                let id = cut_point(cv, &mut vertices);
-                poly.push(id);
-                if below(a) {
-                    exit = Some(id);
-                } else {
-                    entry = Some(id);
-                }
-            }
-        }
-        for k in 1..poly.len() - 1 {
-            triangles.push([poly[0], poly[k], poly[k + 1]]);
-        }
-        if let (Some(x), Some(e)) = (exit, entry)
-            && x != e
-        {
-            segments.push((e, x));
+        let mut id = |cv: ClipVertex| match cv {
+            ClipVertex::Keep(i) => i,
+            ClipVertex::Cut(cv) => cut_point(cv, &mut vertices),
+        };
+        if let Some(s) = clip_below(*t, |i| v[i as usize].z, height, &mut id, &mut triangles) {
+            segments.push(s);
         }
     }
     let mut report = CutReport::default();
@@ -124,8 +102,57 @@ pub fn cut_at(design: &Design, height: f64) -> Result<(Design, CutReport), CutEr
     Ok((cut, report))
 }
 
+/// A vertex of a clipped triangle: one of its own below the cut, or where the cut meets it.
+pub(crate) enum ClipVertex {
+    Keep(u32),
+    Cut(CutVertex),
+}
+
+/// Clips a triangle with some but not all vertices below `height` to the part below, fanned
+/// into `triangles`; `id` names the clipped polygon's vertices. Returns the directed segment the
+/// cut leaves in the cap's plane, in the cap's orientation.
+pub(crate) fn clip_below(
+    t: [u32; 3],
+    z: impl Fn(u32) -> f64,
+    height: f64,
+    id: &mut impl FnMut(ClipVertex) -> u32,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Option<(u32, u32)> {
+    let below = |i: u32| z(i) < height;
+    let mut poly: Vec<u32> = Vec::with_capacity(4);
+    let (mut exit, mut entry) = (None, None);
+    for k in 0..3 {
+        let (a, b) = (t[k], t[(k + 1) % 3]);
+        if below(a) {
+            poly.push(id(ClipVertex::Keep(a)));
+        }
+        if below(a) != below(b) {
+            let (lo_i, hi_i) = if below(a) { (a, b) } else { (b, a) };
+            let cv = if z(hi_i) == height {
+                CutVertex::Vertex(hi_i)
+            } else {
+                CutVertex::Edge(lo_i.min(hi_i), lo_i.max(hi_i))
+            };
+            let c = id(ClipVertex::Cut(cv));
+            poly.push(c);
+            if below(a) {
+                exit = Some(c);
+            } else {
+                entry = Some(c);
+            }
+        }
+    }
+    for k in 1..poly.len() - 1 {
+        triangles.push([poly[0], poly[k], poly[k + 1]]);
+    }
+    match (exit, entry) {
+        (Some(x), Some(e)) if x != e => Some((e, x)),
+        _ => None,
+    }
+}
+
 /// Closes the outlines formed by `segments` with triangles facing +z.
-fn cap(
+pub(crate) fn cap(
     vertices: &mut Vec<Point3<f64>>,
     segments: &[(u32, u32)],
     triangles: &mut Vec<[u32; 3]>,

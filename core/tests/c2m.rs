@@ -344,3 +344,153 @@ fn non_finite_points_have_no_match() {
     assert_eq!(q(&idx, [f64::INFINITY, 0.0, 0.0]), None);
     assert_eq!(idx.brute_force(&Point3::new(0.0, f64::NAN, 0.0)), None);
 }
+
+/// Points for a cut at `h`: near the surface below the cut, on and around the cap's rim, on the
+/// cap, above it within and beyond reach, and far.
+fn cut_probe_points(design: &Design, h: f64, n: usize, scale: f64, seed: u64) -> Vec<Point3<f64>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut pts = probe_points(design, n / 2, scale, seed);
+    let (lo, hi) = design.bounds();
+    let jitter = |rng: &mut ChaCha8Rng, s: f64| {
+        Vector3::new(
+            rng.random_range(-s..s),
+            rng.random_range(-s..s),
+            rng.random_range(-s..s),
+        )
+    };
+    while pts.len() < n {
+        // A point of an edge that crosses the cut, where the rim is.
+        let t = design.triangles[rng.random_range(0..design.triangles.len())];
+        let [a, b, _] = t.map(|k| design.vertices[k as usize]);
+        if (a.z - h) * (b.z - h) < 0.0 {
+            let s = (h - a.z) / (b.z - a.z);
+            let rim = a + (b - a) * s;
+            pts.push(rim + jitter(&mut rng, scale * 0.2));
+            pts.push(rim + jitter(&mut rng, 1e-6));
+        } else if rng.random_bool(0.05) {
+            pts.push(Point3::new(
+                rng.random_range(lo.x..hi.x),
+                rng.random_range(lo.y..hi.y),
+                h + rng.random_range(-scale..scale),
+            ));
+        }
+    }
+    pts
+}
+
+fn assert_cut_equals_brute_force(design: &Design, max_distance: f64, heights: &[f64], n: usize) {
+    let idx = index(design, max_distance);
+    for (k, &h) in heights.iter().enumerate() {
+        let (cut, _) = asbuilt_core::layers::cut_at(design, h).unwrap();
+        let reference = index(&cut, max_distance);
+        let section = idx.section(h).unwrap();
+        let points = cut_probe_points(design, h, n, max_distance, 100 + k as u64);
+        let mut cursor = Cursor::default();
+        let (mut matched, mut on_cap) = (0, 0);
+        for p in &points {
+            let fast = idx.query_cut(p, &mut cursor, &section);
+            let slow = reference.brute_force(p);
+            match (fast, slow) {
+                (Some(f), Some(s)) => {
+                    matched += 1;
+                    on_cap += usize::from(f.triangle as usize >= idx.triangles());
+                    assert!(
+                        (f.distance.abs() - s.distance.abs()).abs() <= 1e-9,
+                        "height {h} at {p:?}: {f:?} vs {s:?}"
+                    );
+                    if s.distance.abs() > 1e-9 {
+                        assert_eq!(
+                            f.distance < 0.0,
+                            s.distance < 0.0,
+                            "sign at height {h}, {p:?}: {f:?} vs {s:?}"
+                        );
+                    }
+                }
+                (None, None) => {}
+                (f, s) => {
+                    let d = f.or(s).unwrap().distance.abs();
+                    assert!(
+                        (d - max_distance).abs() <= 1e-9,
+                        "height {h} at {p:?}: fast {f:?}, brute force {s:?}"
+                    );
+                }
+            }
+        }
+        assert!(matched > n / 4, "only {matched} of {n} matched at {h}");
+        if section.report().cap_triangles > 0 {
+            assert!(on_cap > 0, "no point found the cap at {h}");
+        }
+    }
+}
+
+#[test]
+fn a_cut_from_the_one_index_equals_brute_force_over_the_cut_mesh() {
+    use asbuilt_core::design::shapes::twisted_column;
+    // Free-form: no face parallel to an axis; heights at random, a ring's height included.
+    let column = twisted_column(0.15, 0.1, 1.2, 90.0, 96, 40);
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut heights: Vec<f64> = (0..4).map(|_| rng.random_range(0.05..1.15)).collect();
+    heights.push(0.6);
+    assert_cut_equals_brute_force(&column, 0.03, &heights, 30_000);
+    let cube = cuboid(Point3::new(-0.3, 0.0, 0.1), Point3::new(0.7, 2.0, 0.5));
+    assert_cut_equals_brute_force(&cube, 0.2, &[0.3, 0.49], 20_000);
+    let sphere = icosphere(Point3::new(1.0, 2.0, 3.0), 0.5, 3);
+    assert_cut_equals_brute_force(&sphere, 0.1, &[2.7, 3.0, 3.41], 20_000);
+}
+
+#[test]
+fn a_cut_of_the_bunny_equals_brute_force_over_the_cut_mesh() {
+    let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
+    let bunny = Design::load(&path, Units::Metres).unwrap();
+    let (lo, hi) = bunny.bounds();
+    let heights = [lo.z + 0.3 * (hi.z - lo.z), lo.z + 0.71 * (hi.z - lo.z)];
+    assert_cut_equals_brute_force(&bunny, 0.005, &heights, 20_000);
+}
+
+#[test]
+fn slivers_duplicates_and_specks_index_within_the_memory_bound() {
+    // A box, 500 copies of one of its faces, slivers a thousand times longer than wide and
+    // specks of 1e-9 m: the cell size follows the surface, not the smallest triangle.
+    let cube = cuboid(Point3::origin(), Point3::new(1.0, 1.0, 1.0));
+    let mut v = cube.vertices.clone();
+    let mut t = cube.triangles.clone();
+    for _ in 0..500 {
+        t.push(cube.triangles[0]);
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for _ in 0..2000 {
+        let a = Point3::new(rng.random::<f64>(), rng.random::<f64>(), 1.0);
+        let long = Vector3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, 0.0);
+        let s = v.len() as u32;
+        v.extend([
+            a,
+            a + long,
+            a + long * 0.5 + Vector3::new(1e-3 * long.y, -1e-3 * long.x, 0.0),
+        ]);
+        t.push([s, s + 1, s + 2]);
+        let s = v.len() as u32;
+        v.extend([
+            a,
+            a + Vector3::new(1e-9, 0.0, 0.0),
+            a + Vector3::new(0.0, 1e-9, 0.0),
+        ]);
+        t.push([s, s + 1, s + 2]);
+    }
+    let design = Design::from_indexed(v, t, 1.0).unwrap();
+    let idx = index(&design, 0.05);
+    let stats = idx.stats();
+    assert!(
+        stats.bytes < 400 * stats.triangles + (1 << 20),
+        "{} bytes for {} triangles",
+        stats.bytes,
+        stats.triangles
+    );
+    let points = probe_points(&design, 20_000, 0.03, 21);
+    for p in points.iter().step_by(3) {
+        assert_eq!(
+            idx.query(p, &mut Cursor::default()),
+            idx.brute_force(p),
+            "{p:?}"
+        );
+    }
+}

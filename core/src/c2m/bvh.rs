@@ -1,17 +1,24 @@
-//! A bounding volume hierarchy over triangles for exact closest-triangle queries under a bound.
-//! The grid answers most points; this answers the rest and builds the grid.
+//! A bounding volume hierarchy over the triangles: exact closest-triangle queries under a bound,
+//! balls, and segments. The grid answers most points; this answers the rest, builds the grid and
+//! casts the lines of sight.
+//!
+//! Boxes are stored in f32, rounded outwards, so a box still holds its triangles and a distance
+//! to a box is still a lower bound: searches stay exact at 32 bytes a node. Leaves hold runs of
+//! the mesh's internal order, which is the order this build leaves the triangles in.
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
-use super::triangle::Triangle;
+use super::mesh::Mesh;
 
 const LEAF_SIZE: usize = 4;
+/// Below this many triangles a subtree is built on one thread.
+const PARALLEL_MIN: usize = 16_384;
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Node {
-    min: [f64; 3],
-    max: [f64; 3],
-    /// Leaf: first index into `order`; inner: index of the left child (right is `left + 1`).
+    min: [f32; 3],
+    max: [f32; 3],
+    /// Leaf: first internal triangle; inner: index of the right child (the left is next).
     start: u32,
     /// Leaf: number of triangles; inner: 0.
     count: u32,
@@ -19,18 +26,64 @@ struct Node {
 
 pub struct Bvh {
     nodes: Vec<Node>,
-    order: Vec<u32>,
+}
+
+/// Which triangles a search may return: all of them, or those of the design cut at a height.
+pub trait Filter: Sync {
+    /// Whether a node whose boxes start at `min_z` can hold a kept triangle.
+    fn node(&self, min_z: f32) -> bool;
+    fn triangle(&self, mesh: &Mesh, t: usize) -> bool;
+}
+
+pub struct All;
+
+impl Filter for All {
+    #[inline]
+    fn node(&self, _: f32) -> bool {
+        true
+    }
+    #[inline]
+    fn triangle(&self, _: &Mesh, _: usize) -> bool {
+        true
+    }
+}
+
+/// Triangles wholly below `z` (every vertex strictly below): those the cut at `z` keeps whole.
+pub struct Below(pub f64);
+
+impl Filter for Below {
+    #[inline]
+    fn node(&self, min_z: f32) -> bool {
+        (min_z as f64) < self.0
+    }
+    #[inline]
+    fn triangle(&self, mesh: &Mesh, t: usize) -> bool {
+        mesh.top(t) < self.0
+    }
 }
 
 #[inline]
-fn box_dist2(min: &[f64; 3], max: &[f64; 3], p: &Point3<f64>) -> f64 {
+fn down(v: f64) -> f32 {
+    let f = v as f32;
+    if f as f64 > v { f.next_down() } else { f }
+}
+
+#[inline]
+fn up(v: f64) -> f32 {
+    let f = v as f32;
+    if (f as f64) < v { f.next_up() } else { f }
+}
+
+#[inline]
+fn box_dist2(n: &Node, p: &Point3<f64>) -> f64 {
     let mut d2 = 0.0;
     for k in 0..3 {
         let v = p[k];
-        let d = if v < min[k] {
-            min[k] - v
-        } else if v > max[k] {
-            v - max[k]
+        let (lo, hi) = (n.min[k] as f64, n.max[k] as f64);
+        let d = if v < lo {
+            lo - v
+        } else if v > hi {
+            v - hi
         } else {
             0.0
         };
@@ -39,195 +92,218 @@ fn box_dist2(min: &[f64; 3], max: &[f64; 3], p: &Point3<f64>) -> f64 {
     d2
 }
 
+fn nodes_for(n: usize) -> usize {
+    if n <= LEAF_SIZE {
+        1
+    } else {
+        1 + nodes_for(n / 2) + nodes_for(n - n / 2)
+    }
+}
+
+struct Item {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    tri: u32,
+}
+
 impl Bvh {
-    pub fn new(triangles: &[Triangle]) -> Self {
-        let boxes: Vec<([f64; 3], [f64; 3])> = triangles
-            .iter()
-            .map(|t| {
-                let (lo, hi) = t.aabb();
-                ([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z])
+    /// Builds over `triangles` of `vertices`; returns the hierarchy and the order of the
+    /// triangles in its leaves (internal position → design triangle).
+    pub fn build(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> (Self, Vec<u32>) {
+        use rayon::prelude::*;
+        let mut items: Vec<Item> = triangles
+            .par_iter()
+            .enumerate()
+            .map(|(t, f)| {
+                let [a, b, c] = f.map(|i| vertices[i as usize]);
+                let lo = a.inf(&b).inf(&c);
+                let hi = a.sup(&b).sup(&c);
+                Item {
+                    lo: [lo.x, lo.y, lo.z],
+                    hi: [hi.x, hi.y, hi.z],
+                    tri: t as u32,
+                }
             })
             .collect();
-        let centroids: Vec<[f64; 3]> = boxes
-            .iter()
-            .map(|(lo, hi)| std::array::from_fn(|k| 0.5 * (lo[k] + hi[k])))
-            .collect();
-        let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
-        let mut nodes = Vec::with_capacity(2 * triangles.len() / LEAF_SIZE + 1);
-        nodes.push(Node {
-            min: [0.0; 3],
-            max: [0.0; 3],
-            start: 0,
-            count: 0,
-        });
-        // Iterative build: (node index, range in `order`).
-        let mut stack = vec![(0usize, 0usize, order.len())];
-        while let Some((node, lo, hi)) = stack.pop() {
-            let mut min = [f64::INFINITY; 3];
-            let mut max = [f64::NEG_INFINITY; 3];
-            let mut cmin = [f64::INFINITY; 3];
-            let mut cmax = [f64::NEG_INFINITY; 3];
-            for &t in &order[lo..hi] {
-                let (bl, bh) = &boxes[t as usize];
-                let c = &centroids[t as usize];
-                for k in 0..3 {
-                    min[k] = min[k].min(bl[k]);
-                    max[k] = max[k].max(bh[k]);
-                    cmin[k] = cmin[k].min(c[k]);
-                    cmax[k] = cmax[k].max(c[k]);
-                }
-            }
-            nodes[node].min = min;
-            nodes[node].max = max;
-            if hi - lo <= LEAF_SIZE {
-                nodes[node].start = lo as u32;
-                nodes[node].count = (hi - lo) as u32;
-                continue;
-            }
-            let axis = (0..3)
-                .max_by(|&a, &b| (cmax[a] - cmin[a]).total_cmp(&(cmax[b] - cmin[b])))
-                .unwrap_or(0);
-            let mid = lo + (hi - lo) / 2;
-            order[lo..hi].select_nth_unstable_by(mid - lo, |&a, &b| {
-                centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
-            });
-            let left = nodes.len();
-            let blank = Node {
-                min: [0.0; 3],
-                max: [0.0; 3],
-                start: 0,
-                count: 0,
-            };
-            nodes.push(blank);
-            nodes.push(blank);
-            nodes[node].start = left as u32;
-            nodes[node].count = 0;
-            stack.push((left, lo, mid));
-            stack.push((left + 1, mid, hi));
-        }
-        Self { nodes, order }
+        let mut nodes = vec![Node::default(); nodes_for(items.len().max(1))];
+        build_range(&mut items, &mut nodes, 0, 0);
+        let order = items.iter().map(|i| i.tri).collect();
+        (Self { nodes }, order)
     }
 
     pub fn bytes(&self) -> usize {
-        self.nodes.len() * size_of::<Node>() + self.order.len() * size_of::<u32>()
+        self.nodes.len() * size_of::<Node>()
     }
 
-    /// The triangle closest to `p` among those within `sqrt(limit2)`, with its squared distance;
-    /// ties go to the lowest index. `hint` (a triangle likely to be close, such as the previous
-    /// point's) tightens the bound before the descent.
-    pub fn closest(
+    /// The triangle closest to `p` among those within `sqrt(limit2)` that `filter` keeps, with
+    /// its squared distance; ties go to the lowest design id. `hint` (an internal triangle likely
+    /// to be close) tightens the bound before the descent.
+    pub fn closest<F: Filter>(
         &self,
-        triangles: &[Triangle],
+        mesh: &Mesh,
         p: &Point3<f64>,
         limit2: f64,
         hint: Option<u32>,
+        filter: &F,
     ) -> Option<(u32, f64)> {
         let mut best: Option<(u32, f64)> = None;
         let mut bound2 = limit2;
-        let consider = |t: u32, best: &mut Option<(u32, f64)>, bound2: &mut f64| {
-            let (q, _) = triangles[t as usize].closest_point(p);
-            let d2 = (p - q).norm_squared();
-            if d2 <= limit2 && super::better(t, d2, *best) {
-                *best = Some((t, d2));
+        let consider = |t: usize, best: &mut Option<(u32, f64)>, bound2: &mut f64| {
+            if !filter.triangle(mesh, t) {
+                return;
+            }
+            let d2 = (p - mesh.triangle(t).closest_point(p).0).norm_squared();
+            if d2 <= limit2 && super::better_internal(mesh, t as u32, d2, *best) {
+                *best = Some((t as u32, d2));
                 *bound2 = d2;
             }
         };
-        if let Some(h) = hint {
-            consider(h, &mut best, &mut bound2);
+        if let Some(h) = hint
+            && (h as usize) < mesh.len()
+        {
+            consider(h as usize, &mut best, &mut bound2);
         }
         // Boxes farther than the bound cannot hold a closer triangle; boxes exactly at the bound
-        // may hold a tie with a lower index, so they are still searched.
+        // may hold a tie with a lower id, so they are still searched.
         let mut stack = [0u32; 64];
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let node = &self.nodes[stack[top] as usize];
-            if box_dist2(&node.min, &node.max, p) > bound2 {
-                continue;
-            }
+            let i = stack[top] as usize;
+            let node = &self.nodes[i];
             if node.count > 0 {
                 let s = node.start as usize;
-                for &t in &self.order[s..s + node.count as usize] {
+                for t in s..s + node.count as usize {
                     consider(t, &mut best, &mut bound2);
                 }
+                continue;
+            }
+            let (l, r) = (i + 1, node.start as usize);
+            let (nl, nr) = (&self.nodes[l], &self.nodes[r]);
+            let dl = if filter.node(nl.min[2]) {
+                box_dist2(nl, p)
             } else {
-                let l = node.start as usize;
-                let dl = box_dist2(&self.nodes[l].min, &self.nodes[l].max, p);
-                let dr = box_dist2(&self.nodes[l + 1].min, &self.nodes[l + 1].max, p);
-                // Push the farther child first so the nearer one is searched first.
-                let (near, dn, far, df) = if dl <= dr {
-                    (l, dl, l + 1, dr)
-                } else {
-                    (l + 1, dr, l, dl)
-                };
-                // Depth is at most log2(triangles) + 1 (median splits), far below 63.
-                if df <= bound2 {
-                    stack[top] = far as u32;
-                    top += 1;
-                }
-                if dn <= bound2 {
-                    stack[top] = near as u32;
-                    top += 1;
-                }
+                f64::INFINITY
+            };
+            let dr = if filter.node(nr.min[2]) {
+                box_dist2(nr, p)
+            } else {
+                f64::INFINITY
+            };
+            let (near, dn, far, df) = if dl <= dr {
+                (l, dl, r, dr)
+            } else {
+                (r, dr, l, dl)
+            };
+            // Depth is at most log2(triangles) + 1 (median splits), far below 63.
+            if df <= bound2 {
+                stack[top] = far as u32;
+                top += 1;
+            }
+            if dn <= bound2 {
+                stack[top] = near as u32;
+                top += 1;
             }
         }
         best
     }
 
     /// Every triangle whose distance to `p` is at most `radius`, with that distance.
-    pub fn within(
-        &self,
-        triangles: &[Triangle],
-        p: &Point3<f64>,
-        radius: f64,
-        out: &mut Vec<(u32, f64)>,
-    ) {
+    pub fn within(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
         let r2 = radius * radius;
-        let mut stack = vec![0u32];
-        while let Some(n) = stack.pop() {
-            let node = &self.nodes[n as usize];
-            if box_dist2(&node.min, &node.max, p) > r2 {
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let i = stack[top] as usize;
+            let node = &self.nodes[i];
+            if box_dist2(node, p) > r2 {
                 continue;
             }
             if node.count > 0 {
                 let s = node.start as usize;
-                for &t in &self.order[s..s + node.count as usize] {
-                    let (q, _) = triangles[t as usize].closest_point(p);
-                    let d = (p - q).norm();
+                for t in s..s + node.count as usize {
+                    let d = (p - mesh.triangle(t).closest_point(p).0).norm();
                     if d <= radius {
-                        out.push((t, d));
+                        out.push((t as u32, d));
                     }
                 }
             } else {
-                stack.push(node.start);
-                stack.push(node.start + 1);
+                stack[top] = (i + 1) as u32;
+                stack[top + 1] = node.start;
+                top += 2;
             }
         }
     }
 
-    /// Whether any triangle crosses the segment from `from` to `from + dir · t` for some `t` in
-    /// `(t_min, t_max)`.
-    pub fn segment_blocked(
+    /// Internal triangles whose box meets the plane `z` (conservatively).
+    pub fn crossing(&self, z: f64, out: &mut Vec<u32>) {
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let i = stack[top] as usize;
+            let node = &self.nodes[i];
+            if (node.min[2] as f64) > z || (node.max[2] as f64) < z {
+                continue;
+            }
+            if node.count > 0 {
+                out.extend(node.start..node.start + node.count);
+            } else {
+                stack[top] = (i + 1) as u32;
+                stack[top + 1] = node.start;
+                top += 2;
+            }
+        }
+    }
+
+    /// Internal triangles whose box holds the point `p`.
+    pub fn containing(&self, p: &Point3<f64>, out: &mut Vec<u32>) {
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let i = stack[top] as usize;
+            let node = &self.nodes[i];
+            if box_dist2(node, p) > 0.0 {
+                continue;
+            }
+            if node.count > 0 {
+                out.extend(node.start..node.start + node.count);
+            } else {
+                stack[top] = (i + 1) as u32;
+                stack[top + 1] = node.start;
+                top += 2;
+            }
+        }
+    }
+
+    /// Whether a triangle that `filter` keeps crosses the segment from `from` to
+    /// `from + dir · t` for some `t` in `(t_min, t_max)`.
+    pub fn segment_blocked<F: Filter>(
         &self,
-        triangles: &[Triangle],
+        mesh: &Mesh,
         from: &Point3<f64>,
-        dir: &nalgebra::Vector3<f64>,
+        dir: &Vector3<f64>,
         t_min: f64,
         t_max: f64,
+        filter: &F,
     ) -> bool {
         let inv = dir.map(|d| 1.0 / d);
         let mut stack = [0u32; 64];
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let node = &self.nodes[stack[top] as usize];
-            if !slab_hit(&node.min, &node.max, from, &inv, t_min, t_max) {
+            let i = stack[top] as usize;
+            let node = &self.nodes[i];
+            if !filter.node(node.min[2]) || !slab_hit(node, from, &inv, t_min, t_max) {
                 continue;
             }
             if node.count > 0 {
                 let s = node.start as usize;
-                for &t in &self.order[s..s + node.count as usize] {
-                    if let Some(hit) = triangles[t as usize].ray_hit(from, dir)
+                for t in s..s + node.count as usize {
+                    if filter.triangle(mesh, t)
+                        && let Some(hit) = mesh.triangle(t).ray_hit(from, dir)
                         && hit > t_min
                         && hit < t_max
                     {
@@ -235,8 +311,8 @@ impl Bvh {
                     }
                 }
             } else {
-                stack[top] = node.start;
-                stack[top + 1] = node.start + 1;
+                stack[top] = (i + 1) as u32;
+                stack[top + 1] = node.start;
                 top += 2;
             }
         }
@@ -244,21 +320,64 @@ impl Bvh {
     }
 }
 
+/// Builds the subtree of `items` at `nodes[0]`, which is node `base` of the whole tree; `first`
+/// is the internal index of `items[0]`. Node counts follow from the sizes alone, so both halves
+/// know where they go and build in parallel.
+fn build_range(items: &mut [Item], nodes: &mut [Node], first: usize, base: usize) {
+    let mut min = [f64::INFINITY; 3];
+    let mut max = [f64::NEG_INFINITY; 3];
+    let mut cmin = [f64::INFINITY; 3];
+    let mut cmax = [f64::NEG_INFINITY; 3];
+    for it in items.iter() {
+        for k in 0..3 {
+            min[k] = min[k].min(it.lo[k]);
+            max[k] = max[k].max(it.hi[k]);
+            let c = 0.5 * (it.lo[k] + it.hi[k]);
+            cmin[k] = cmin[k].min(c);
+            cmax[k] = cmax[k].max(c);
+        }
+    }
+    nodes[0].min = min.map(down);
+    nodes[0].max = max.map(up);
+    let n = items.len();
+    if n <= LEAF_SIZE {
+        nodes[0].start = first as u32;
+        nodes[0].count = n as u32;
+        return;
+    }
+    let axis = (0..3)
+        .max_by(|&a, &b| (cmax[a] - cmin[a]).total_cmp(&(cmax[b] - cmin[b])))
+        .unwrap_or(0);
+    let mid = n / 2;
+    let key = |it: &Item| it.lo[axis] + it.hi[axis];
+    items.select_nth_unstable_by(mid, |a, b| {
+        key(a).total_cmp(&key(b)).then(a.tri.cmp(&b.tri))
+    });
+    let left_nodes = nodes_for(mid);
+    let right = base + 1 + left_nodes;
+    nodes[0].start = right as u32;
+    nodes[0].count = 0;
+    let (ln, rn) = nodes[1..].split_at_mut(left_nodes);
+    let (li, ri) = items.split_at_mut(mid);
+    if n >= PARALLEL_MIN {
+        rayon::join(
+            || build_range(li, ln, first, base + 1),
+            || build_range(ri, rn, first + mid, right),
+        );
+    } else {
+        build_range(li, ln, first, base + 1);
+        build_range(ri, rn, first + mid, right);
+    }
+}
+
 /// Ray against box by slabs (Kay and Kajiya); infinities from zero direction components compare
 /// correctly.
 #[inline]
-fn slab_hit(
-    min: &[f64; 3],
-    max: &[f64; 3],
-    o: &Point3<f64>,
-    inv: &nalgebra::Vector3<f64>,
-    t_min: f64,
-    t_max: f64,
-) -> bool {
+fn slab_hit(n: &Node, o: &Point3<f64>, inv: &Vector3<f64>, t_min: f64, t_max: f64) -> bool {
     let (mut lo, mut hi) = (t_min, t_max);
     for k in 0..3 {
-        let a = (min[k] - o[k]) * inv[k];
-        let b = (max[k] - o[k]) * inv[k];
+        let a = (n.min[k] as f64 - o[k]) * inv[k];
+        let b = (n.max[k] as f64 - o[k]) * inv[k];
         let (a, b) = if a <= b { (a, b) } else { (b, a) };
         // A NaN (0 · ∞ on a box face) must not exclude the box.
         if a > lo {

@@ -1,146 +1,182 @@
 //! A sparse grid of candidate triangles near the design surface.
 //!
-//! For a cell with centre `c` and half-diagonal `r`, the triangle closest to any point `p` in the
-//! cell satisfies `d(c, T) <= U + r`, where `U = min_T' max_corners d(corner, T')` bounds the
-//! distance from any point of the cell to the surface (distance to a triangle is convex, so its
-//! maximum over the cell is at a corner). Those triangles are the cell's candidates, sorted by
-//! `d(c, T)`. At query time `d(p, T) >= d(c, T) - |p - c|`, so the scan over candidates stops as
-//! soon as that lower bound exceeds the best distance found: most points test a handful.
+//! Cells of size `h` are kept wherever a point within `h` of the surface can fall: the cells a
+//! triangle's box and plane touch, and their 26 neighbours. For a kept cell `K` with centre `c`
+//! and half-diagonal `r`, every point of `K` is within `U` of the surface, where `U` is the
+//! smaller of `d(c, S) + r` and, over the few nearest triangles, the distance of the cell's
+//! farthest corner (distance to a triangle is convex, so its maximum over the cell is at a
+//! corner). A triangle can be the closest for a point of `K` only if its distance to the cell can
+//! be at most `U`; two exact lower bounds of that distance, `d(c, T) - r` and the gap between the
+//! cell and the triangle's box, prune the rest. The list is sorted by `d(c, T)`, kept in a byte
+//! rounded down, so a query stops as soon as `d(c, T) - |p - c|` exceeds the best distance found.
 //!
-//! Cells are kept where `d(c, surface) <= band + r`, so every point within `band` of the surface
-//! falls in a kept cell.
+//! Each cell also keeps the top of its candidates, so a query against the design cut at a height
+//! above it can use the list as it is.
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::bvh::Bvh;
-use super::triangle::Triangle;
+use super::bvh::{All, Bvh};
+use super::mesh::Mesh;
 
 /// Cells per axis are addressed with 21 bits each, packed into one u64 key.
 const AXIS_BITS: u32 = 21;
-const AXIS_MAX: i64 = (1 << AXIS_BITS) - 1;
+pub const AXIS_MAX: i64 = (1 << AXIS_BITS) - 1;
+/// Longer lists are not kept: their cell is answered by the BVH, which bounds the memory of
+/// pathological designs (hundreds of duplicates or slivers on one spot).
+const MAX_LIST: usize = 255;
+/// One cell in this many is sampled for the lengths of the lists.
+const SAMPLE_EVERY: usize = 16;
+/// How many of the nearest triangles are tried for the corner bound.
+const CORNER_TRIES: usize = 4;
+/// Cells are kept where a point within this many cell sizes of the surface can fall; farther
+/// points (a defect's, or the surroundings') go to the BVH.
+pub const BAND: f64 = 0.5;
+
+#[derive(Debug, Clone, Copy)]
+pub struct Cell {
+    start: u32,
+    /// 0: no list; the cell is answered by the BVH.
+    len: u16,
+    /// The highest vertex of the candidates, rounded up.
+    top: f32,
+}
+
+impl Cell {
+    #[inline]
+    pub fn top(&self) -> f64 {
+        self.top as f64
+    }
+    #[inline]
+    pub fn has_list(&self) -> bool {
+        self.len > 0
+    }
+}
 
 pub struct Grid {
     origin: Point3<f64>,
     h: f64,
     inv_h: f64,
-    band: f64,
-    cells: FxHashMap<u64, (u32, u32)>,
-    cand_tri: Vec<u32>,
-    /// `d(c, T)`, rounded down to f32 so it stays a lower bound.
-    cand_dist: Vec<f32>,
+    /// Metres per unit of a candidate's distance byte.
+    step: f64,
+    cells: FxHashMap<u64, Cell>,
+    cand: Vec<u32>,
+    dist: Vec<u8>,
 }
 
 pub struct GridStats {
     pub cell_size: f64,
-    pub band: f64,
     pub cells: usize,
     pub candidates: usize,
+    /// Cells whose list was too long to keep; the BVH answers them.
+    pub bvh_cells: usize,
     pub bytes: usize,
 }
 
 impl Grid {
-    pub fn build(triangles: &[Triangle], bvh: &Bvh, h: f64, band: f64) -> Self {
-        let half_diag = 0.5 * 3f64.sqrt() * h;
-        let reach = band + half_diag;
-        let (mut lo, mut hi) = (
-            Point3::from([f64::INFINITY; 3]),
-            Point3::from([f64::NEG_INFINITY; 3]),
-        );
-        for t in triangles {
-            let (a, b) = t.aabb();
-            lo = lo.inf(&a);
-            hi = hi.sup(&b);
-        }
-        let origin = lo - Vector3::repeat(reach + h);
-        let inv_h = 1.0 / h;
-        let grid = |p: &Point3<f64>| -> [i64; 3] {
-            std::array::from_fn(|k| ((p[k] - origin[k]) * inv_h).floor() as i64)
-        };
-        let extent = grid(&(hi + Vector3::repeat(reach + h)));
-        let fits = extent.iter().all(|&e| e <= AXIS_MAX);
-        assert!(fits, "cell size too small for the design's extent");
-
-        // Cells within reach of each triangle, found from the triangle's box and kept only if the
-        // cell centre is within reach of the triangle itself.
-        let mut keys: Vec<u64> = triangles
-            .par_chunks(256)
-            .flat_map_iter(|chunk| {
-                let mut keys = Vec::new();
-                for t in chunk {
-                    let (a, b) = t.aabb();
-                    let i0 = grid(&(a - Vector3::repeat(reach)));
-                    let i1 = grid(&(b + Vector3::repeat(reach)));
-                    let n = t.ab.cross(&t.ac).normalize();
-                    for i in i0[0]..=i1[0] {
-                        for j in i0[1]..=i1[1] {
-                            for k in i0[2]..=i1[2] {
-                                let c = center(&origin, h, [i, j, k]);
-                                if n.dot(&(c - t.a)).abs() > reach {
-                                    continue;
-                                }
-                                let (q, _) = t.closest_point(&c);
-                                if (c - q).norm() <= reach {
-                                    keys.push(pack([i, j, k]));
-                                }
-                            }
-                        }
-                    }
+    /// Cells of size `h` or larger: the size grows by half until the surface takes at most
+    /// `max_surface_cells` cells (and enumerating them stays within a multiple of that), so the
+    /// memory is bounded whatever the triangles look like. The caller sized `h` so that the
+    /// design's extent fits the key.
+    pub fn build(
+        mesh: &Mesh,
+        bvh: &Bvh,
+        mut h: f64,
+        lo: Point3<f64>,
+        max_surface_cells: usize,
+        max_candidates: usize,
+    ) -> Self {
+        let (origin, keys) = loop {
+            let origin = lo - Vector3::repeat(2.0 * h);
+            let emitted = emitted_estimate(mesh, &origin, h);
+            if emitted <= 64.0 * max_surface_cells as f64 {
+                let surface = surface_cells(mesh, &origin, h);
+                if surface.len() <= max_surface_cells {
+                    break (origin, dilate(&surface));
                 }
-                keys.sort_unstable();
-                keys.dedup();
-                keys
-            })
-            .collect();
-        keys.par_sort_unstable();
-        keys.dedup();
-
-        let lists: Vec<Vec<(u32, f32)>> = keys
-            .par_iter()
-            .map_init(Vec::new, |scratch, &key| {
-                candidates(triangles, bvh, &origin, h, half_diag, unpack(key), scratch)
-            })
-            .collect();
-
-        let total: usize = lists.iter().map(Vec::len).sum();
-        let mut cand_tri = Vec::with_capacity(total);
-        let mut cand_dist = Vec::with_capacity(total);
-        let mut cells = FxHashMap::default();
-        cells.reserve(keys.len());
-        for (key, list) in keys.iter().zip(lists) {
-            cells.insert(*key, (cand_tri.len() as u32, list.len() as u32));
-            for (t, d) in list {
-                cand_tri.push(t);
-                cand_dist.push(d);
             }
+            h *= 1.5;
+        };
+        let half_diag = 0.5 * 3f64.sqrt() * h;
+        let inv_h = 1.0 / h;
+        let step = (BAND * h + 3.0 * half_diag) / 255.0;
+
+        // The longest lists cost the most and save the least over the BVH: a sample of the
+        // cells sets the longest list kept so that all of them fit the budget.
+        let sample: Vec<usize> = keys
+            .par_iter()
+            .step_by(SAMPLE_EVERY)
+            .map_init(
+                || (Vec::new(), None),
+                |(scratch, hint), &key| {
+                    let c = center(&origin, h, unpack(key));
+                    candidates(mesh, bvh, &c, h, half_diag, step, MAX_LIST, scratch, hint)
+                        .map_or(0, |(t, _, _)| {
+                            t.len().max(if t.is_empty() { MAX_LIST + 1 } else { 0 })
+                        })
+                },
+            )
+            .collect();
+        let longest = longest_list(sample, keys.len(), max_candidates);
+        let lists: Vec<(u64, Vec<u32>, Vec<u8>, f32)> = keys
+            .par_iter()
+            .map_init(
+                || (Vec::new(), None),
+                |(scratch, hint), &key| {
+                    let c = center(&origin, h, unpack(key));
+                    candidates(mesh, bvh, &c, h, half_diag, step, longest, scratch, hint)
+                        .map(|(t, d, top)| (key, t, d, top))
+                },
+            )
+            .flatten()
+            .collect();
+        drop(keys);
+
+        let total: usize = lists.iter().map(|l| l.1.len()).sum();
+        let mut cand = Vec::with_capacity(total);
+        let mut dist = Vec::with_capacity(total);
+        let mut cells = FxHashMap::default();
+        cells.reserve(lists.len());
+        for (key, t, d, top) in lists {
+            let cell = Cell {
+                start: cand.len() as u32,
+                len: t.len() as u16,
+                top,
+            };
+            cand.extend_from_slice(&t);
+            dist.extend_from_slice(&d);
+            cells.insert(key, cell);
         }
         Self {
             origin,
             h,
             inv_h,
-            band,
+            step,
             cells,
-            cand_tri,
-            cand_dist,
+            cand,
+            dist,
         }
     }
 
     pub fn stats(&self) -> GridStats {
         GridStats {
             cell_size: self.h,
-            band: self.band,
             cells: self.cells.len(),
-            candidates: self.cand_tri.len(),
-            bytes: self.cells.capacity() * (8 + 8 + 1) + self.cand_tri.len() * 8,
+            candidates: self.cand.len(),
+            bvh_cells: self.cells.values().filter(|c| !c.has_list()).count(),
+            // hashbrown: a key, a value and a control byte per bucket.
+            bytes: self.cells.capacity() * (size_of::<u64>() + size_of::<Cell>() + 1)
+                + self.cand.len() * (size_of::<u32>() + size_of::<u8>()),
         }
     }
 
+    /// Points within this distance of the surface always fall in a kept cell.
     pub fn band(&self) -> f64 {
-        self.band
+        BAND * self.h
     }
 
-    /// The key of the cell holding `p`, or `None` outside the grid.
+    /// The key of the cell holding `p`, or `None` outside the grid (or not finite).
     #[inline]
     pub fn key(&self, p: &Point3<f64>) -> Option<u64> {
         let mut ijk = [0i64; 3];
@@ -154,9 +190,8 @@ impl Grid {
         Some(pack(ijk))
     }
 
-    /// The candidate range of a cell, if the cell is near the surface.
     #[inline]
-    pub fn cell(&self, key: u64) -> Option<(u32, u32)> {
+    pub fn cell(&self, key: u64) -> Option<Cell> {
         self.cells.get(&key).copied()
     }
 
@@ -165,54 +200,212 @@ impl Grid {
         center(&self.origin, self.h, unpack(key))
     }
 
+    /// The closest candidate of `cell` to `p` (which lies in the cell with centre `c`): internal
+    /// triangle and squared distance. Ties go to the lowest design id.
     #[inline]
-    pub fn candidates_of(&self, range: (u32, u32)) -> (&[u32], &[f32]) {
-        let (s, n) = (range.0 as usize, range.1 as usize);
-        (&self.cand_tri[s..s + n], &self.cand_dist[s..s + n])
+    pub fn closest(
+        &self,
+        mesh: &Mesh,
+        cell: &Cell,
+        c: &Point3<f64>,
+        p: &Point3<f64>,
+    ) -> (u32, f64) {
+        let dc = (p - c).norm();
+        let (s, n) = (cell.start as usize, cell.len as usize);
+        let mut best: Option<(u32, f64)> = None;
+        // A margin of rounding keeps a triangle that ties from being cut off.
+        let mut stop = f64::INFINITY;
+        for (&t, &q) in self.cand[s..s + n].iter().zip(&self.dist[s..s + n]) {
+            if q as f64 * self.step - dc > stop {
+                break;
+            }
+            let d2 = (p - mesh.triangle(t as usize).closest_point(p).0).norm_squared();
+            if super::better_internal(mesh, t, d2, best) {
+                best = Some((t, d2));
+                stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
+            }
+        }
+        best.expect("a kept list has a candidate")
     }
 }
 
+/// How many cell keys enumerating the surface would emit, at most (before duplicates go).
+fn emitted_estimate(mesh: &Mesh, origin: &Point3<f64>, h: f64) -> f64 {
+    (0..mesh.len())
+        .into_par_iter()
+        .map(|t| {
+            let tri = mesh.triangle(t);
+            let (a, b) = tri.aabb();
+            let cell = |v: f64, k: usize| ((v - origin[k]) / h).floor();
+            let boxed: f64 = (0..3)
+                .map(|k| cell(b[k], k) - cell(a[k], k) + 1.0)
+                .product();
+            let area = 0.5 * tri.ab.cross(&tri.ac).norm();
+            let perimeter = tri.ab.norm() + tri.ac.norm() + (tri.ac - tri.ab).norm();
+            boxed.min(3.0 * (area / (h * h) + perimeter / h + 1.0))
+        })
+        .sum()
+}
+
+/// The keys of the cells a triangle's box and plane both reach (a superset of the cells it
+/// meets), sorted.
+fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64) -> Vec<u64> {
+    let inv_h = 1.0 / h;
+    let cell_of = |p: &Point3<f64>| -> [i64; 3] {
+        std::array::from_fn(|k| ((p[k] - origin[k]) * inv_h).floor() as i64)
+    };
+    let mut surface: Vec<u64> = (0..mesh.len())
+        .into_par_iter()
+        .chunks(512)
+        .flat_map_iter(|chunk| {
+            let mut keys = Vec::new();
+            for t in chunk {
+                let tri = mesh.triangle(t);
+                let (a, b) = tri.aabb();
+                let (i0, i1) = (cell_of(&a), cell_of(&b));
+                let n = tri.ab.cross(&tri.ac);
+                let reach = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
+                for i in i0[0]..=i1[0] {
+                    for j in i0[1]..=i1[1] {
+                        for k in i0[2]..=i1[2] {
+                            let c = center(origin, h, [i, j, k]);
+                            // Not `>`: a NaN from a huge design keeps the cell.
+                            if !(n.dot(&(c - tri.a)).abs() > reach) {
+                                keys.push(pack([i, j, k]));
+                            }
+                        }
+                    }
+                }
+            }
+            keys.sort_unstable();
+            keys.dedup();
+            keys
+        })
+        .collect();
+    surface.par_sort_unstable();
+    surface.dedup();
+    surface
+}
+
+/// The cells a point within `h` of the surface can fall in: the surface cells and their 26
+/// neighbours, sorted.
+fn dilate(surface: &[u64]) -> Vec<u64> {
+    let mut near: Vec<u64> = surface
+        .par_chunks(4096)
+        .flat_map_iter(|chunk| {
+            let mut keys = Vec::with_capacity(chunk.len() * 27);
+            for &key in chunk {
+                let [i, j, k] = unpack(key);
+                for di in -1..=1 {
+                    for dj in -1..=1 {
+                        for dk in -1..=1 {
+                            keys.push(pack([i + di, j + dj, k + dk]));
+                        }
+                    }
+                }
+            }
+            keys.sort_unstable();
+            keys.dedup();
+            keys
+        })
+        .collect();
+    near.par_sort_unstable();
+    near.dedup();
+    near
+}
+
+/// The candidate list of the cell centred at `c`: internal triangles, their distance bytes and
+/// the top of their vertices; `None` when no point within `h` of the surface falls in the cell.
+#[allow(clippy::too_many_arguments)]
 fn candidates(
-    triangles: &[Triangle],
+    mesh: &Mesh,
     bvh: &Bvh,
-    origin: &Point3<f64>,
+    c: &Point3<f64>,
     h: f64,
     half_diag: f64,
-    ijk: [i64; 3],
+    step: f64,
+    longest: usize,
     scratch: &mut Vec<(u32, f64)>,
-) -> Vec<(u32, f32)> {
-    let c = center(origin, h, ijk);
-    let (_, d2) = bvh
-        .closest(triangles, &c, f64::INFINITY, None)
-        .expect("a design has at least one triangle");
+    hint: &mut Option<u32>,
+) -> Option<(Vec<u32>, Vec<u8>, f32)> {
+    let (t0, d02) = bvh.closest(mesh, c, f64::INFINITY, *hint, &All)?;
+    *hint = Some(t0);
+    let d0 = d02.sqrt();
+    if d0 > BAND * h + half_diag {
+        return None;
+    }
     scratch.clear();
-    bvh.within(triangles, &c, d2.sqrt() + 2.0 * half_diag, scratch);
+    bvh.within(mesh, c, d0 + 2.0 * half_diag, scratch);
     scratch.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-    // U: the smallest, over the nearest few triangles, of the farthest corner's distance.
     let corners: [Point3<f64>; 8] = std::array::from_fn(|m| {
         let s = |bit: usize| if m >> bit & 1 == 1 { 0.5 } else { -0.5 };
         c + Vector3::new(s(0), s(1), s(2)) * h
     });
-    let mut upper = f64::INFINITY;
-    for &(t, _) in scratch.iter().take(8) {
+    let mut upper = d0 + half_diag;
+    for &(t, _) in scratch.iter().take(CORNER_TRIES) {
+        let tri = mesh.triangle(t as usize);
         let far = corners
             .iter()
-            .map(|q| (q - triangles[t as usize].closest_point(q).0).norm())
+            .map(|q| (q - tri.closest_point(q).0).norm())
             .fold(0.0, f64::max);
         upper = upper.min(far);
     }
     // Slack of a few ulps keeps rounding from dropping a triangle that ties.
-    let limit = (upper + half_diag) * (1.0 + 1e-12) + 1e-15;
-    scratch
-        .iter()
-        .take_while(|&&(_, d)| d <= limit)
-        .map(|&(t, d)| (t, round_down(d)))
-        .collect()
+    let upper = upper * (1.0 + 1e-12) + 1e-15;
+    let half = Vector3::repeat(0.5 * h);
+    let (cell_lo, cell_hi) = (c - half, c + half);
+    let mut tris = Vec::new();
+    let mut dist = Vec::new();
+    let mut top = f32::NEG_INFINITY;
+    let too_long = Some((Vec::new(), Vec::new(), f32::INFINITY));
+    for &(t, d) in scratch.iter() {
+        if d - half_diag > upper {
+            break;
+        }
+        let (lo, hi) = mesh.triangle(t as usize).aabb();
+        let gap = (0..3)
+            .map(|k| {
+                let g = (lo[k] - cell_hi[k]).max(cell_lo[k] - hi[k]).max(0.0);
+                g * g
+            })
+            .sum::<f64>()
+            .sqrt();
+        if gap > upper {
+            continue;
+        }
+        if tris.len() == longest {
+            return too_long;
+        }
+        tris.push(t);
+        dist.push((d / step).floor().min(255.0) as u8);
+        top = top.max(round_up(hi.z));
+    }
+    Some((tris, dist, top))
 }
 
-fn round_down(d: f64) -> f32 {
-    let f = d as f32;
-    if f as f64 > d { f.next_down() } else { f }
+/// The longest list to keep so that the lists of all `cells` hold at most `budget` candidates,
+/// from the lengths of an even sample of them (a length past [`MAX_LIST`] counts as too long).
+fn longest_list(mut sample: Vec<usize>, cells: usize, budget: usize) -> usize {
+    if sample.is_empty() {
+        return MAX_LIST;
+    }
+    sample.sort_unstable();
+    let scale = cells as f64 / sample.len() as f64;
+    let mut total = 0.0;
+    let mut longest = 0;
+    for &len in &sample {
+        if len > MAX_LIST || total + len as f64 * scale > budget as f64 {
+            break;
+        }
+        total += len as f64 * scale;
+        longest = len;
+    }
+    longest.max(1)
+}
+
+fn round_up(v: f64) -> f32 {
+    let f = v as f32;
+    if (f as f64) < v { f.next_up() } else { f }
 }
 
 #[inline]
@@ -226,7 +419,10 @@ fn center(origin: &Point3<f64>, h: f64, ijk: [i64; 3]) -> Point3<f64> {
 
 #[inline]
 fn pack(ijk: [i64; 3]) -> u64 {
-    (ijk[0] as u64) | ((ijk[1] as u64) << AXIS_BITS) | ((ijk[2] as u64) << (2 * AXIS_BITS))
+    let m = AXIS_MAX as u64;
+    (ijk[0] as u64 & m)
+        | ((ijk[1] as u64 & m) << AXIS_BITS)
+        | ((ijk[2] as u64 & m) << (2 * AXIS_BITS))
 }
 
 #[inline]

@@ -8,20 +8,28 @@
 //! Queries are exact: among equally close triangles the lowest index wins, in every path, so the
 //! result is the same as [`C2mIndex::brute_force`] bit for bit and does not depend on how points
 //! are split into chunks or threads.
+//!
+//! One index serves every printed height: [`C2mIndex::section`] prepares the cut at a height
+//! (the triangles that cross it, clipped, and the cap that closes it), and
+//! [`C2mIndex::query_cut`] answers as if the design had been cut there and indexed anew.
 
 mod bvh;
 mod grid;
+mod mesh;
 mod normals;
+mod section;
 pub mod triangle;
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::design::Design;
-use bvh::Bvh;
-use grid::Grid;
-use normals::PseudoNormals;
-use triangle::{Region, Triangle};
+use bvh::{All, Below, Bvh};
+use grid::{AXIS_MAX, Cell, Grid};
+use mesh::{Mesh, NormalSource};
+use triangle::Region;
+
+pub use section::Section;
 
 /// The closest design feature of a matched point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -30,6 +38,8 @@ pub struct Closest {
     pub distance: f64,
     /// The closest point on the design.
     pub point: Point3<f64>,
+    /// The design's triangle; for a cut design, the triangle a clipped piece came from, or
+    /// the design's triangle count plus the cap triangle's number.
     pub triangle: u32,
     pub region: Region,
 }
@@ -38,7 +48,7 @@ pub struct Closest {
 pub struct C2mParams {
     /// Points farther than this from the design have no match. Metres.
     pub max_distance: f64,
-    /// Grid cell size, metres; `None` picks one from the design's edge length.
+    /// Grid cell size, metres; `None` picks one from the design's triangle density.
     pub cell_size: Option<f64>,
 }
 
@@ -57,45 +67,82 @@ pub enum C2mError {
     MaxDistance(f64),
     #[error("cell size must be a positive number of metres, got {0}")]
     CellSize(f64),
+    #[error(
+        "the design is {extent} m across: coordinates that large cannot be indexed; check the \
+         design's units"
+    )]
+    Extent { extent: f64 },
 }
 
-/// What the acceleration structure costs; reported so that a memory budget can be checked.
+/// What the index costs; reported so that a memory budget can be checked.
 #[derive(Debug, Clone, Copy)]
 pub struct IndexStats {
     pub triangles: usize,
     pub cell_size: f64,
+    /// Points within this distance of the design are answered by the grid.
     pub band: f64,
     pub cells: usize,
     pub candidates: usize,
+    /// Cells whose candidate list was too long to keep (the BVH answers them).
+    pub bvh_cells: usize,
     pub bytes: usize,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct CellCache {
+    key: u64,
+    cell: Option<Cell>,
+    center: Point3<f64>,
+    valid: bool,
 }
 
 /// Per-thread state that lets consecutive, nearby points reuse the previous lookup.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Cursor {
-    key: u64,
-    range: Option<(u32, u32)>,
-    valid: bool,
-    last_triangle: Option<u32>,
+    cell: CellCache,
+    /// Internal triangle of the previous match.
+    last: Option<u32>,
+    section_cell: CellCache,
+    section_last: Option<u32>,
 }
 
 /// A design prepared for C2M queries. Built once per design and maximum distance.
 pub struct C2mIndex {
-    triangles: Vec<Triangle>,
-    faces: Vec<[u32; 3]>,
-    normals: PseudoNormals,
+    mesh: Mesh,
+    /// Design triangle → internal position.
+    internal: Vec<u32>,
     bvh: Bvh,
     grid: Grid,
     max_distance: f64,
+    lowest: f64,
+    highest: f64,
 }
 
-/// The grid's band in cells: points this close to the surface take the grid path.
-const BAND_CELLS: f64 = 1.5;
-/// A cell budget that keeps the index within a few hundred MB for any design.
-const MAX_CELLS: f64 = 4.0e6;
+/// Cells of this many times the triangles' mean size: lists of a few candidates.
+const CELL_PER_TRIANGLE: f64 = 1.5;
+/// At most this many cells on the surface per triangle, whatever the triangles look like
+/// (slivers, duplicates, long thin faces): the cell size grows until it holds.
+const SURFACE_CELLS_PER_TRIANGLE: f64 = 0.5;
+/// At most this many candidates in the cells' lists per triangle (5 bytes each): the longest
+/// lists are left to the BVH beyond it.
+const CANDIDATES_PER_TRIANGLE: f64 = 20.0;
 
 impl C2mIndex {
     pub fn build(design: &Design, params: C2mParams) -> Result<Self, C2mError> {
+        Self::build_mesh(
+            design.vertices.clone(),
+            &design.triangles,
+            NormalSource::Own,
+            params,
+        )
+    }
+
+    fn build_mesh(
+        vertices: Vec<Point3<f64>>,
+        triangles: &[[u32; 3]],
+        normals: NormalSource,
+        params: C2mParams,
+    ) -> Result<Self, C2mError> {
         if !(params.max_distance > 0.0 && params.max_distance.is_finite()) {
             return Err(C2mError::MaxDistance(params.max_distance));
         }
@@ -104,40 +151,34 @@ impl C2mIndex {
         {
             return Err(C2mError::CellSize(h));
         }
-        let triangles: Vec<Triangle> = design
-            .triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| design.vertices[i as usize]);
-                Triangle::new(a, b, c)
-            })
-            .collect();
-        let normals = PseudoNormals::new(&design.vertices, &design.triangles);
-        let bvh = Bvh::new(&triangles);
-
-        let (lo, hi) = design.bounds();
+        let (bvh, order) = Bvh::build(&vertices, triangles);
+        let mesh = Mesh::new(vertices, triangles, &order, normals);
+        drop(order);
+        let mut internal = vec![0u32; mesh.len()];
+        for (k, &t) in mesh.ids.iter().enumerate() {
+            internal[t as usize] = k as u32;
+        }
+        let (lo, hi) = bounds(&mesh);
         let extent = (hi - lo).max();
-        let area = design.surface_area();
-        let mut h = params
-            .cell_size
-            .unwrap_or_else(|| 0.5 * design.median_edge());
-        // Cells ≈ area · 2 (band + r) / h³ with band = 1.5 h and r = 0.87 h.
-        let min_h_budget = (2.0 * (BAND_CELLS + 0.87) * area / MAX_CELLS).sqrt();
-        // 21 bits per axis address the cells; leave room for the margins.
-        let min_h_address = (extent + 4.0 * params.max_distance) / ((1u64 << 20) as f64);
-        h = h
-            .max(min_h_budget)
-            .max(min_h_address)
-            .max(f64::MIN_POSITIVE);
-        let band = (BAND_CELLS * h).min(params.max_distance);
-        let grid = Grid::build(&triangles, &bvh, h, band);
+        if !extent.is_finite() || extent > 1e7 {
+            return Err(C2mError::Extent { extent });
+        }
+        let h = cell_size(&mesh, params.cell_size, extent);
+        let budget = if params.cell_size.is_some() {
+            usize::MAX
+        } else {
+            (SURFACE_CELLS_PER_TRIANGLE * mesh.len() as f64) as usize + 4096
+        };
+        let candidates = (CANDIDATES_PER_TRIANGLE * mesh.len() as f64) as usize + 65_536;
+        let grid = Grid::build(&mesh, &bvh, h, lo, budget, candidates);
         Ok(Self {
-            triangles,
-            faces: design.triangles.clone(),
-            normals,
+            mesh,
+            internal,
             bvh,
             grid,
             max_distance: params.max_distance,
+            lowest: lo.z,
+            highest: hi.z,
         })
     }
 
@@ -145,20 +186,28 @@ impl C2mIndex {
         self.max_distance
     }
 
+    /// Number of design triangles.
+    pub fn triangles(&self) -> usize {
+        self.mesh.len()
+    }
+
+    /// The design's lowest and highest z, metres.
+    pub fn z_range(&self) -> (f64, f64) {
+        (self.lowest, self.highest)
+    }
+
     pub fn stats(&self) -> IndexStats {
         let g = self.grid.stats();
         IndexStats {
-            triangles: self.triangles.len(),
+            triangles: self.mesh.len(),
             cell_size: g.cell_size,
-            band: g.band,
+            band: self.grid.band(),
             cells: g.cells,
             candidates: g.candidates,
+            bvh_cells: g.bvh_cells,
             bytes: g.bytes
-                + self.triangles.len()
-                    * (size_of::<Triangle>()
-                        + size_of::<[u32; 3]>()
-                        + size_of::<Vector3<f64>>() * 4)
-                + self.normals.vertex.len() * size_of::<Vector3<f64>>()
+                + self.mesh.bytes()
+                + self.internal.len() * size_of::<u32>()
                 + self.bvh.bytes(),
         }
     }
@@ -167,37 +216,140 @@ impl C2mIndex {
     /// distance (or not finite).
     #[inline]
     pub fn query(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
-        let key = self.grid.key(p);
-        let found = match key {
-            Some(key) => {
-                if !(cursor.valid && cursor.key == key) {
-                    cursor.key = key;
-                    cursor.range = self.grid.cell(key);
-                    cursor.valid = true;
-                }
-                match cursor.range {
-                    Some(range) => Some(self.closest_in_cell(p, key, range)),
-                    None => self.closest_far(p, cursor.last_triangle),
-                }
-            }
-            None => self.closest_far(p, cursor.last_triangle),
-        };
-        let (t, d2) = found?;
-        if d2 > self.max_distance * self.max_distance {
+        let limit2 = self.max_distance * self.max_distance;
+        let (t, d2) = self.closest(p, &mut cursor.cell, cursor.last, limit2)?;
+        if d2 > limit2 {
             return None;
         }
-        cursor.last_triangle = Some(t);
+        cursor.last = Some(t);
         Some(self.signed(p, t))
+    }
+
+    /// The closest triangle (internal) and squared distance, from the grid where `p` is near
+    /// the surface, else from the BVH under `limit2`.
+    #[inline]
+    fn closest(
+        &self,
+        p: &Point3<f64>,
+        cache: &mut CellCache,
+        hint: Option<u32>,
+        limit2: f64,
+    ) -> Option<(u32, f64)> {
+        match self.cell_of(p, cache) {
+            Some(cell) if cell.has_list() => {
+                Some(self.grid.closest(&self.mesh, &cell, &cache.center, p))
+            }
+            found => self.closest_far(p, found.is_some(), hint, limit2, &All),
+        }
+    }
+
+    /// The kept cell holding `p`, through the cache.
+    #[inline]
+    fn cell_of(&self, p: &Point3<f64>, cache: &mut CellCache) -> Option<Cell> {
+        let key = self.grid.key(p)?;
+        if !(cache.valid && cache.key == key) {
+            *cache = CellCache {
+                key,
+                cell: self.grid.cell(key),
+                center: self.grid.cell_center(key),
+                valid: true,
+            };
+        }
+        cache.cell
+    }
+
+    /// The BVH's answer for a point the grid's lists do not cover. A point outside every kept
+    /// cell is farther than the grid's band from the surface.
+    fn closest_far<F: bvh::Filter>(
+        &self,
+        p: &Point3<f64>,
+        in_kept_cell: bool,
+        hint: Option<u32>,
+        limit2: f64,
+        filter: &F,
+    ) -> Option<(u32, f64)> {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return None;
+        }
+        let band = self.grid.band();
+        if !in_kept_cell && band * band >= limit2 {
+            return None;
+        }
+        self.bvh.closest(&self.mesh, p, limit2, hint, filter)
+    }
+
+    /// The closest feature of `p` on the design cut at `section`'s height and closed by its
+    /// cap: what [`C2mIndex::query`] on an index of `crate::layers::cut_at`'s mesh gives, to
+    /// rounding.
+    pub fn query_cut(
+        &self,
+        p: &Point3<f64>,
+        cursor: &mut Cursor,
+        section: &Section,
+    ) -> Option<Closest> {
+        let h = section.height();
+        let limit2 = self.max_distance * self.max_distance;
+        // The cut design lies at or below the cut.
+        if !(p.z - h <= self.max_distance) {
+            return None;
+        }
+        let cap = section.closest(p, cursor, limit2);
+        let bound2 = cap.map_or(limit2, |c| c.1);
+        let whole = match self.cell_of(p, &mut cursor.cell) {
+            // Every candidate lies below the cut: the design's closest is the cut's.
+            Some(cell) if cell.has_list() && cell.top() < h => {
+                Some(self.grid.closest(&self.mesh, &cell, &cursor.cell.center, p))
+            }
+            found => self.closest_far(p, found.is_some(), cursor.last, bound2, &Below(h)),
+        };
+        // Ties go to the section: its normals know the cut.
+        match (whole, cap) {
+            (Some((t, d2)), c) if d2 <= limit2 && c.is_none_or(|c| d2 < c.1) => {
+                cursor.last = Some(t);
+                Some(self.signed(p, t))
+            }
+            (_, Some((t, d2))) if d2 <= limit2 => {
+                cursor.section_last = Some(t);
+                Some(section.signed(p, t))
+            }
+            _ => None,
+        }
     }
 
     /// Unit normal of design triangle `t`, outward for a consistently oriented mesh.
     pub fn face_normal(&self, t: u32) -> Vector3<f64> {
-        self.normals.face[t as usize]
+        match self.internal.get(t as usize) {
+            Some(&i) => self.mesh.face_normal(i as usize),
+            // A cap triangle of a cut design faces up.
+            None => Vector3::z(),
+        }
     }
 
     /// Whether the design blocks the line of sight from `eye` to `target`. Surface within
     /// `margin` of either end does not count, so a point on the design sees past its own face.
     pub fn blocks_sight(&self, eye: &Point3<f64>, target: &Point3<f64>, margin: f64) -> bool {
+        self.blocks_sight_filtered(eye, target, margin, &All)
+    }
+
+    /// [`C2mIndex::blocks_sight`] for the design cut at `section`'s height.
+    pub fn blocks_sight_cut(
+        &self,
+        eye: &Point3<f64>,
+        target: &Point3<f64>,
+        margin: f64,
+        section: &Section,
+    ) -> bool {
+        self.blocks_sight_filtered(eye, target, margin, &Below(section.height()))
+            || section.blocks_sight(eye, target, margin)
+    }
+
+    fn blocks_sight_filtered<F: bvh::Filter>(
+        &self,
+        eye: &Point3<f64>,
+        target: &Point3<f64>,
+        margin: f64,
+        filter: &F,
+    ) -> bool {
         let d = target - eye;
         let len = d.norm();
         if len.partial_cmp(&(2.0 * margin)) != Some(std::cmp::Ordering::Greater) {
@@ -205,7 +357,7 @@ impl C2mIndex {
         }
         let dir = d / len;
         self.bvh
-            .segment_blocked(&self.triangles, eye, &dir, margin, len - margin)
+            .segment_blocked(&self.mesh, eye, &dir, margin, len - margin, filter)
     }
 
     /// Every triangle tested: the reference the fast path is checked against.
@@ -214,9 +366,9 @@ impl C2mIndex {
             return None;
         }
         let mut best: Option<(u32, f64)> = None;
-        for (t, tri) in self.triangles.iter().enumerate() {
-            let d2 = (p - tri.closest_point(p).0).norm_squared();
-            if better(t as u32, d2, best) {
+        for t in 0..self.mesh.len() {
+            let d2 = (p - self.mesh.triangle(t).closest_point(p).0).norm_squared();
+            if better_internal(&self.mesh, t as u32, d2, best) {
                 best = Some((t as u32, d2));
             }
         }
@@ -239,64 +391,63 @@ impl C2mIndex {
             });
     }
 
-    #[inline]
-    fn closest_in_cell(&self, p: &Point3<f64>, key: u64, range: (u32, u32)) -> (u32, f64) {
-        let c = self.grid.cell_center(key);
-        let dc = (p - c).norm();
-        let (tris, dists) = self.grid.candidates_of(range);
-        let mut best: Option<(u32, f64)> = None;
-        let mut best_d = f64::INFINITY;
-        for (&t, &lower) in tris.iter().zip(dists) {
-            if lower as f64 - dc > best_d {
-                break;
-            }
-            let d2 = (p - self.triangles[t as usize].closest_point(p).0).norm_squared();
-            if better(t, d2, best) {
-                best = Some((t, d2));
-                best_d = d2.sqrt();
-            }
-        }
-        best.expect("every kept cell has a candidate")
-    }
-
-    fn closest_far(&self, p: &Point3<f64>, hint: Option<u32>) -> Option<(u32, f64)> {
-        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
-            return None;
-        }
-        let limit = self.max_distance * self.max_distance;
-        // A point outside the grid's band is at least `band` away: beyond the maximum distance
-        // when the band reaches it.
-        if self.grid.band() >= self.max_distance {
-            return None;
-        }
-        self.bvh.closest(&self.triangles, p, limit, hint)
-    }
-
+    /// The signed result for internal triangle `t`.
     fn signed(&self, p: &Point3<f64>, t: u32) -> Closest {
-        let (q, region) = self.triangles[t as usize].closest_point(p);
-        let ti = t as usize;
-        let n: Vector3<f64> = match region {
-            Region::Face => self.normals.face[ti],
-            Region::Edge(i) => self.normals.edge[ti][i as usize],
-            Region::Vertex(i) => self.normals.vertex[self.faces[ti][i as usize] as usize],
-        };
+        let (q, region) = self.mesh.triangle(t as usize).closest_point(p);
+        let n = self.mesh.pseudo_normal(t as usize, region);
         let d = (p - q).norm();
         let distance = if (p - q).dot(&n) < 0.0 { -d } else { d };
         Closest {
             distance,
             point: q,
-            triangle: t,
+            triangle: self.mesh.ids[t as usize],
             region,
         }
     }
 }
 
-/// Closer wins; among equally close triangles the lowest index, so results never depend on the
-/// order in which triangles are visited.
+fn bounds(mesh: &Mesh) -> (Point3<f64>, Point3<f64>) {
+    let mut lo = Point3::from([f64::INFINITY; 3]);
+    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+    for f in &mesh.faces {
+        for &i in f {
+            let v = mesh.vertices[i as usize];
+            lo = lo.inf(&v);
+            hi = hi.sup(&v);
+        }
+    }
+    (lo, hi)
+}
+
+/// The first cell size tried: about the triangles' size, and never so small the extent
+/// overflows the key. The grid grows it where the surface would take too many cells.
+fn cell_size(mesh: &Mesh, given: Option<f64>, extent: f64) -> f64 {
+    let min_address = extent / ((AXIS_MAX - 8) as f64) * 1.01;
+    if let Some(h) = given {
+        return h.max(min_address);
+    }
+    let area: f64 = (0..mesh.len())
+        .into_par_iter()
+        .map(|t| {
+            let tri = mesh.triangle(t);
+            0.5 * tri.ab.cross(&tri.ac).norm()
+        })
+        .sum();
+    let h = CELL_PER_TRIANGLE * (area / mesh.len() as f64).sqrt();
+    let h = h.max(min_address);
+    if h > 0.0 && h.is_finite() {
+        h
+    } else {
+        extent.max(1e-9)
+    }
+}
+
+/// Closer wins; among equally close triangles the lowest design id, so results never depend on
+/// the order in which triangles are visited.
 #[inline]
-pub(crate) fn better(t: u32, d2: f64, best: Option<(u32, f64)>) -> bool {
+pub(crate) fn better_internal(mesh: &Mesh, t: u32, d2: f64, best: Option<(u32, f64)>) -> bool {
     match best {
         None => true,
-        Some((bt, bd2)) => d2 < bd2 || (d2 == bd2 && t < bt),
+        Some((bt, bd2)) => d2 < bd2 || (d2 == bd2 && mesh.ids[t as usize] < mesh.ids[bt as usize]),
     }
 }

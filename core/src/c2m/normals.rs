@@ -8,7 +8,6 @@ use std::collections::HashMap;
 use nalgebra::{Point3, Vector3};
 
 pub struct PseudoNormals {
-    pub face: Vec<Vector3<f64>>,
     /// Per triangle, per edge `i` (vertex `i` to `i + 1`): the sum of the unit normals of the
     /// faces that share the edge (each face's angle at an edge is π, so the weights are equal).
     pub edge: Vec<[Vector3<f64>; 3]>,
@@ -17,7 +16,6 @@ pub struct PseudoNormals {
 
 impl PseudoNormals {
     pub fn new(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Self {
-        let mut face = Vec::with_capacity(triangles.len());
         let mut vertex = vec![Vector3::zeros(); vertices.len()];
         let mut edge_sum: HashMap<(u32, u32), Vector3<f64>> =
             HashMap::with_capacity(triangles.len() * 3 / 2);
@@ -25,7 +23,6 @@ impl PseudoNormals {
             let p = t.map(|i| vertices[i as usize]);
             let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
             let n = n.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
-            face.push(n);
             for i in 0..3 {
                 let e1 = p[(i + 1) % 3] - p[i];
                 let e2 = p[(i + 2) % 3] - p[i];
@@ -40,7 +37,7 @@ impl PseudoNormals {
             .iter()
             .map(|t| std::array::from_fn(|i| edge_sum[&edge_key(t[i], t[(i + 1) % 3])]))
             .collect();
-        Self { face, edge, vertex }
+        Self { edge, vertex }
     }
 }
 

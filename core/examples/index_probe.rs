@@ -1,0 +1,106 @@
+//! Builds the C2M index of a design and prints its cost and query rates: `index_probe [MESH m|mm]`
+//! (without a mesh: a generated 1,000,000-triangle twisted column).
+use std::time::Instant;
+
+use asbuilt_core::design::shapes::twisted_column;
+use asbuilt_core::{C2mIndex, C2mParams, Closest, Design};
+use nalgebra::{Point3, Vector3};
+use rand::{Rng, SeedableRng, seq::SliceRandom};
+use rand_chacha::ChaCha8Rng;
+
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    let design = if a.len() >= 3 {
+        Design::load(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design")
+    } else {
+        twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250)
+    };
+    let t = Instant::now();
+    let index = C2mIndex::build(
+        &design,
+        C2mParams {
+            max_distance: 0.005,
+            cell_size: None,
+        },
+    )
+    .unwrap();
+    let build = t.elapsed().as_secs_f64();
+    let s = index.stats();
+    println!(
+        "{} triangles: built in {:.3} s, {:.1} MB ({:.0} B/triangle), {} cells of {:.3} mm, {} candidates ({:.1}/cell), {} BVH cells",
+        s.triangles,
+        build,
+        s.bytes as f64 / 1e6,
+        s.bytes as f64 / s.triangles as f64,
+        s.cells,
+        s.cell_size * 1e3,
+        s.candidates,
+        s.candidates as f64 / s.cells as f64,
+        s.bvh_cells
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    let n = 2_000_000;
+    let per = n / design.triangles.len() + 1;
+    let mut pts = Vec::with_capacity(n);
+    'o: for tr in &design.triangles {
+        let [a, b, c] = tr.map(|i| design.vertices[i as usize]);
+        for _ in 0..per {
+            let (u, v): (f64, f64) = (rng.random(), rng.random());
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let g = Vector3::new(
+                rng.random::<f64>() - 0.5,
+                rng.random::<f64>() - 0.5,
+                rng.random::<f64>() - 0.5,
+            ) * 1.7e-3;
+            pts.push(a + (b - a) * u + (c - a) * v + g);
+            if pts.len() == n {
+                break 'o;
+            }
+        }
+    }
+    let mut out: Vec<Option<Closest>> = vec![None; pts.len()];
+    for (name, shuffle) in [("scan order", false), ("shuffled", true)] {
+        let mut p: Vec<Point3<f64>> = pts.clone();
+        if shuffle {
+            p.shuffle(&mut rng);
+        }
+        let mut rates = Vec::new();
+        for _ in 0..5 {
+            let t = Instant::now();
+            index.query_batch(&p, &mut out);
+            rates.push(p.len() as f64 / t.elapsed().as_secs_f64() / 1e6);
+        }
+        rates.sort_by(f64::total_cmp);
+        println!("{name}: median {:.2} M points/s ({:?})", rates[2], rates);
+    }
+    if a.iter().any(|x| x == "--cut") {
+        let (lo, hi) = index.z_range();
+        for f in [0.3, 0.5, 0.77] {
+            let h = lo + (hi - lo) * f;
+            let t = Instant::now();
+            let sec = index.section(h).unwrap();
+            println!(
+                "section at {h:.3}: {} triangles, {:.1} ms, {} B",
+                sec.triangles(),
+                t.elapsed().as_secs_f64() * 1e3,
+                sec.bytes()
+            );
+            let t = Instant::now();
+            let mut c = asbuilt_core::Cursor::default();
+            let mut m = 0;
+            for q in &pts {
+                if index.query_cut(q, &mut c, &sec).is_some() {
+                    m += 1;
+                }
+            }
+            println!(
+                "  cut queries (1 thread): {:.2} M/s, {m} matched",
+                pts.len() as f64 / t.elapsed().as_secs_f64() / 1e6
+            );
+        }
+    }
+}

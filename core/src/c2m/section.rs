@@ -1,0 +1,252 @@
+//! The design cut at one printed height, as the whole design's index needs it: the triangles
+//! that cross the height, clipped as `crate::layers::cut_at` clips them, and the cap that closes
+//! the cut, in a small index of their own. The triangles wholly below the cut are the design's
+//! own and are searched in the design's index; nothing of the design is copied.
+//!
+//! The work is proportional to the section: the crossing triangles come from the design's BVH
+//! (the nodes whose height range holds the cut), and so do the triangles around them, whose
+//! normals the clipped pieces' edges and corners share.
+
+use std::collections::HashMap;
+
+use nalgebra::Point3;
+
+use super::bvh::All;
+use super::mesh::NormalSource;
+use super::normals::PseudoNormals;
+use super::{C2mIndex, C2mParams, CellCache, Closest, Cursor};
+use crate::layers::{ClipVertex, CutError, CutReport, CutVertex, cap, clip_below};
+
+/// The design cut at one height: prepared by [`C2mIndex::section`], used by
+/// [`C2mIndex::query_cut`].
+pub struct Section {
+    height: f64,
+    /// The clipped pieces and the cap; `None` when nothing crosses the height.
+    index: Option<C2mIndex>,
+    /// Section triangle → the id reported for it: the design triangle a piece came from, or the
+    /// design's triangle count plus the cap triangle's number.
+    reported: Vec<u32>,
+    report: CutReport,
+}
+
+impl Section {
+    pub fn height(&self) -> f64 {
+        self.height
+    }
+
+    /// Loops, cap triangles and open chains of the cut's outline.
+    pub fn report(&self) -> CutReport {
+        self.report
+    }
+
+    /// Triangles in the section's own index (pieces and cap).
+    pub fn triangles(&self) -> usize {
+        self.reported.len()
+    }
+
+    pub fn bytes(&self) -> usize {
+        self.index.as_ref().map_or(0, |i| i.stats().bytes) + self.reported.len() * 4
+    }
+
+    /// The closest section triangle (internal to the section) and squared distance.
+    pub(super) fn closest(
+        &self,
+        p: &Point3<f64>,
+        cursor: &mut Cursor,
+        limit2: f64,
+    ) -> Option<(u32, f64)> {
+        let index = self.index.as_ref()?;
+        let cache: &mut CellCache = &mut cursor.section_cell;
+        index
+            .closest(p, cache, cursor.section_last, limit2)
+            .filter(|&(_, d2)| d2 <= limit2)
+    }
+
+    pub(super) fn signed(&self, p: &Point3<f64>, t: u32) -> Closest {
+        let index = self.index.as_ref().expect("a section hit has an index");
+        let mut c = index.signed(p, t);
+        c.triangle = self.reported[c.triangle as usize];
+        c
+    }
+
+    pub(super) fn blocks_sight(
+        &self,
+        eye: &Point3<f64>,
+        target: &Point3<f64>,
+        margin: f64,
+    ) -> bool {
+        self.index
+            .as_ref()
+            .is_some_and(|i| i.blocks_sight_filtered(eye, target, margin, &All))
+    }
+}
+
+impl C2mIndex {
+    /// Prepares queries against the design cut at `height` and closed by a cap, in time and
+    /// memory proportional to the section. A height at or above the design's top leaves the
+    /// design whole (an empty section).
+    pub fn section(&self, height: f64) -> Result<Section, CutError> {
+        if !height.is_finite() {
+            return Err(CutError::Height { height });
+        }
+        if height <= self.lowest {
+            return Err(CutError::BelowDesign {
+                height,
+                lowest: self.lowest,
+            });
+        }
+        let mesh = &self.mesh;
+        let below = |i: u32| mesh.vertices[i as usize].z < height;
+        // Crossing: some vertex below and some not, as cut_at tells them.
+        let mut found = Vec::new();
+        self.bvh.crossing(height, &mut found);
+        let mut crossing: Vec<u32> = found
+            .into_iter()
+            .filter(|&t| {
+                let n = mesh.faces[t as usize].iter().filter(|&&i| below(i)).count();
+                n == 1 || n == 2
+            })
+            .collect();
+        // In design order, as cut_at visits them.
+        crossing.sort_unstable_by_key(|&t| mesh.ids[t as usize]);
+        // The whole triangles around them share the pieces' lower edges and corners.
+        let mut ring: Vec<u32> = Vec::new();
+        let mut corners: Vec<u32> = crossing
+            .iter()
+            .flat_map(|&t| mesh.faces[t as usize])
+            .filter(|&i| below(i))
+            .collect();
+        corners.sort_unstable();
+        corners.dedup();
+        let mut near = Vec::new();
+        for &v in &corners {
+            near.clear();
+            self.bvh.containing(&mesh.vertices[v as usize], &mut near);
+            ring.extend(near.iter().copied().filter(|&t| {
+                let f = mesh.faces[t as usize];
+                f.contains(&v) && f.iter().all(|&i| below(i))
+            }));
+        }
+        ring.sort_unstable_by_key(|&t| mesh.ids[t as usize]);
+        ring.dedup();
+
+        // A local mesh: the ring whole, the crossing triangles clipped, then the cap.
+        let mut local = LocalVertices::default();
+        let mut triangles: Vec<[u32; 3]> = Vec::new();
+        for &t in &ring {
+            let f = mesh.faces[t as usize].map(|i| local.id(i, mesh.vertices[i as usize]));
+            triangles.push(f);
+        }
+        let ring_len = triangles.len();
+        let mut reported: Vec<u32> = Vec::new();
+        let mut cut_ids: HashMap<CutVertex, u32> = HashMap::new();
+        let mut segments: Vec<(u32, u32)> = Vec::new();
+        for &t in &crossing {
+            let before = triangles.len();
+            let mut id = |cv: ClipVertex| match cv {
+                ClipVertex::Keep(i) => local.id(i, mesh.vertices[i as usize]),
+                ClipVertex::Cut(cv) => *cut_ids.entry(cv).or_insert_with(|| match cv {
+                    CutVertex::Vertex(i) => local.id(i, mesh.vertices[i as usize]),
+                    CutVertex::Edge(a, b) => {
+                        let (pa, pb) = (mesh.vertices[a as usize], mesh.vertices[b as usize]);
+                        let s = (height - pa.z) / (pb.z - pa.z);
+                        let mut p = pa + (pb - pa) * s;
+                        p.z = height;
+                        local.push(p)
+                    }
+                }),
+            };
+            let z = |i: u32| mesh.vertices[i as usize].z;
+            if let Some(s) = clip_below(mesh.faces[t as usize], z, height, &mut id, &mut triangles)
+            {
+                segments.push(s);
+            }
+            reported.extend(std::iter::repeat_n(
+                mesh.ids[t as usize],
+                triangles.len() - before,
+            ));
+        }
+        let mut vertices = local.vertices;
+        let mut report = CutReport::default();
+        let before = triangles.len();
+        cap(&mut vertices, &segments, &mut triangles, &mut report);
+        let n = self.mesh.len() as u32;
+        reported.extend((0..(triangles.len() - before) as u32).map(|k| n.saturating_add(k)));
+
+        // Pieces without area are dropped, as Design::from_indexed drops them from the cut.
+        let keep: Vec<bool> = triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| vertices[i as usize]);
+                let area2 = (b - a).cross(&(c - a)).norm();
+                !(t[0] == t[1]
+                    || t[1] == t[2]
+                    || t[0] == t[2]
+                    || area2 <= 0.0
+                    || !area2.is_finite())
+            })
+            .collect();
+        let kept: Vec<[u32; 3]> = (0..triangles.len())
+            .filter(|&k| keep[k])
+            .map(|k| triangles[k])
+            .collect();
+        let normals = PseudoNormals::new(&vertices, &kept);
+        let ring_kept = keep[..ring_len].iter().filter(|&&k| k).count();
+        let mut section_tris = Vec::new();
+        let mut section_reported = Vec::new();
+        let mut edge = Vec::new();
+        let mut k = ring_kept;
+        for (j, t) in triangles.iter().enumerate().skip(ring_len) {
+            if !keep[j] {
+                continue;
+            }
+            section_tris.push(*t);
+            section_reported.push(reported[j - ring_len]);
+            edge.push(normals.edge[k]);
+            k += 1;
+        }
+        let index = if section_tris.is_empty() {
+            None
+        } else {
+            let given = PseudoNormals {
+                edge,
+                vertex: normals.vertex,
+            };
+            let params = C2mParams {
+                max_distance: self.max_distance,
+                cell_size: None,
+            };
+            Some(
+                C2mIndex::build_mesh(vertices, &section_tris, NormalSource::Given(given), params)
+                    .expect("the design's own parameters were valid"),
+            )
+        };
+        Ok(Section {
+            height,
+            index,
+            reported: section_reported,
+            report,
+        })
+    }
+}
+
+/// Design vertices renumbered for a local mesh, with the points the cut adds.
+#[derive(Default)]
+struct LocalVertices {
+    ids: HashMap<u32, u32>,
+    vertices: Vec<Point3<f64>>,
+}
+
+impl LocalVertices {
+    fn id(&mut self, design_vertex: u32, p: Point3<f64>) -> u32 {
+        *self.ids.entry(design_vertex).or_insert_with(|| {
+            self.vertices.push(p);
+            (self.vertices.len() - 1) as u32
+        })
+    }
+
+    fn push(&mut self, p: Point3<f64>) -> u32 {
+        self.vertices.push(p);
+        (self.vertices.len() - 1) as u32
+    }
+}

@@ -26,6 +26,8 @@ use crate::{error, info, warn};
 
 /// Station timeouts are checked this often at least.
 const MAX_TICK: Duration = Duration::from_millis(250);
+/// How often the loop looks for a printed height prepared on a worker thread.
+const PREPARING_POLL: Duration = Duration::from_millis(2);
 
 #[derive(Debug, thiserror::Error)]
 pub enum AgentError {
@@ -366,7 +368,15 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let mut terminated = false;
     let mut held = HeldControl::default();
     while !terminated {
-        let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
+        // While a printed height is prepared off the loop, wake often to take it up at once.
+        let result = if lifecycle.is_preparing() {
+            waitset.wait_and_process_once_with_timeout(
+                |_| CallbackProgression::Continue,
+                PREPARING_POLL,
+            )
+        } else {
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue)
+        };
         match result {
             Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) => break,
             Ok(_) => {}
@@ -379,6 +389,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         if let Err(e) = ports.inbox.try_wait(|_| {}) {
             warn!("inbox: {e:?}");
         }
+        lifecycle.poll_designs(Instant::now(), &mut out);
         terminated = drain(&ports, &mut lifecycle, &mut out, &mut held);
         let now = Instant::now();
         lifecycle.on_tick(now, &mut out);
@@ -470,7 +481,11 @@ fn drain(
             };
             if !lifecycle.is_ready_for(sample.user_header()) {
                 any |= drain_control(ports, lifecycle, out, held);
-                if held.waits_for_a_slot() && !lifecycle.is_ready_for(sample.user_header()) {
+                // A station waiting for a slot or for its printed design: leave the queue
+                // unread, so the cell is held back instead of its chunks pushed out.
+                let waits =
+                    held.waits_for_a_slot() || lifecycle.awaits_design(sample.user_header());
+                if waits && !lifecycle.is_ready_for(sample.user_header()) {
                     held.chunk = Some(sample);
                     break;
                 }

@@ -113,7 +113,7 @@ impl FindingsStage {
     fn new_epoch(&self, job: u64, design: &Arc<PrintedDesign>) -> Option<Epoch> {
         let c = &self.config;
         let started = std::time::Instant::now();
-        let made = DesignSamples::generate(&design.design, c.spacing, SAMPLE_SEED)
+        let made = DesignSamples::generate(design.design(), c.spacing, SAMPLE_SEED)
             .map_err(|e| e.to_string())
             .and_then(|samples| {
                 let m3c2 = StreamingM3c2::new(
@@ -142,7 +142,7 @@ impl FindingsStage {
                 );
                 Some(Epoch {
                     job,
-                    sharp_edges: design.design.sharp_edges(SHARP_EDGE_DEG),
+                    sharp_edges: design.design().sharp_edges(SHARP_EDGE_DEG),
                     design: design.clone(),
                     m3c2,
                     coverage,
@@ -206,12 +206,12 @@ impl FindingsStage {
         } else {
             0.0
         };
-        e.coverage.end_station(origin, &e.design.index);
+        e.coverage.end_station(origin, &*e.design);
         e.m3c2.end_station(sigma);
         e.stations += 1;
         let f = findings::find(
             &e.m3c2.results(sigma),
-            &e.coverage.outcomes(&e.design.index),
+            &e.coverage.outcomes(&*e.design),
             &e.sharp_edges,
             e.area_per_sample,
             &FindingParams {

@@ -12,6 +12,9 @@ use std::time::{Duration, Instant};
 use std::sync::Arc;
 
 use asbuilt_core::frames::FrameChain;
+use std::sync::mpsc;
+
+use asbuilt_core::layers::CutError;
 use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
 use asbuilt_core::station::{InspectConfig, StationInspector};
 use asbuilt_protocol::{
@@ -68,6 +71,8 @@ struct OpenStation {
     inspector: StationInspector,
     /// The design as printed when this station scanned (the whole design until told).
     design: Arc<PrintedDesign>,
+    /// The printed height whose design is being prepared for this station; its chunks wait.
+    awaiting: Option<f64>,
     /// Whether the findings stage took this station (decided at its first chunk).
     findings: Option<bool>,
     tracker: SequenceTracker,
@@ -129,8 +134,16 @@ pub struct Counters {
     pub input: InputRejects,
 }
 
+/// A printed height being prepared on a worker thread.
+struct Preparation {
+    height: f64,
+    since: Instant,
+    done: mpsc::Receiver<Result<PrintedDesign, CutError>>,
+}
+
 pub struct Lifecycle<C> {
     designs: PrintedDesigns,
+    preparing: Vec<Preparation>,
     findings: Option<FindingsStage>,
     frames: FrameChain,
     config: InspectConfig,
@@ -150,6 +163,7 @@ impl<C: ChunkSource> Lifecycle<C> {
     ) -> Self {
         Self {
             designs,
+            preparing: Vec::new(),
             findings: None,
             frames,
             config,
@@ -202,7 +216,77 @@ impl<C: ChunkSource> Lifecycle<C> {
 
     pub fn is_ready_for(&self, h: &ChunkHeader) -> bool {
         self.find(&(h.job, h.station))
-            .is_some_and(|i| self.open[i].pose.is_some())
+            .is_some_and(|i| self.ready(i))
+    }
+
+    /// Whether this chunk's station waits for its printed design.
+    pub fn awaits_design(&self, h: &ChunkHeader) -> bool {
+        self.find(&(h.job, h.station))
+            .is_some_and(|i| self.open[i].awaiting.is_some())
+    }
+
+    /// A station's chunks can be compared: it has its pose and its printed design.
+    fn ready(&self, i: usize) -> bool {
+        self.open[i].pose.is_some() && self.open[i].awaiting.is_none()
+    }
+
+    /// Whether a printed height is being prepared: the event loop then wakes often enough to
+    /// take it up as soon as it is done.
+    pub fn is_preparing(&self) -> bool {
+        !self.preparing.is_empty()
+    }
+
+    /// Takes up the printed heights prepared since the last call: their stations compare with
+    /// them from now on and the chunks they held are processed.
+    pub fn poll_designs(&mut self, now: Instant, out: &mut impl Outputs) {
+        let mut k = 0;
+        while k < self.preparing.len() {
+            let result = match self.preparing[k].done.try_recv() {
+                Ok(r) => r.map(Arc::new).map_err(|e| e.to_string()),
+                Err(mpsc::TryRecvError::Empty) => {
+                    k += 1;
+                    continue;
+                }
+                Err(mpsc::TryRecvError::Disconnected) => {
+                    Err("the preparing thread stopped without a result".to_string())
+                }
+            };
+            let p = self.preparing.swap_remove(k);
+            let design = match result {
+                Ok(d) => {
+                    info!(
+                        "design at printed height {} m ready in {:.1} ms ({} section triangles)",
+                        p.height,
+                        now.saturating_duration_since(p.since).as_secs_f64() * 1e3,
+                        d.section().map_or(0, |s| s.triangles())
+                    );
+                    self.designs.insert(d.clone());
+                    d
+                }
+                Err(e) => {
+                    warn!(
+                        "printed height {} m: {e}; comparing with the whole design",
+                        p.height
+                    );
+                    self.designs.full().clone()
+                }
+            };
+            let waiting: Vec<StationKey> = self
+                .open
+                .iter()
+                .filter(|s| s.awaiting == Some(p.height))
+                .map(|s| s.key)
+                .collect();
+            for key in waiting {
+                if let Some(i) = self.find(&key) {
+                    let s = &mut self.open[i];
+                    s.inspector.set_index(design.clone());
+                    s.design = design.clone();
+                    s.awaiting = None;
+                    self.release_pending(key, now, out);
+                }
+            }
+        }
     }
 
     /// Counts and logs a message of another version; true when it can be read.
@@ -225,7 +309,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         match ev.kind() {
             Some(StationEventKind::Begin) => {
                 let i = self.open_slot(key, now, out);
-                self.print_height(i, ev.printed_height);
+                self.print_height(i, ev.printed_height, now);
                 let s = &mut self.open[i];
                 if s.begin.is_some() {
                     warn!("job {} station {}: Begin repeated", key.0, key.1);
@@ -311,7 +395,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         let key = (h.job, h.station);
         match self.find(&key) {
-            Some(i) if self.open[i].pose.is_some() => {
+            Some(i) if self.ready(i) => {
                 self.process(i, &chunk, now, out);
                 self.close_if_complete(i, out);
             }
@@ -335,7 +419,8 @@ impl<C: ChunkSource> Lifecycle<C> {
     pub fn on_idle(&mut self, out: &mut impl Outputs) {
         let mut i = 0;
         while i < self.open.len() {
-            if self.open[i].finished_sending() {
+            // A station waiting for its printed design has its chunks still queued.
+            if self.open[i].finished_sending() && self.open[i].awaiting.is_none() {
                 self.close(i, None, out);
             } else {
                 i += 1;
@@ -383,23 +468,47 @@ impl<C: ChunkSource> Lifecycle<C> {
     }
 
     /// Compares station `i` with the design cut at the printed height, if the station has not
-    /// compared any point yet.
-    fn print_height(&mut self, i: usize, height: f64) {
-        let key = self.open[i].key;
+    /// compared any point yet. A height not seen recently is prepared on a worker thread (the
+    /// loop goes on reading, timing out and reporting); the station's chunks wait for it.
+    fn print_height(&mut self, i: usize, height: f64, now: Instant) {
         if !height.is_finite() || self.open[i].inspector.tally().points_received > 0 {
             return;
         }
-        match self.designs.at(height) {
-            Ok(d) => {
-                let s = &mut self.open[i];
-                s.inspector.set_index(d.index.clone());
-                s.design = d;
+        if let Some(d) = self.designs.cached(height) {
+            let s = &mut self.open[i];
+            s.inspector.set_index(d.clone());
+            s.design = d;
+            s.awaiting = None;
+            return;
+        }
+        self.open[i].awaiting = Some(height);
+        if self.preparing.iter().any(|p| p.height == height) {
+            return;
+        }
+        let (tx, done) = mpsc::channel();
+        let preparer = self.designs.preparer();
+        // Findings sample the printed design as a mesh: make it off the loop too.
+        let mesh = self.findings.is_some();
+        let spawned = std::thread::Builder::new()
+            .name("design-height".into())
+            .spawn(move || {
+                let _ = tx.send(preparer.prepare(height, mesh));
+            });
+        match spawned {
+            Ok(_) => self.preparing.push(Preparation {
+                height,
+                since: now,
+                done,
+            }),
+            Err(e) => {
+                let key = self.open[i].key;
+                warn!(
+                    "job {} station {}: cannot start preparing printed height {height} m ({e}); \
+                     comparing with the whole design",
+                    key.0, key.1
+                );
+                self.open[i].awaiting = None;
             }
-            Err(e) => warn!(
-                "job {} station {}: printed height {height} m: {e}; comparing with the whole \
-                 design",
-                key.0, key.1
-            ),
         }
     }
 
@@ -429,11 +538,12 @@ impl<C: ChunkSource> Lifecycle<C> {
             pose: None,
             last_sequence: None,
             inspector: StationInspector::new(
-                self.designs.full().index.clone(),
+                self.designs.full().clone(),
                 nalgebra::Isometry3::identity(),
                 self.config,
             ),
             design: self.designs.full().clone(),
+            awaiting: None,
             findings: None,
             tracker: SequenceTracker::new(),
             empty: 0,
@@ -513,7 +623,7 @@ impl<C: ChunkSource> Lifecycle<C> {
     /// Processes the held chunks of a station that just became ready, in arrival order.
     fn release_pending(&mut self, key: StationKey, now: Instant, out: &mut impl Outputs) {
         let Some(i) = self.find(&key) else { return };
-        if self.open[i].pose.is_none() {
+        if !self.ready(i) {
             return;
         }
         while let Some(p) = self.take_pending(key) {
@@ -944,5 +1054,47 @@ mod tests {
         lc.on_pose(&pose(5), t, &mut out);
         assert_eq!(lc.chunks_waiting(), 0);
         assert_eq!(out.deviations.len(), 1);
+    }
+
+    #[test]
+    fn a_new_printed_height_is_prepared_off_the_loop_while_its_chunks_wait() {
+        let (mut lc, mut out, t) = setup(cube());
+        let mut begin = event(StationEventKind::Begin, 7, 2);
+        // Cut at z = 0.3: the points 2 mm above the full cube's top are 0.202 m above the cap,
+        // beyond the maximum distance.
+        begin.printed_height = 0.3;
+        lc.on_event(&begin, t, &mut out);
+        lc.on_pose(&pose(7), t, &mut out);
+        lc.on_chunk(chunk(7, 0, 50), t, &mut out);
+        // The chunk waits for the design; the loop went on without preparing it.
+        assert!(lc.is_preparing());
+        assert!(out.deviations.is_empty());
+        assert_eq!(lc.chunks_waiting(), 1);
+        let waited = Instant::now();
+        while lc.is_preparing() {
+            assert!(waited.elapsed() < Duration::from_secs(10), "never prepared");
+            std::thread::sleep(Duration::from_millis(1));
+            lc.poll_designs(Instant::now(), &mut out);
+        }
+        assert_eq!(out.deviations.len(), 1, "the held chunk went through");
+        lc.on_chunk(chunk(7, 1, 50), t, &mut out);
+        lc.on_event(&event(StationEventKind::End, 7, 2), t, &mut out);
+        assert_eq!(out.reports.len(), 1);
+        assert_eq!(
+            out.reports[0].no_match, 100,
+            "compared with the cut, not the whole cube"
+        );
+        // A second station at the same height uses the prepared design at once.
+        lc.on_event(&begin_at(8, 0.3), t, &mut out);
+        lc.on_pose(&pose(8), t, &mut out);
+        lc.on_chunk(chunk(8, 0, 10), t, &mut out);
+        assert!(!lc.is_preparing());
+        assert_eq!(out.deviations.len(), 3);
+    }
+
+    fn begin_at(station: u32, height: f64) -> StationEvent {
+        let mut e = event(StationEventKind::Begin, station, 1);
+        e.printed_height = height;
+        e
     }
 }

@@ -2,13 +2,16 @@
 //! brief's peer figures were measured on (CloudCompare 0.57 M/s, Open3D 0.49 M/s, 2 cores).
 //!
 //! Points are taken on the surface and offset by Gaussian noise (σ 0.5 mm), in scan-like order:
-//! consecutive points lie close together, as consecutive points of a scan line do.
+//! consecutive points lie close together, as consecutive points of a scan line do; and the same
+//! points shuffled (a merged or reference cloud). Also: the index's build, and the section that a
+//! new printed height needs, on the bunny and on a generated 1,004,000-triangle free-form column.
 //!
 //! Run: `cargo bench -p asbuilt-core --bench c2m`
 
 use std::path::Path;
 use std::time::Instant;
 
+use asbuilt_core::design::shapes::twisted_column;
 use asbuilt_core::station::{InspectConfig, StationInspector};
 use asbuilt_core::{C2mIndex, C2mParams, Closest, Design, Units};
 use asbuilt_protocol::{PointDeviation, ScanPoint};
@@ -53,6 +56,15 @@ fn bench(c: &mut Criterion) {
     g.bench_function("query_batch", |b| {
         b.iter(|| index.query_batch(&points, &mut out))
     });
+    let mut shuffled = points.clone();
+    {
+        use rand::SeedableRng;
+        use rand::seq::SliceRandom;
+        shuffled.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(7));
+    }
+    g.bench_function("query_batch_shuffled", |b| {
+        b.iter(|| index.query_batch(&shuffled, &mut out))
+    });
 
     // The full per-station path: validation, transform, C2M, deviations and statistics.
     let scan: Vec<ScanPoint> = points
@@ -72,6 +84,44 @@ fn bench(c: &mut Criterion) {
             }
             st.tally().stats.count()
         })
+    });
+    g.finish();
+
+    // What the design costs: the index's build, and a new printed height's section.
+    let mut g = c.benchmark_group("design_index");
+    g.sample_size(10);
+    let params = C2mParams {
+        max_distance: 0.005,
+        cell_size: None,
+    };
+    g.bench_function("build_bunny", |b| {
+        b.iter(|| C2mIndex::build(&design, params).unwrap().stats().bytes)
+    });
+    let (lo, hi) = index.z_range();
+    g.bench_function("section_bunny_mid_height", |b| {
+        b.iter(|| index.section(0.5 * (lo + hi)).unwrap().triangles())
+    });
+    let column = twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250);
+    let t0 = Instant::now();
+    let big = C2mIndex::build(&column, params).unwrap();
+    let s = big.stats();
+    eprintln!(
+        "column: {} triangles, {} cells of {:.3} mm, {} candidates, {} cells left to the BVH, \
+         {:.0} MB ({:.0} B/triangle), built in {:.2} s",
+        s.triangles,
+        s.cells,
+        s.cell_size * 1e3,
+        s.candidates,
+        s.bvh_cells,
+        s.bytes as f64 / 1e6,
+        s.bytes as f64 / s.triangles as f64,
+        t0.elapsed().as_secs_f64()
+    );
+    g.bench_function("build_column_1M", |b| {
+        b.iter(|| C2mIndex::build(&column, params).unwrap().stats().bytes)
+    });
+    g.bench_function("section_column_1M", |b| {
+        b.iter(|| big.section(0.61).unwrap().triangles())
     });
     g.finish();
 

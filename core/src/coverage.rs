@@ -17,7 +17,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::c2m::C2mIndex;
+use crate::c2m::Surface;
 use crate::probes::{ProbeGrid, Scratch};
 use crate::sampling::DesignSamples;
 
@@ -217,7 +217,7 @@ impl Coverage {
 
     /// Closes the station scanned from `origin` (design frame): classifies every sample by this
     /// station alone, then adds what it saw to the job.
-    pub fn end_station(&mut self, origin: Point3<f64>, design: &C2mIndex) -> CoverageSummary {
+    pub fn end_station(&mut self, origin: Point3<f64>, design: &dyn Surface) -> CoverageSummary {
         let summary = self.classify(&self.station, std::slice::from_ref(&origin), design);
         for (t, s) in self.total.iter_mut().zip(&self.station) {
             t.merge(s);
@@ -227,12 +227,12 @@ impl Coverage {
     }
 
     /// The job so far: every sample against every station closed so far.
-    pub fn total(&self, design: &C2mIndex) -> CoverageSummary {
+    pub fn total(&self, design: &dyn Surface) -> CoverageSummary {
         self.classify(&self.total, &self.origins, design)
     }
 
     /// Every sample's reverse distance and class over the job so far.
-    pub fn outcomes(&self, design: &C2mIndex) -> Vec<SampleOutcome> {
+    pub fn outcomes(&self, design: &dyn Surface) -> Vec<SampleOutcome> {
         use rayon::prelude::*;
         let g = &self.grid;
         (0..g.len())
@@ -259,7 +259,7 @@ impl Coverage {
         &self,
         state: &[Nearest],
         origins: &[Point3<f64>],
-        design: &C2mIndex,
+        design: &dyn Surface,
     ) -> CoverageSummary {
         use rayon::prelude::*;
         let classes: Vec<SampleClass> = (0..state.len())
@@ -291,7 +291,7 @@ impl Coverage {
         i: usize,
         nearest: &Nearest,
         origins: &[Point3<f64>],
-        design: &C2mIndex,
+        design: &dyn Surface,
     ) -> SampleClass {
         let t = self.params.threshold;
         if nearest.d2 <= t * t || nearest.buried {
@@ -330,7 +330,7 @@ fn signed(n: &Nearest) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::c2m::C2mParams;
+    use crate::c2m::{C2mIndex, C2mParams};
     use crate::design::shapes;
 
     fn plane_points(z: f64, x: (f64, f64), y: (f64, f64), step: f64) -> Vec<Point3<f64>> {

@@ -7,7 +7,7 @@ pub mod frames;
 pub mod station;
 pub mod stats;
 
-pub use c2m::{C2mIndex, C2mParams, Closest, Cursor};
+pub use c2m::{C2mIndex, C2mParams, Closest, Cursor, Surface};
 pub use design::{Design, DesignError, MeshReport, Units};
 pub mod c2c;
 pub mod calibration;

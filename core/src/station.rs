@@ -12,7 +12,7 @@ use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
 use crate::c2m::triangle::Region;
-use crate::c2m::{C2mIndex, Cursor};
+use crate::c2m::{Cursor, Surface};
 use crate::stats::{DeviationAccumulator, StatsConfig};
 
 /// Scanner-frame coordinates beyond this are not measurements (the longest-range TLS reach
@@ -97,17 +97,21 @@ impl Tally {
     }
 }
 
-/// Inspects one station's chunks against a design index: borrowed (`&C2mIndex`) by a tool that
-/// inspects one design, shared (`Arc<C2mIndex>`) by the agent, whose stations see the design cut
-/// at different printed heights.
-pub struct StationInspector<I = std::sync::Arc<C2mIndex>> {
+/// Inspects one station's chunks against a design surface: borrowed (`&C2mIndex`) by a tool that
+/// inspects one design, shared (`Arc<PrintedDesign>`) by the agent, whose stations see the design
+/// cut at different printed heights.
+pub struct StationInspector<I = std::sync::Arc<crate::printed::PrintedDesign>> {
     index: I,
     t_design_scanner: Isometry3<f64>,
     config: InspectConfig,
     tally: Tally,
 }
 
-impl<I: std::ops::Deref<Target = C2mIndex>> StationInspector<I> {
+impl<I> StationInspector<I>
+where
+    I: std::ops::Deref,
+    I::Target: Surface,
+{
     pub fn new(index: I, t_design_scanner: Isometry3<f64>, config: InspectConfig) -> Self {
         Self {
             index,
@@ -143,7 +147,7 @@ impl<I: std::ops::Deref<Target = C2mIndex>> StationInspector<I> {
     /// Processes one chunk; `out[i]` receives the deviation of `points[i]`.
     pub fn process(&mut self, points: &[ScanPoint], out: &mut [PointDeviation]) -> ChunkOutcome {
         assert_eq!(points.len(), out.len(), "one deviation per scan point");
-        let index: &C2mIndex = &self.index;
+        let index: &I::Target = &self.index;
         let t = self.t_design_scanner;
         let config = self.config;
         let chunk = points
@@ -174,8 +178,8 @@ impl<I: std::ops::Deref<Target = C2mIndex>> StationInspector<I> {
     }
 }
 
-fn inspect_task(
-    index: &C2mIndex,
+fn inspect_task<S: Surface + ?Sized>(
+    index: &S,
     t: &Isometry3<f64>,
     config: &InspectConfig,
     points: &[ScanPoint],
@@ -210,7 +214,7 @@ fn inspect_task(
             continue;
         }
         let p = t * Point3::new(x as f64, y as f64, z as f64);
-        *o = match index.query(&p, &mut cursor) {
+        *o = match index.closest(&p, &mut cursor) {
             None => {
                 tally.no_match += 1;
                 PointDeviation {

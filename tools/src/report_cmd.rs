@@ -144,7 +144,7 @@ pub fn write(
                         });
                         let o = open.entry(key).or_insert_with(|| Open {
                             inspector: StationInspector::new(
-                                printed.index.clone(),
+                                printed.clone(),
                                 nalgebra::Isometry3::identity(),
                                 config,
                             ),
@@ -212,7 +212,7 @@ pub fn write(
         bail!("{} holds no station", args.recording.display());
     }
     let ix = designs.full().index.stats();
-    let design = &designs.full().design;
+    let design = designs.full().design();
     let mut warnings = design.report.warnings();
     if unfinished > 0 {
         warnings.push(format!(

@@ -442,6 +442,30 @@ fn cell_size(mesh: &Mesh, given: Option<f64>, extent: f64) -> f64 {
     }
 }
 
+/// A surface that points are compared with: the whole design, or the design as printed up to a
+/// height.
+pub trait Surface: Sync {
+    /// The closest feature of `p`, or `None` beyond the maximum distance (or not finite).
+    fn closest(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest>;
+    fn max_distance(&self) -> f64;
+    /// Whether the surface blocks the line of sight from `eye` to `target`, surface within
+    /// `margin` of either end aside.
+    fn blocks_sight(&self, eye: &Point3<f64>, target: &Point3<f64>, margin: f64) -> bool;
+}
+
+impl Surface for C2mIndex {
+    #[inline]
+    fn closest(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
+        self.query(p, cursor)
+    }
+    fn max_distance(&self) -> f64 {
+        self.max_distance
+    }
+    fn blocks_sight(&self, eye: &Point3<f64>, target: &Point3<f64>, margin: f64) -> bool {
+        C2mIndex::blocks_sight(self, eye, target, margin)
+    }
+}
+
 /// Closer wins; among equally close triangles the lowest design id, so results never depend on
 /// the order in which triangles are visited.
 #[inline]

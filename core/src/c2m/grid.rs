@@ -1,23 +1,25 @@
-//! A sparse grid of candidate triangles near the design surface.
+//! A sparse grid of candidate triangles for the points near the design surface.
 //!
-//! Cells of size `h` are kept wherever a point within `h` of the surface can fall: the cells a
-//! triangle's box and plane touch, and their 26 neighbours. For a kept cell `K` with centre `c`
-//! and half-diagonal `r`, every point of `K` is within `U` of the surface, where `U` is the
-//! smaller of `d(c, S) + r` and, over the few nearest triangles, the distance of the cell's
-//! farthest corner (distance to a triangle is convex, so its maximum over the cell is at a
-//! corner). A triangle can be the closest for a point of `K` only if its distance to the cell can
-//! be at most `U`; two exact lower bounds of that distance, `d(c, T) - r` and the gap between the
-//! cell and the triangle's box, prune the rest. The list is sorted by `d(c, T)`, kept in a byte
-//! rounded down, so a query stops as soon as `d(c, T) - |p - c|` exceeds the best distance found.
+//! Scan points lie within a few millimetres of the surface. A cell of size `h` lists the
+//! triangles that can be closest to a point of the cell within the band `b` (half a cell) of the
+//! surface: a triangle closer than `b` to such a point is closer than `b` to the cell, and three
+//! exact lower bounds of the distance from the cell to a triangle (from the centre less the
+//! half-diagonal, between their boxes, from the triangle's plane) prune the rest. So a query whose
+//! best candidate is within `b` is exact; beyond `b`, the best candidate bounds a BVH search. A
+//! list valid for every point of the cell would have to reach as far as the farthest point of the
+//! cell is from the surface, four to ten times as many candidates.
 //!
-//! Each cell also keeps the top of its candidates, so a query against the design cut at a height
-//! above it can use the list as it is.
+//! Cells are kept where a point within `b` of the surface can fall: among the cells a triangle's
+//! box and plane touch and their 26 neighbours, those whose list is not empty. Lists are sorted
+//! by `d(c, T)`, kept in a byte rounded down, so a query stops as soon as `d(c, T) - |p - c|`
+//! exceeds the best distance found. Each cell also keeps the top of its candidates, so a query
+//! against the design cut at a height above it can use the list as it is.
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::bvh::{All, Bvh};
+use super::bvh::Bvh;
 use super::mesh::Mesh;
 
 /// Cells per axis are addressed with 21 bits each, packed into one u64 key.
@@ -28,8 +30,6 @@ pub const AXIS_MAX: i64 = (1 << AXIS_BITS) - 1;
 const MAX_LIST: usize = 255;
 /// One cell in this many is sampled for the lengths of the lists.
 const SAMPLE_EVERY: usize = 16;
-/// How many of the nearest triangles are tried for the corner bound.
-const CORNER_TRIES: usize = 4;
 /// Cells are kept where a point within this many cell sizes of the surface can fall; farther
 /// points (a defect's, or the surroundings') go to the BVH.
 pub const BAND: f64 = 0.5;
@@ -100,35 +100,29 @@ impl Grid {
         };
         let half_diag = 0.5 * 3f64.sqrt() * h;
         let inv_h = 1.0 / h;
-        let step = (BAND * h + 3.0 * half_diag) / 255.0;
+        let step = (BAND * h + half_diag) / 255.0;
 
         // The longest lists cost the most and save the least over the BVH: a sample of the
         // cells sets the longest list kept so that all of them fit the budget.
         let sample: Vec<usize> = keys
             .par_iter()
             .step_by(SAMPLE_EVERY)
-            .map_init(
-                || (Vec::new(), None),
-                |(scratch, hint), &key| {
-                    let c = center(&origin, h, unpack(key));
-                    candidates(mesh, bvh, &c, h, half_diag, step, MAX_LIST, scratch, hint)
-                        .map_or(0, |(t, _, _)| {
-                            t.len().max(if t.is_empty() { MAX_LIST + 1 } else { 0 })
-                        })
-                },
-            )
+            .map_init(Vec::new, |scratch, &key| {
+                let c = center(&origin, h, unpack(key));
+                candidates(mesh, bvh, &c, h, half_diag, step, MAX_LIST, scratch)
+                    .map_or(0, |(t, _, _)| {
+                        t.len().max(if t.is_empty() { MAX_LIST + 1 } else { 0 })
+                    })
+            })
             .collect();
         let longest = longest_list(sample, keys.len(), max_candidates);
         let lists: Vec<(u64, Vec<u32>, Vec<u8>, f32)> = keys
             .par_iter()
-            .map_init(
-                || (Vec::new(), None),
-                |(scratch, hint), &key| {
-                    let c = center(&origin, h, unpack(key));
-                    candidates(mesh, bvh, &c, h, half_diag, step, longest, scratch, hint)
-                        .map(|(t, d, top)| (key, t, d, top))
-                },
-            )
+            .map_init(Vec::new, |scratch, &key| {
+                let c = center(&origin, h, unpack(key));
+                candidates(mesh, bvh, &c, h, half_diag, step, longest, scratch)
+                    .map(|(t, d, top)| (key, t, d, top))
+            })
             .flatten()
             .collect();
         drop(keys);
@@ -314,8 +308,11 @@ fn dilate(surface: &[u64]) -> Vec<u64> {
     near
 }
 
-/// The candidate list of the cell centred at `c`: internal triangles, their distance bytes and
-/// the top of their vertices; `None` when no point within `h` of the surface falls in the cell.
+/// The candidate list of the cell centred at `c`: the triangles that can be within the band
+/// of some point of the cell (three exact lower bounds of their distance to the cell: from the
+/// centre, between boxes, from the plane), sorted by distance from the centre, with their distance
+/// bytes and the top of their vertices. `None` when no point of the cell is within the band, and
+/// an empty list when the list would be longer than `longest`.
 #[allow(clippy::too_many_arguments)]
 fn candidates(
     mesh: &Mesh,
@@ -326,61 +323,47 @@ fn candidates(
     step: f64,
     longest: usize,
     scratch: &mut Vec<(u32, f64)>,
-    hint: &mut Option<u32>,
 ) -> Option<(Vec<u32>, Vec<u8>, f32)> {
-    let (t0, d02) = bvh.closest(mesh, c, f64::INFINITY, *hint, &All)?;
-    *hint = Some(t0);
-    let d0 = d02.sqrt();
-    if d0 > BAND * h + half_diag {
-        return None;
-    }
-    scratch.clear();
-    bvh.within(mesh, c, d0 + 2.0 * half_diag, scratch);
-    scratch.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-    let corners: [Point3<f64>; 8] = std::array::from_fn(|m| {
-        let s = |bit: usize| if m >> bit & 1 == 1 { 0.5 } else { -0.5 };
-        c + Vector3::new(s(0), s(1), s(2)) * h
-    });
-    let mut upper = d0 + half_diag;
-    for &(t, _) in scratch.iter().take(CORNER_TRIES) {
-        let tri = mesh.triangle(t as usize);
-        let far = corners
-            .iter()
-            .map(|q| (q - tri.closest_point(q).0).norm())
-            .fold(0.0, f64::max);
-        upper = upper.min(far);
-    }
+    let band = BAND * h;
     // Slack of a few ulps keeps rounding from dropping a triangle that ties.
-    let upper = upper * (1.0 + 1e-12) + 1e-15;
+    let reach = band * (1.0 + 1e-12) + 1e-15;
+    scratch.clear();
+    bvh.within(mesh, c, band + half_diag, scratch);
+    scratch.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
     let half = Vector3::repeat(0.5 * h);
     let (cell_lo, cell_hi) = (c - half, c + half);
     let mut tris = Vec::new();
     let mut dist = Vec::new();
     let mut top = f32::NEG_INFINITY;
-    let too_long = Some((Vec::new(), Vec::new(), f32::INFINITY));
     for &(t, d) in scratch.iter() {
-        if d - half_diag > upper {
-            break;
+        if d - half_diag > reach {
+            continue;
         }
-        let (lo, hi) = mesh.triangle(t as usize).aabb();
-        let gap = (0..3)
+        let tri = mesh.triangle(t as usize);
+        let (lo, hi) = tri.aabb();
+        let gap2 = (0..3)
             .map(|k| {
                 let g = (lo[k] - cell_hi[k]).max(cell_lo[k] - hi[k]).max(0.0);
                 g * g
             })
-            .sum::<f64>()
-            .sqrt();
-        if gap > upper {
+            .sum::<f64>();
+        if gap2 > reach * reach {
             continue;
         }
+        if let Some(n) = tri.ab.cross(&tri.ac).try_normalize(0.0) {
+            let slab = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
+            if n.dot(&(c - tri.a)).abs() - slab > reach {
+                continue;
+            }
+        }
         if tris.len() == longest {
-            return too_long;
+            return Some((Vec::new(), Vec::new(), f32::INFINITY));
         }
         tris.push(t);
         dist.push((d / step).floor().min(255.0) as u8);
         top = top.max(round_up(hi.z));
     }
-    Some((tris, dist, top))
+    (!tris.is_empty()).then_some((tris, dist, top))
 }
 
 /// The longest list to keep so that the lists of all `cells` hold at most `budget` candidates,

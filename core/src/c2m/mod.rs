@@ -237,7 +237,8 @@ impl C2mIndex {
     ) -> Option<(u32, f64)> {
         match self.cell_of(p, cache) {
             Some(cell) if cell.has_list() => {
-                Some(self.grid.closest(&self.mesh, &cell, &cache.center, p))
+                let best = self.grid.closest(&self.mesh, &cell, &cache.center, p);
+                self.confirm(p, best, limit2, &All)
             }
             found => self.closest_far(p, found.is_some(), hint, limit2, &All),
         }
@@ -256,6 +257,24 @@ impl C2mIndex {
             };
         }
         cache.cell
+    }
+
+    /// A cell's best candidate is the closest when it lies within the grid's band; beyond, it
+    /// bounds (and starts) the BVH's search.
+    #[inline]
+    fn confirm<F: bvh::Filter>(
+        &self,
+        p: &Point3<f64>,
+        (t, d2): (u32, f64),
+        limit2: f64,
+        filter: &F,
+    ) -> Option<(u32, f64)> {
+        let band = self.grid.band();
+        if d2 <= band * band {
+            return Some((t, d2));
+        }
+        self.bvh
+            .closest(&self.mesh, p, limit2.min(d2), Some(t), filter)
     }
 
     /// The BVH's answer for a point the grid's lists do not cover. A point outside every kept
@@ -298,7 +317,8 @@ impl C2mIndex {
         let whole = match self.cell_of(p, &mut cursor.cell) {
             // Every candidate lies below the cut: the design's closest is the cut's.
             Some(cell) if cell.has_list() && cell.top() < h => {
-                Some(self.grid.closest(&self.mesh, &cell, &cursor.cell.center, p))
+                let best = self.grid.closest(&self.mesh, &cell, &cursor.cell.center, p);
+                self.confirm(p, best, bound2, &Below(h))
             }
             found => self.closest_far(p, found.is_some(), cursor.last, bound2, &Below(h)),
         };

@@ -28,6 +28,8 @@ pub const AXIS_MAX: i64 = (1 << AXIS_BITS) - 1;
 /// Longer lists are not kept: their cell is answered by the BVH, which bounds the memory of
 /// pathological designs (hundreds of duplicates or slivers on one spot).
 const MAX_LIST: usize = 255;
+/// Cells whose lists are made at once.
+const BUILD_BLOCK: usize = 65_536;
 /// One cell in this many is sampled for the lengths of the lists.
 const SAMPLE_EVERY: usize = 16;
 /// Cells are kept where a point within this many cell sizes of the surface can fall; farther
@@ -115,33 +117,39 @@ impl Grid {
                     })
             })
             .collect();
-        let longest = longest_list(sample, keys.len(), max_candidates);
-        let lists: Vec<(u64, Vec<u32>, Vec<u8>, f32)> = keys
-            .par_iter()
-            .map_init(Vec::new, |scratch, &key| {
-                let c = center(&origin, h, unpack(key));
-                candidates(mesh, bvh, &c, h, half_diag, step, longest, scratch)
-                    .map(|(t, d, top)| (key, t, d, top))
-            })
-            .flatten()
-            .collect();
-        drop(keys);
-
-        let total: usize = lists.iter().map(|l| l.1.len()).sum();
-        let mut cand = Vec::with_capacity(total);
-        let mut dist = Vec::with_capacity(total);
+        let kept = sample.iter().filter(|&&n| n > 0).count();
+        let cells_expected = (kept * keys.len()).div_ceil(sample.len().max(1)) + 64;
+        let (longest, expected) = longest_list(sample, keys.len(), max_candidates);
+        // Lists are made a block of cells at a time and appended, so the build holds one
+        // block's lists beside the index, not a second copy of all of them.
+        let mut cand = Vec::with_capacity(expected + expected / 16 + 1024);
+        let mut dist = Vec::with_capacity(cand.capacity());
         let mut cells = FxHashMap::default();
-        cells.reserve(lists.len());
-        for (key, t, d, top) in lists {
-            let cell = Cell {
-                start: cand.len() as u32,
-                len: t.len() as u16,
-                top,
-            };
-            cand.extend_from_slice(&t);
-            dist.extend_from_slice(&d);
-            cells.insert(key, cell);
+        cells.reserve(cells_expected);
+        for block in keys.chunks(BUILD_BLOCK) {
+            let lists: Vec<(u64, Vec<u32>, Vec<u8>, f32)> = block
+                .par_iter()
+                .map_init(Vec::new, |scratch, &key| {
+                    let c = center(&origin, h, unpack(key));
+                    candidates(mesh, bvh, &c, h, half_diag, step, longest, scratch)
+                        .map(|(t, d, top)| (key, t, d, top))
+                })
+                .flatten()
+                .collect();
+            for (key, t, d, top) in lists {
+                let cell = Cell {
+                    start: cand.len() as u32,
+                    len: t.len() as u16,
+                    top,
+                };
+                cand.extend_from_slice(&t);
+                dist.extend_from_slice(&d);
+                cells.insert(key, cell);
+            }
         }
+        drop(keys);
+        cand.shrink_to_fit();
+        dist.shrink_to_fit();
         Self {
             origin,
             h,
@@ -263,8 +271,9 @@ fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64) -> Vec<u64> {
                     for j in i0[1]..=i1[1] {
                         for k in i0[2]..=i1[2] {
                             let c = center(origin, h, [i, j, k]);
-                            // Not `>`: a NaN from a huge design keeps the cell.
-                            if !(n.dot(&(c - tri.a)).abs() > reach) {
+                            // A NaN from a huge design keeps the cell.
+                            let off = n.dot(&(c - tri.a)).abs();
+                            if off <= reach || off.is_nan() {
                                 keys.push(pack([i, j, k]));
                             }
                         }
@@ -367,10 +376,11 @@ fn candidates(
 }
 
 /// The longest list to keep so that the lists of all `cells` hold at most `budget` candidates,
-/// from the lengths of an even sample of them (a length past [`MAX_LIST`] counts as too long).
-fn longest_list(mut sample: Vec<usize>, cells: usize, budget: usize) -> usize {
+/// and how many candidates they will hold, from the lengths of an even sample of them (a length
+/// past [`MAX_LIST`] counts as too long).
+fn longest_list(mut sample: Vec<usize>, cells: usize, budget: usize) -> (usize, usize) {
     if sample.is_empty() {
-        return MAX_LIST;
+        return (MAX_LIST, 0);
     }
     sample.sort_unstable();
     let scale = cells as f64 / sample.len() as f64;
@@ -383,7 +393,7 @@ fn longest_list(mut sample: Vec<usize>, cells: usize, budget: usize) -> usize {
         total += len as f64 * scale;
         longest = len;
     }
-    longest.max(1)
+    (longest.max(1), total as usize)
 }
 
 fn round_up(v: f64) -> f32 {

@@ -125,7 +125,7 @@ const CELL_PER_TRIANGLE: f64 = 1.5;
 const SURFACE_CELLS_PER_TRIANGLE: f64 = 0.5;
 /// At most this many candidates in the cells' lists per triangle (5 bytes each): the longest
 /// lists are left to the BVH beyond it.
-const CANDIDATES_PER_TRIANGLE: f64 = 20.0;
+const CANDIDATES_PER_TRIANGLE: f64 = 14.0;
 
 impl C2mIndex {
     pub fn build(design: &Design, params: C2mParams) -> Result<Self, C2mError> {
@@ -309,7 +309,7 @@ impl C2mIndex {
         let h = section.height();
         let limit2 = self.max_distance * self.max_distance;
         // The cut design lies at or below the cut.
-        if !(p.z - h <= self.max_distance) {
+        if p.z - h > self.max_distance || p.z.is_nan() {
             return None;
         }
         let cap = section.closest(p, cursor, limit2);

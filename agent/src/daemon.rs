@@ -244,6 +244,11 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
 
     let mut inspect = InspectConfig::with_tolerance(config.inspect.tolerance);
     inspect.max_range = config.inspect.max_range;
+    if config.findings.enabled {
+        // Findings keep M3C2 cylinders off sharp edges: find the whole design's at start-up,
+        // not on the event loop (a printed height's are found where it is prepared).
+        designs.full().sharp_edges();
+    }
     let mut lifecycle: Lifecycle<ChunkSample> = Lifecycle::new(
         designs,
         config.frames.clone(),
@@ -367,9 +372,13 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     };
     let mut terminated = false;
     let mut held = HeldControl::default();
+    let mut more = false;
     while !terminated {
-        // While a printed height is prepared off the loop, wake often to take it up at once.
-        let result = if lifecycle.is_preparing() {
+        // While a printed height is prepared off the loop, wake often to take it up at once;
+        // with chunks still queued after a slice of reading, do not wait at all.
+        let result = if more {
+            Ok(WaitSetRunResult::AllEventsHandled)
+        } else if lifecycle.is_preparing() {
             waitset.wait_and_process_once_with_timeout(
                 |_| CallbackProgression::Continue,
                 PREPARING_POLL,
@@ -390,7 +399,9 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             warn!("inbox: {e:?}");
         }
         lifecycle.poll_designs(Instant::now(), &mut out);
-        terminated = drain(&ports, &mut lifecycle, &mut out, &mut held);
+        let drained = drain(&ports, &mut lifecycle, &mut out, &mut held);
+        terminated = drained == Drained::Stop;
+        more = drained == Drained::More;
         let now = Instant::now();
         lifecycle.on_tick(now, &mut out);
         if now >= status.next {
@@ -459,12 +470,29 @@ impl HeldControl {
 /// Reads every queue until all are empty. Station events and poses go first, and again before
 /// any chunk whose station is not ready, because the cell sends a station's Begin and pose
 /// before its chunks but on other services. Returns true when a stop was requested.
+/// How a pass over the input queues ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Drained {
+    /// Every queue is empty (or what is left waits for its station).
+    Empty,
+    /// A slice of reading is over with chunks still queued: the loop does its periodic work
+    /// (timeouts, prepared heights, the status) and comes straight back.
+    More,
+    /// A stop was requested.
+    Stop,
+}
+
+/// How long one pass reads before the loop's periodic work gets a turn, so health lines keep
+/// their period while a cell streams without a pause.
+const DRAIN_SLICE: Duration = Duration::from_millis(100);
+
 fn drain(
     ports: &AgentPorts,
     lifecycle: &mut Lifecycle<ChunkSample>,
     out: &mut IpcOutputs<'_>,
     held: &mut HeldControl,
-) -> bool {
+) -> Drained {
+    let deadline = Instant::now() + DRAIN_SLICE;
     loop {
         let mut any = drain_control(ports, lifecycle, out, held);
         loop {
@@ -494,9 +522,13 @@ fn drain(
             if let Some(r) = &mut out.recorder {
                 r.chunk(sample.user_header(), sample.payload());
             }
-            lifecycle.on_chunk(sample, Instant::now(), out);
+            let now = Instant::now();
+            lifecycle.on_chunk(sample, now, out);
             if SignalHandler::termination_requested() {
-                return true;
+                return Drained::Stop;
+            }
+            if now >= deadline {
+                return Drained::More;
             }
         }
         if !any {
@@ -504,7 +536,7 @@ fn drain(
         }
     }
     lifecycle.on_idle(out);
-    false
+    Drained::Empty
 }
 
 fn drain_control(

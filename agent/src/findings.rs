@@ -29,8 +29,6 @@ const MIN_POINTS: u32 = 5;
 /// Scan layers kept at once: the current one and the one before, for a late station.
 const EPOCHS: usize = 2;
 const SAMPLE_SEED: u64 = 1;
-/// The surface turning by more than this is an edge for M3C2's cylinders.
-const SHARP_EDGE_DEG: f64 = 30.0;
 
 struct Epoch {
     job: u64,
@@ -142,7 +140,7 @@ impl FindingsStage {
                 );
                 Some(Epoch {
                     job,
-                    sharp_edges: design.design().sharp_edges(SHARP_EDGE_DEG),
+                    sharp_edges: design.sharp_edges().to_vec(),
                     design: design.clone(),
                     m3c2,
                     coverage,

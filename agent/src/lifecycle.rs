@@ -134,11 +134,23 @@ pub struct Counters {
     pub input: InputRejects,
 }
 
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// A printed height prepared on a worker thread, with how long its section and (for findings)
+/// its cut mesh took.
+struct Prepared {
+    design: PrintedDesign,
+    section: Duration,
+    mesh: Option<Duration>,
+}
+
 /// A printed height being prepared on a worker thread.
 struct Preparation {
     height: f64,
     since: Instant,
-    done: mpsc::Receiver<Result<PrintedDesign, CutError>>,
+    done: mpsc::Receiver<Result<Prepared, CutError>>,
 }
 
 pub struct Lifecycle<C> {
@@ -242,7 +254,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         let mut k = 0;
         while k < self.preparing.len() {
             let result = match self.preparing[k].done.try_recv() {
-                Ok(r) => r.map(Arc::new).map_err(|e| e.to_string()),
+                Ok(r) => r.map_err(|e| e.to_string()),
                 Err(mpsc::TryRecvError::Empty) => {
                     k += 1;
                     continue;
@@ -253,12 +265,19 @@ impl<C: ChunkSource> Lifecycle<C> {
             };
             let p = self.preparing.swap_remove(k);
             let design = match result {
-                Ok(d) => {
+                Ok(prepared) => {
+                    let d = Arc::new(prepared.design);
+                    let mesh = prepared
+                        .mesh
+                        .map(|m| format!(", the cut mesh for findings {:.1} ms", ms(m)))
+                        .unwrap_or_default();
                     info!(
-                        "design at printed height {} m ready in {:.1} ms ({} section triangles)",
+                        "design at printed height {} m ready in {:.1} ms (section of {} \
+                         triangles {:.1} ms{mesh})",
                         p.height,
-                        now.saturating_duration_since(p.since).as_secs_f64() * 1e3,
-                        d.section().map_or(0, |s| s.triangles())
+                        ms(now.saturating_duration_since(p.since)),
+                        d.section().map_or(0, |s| s.triangles()),
+                        ms(prepared.section),
                     );
                     self.designs.insert(d.clone());
                     d
@@ -492,7 +511,20 @@ impl<C: ChunkSource> Lifecycle<C> {
         let spawned = std::thread::Builder::new()
             .name("design-height".into())
             .spawn(move || {
-                let _ = tx.send(preparer.prepare(height, mesh));
+                let started = Instant::now();
+                let prepared = preparer.prepare(height, false).map(|design| {
+                    let section = started.elapsed();
+                    let mesh = mesh.then(|| {
+                        design.sharp_edges();
+                        started.elapsed() - section
+                    });
+                    Prepared {
+                        design,
+                        section,
+                        mesh,
+                    }
+                });
+                let _ = tx.send(prepared);
             });
         match spawned {
             Ok(_) => self.preparing.push(Preparation {

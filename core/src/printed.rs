@@ -21,7 +21,12 @@ pub struct PrintedDesign {
     full: Arc<Design>,
     /// The cut as a mesh of its own, made only for those who sample it (findings).
     mesh: OnceLock<Design>,
+    sharp: OnceLock<Vec<[Point3<f64>; 2]>>,
 }
+
+/// The surface turning by more than this is an edge (for M3C2's cylinders, which would average
+/// two faces there).
+pub const SHARP_EDGE_DEG: f64 = 30.0;
 
 impl PrintedDesign {
     pub fn section(&self) -> Option<&Section> {
@@ -39,6 +44,15 @@ impl PrintedDesign {
                     .unwrap_or_else(|_| (*self.full).clone())
             }),
         }
+    }
+}
+
+impl PrintedDesign {
+    /// The sharp edges of the design as printed ([`SHARP_EDGE_DEG`]; boundary and non-manifold
+    /// edges too), found once.
+    pub fn sharp_edges(&self) -> &[[Point3<f64>; 2]] {
+        self.sharp
+            .get_or_init(|| self.design().sharp_edges(SHARP_EDGE_DEG))
     }
 }
 
@@ -81,7 +95,8 @@ pub struct Preparer {
 
 impl Preparer {
     /// The design below `height`, closed by a cap; the whole design for a height that is not
-    /// finite or not below the top. With `mesh`, the cut mesh is made too (for sampling).
+    /// finite or not below the top. With `mesh`, the cut mesh and its sharp edges are made too
+    /// (for sampling).
     pub fn prepare(&self, height: f64, mesh: bool) -> Result<PrintedDesign, CutError> {
         let section = if height.is_finite() && height >= self.top {
             None
@@ -94,9 +109,10 @@ impl Preparer {
             section,
             full: self.full.clone(),
             mesh: OnceLock::new(),
+            sharp: OnceLock::new(),
         };
         if mesh {
-            d.design();
+            d.sharp_edges();
         }
         Ok(d)
     }
@@ -125,6 +141,7 @@ impl PrintedDesigns {
                 section: None,
                 full: full.clone(),
                 mesh: OnceLock::new(),
+                sharp: OnceLock::new(),
             }),
             preparer: Preparer { index, full, top },
             recent: Vec::new(),

@@ -10,7 +10,7 @@ use nalgebra::Point3;
 
 use crate::c2m::{C2mError, C2mIndex, C2mParams, Closest, Cursor, Section, Surface};
 use crate::design::Design;
-use crate::layers::{CutError, cut_at};
+use crate::layers::CutError;
 
 /// The design cut at one printed height (or whole), with the one index of the design.
 pub struct PrintedDesign {
@@ -22,6 +22,9 @@ pub struct PrintedDesign {
     /// The cut as a mesh of its own, made only for those who sample it (findings).
     mesh: OnceLock<Design>,
     sharp: OnceLock<Vec<[Point3<f64>; 2]>>,
+    /// The whole design's sharp edges, shared by every height (a cut's are those below it and
+    /// those the section makes).
+    full_sharp: Arc<OnceLock<Vec<[Point3<f64>; 2]>>>,
 }
 
 /// The surface turning by more than this is an edge (for M3C2's cylinders, which would average
@@ -33,26 +36,119 @@ impl PrintedDesign {
         self.section.as_ref()
     }
 
-    /// The design as printed, as a mesh: the whole design, or the cut made (once) on first use.
-    /// Only sampling needs it; C2M and lines of sight use the index and the section.
+    /// The design as printed, as a mesh: the whole design, or the cut made (once) on first use,
+    /// equal to `crate::layers::cut_at`'s triangle for triangle: the design's triangles below
+    /// the cut and the section's pieces, in the design's order, then the cap. Only sampling
+    /// needs it; C2M and lines of sight use the index and the section.
     pub fn design(&self) -> &Design {
         match &self.section {
             None => &self.full,
-            Some(s) => self.mesh.get_or_init(|| {
-                cut_at(&self.full, s.height())
-                    .map(|(d, _)| d)
-                    .unwrap_or_else(|_| (*self.full).clone())
-            }),
+            Some(s) => self.mesh.get_or_init(|| cut_mesh(&self.full, s)),
         }
     }
+}
+
+/// The design cut at the section's height, from the design and the section alone.
+fn cut_mesh(full: &Design, section: &Section) -> Design {
+    let h = section.height();
+    let local = section.local_mesh();
+    let mut vertices = full.vertices.clone();
+    // Local vertex → vertex of the cut mesh: the design's own, or a cut point added.
+    let ids: Vec<u32> = local
+        .design_vertex
+        .iter()
+        .zip(local.vertices)
+        .map(|(&g, p)| {
+            if g != u32::MAX {
+                g
+            } else {
+                vertices.push(*p);
+                (vertices.len() - 1) as u32
+            }
+        })
+        .collect();
+    let pieces = &local.triangles[local.ring..];
+    let reported: Vec<u32> = section.pieces().map(|(_, r)| r).collect();
+    let below = |i: u32| full.vertices[i as usize].z < h;
+    let mut triangles = Vec::with_capacity(full.triangles.len());
+    let mut k = 0;
+    for (t, f) in full.triangles.iter().enumerate() {
+        match f.iter().filter(|&&i| below(i)).count() {
+            3 => triangles.push(*f),
+            0 => {}
+            _ => {
+                while k < pieces.len() && reported[k] == t as u32 {
+                    triangles.push(pieces[k].map(|i| ids[i as usize]));
+                    k += 1;
+                }
+            }
+        }
+    }
+    // The cap.
+    triangles.extend(pieces[k..].iter().map(|p| p.map(|i| ids[i as usize])));
+    Design {
+        vertices,
+        triangles,
+        report: Default::default(),
+    }
+}
+
+/// The sharp edges of the design cut at the section's height: the design's wholly below the
+/// cut and off the crossing triangles, and those of the section's local mesh that touch a piece
+/// or the cap.
+fn cut_sharp_edges(
+    full: &Design,
+    full_sharp: &[[Point3<f64>; 2]],
+    section: &Section,
+) -> Vec<[Point3<f64>; 2]> {
+    use std::collections::HashSet;
+    let h = section.height();
+    let key = |a: &Point3<f64>, b: &Point3<f64>| {
+        let (a, b) = (a.coords.map(f64::to_bits), b.coords.map(f64::to_bits));
+        let (a, b) = ([a.x, a.y, a.z], [b.x, b.y, b.z]);
+        if a <= b { (a, b) } else { (b, a) }
+    };
+    let n = full.triangles.len() as u32;
+    let mut replaced = HashSet::new();
+    for (_, r) in section.pieces().filter(|&(_, r)| r < n) {
+        let f = full.triangles[r as usize];
+        for k in 0..3 {
+            let (a, b) = (
+                full.vertices[f[k] as usize],
+                full.vertices[f[(k + 1) % 3] as usize],
+            );
+            if a.z < h && b.z < h {
+                replaced.insert(key(&a, &b));
+            }
+        }
+    }
+    let mut out: Vec<[Point3<f64>; 2]> = full_sharp
+        .iter()
+        .filter(|[a, b]| a.z < h && b.z < h && !replaced.contains(&key(a, b)))
+        .copied()
+        .collect();
+    let local = section.local_mesh();
+    out.extend(crate::design::sharp_edges(
+        local.vertices,
+        local.triangles,
+        SHARP_EDGE_DEG,
+        |f| f >= local.ring,
+    ));
+    crate::design::sort_edges(&mut out);
+    out
 }
 
 impl PrintedDesign {
     /// The sharp edges of the design as printed ([`SHARP_EDGE_DEG`]; boundary and non-manifold
     /// edges too), found once.
     pub fn sharp_edges(&self) -> &[[Point3<f64>; 2]] {
-        self.sharp
-            .get_or_init(|| self.design().sharp_edges(SHARP_EDGE_DEG))
+        let full = || self.full.sharp_edges(SHARP_EDGE_DEG);
+        match &self.section {
+            None => self.full_sharp.get_or_init(full),
+            Some(s) => self
+                .sharp
+                .get_or_init(|| cut_sharp_edges(&self.full, self.full_sharp.get_or_init(full), s)),
+        }
     }
 }
 
@@ -90,6 +186,7 @@ pub enum PrintedError {
 pub struct Preparer {
     index: Arc<C2mIndex>,
     full: Arc<Design>,
+    full_sharp: Arc<OnceLock<Vec<[Point3<f64>; 2]>>>,
     top: f64,
 }
 
@@ -110,8 +207,10 @@ impl Preparer {
             full: self.full.clone(),
             mesh: OnceLock::new(),
             sharp: OnceLock::new(),
+            full_sharp: self.full_sharp.clone(),
         };
         if mesh {
+            d.design();
             d.sharp_edges();
         }
         Ok(d)
@@ -134,6 +233,7 @@ impl PrintedDesigns {
         let index = Arc::new(C2mIndex::build(&design, params)?);
         let top = design.bounds().1.z;
         let full = Arc::new(design);
+        let full_sharp = Arc::new(OnceLock::new());
         Ok(Self {
             full: Arc::new(PrintedDesign {
                 height: f64::NAN,
@@ -142,8 +242,14 @@ impl PrintedDesigns {
                 full: full.clone(),
                 mesh: OnceLock::new(),
                 sharp: OnceLock::new(),
+                full_sharp: full_sharp.clone(),
             }),
-            preparer: Preparer { index, full, top },
+            preparer: Preparer {
+                index,
+                full,
+                full_sharp,
+                top,
+            },
             recent: Vec::new(),
         })
     }
@@ -220,5 +326,46 @@ mod tests {
         assert!(Arc::ptr_eq(&p.at(f64::NAN).unwrap(), p.full()));
         assert!(Arc::ptr_eq(&p.at(2.0).unwrap(), p.full()));
         assert!(p.at(-1.0).is_err());
+    }
+
+    /// The cut mesh and its sharp edges, put together from the design and the section, equal
+    /// what cutting the design gives.
+    #[test]
+    fn the_cut_mesh_and_its_edges_equal_cut_at() {
+        let column = shapes::twisted_column(0.15, 0.1, 1.2, 90.0, 64, 30);
+        let cube = shapes::cuboid(Point3::new(-0.3, 0.0, 0.1), Point3::new(0.7, 2.0, 0.5));
+        for (design, heights) in [(column, vec![0.07, 0.6, 1.13]), (cube, vec![0.3])] {
+            let mut p = PrintedDesigns::new(design.clone(), C2mParams::default()).unwrap();
+            for h in heights {
+                let d = p.at(h).unwrap();
+                let (cut, _) = crate::layers::cut_at(&design, h).unwrap();
+                let tris = |m: &Design| -> Vec<[[u64; 3]; 3]> {
+                    m.triangles
+                        .iter()
+                        .map(|t| t.map(|i| m.vertices[i as usize].coords.map(f64::to_bits).into()))
+                        .collect()
+                };
+                assert_eq!(tris(d.design()), tris(&cut), "height {h}");
+                let norm = |e: &[[Point3<f64>; 2]]| -> Vec<[[u64; 3]; 2]> {
+                    let mut v: Vec<[[u64; 3]; 2]> = e
+                        .iter()
+                        .map(|[a, b]| {
+                            let (a, b) = (
+                                a.coords.map(f64::to_bits).into(),
+                                b.coords.map(f64::to_bits).into(),
+                            );
+                            if a <= b { [a, b] } else { [b, a] }
+                        })
+                        .collect();
+                    v.sort();
+                    v
+                };
+                assert_eq!(
+                    norm(d.sharp_edges()),
+                    norm(&cut.sharp_edges(SHARP_EDGE_DEG)),
+                    "height {h}"
+                );
+            }
+        }
     }
 }

@@ -17,6 +17,15 @@ use super::normals::PseudoNormals;
 use super::{C2mIndex, C2mParams, CellCache, Closest, Cursor};
 use crate::layers::{ClipVertex, CutError, CutReport, CutVertex, cap, clip_below};
 
+/// The mesh a section was made in: the triangles around the crossing ones (the first `ring`),
+/// then the section's; each vertex's design vertex (`u32::MAX` for a point the cut adds).
+pub(crate) struct LocalMesh<'a> {
+    pub vertices: &'a [Point3<f64>],
+    pub triangles: &'a [[u32; 3]],
+    pub ring: usize,
+    pub design_vertex: &'a [u32],
+}
+
 /// The design cut at one height: prepared by [`C2mIndex::section`], used by
 /// [`C2mIndex::query_cut`].
 pub struct Section {
@@ -27,6 +36,13 @@ pub struct Section {
     /// design's triangle count plus the cap triangle's number.
     reported: Vec<u32>,
     report: CutReport,
+    /// The local mesh the section was made in: the triangles around the crossing ones (the
+    /// first `ring` of `local`), then the section's, in the cut's order; and each local
+    /// vertex's design vertex (`u32::MAX` for a point the cut adds). The cut mesh and its edges
+    /// are put together from these and the design.
+    local: Vec<[u32; 3]>,
+    ring: usize,
+    design_vertex: Vec<u32>,
 }
 
 impl Section {
@@ -45,7 +61,34 @@ impl Section {
     }
 
     pub fn bytes(&self) -> usize {
-        self.index.as_ref().map_or(0, |i| i.stats().bytes) + self.reported.len() * 4
+        self.index.as_ref().map_or(0, |i| i.stats().bytes)
+            + self.reported.len() * 4
+            + self.local.len() * 12
+            + self.design_vertex.len() * 4
+    }
+
+    /// The section's triangles in the cut's order (the pieces of each crossing triangle in
+    /// design order, then the cap), as points, with the id each reports.
+    pub(crate) fn pieces(&self) -> impl Iterator<Item = ([Point3<f64>; 3], u32)> + '_ {
+        let vertices = self.local_vertices();
+        self.local[self.ring..]
+            .iter()
+            .zip(&self.reported)
+            .map(move |(t, &r)| (t.map(|i| vertices[i as usize]), r))
+    }
+
+    /// The local mesh the section was made in.
+    pub(crate) fn local_mesh(&self) -> LocalMesh<'_> {
+        LocalMesh {
+            vertices: self.local_vertices(),
+            triangles: &self.local,
+            ring: self.ring,
+            design_vertex: &self.design_vertex,
+        }
+    }
+
+    fn local_vertices(&self) -> &[Point3<f64>] {
+        self.index.as_ref().map_or(&[], |i| &i.mesh.vertices)
     }
 
     /// The closest section triangle (internal to the section) and squared distance.
@@ -166,7 +209,7 @@ impl C2mIndex {
                 triangles.len() - before,
             ));
         }
-        let mut vertices = local.vertices;
+        let mut vertices = std::mem::take(&mut local.vertices);
         let mut report = CutReport::default();
         let before = triangles.len();
         cap(&mut vertices, &segments, &mut triangles, &mut report);
@@ -191,6 +234,10 @@ impl C2mIndex {
             .map(|k| triangles[k])
             .collect();
         let normals = PseudoNormals::new(&vertices, &kept);
+        let mut design_vertex = vec![u32::MAX; vertices.len()];
+        for (&g, &l) in &local.ids {
+            design_vertex[l as usize] = g;
+        }
         let ring_kept = keep[..ring_len].iter().filter(|&&k| k).count();
         let mut section_tris = Vec::new();
         let mut section_reported = Vec::new();
@@ -221,11 +268,16 @@ impl C2mIndex {
                     .expect("the design's own parameters were valid"),
             )
         };
+        let has_index = index.is_some();
         Ok(Section {
             height,
             index,
             reported: section_reported,
             report,
+            // Without pieces there is no local mesh to keep (nor vertices for it).
+            local: if has_index { kept } else { Vec::new() },
+            ring: if has_index { ring_kept } else { 0 },
+            design_vertex,
         })
     }
 }

@@ -199,28 +199,7 @@ impl Design {
     /// Edges where the surface turns by more than `min_angle_deg` (the faces' normals), and
     /// boundary or non-manifold edges: where a neighbourhood on the surface stops being one face.
     pub fn sharp_edges(&self, min_angle_deg: f64) -> Vec<[Point3<f64>; 2]> {
-        let mut faces: HashMap<(u32, u32), Vec<nalgebra::Vector3<f64>>> = HashMap::new();
-        for t in &self.triangles {
-            let [a, b, c] = t.map(|i| self.vertices[i as usize]);
-            let n = (b - a).cross(&(c - a));
-            let n = n / n.norm().max(f64::MIN_POSITIVE);
-            for k in 0..3 {
-                let (u, v) = (t[k], t[(k + 1) % 3]);
-                faces.entry((u.min(v), u.max(v))).or_default().push(n);
-            }
-        }
-        let cos_max = min_angle_deg.to_radians().cos();
-        let mut out: Vec<[Point3<f64>; 2]> = faces
-            .into_iter()
-            .filter(|(_, n)| n.len() != 2 || n[0].dot(&n[1]) < cos_max)
-            .map(|((u, v), _)| [self.vertices[u as usize], self.vertices[v as usize]])
-            .collect();
-        out.sort_by(|a, b| {
-            (a[0].coords.as_slice(), a[1].coords.as_slice())
-                .partial_cmp(&(b[0].coords.as_slice(), b[1].coords.as_slice()))
-                .unwrap_or(std::cmp::Ordering::Equal)
-        });
-        out
+        sharp_edges(&self.vertices, &self.triangles, min_angle_deg, |_| true)
     }
 
     /// Median triangle edge length, metres.
@@ -240,4 +219,46 @@ impl Design {
         let mid = e.len() / 2;
         *e.select_nth_unstable_by(mid, f64::total_cmp).1
     }
+}
+
+/// [`Design::sharp_edges`] of a mesh, for the edges with at least one face that `include` takes
+/// (by the face's index), sorted.
+pub(crate) fn sharp_edges(
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    min_angle_deg: f64,
+    include: impl Fn(usize) -> bool,
+) -> Vec<[Point3<f64>; 2]> {
+    // Per edge: its faces' normals, and whether `include` takes one of them.
+    type Faces = (Vec<nalgebra::Vector3<f64>>, bool);
+    let mut faces: HashMap<(u32, u32), Faces> = HashMap::new();
+    for (f, t) in triangles.iter().enumerate() {
+        let [a, b, c] = t.map(|i| vertices[i as usize]);
+        let n = (b - a).cross(&(c - a));
+        let n = n / n.norm().max(f64::MIN_POSITIVE);
+        let inc = include(f);
+        for k in 0..3 {
+            let (u, v) = (t[k], t[(k + 1) % 3]);
+            let e = faces.entry((u.min(v), u.max(v))).or_default();
+            e.0.push(n);
+            e.1 |= inc;
+        }
+    }
+    let cos_max = min_angle_deg.to_radians().cos();
+    let mut out: Vec<[Point3<f64>; 2]> = faces
+        .into_iter()
+        .filter(|(_, (n, inc))| *inc && (n.len() != 2 || n[0].dot(&n[1]) < cos_max))
+        .map(|((u, v), _)| [vertices[u as usize], vertices[v as usize]])
+        .collect();
+    sort_edges(&mut out);
+    out
+}
+
+/// The order [`Design::sharp_edges`] gives its edges in.
+pub(crate) fn sort_edges(edges: &mut [[Point3<f64>; 2]]) {
+    edges.sort_by(|a, b| {
+        (a[0].coords.as_slice(), a[1].coords.as_slice())
+            .partial_cmp(&(b[0].coords.as_slice(), b[1].coords.as_slice()))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
 }

@@ -204,7 +204,7 @@ impl Grid {
 
     /// The closest candidate of `cell` to `p` (which lies in the cell with centre `c`): internal
     /// triangle and squared distance. Ties go to the lowest design id.
-    #[inline]
+    #[inline(never)]
     pub fn closest(
         &self,
         mesh: &Mesh,

@@ -62,7 +62,7 @@ impl Triangle {
     }
 
     /// The closest point of the triangle to `p` and the region it lies in.
-    #[inline]
+    #[inline(always)]
     pub fn closest_point(&self, p: &Point3<f64>) -> (Point3<f64>, Region) {
         let (a, ab, ac) = (&self.a, &self.ab, &self.ac);
         let ap = p - a;

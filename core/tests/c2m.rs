@@ -480,7 +480,7 @@ fn slivers_duplicates_and_specks_index_within_the_memory_bound() {
     let idx = index(&design, 0.05);
     let stats = idx.stats();
     assert!(
-        stats.bytes < 400 * stats.triangles + (1 << 20),
+        stats.bytes < 150 * stats.triangles + (1 << 16),
         "{} bytes for {} triangles",
         stats.bytes,
         stats.triangles

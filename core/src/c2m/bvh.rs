@@ -10,7 +10,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::mesh::Mesh;
 
-const LEAF_SIZE: usize = 4;
+const LEAF_SIZE: usize = 8;
 /// Below this many triangles a subtree is built on one thread.
 const PARALLEL_MIN: usize = 16_384;
 

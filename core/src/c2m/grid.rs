@@ -41,15 +41,12 @@ pub struct Cell {
     start: u32,
     /// 0: no list; the cell is answered by the BVH.
     len: u16,
-    /// The highest vertex of the candidates, rounded up.
-    top: f32,
+    /// The highest vertex of the candidates, in steps of the design's height over 65,535 from
+    /// its lowest point, rounded up (eight bytes a cell).
+    top: u16,
 }
 
 impl Cell {
-    #[inline]
-    pub fn top(&self) -> f64 {
-        self.top as f64
-    }
     #[inline]
     pub fn has_list(&self) -> bool {
         self.len > 0
@@ -58,6 +55,9 @@ impl Cell {
 
 pub struct Grid {
     origin: Point3<f64>,
+    /// The design's lowest z and the step of a cell's `top`.
+    z0: f64,
+    z_step: f64,
     h: f64,
     inv_h: f64,
     /// Metres per unit of a candidate's distance byte.
@@ -86,6 +86,7 @@ impl Grid {
         bvh: &Bvh,
         mut h: f64,
         lo: Point3<f64>,
+        hi: Point3<f64>,
         max_surface_cells: usize,
         max_candidates: usize,
     ) -> Self {
@@ -102,6 +103,8 @@ impl Grid {
         };
         let half_diag = 0.5 * 3f64.sqrt() * h;
         let inv_h = 1.0 / h;
+        let z0 = lo.z;
+        let z_step = ((hi.z - lo.z) / 65_000.0).max(f64::MIN_POSITIVE);
         let step = (BAND * h + half_diag) / 255.0;
 
         // The longest lists cost the most and save the least over the BVH: a sample of the
@@ -140,7 +143,7 @@ impl Grid {
                 let cell = Cell {
                     start: cand.len() as u32,
                     len: t.len() as u16,
-                    top,
+                    top: quantize_up(top as f64, z0, z_step),
                 };
                 cand.extend_from_slice(&t);
                 dist.extend_from_slice(&d);
@@ -152,6 +155,8 @@ impl Grid {
         dist.shrink_to_fit();
         Self {
             origin,
+            z0,
+            z_step,
             h,
             inv_h,
             step,
@@ -171,6 +176,12 @@ impl Grid {
             bytes: self.cells.capacity() * (size_of::<u64>() + size_of::<Cell>() + 1)
                 + self.cand.len() * (size_of::<u32>() + size_of::<u8>()),
         }
+    }
+
+    /// The highest vertex of a cell's candidates, or above it.
+    #[inline]
+    pub fn top(&self, cell: &Cell) -> f64 {
+        self.z0 + cell.top as f64 * self.z_step
     }
 
     /// Points within this distance of the surface always fall in a kept cell.
@@ -394,6 +405,17 @@ fn longest_list(mut sample: Vec<usize>, cells: usize, budget: usize) -> (usize, 
         longest = len;
     }
     (longest.max(1), total as usize)
+}
+
+/// `z` in steps of `step` above `z0`, rounded up: decoding gives `z` or more; `u16::MAX` (and
+/// so every height) for what the steps do not reach.
+fn quantize_up(z: f64, z0: f64, step: f64) -> u16 {
+    let q = ((z - z0) / step).ceil() + 1.0;
+    if q.is_finite() && q < u16::MAX as f64 {
+        q.max(0.0) as u16
+    } else {
+        u16::MAX
+    }
 }
 
 fn round_up(v: f64) -> f32 {

@@ -170,7 +170,7 @@ impl C2mIndex {
             (SURFACE_CELLS_PER_TRIANGLE * mesh.len() as f64) as usize + 4096
         };
         let candidates = (CANDIDATES_PER_TRIANGLE * mesh.len() as f64) as usize + 65_536;
-        let grid = Grid::build(&mesh, &bvh, h, lo, budget, candidates);
+        let grid = Grid::build(&mesh, &bvh, h, lo, hi, budget, candidates);
         Ok(Self {
             mesh,
             internal,
@@ -316,7 +316,7 @@ impl C2mIndex {
         let bound2 = cap.map_or(limit2, |c| c.1);
         let whole = match self.cell_of(p, &mut cursor.cell) {
             // Every candidate lies below the cut: the design's closest is the cut's.
-            Some(cell) if cell.has_list() && cell.top() < h => {
+            Some(cell) if cell.has_list() && self.grid.top(&cell) < h => {
                 let best = self.grid.closest(&self.mesh, &cell, &cursor.cell.center, p);
                 self.confirm(p, best, bound2, &Below(h))
             }

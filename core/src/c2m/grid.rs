@@ -178,6 +178,10 @@ impl Grid {
         }
     }
 
+    pub fn cell_size(&self) -> f64 {
+        self.h
+    }
+
     /// The highest vertex of a cell's candidates, or above it.
     #[inline]
     pub fn top(&self, cell: &Cell) -> f64 {

@@ -17,6 +17,9 @@ use super::normals::PseudoNormals;
 use super::{C2mIndex, C2mParams, CellCache, Closest, Cursor};
 use crate::layers::{ClipVertex, CutError, CutReport, CutVertex, cap, clip_below};
 
+/// A section's cells, in cells of the design's grid.
+const SECTION_CELLS: f64 = 8.0;
+
 /// The mesh a section was made in: the triangles around the crossing ones (the first `ring`),
 /// then the section's; each vertex's design vertex (`u32::MAX` for a point the cut adds).
 pub(crate) struct LocalMesh<'a> {
@@ -259,9 +262,12 @@ impl C2mIndex {
                 edge,
                 vertex: normals.vertex,
             };
+            // Coarse cells: a section is a thin ring of pieces and a wide cap of long ear-cut
+            // triangles; eight of the design's cells build in a third of the time and answer
+            // as fast (the lists are sorted, the scan stops early).
             let params = C2mParams {
                 max_distance: self.max_distance,
-                cell_size: None,
+                cell_size: Some(SECTION_CELLS * self.grid.cell_size()),
             };
             Some(
                 C2mIndex::build_mesh(vertices, &section_tris, NormalSource::Given(given), params)

@@ -4,9 +4,12 @@ use std::time::Instant;
 
 use asbuilt_core::design::shapes::twisted_column;
 use asbuilt_core::{C2mIndex, C2mParams, Closest, Design};
-use nalgebra::{Point3, Vector3};
-use rand::{Rng, SeedableRng, seq::SliceRandom};
+use nalgebra::Point3;
+use rand::{SeedableRng, seq::SliceRandom};
 use rand_chacha::ChaCha8Rng;
+
+#[path = "../benches/support/points.rs"]
+mod points;
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();
@@ -39,29 +42,7 @@ fn main() {
         s.bvh_cells
     );
     let mut rng = ChaCha8Rng::seed_from_u64(42);
-    let n = 2_000_000;
-    let per = n / design.triangles.len() + 1;
-    let mut pts = Vec::with_capacity(n);
-    'o: for tr in &design.triangles {
-        let [a, b, c] = tr.map(|i| design.vertices[i as usize]);
-        for _ in 0..per {
-            let (u, v): (f64, f64) = (rng.random(), rng.random());
-            let (u, v) = if u + v > 1.0 {
-                (1.0 - u, 1.0 - v)
-            } else {
-                (u, v)
-            };
-            let g = Vector3::new(
-                rng.random::<f64>() - 0.5,
-                rng.random::<f64>() - 0.5,
-                rng.random::<f64>() - 0.5,
-            ) * 1.7e-3;
-            pts.push(a + (b - a) * u + (c - a) * v + g);
-            if pts.len() == n {
-                break 'o;
-            }
-        }
-    }
+    let pts = points::noisy_surface_points(&design, 2_000_000);
     let mut out: Vec<Option<Closest>> = vec![None; pts.len()];
     for (name, shuffle) in [("scan order", false), ("shuffled", true)] {
         let mut p: Vec<Point3<f64>> = pts.clone();

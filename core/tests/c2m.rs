@@ -166,17 +166,19 @@ fn sphere_vertices_and_faces() {
     assert!(q(&idx, center.into()).is_none(), "centre is 0.95+ m deep");
 }
 
+/// A uniform offset of up to `s` per axis.
+fn jitter(rng: &mut ChaCha8Rng, s: f64) -> Vector3<f64> {
+    Vector3::new(
+        rng.random_range(-s..s),
+        rng.random_range(-s..s),
+        rng.random_range(-s..s),
+    )
+}
+
 /// Random points of four kinds: near the surface, next to vertices, next to edges, and far.
 fn probe_points(design: &Design, n: usize, scale: f64, seed: u64) -> Vec<Point3<f64>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (lo, hi) = design.bounds();
-    let jitter = |rng: &mut ChaCha8Rng, s: f64| {
-        Vector3::new(
-            rng.random_range(-s..s),
-            rng.random_range(-s..s),
-            rng.random_range(-s..s),
-        )
-    };
     (0..n)
         .map(|i| {
             let t = design.triangles[rng.random_range(0..design.triangles.len())];
@@ -351,13 +353,6 @@ fn cut_probe_points(design: &Design, h: f64, n: usize, scale: f64, seed: u64) ->
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut pts = probe_points(design, n / 2, scale, seed);
     let (lo, hi) = design.bounds();
-    let jitter = |rng: &mut ChaCha8Rng, s: f64| {
-        Vector3::new(
-            rng.random_range(-s..s),
-            rng.random_range(-s..s),
-            rng.random_range(-s..s),
-        )
-    };
     while pts.len() < n {
         // A point of an edge that crosses the cut, where the rim is.
         let t = design.triangles[rng.random_range(0..design.triangles.len())];

@@ -211,71 +211,64 @@ impl Bvh {
     /// Every triangle whose distance to `p` is at most `radius`, with that distance.
     pub fn within(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
         let r2 = radius * radius;
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let i = stack[top] as usize;
-            let node = &self.nodes[i];
-            if box_dist2(node, p) > r2 {
-                continue;
-            }
-            if node.count > 0 {
-                let s = node.start as usize;
-                for t in s..s + node.count as usize {
-                    let d = (p - mesh.triangle(t).closest_point(p).0).norm();
-                    if d <= radius {
-                        out.push((t as u32, d));
-                    }
+        self.visit(
+            |n| box_dist2(n, p) <= r2,
+            |t| {
+                let d = (p - mesh.triangle(t as usize).closest_point(p).0).norm();
+                if d <= radius {
+                    out.push((t, d));
                 }
-            } else {
-                stack[top] = (i + 1) as u32;
-                stack[top + 1] = node.start;
-                top += 2;
-            }
-        }
+                false
+            },
+        );
     }
 
     /// Internal triangles whose box meets the plane `z` (conservatively).
     pub fn crossing(&self, z: f64, out: &mut Vec<u32>) {
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let i = stack[top] as usize;
-            let node = &self.nodes[i];
-            if (node.min[2] as f64) > z || (node.max[2] as f64) < z {
-                continue;
-            }
-            if node.count > 0 {
-                out.extend(node.start..node.start + node.count);
-            } else {
-                stack[top] = (i + 1) as u32;
-                stack[top + 1] = node.start;
-                top += 2;
-            }
-        }
+        self.visit(
+            |n| (n.min[2] as f64) <= z && (n.max[2] as f64) >= z,
+            |t| {
+                out.push(t);
+                false
+            },
+        );
     }
 
     /// Internal triangles whose box holds the point `p`.
     pub fn containing(&self, p: &Point3<f64>, out: &mut Vec<u32>) {
+        self.visit(
+            |n| box_dist2(n, p) == 0.0,
+            |t| {
+                out.push(t);
+                false
+            },
+        );
+    }
+
+    /// Hands every triangle of every leaf reached through nodes that `enter` accepts to `leaf`,
+    /// until `leaf` says it is done; returns whether it did.
+    fn visit(&self, enter: impl Fn(&Node) -> bool, mut leaf: impl FnMut(u32) -> bool) -> bool {
         let mut stack = [0u32; 64];
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
             let i = stack[top] as usize;
             let node = &self.nodes[i];
-            if box_dist2(node, p) > 0.0 {
+            if !enter(node) {
                 continue;
             }
             if node.count > 0 {
-                out.extend(node.start..node.start + node.count);
+                if (node.start..node.start + node.count).any(&mut leaf) {
+                    return true;
+                }
             } else {
+                // Depth is at most log2(triangles) + 1 (median splits), far below 63.
                 stack[top] = (i + 1) as u32;
                 stack[top + 1] = node.start;
                 top += 2;
             }
         }
+        false
     }
 
     /// Whether a triangle that `filter` keeps crosses the segment from `from` to
@@ -290,33 +283,16 @@ impl Bvh {
         filter: &F,
     ) -> bool {
         let inv = dir.map(|d| 1.0 / d);
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let i = stack[top] as usize;
-            let node = &self.nodes[i];
-            if !filter.node(node.min[2]) || !slab_hit(node, from, &inv, t_min, t_max) {
-                continue;
-            }
-            if node.count > 0 {
-                let s = node.start as usize;
-                for t in s..s + node.count as usize {
-                    if filter.triangle(mesh, t)
-                        && let Some(hit) = mesh.triangle(t).ray_hit(from, dir)
-                        && hit > t_min
-                        && hit < t_max
-                    {
-                        return true;
-                    }
-                }
-            } else {
-                stack[top] = (i + 1) as u32;
-                stack[top + 1] = node.start;
-                top += 2;
-            }
-        }
-        false
+        self.visit(
+            |n| filter.node(n.min[2]) && slab_hit(n, from, &inv, t_min, t_max),
+            |t| {
+                filter.triangle(mesh, t as usize)
+                    && mesh
+                        .triangle(t as usize)
+                        .ray_hit(from, dir)
+                        .is_some_and(|hit| hit > t_min && hit < t_max)
+            },
+        )
     }
 }
 

@@ -11,7 +11,7 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use super::normals::PseudoNormals;
+use super::normals::{PseudoNormals, vertex_normals};
 use super::triangle::{Region, Triangle};
 
 /// An edge's neighbour code: a triangle (internal index) below this, a boundary edge, or an
@@ -133,24 +133,6 @@ impl Mesh {
 pub(crate) fn face_normal(p: &[Point3<f64>; 3]) -> Vector3<f64> {
     let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
     n.try_normalize(0.0).unwrap_or_else(Vector3::zeros)
-}
-
-/// Angle-weighted vertex normals, summed in design order (the order fixes the bits).
-fn vertex_normals(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Vec<Vector3<f64>> {
-    let mut vertex = vec![Vector3::zeros(); vertices.len()];
-    for t in triangles {
-        let p = t.map(|i| vertices[i as usize]);
-        let n = face_normal(&p);
-        for i in 0..3 {
-            let e1 = p[(i + 1) % 3] - p[i];
-            let e2 = p[(i + 2) % 3] - p[i];
-            let angle = e1.angle(&e2);
-            if angle.is_finite() {
-                vertex[t[i] as usize] += n * angle;
-            }
-        }
-    }
-    vertex
 }
 
 /// Neighbour codes from the edges sorted by their vertex pair: no hash map of 1.5 edges per

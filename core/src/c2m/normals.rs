@@ -7,6 +7,8 @@ use std::collections::HashMap;
 
 use nalgebra::{Point3, Vector3};
 
+use super::mesh::face_normal;
+
 pub struct PseudoNormals {
     /// Per triangle, per edge `i` (vertex `i` to `i + 1`): the sum of the unit normals of the
     /// faces that share the edge (each face's angle at an edge is π, so the weights are equal).
@@ -16,20 +18,11 @@ pub struct PseudoNormals {
 
 impl PseudoNormals {
     pub fn new(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Self {
-        let mut vertex = vec![Vector3::zeros(); vertices.len()];
         let mut edge_sum: HashMap<(u32, u32), Vector3<f64>> =
             HashMap::with_capacity(triangles.len() * 3 / 2);
         for t in triangles {
-            let p = t.map(|i| vertices[i as usize]);
-            let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
-            let n = n.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
+            let n = face_normal(&t.map(|i| vertices[i as usize]));
             for i in 0..3 {
-                let e1 = p[(i + 1) % 3] - p[i];
-                let e2 = p[(i + 2) % 3] - p[i];
-                let angle = e1.angle(&e2);
-                if angle.is_finite() {
-                    vertex[t[i] as usize] += n * angle;
-                }
                 *edge_sum.entry(edge_key(t[i], t[(i + 1) % 3])).or_default() += n;
             }
         }
@@ -37,8 +30,29 @@ impl PseudoNormals {
             .iter()
             .map(|t| std::array::from_fn(|i| edge_sum[&edge_key(t[i], t[(i + 1) % 3])]))
             .collect();
-        Self { edge, vertex }
+        Self {
+            edge,
+            vertex: vertex_normals(vertices, triangles),
+        }
     }
+}
+
+/// Angle-weighted vertex normals, summed in the triangles' order (the order fixes the bits).
+pub fn vertex_normals(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Vec<Vector3<f64>> {
+    let mut vertex = vec![Vector3::zeros(); vertices.len()];
+    for t in triangles {
+        let p = t.map(|i| vertices[i as usize]);
+        let n = face_normal(&p);
+        for i in 0..3 {
+            let e1 = p[(i + 1) % 3] - p[i];
+            let e2 = p[(i + 2) % 3] - p[i];
+            let angle = e1.angle(&e2);
+            if angle.is_finite() {
+                vertex[t[i] as usize] += n * angle;
+            }
+        }
+    }
+    vertex
 }
 
 pub(crate) fn edge_key(a: u32, b: u32) -> (u32, u32) {

@@ -18,6 +18,7 @@ fn main() {
     } else {
         twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250)
     };
+    eprintln!("peak RSS after loading: {}", peak_rss());
     let t = Instant::now();
     let index = C2mIndex::build(
         &design,
@@ -28,6 +29,7 @@ fn main() {
     )
     .unwrap();
     let build = t.elapsed().as_secs_f64();
+    eprintln!("peak RSS after indexing: {}", peak_rss());
     let s = index.stats();
     println!(
         "{} triangles: built in {:.3} s, {:.1} MB ({:.0} B/triangle), {} cells of {:.3} mm, {} candidates ({:.1}/cell), {} BVH cells",
@@ -84,4 +86,16 @@ fn main() {
             );
         }
     }
+}
+
+/// The process's peak resident memory so far (Linux), for the record.
+fn peak_rss() -> String {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM"))
+                .map(|l| l[6..].trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown".into())
 }

@@ -352,3 +352,76 @@ fn a_cell_running_far_ahead_of_the_agent_loses_no_point() {
     }
     assert!(!agent.log().contains("pushed out"), "{}", agent.log());
 }
+
+#[test]
+fn the_agent_keeps_its_status_period_while_a_new_printed_height_is_prepared() {
+    // A free-form design of 100,000 triangles, scanned at two printed heights. Building a
+    // height's design on the event loop stopped this agent for seconds; now the loop reports
+    // its status every 0.1 s throughout, and each height is prepared on a worker thread.
+    let column = asbuilt_core::design::shapes::twisted_column(0.15, 0.1, 1.2, 90.0, 500, 100);
+    let mut job = SimJob::new(Part::from_design("column", column, 0.02).unwrap());
+    job.scan_after = vec![10, 30];
+    job.stations_per_scan = 1;
+    job.scanner.step_deg = 0.2;
+    job.rate = None;
+    job.seed = 7;
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("design.stl");
+    sim::write_stl(&stl, &job.part.design).unwrap();
+    let prefix = unique_prefix("sim_height_switch");
+    let config = format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[limits]\nmax_points_per_chunk = {}\n\
+         [status]\nperiod_s = 0.1\n",
+        stl.display().to_string(),
+        job.chunk_points,
+    );
+    let agent = Agent::start_in(AGENT, &prefix, &config, dir);
+    let cell = Cell::open(&prefix, job.chunk_points);
+    let out = sim::run(
+        &job,
+        &cell.ports,
+        false,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()));
+    assert_eq!(out.reports.len(), 2, "agent log:\n{}", agent.log());
+    for r in &out.reports {
+        assert_eq!(r.status(), Some(StationStatus::Complete), "{}", agent.log());
+        assert!(r.stats.count > 1000, "{r:?}");
+    }
+    let log = agent.log();
+    assert_eq!(
+        log.matches("ready in").count(),
+        3,
+        "the design and two heights:\n{log}"
+    );
+    // Health lines from the first Begin to the last report: none missing for long. The bound
+    // leaves room for a loaded machine and the debug build; a height built on the loop took
+    // seconds here.
+    let millis = |line: &str| -> f64 {
+        let t = &line[11..23];
+        let f: Vec<f64> = t.split(':').map(|x| x.parse().unwrap()).collect();
+        (f[0] * 3600.0 + f[1] * 60.0 + f[2]) * 1e3
+    };
+    let lines: Vec<&str> = log.lines().collect();
+    let begin = lines.iter().position(|l| l.contains(" begins")).unwrap();
+    let end = lines
+        .iter()
+        .rposition(|l| l.contains(") Complete:"))
+        .unwrap();
+    // From the first Begin to the last report, with every health line between.
+    let mut times = vec![millis(lines[begin])];
+    times.extend(
+        lines[begin..=end]
+            .iter()
+            .filter(|l| l.contains(" health: "))
+            .map(|l| millis(l)),
+    );
+    times.push(millis(lines[end]));
+    let gap = times.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+    assert!(
+        gap < 1500.0,
+        "a {gap:.0} ms gap between health lines:\n{log}"
+    );
+}

@@ -25,6 +25,8 @@ pub struct Mesh {
     pub faces: Vec<[u32; 3]>,
     /// The design's id of each internal triangle.
     pub ids: Vec<u32>,
+    /// Design triangle → internal position (the inverse of `ids`).
+    pub internal: Vec<u32>,
     /// Per internal triangle and edge `i` (vertex `i` to `i + 1`): the neighbour code.
     edges: Vec<[u32; 3]>,
     /// Edge normals that are not the sum of two faces: non-manifold edges, supplied normals.
@@ -77,6 +79,7 @@ impl Mesh {
             vertices,
             faces,
             ids: order.to_vec(),
+            internal,
             edges,
             edge_extra,
             vertex_normals,
@@ -124,7 +127,7 @@ impl Mesh {
 
     pub fn bytes(&self) -> usize {
         self.vertices.len() * size_of::<Point3<f64>>()
-            + self.faces.len() * (size_of::<[u32; 3]>() * 2 + size_of::<u32>())
+            + self.faces.len() * (size_of::<[u32; 3]>() * 2 + size_of::<u32>() * 2)
             + self.edge_extra.len() * size_of::<Vector3<f64>>()
             + self.vertex_normals.len() * size_of::<Vector3<f64>>()
     }

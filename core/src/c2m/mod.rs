@@ -109,8 +109,6 @@ pub struct Cursor {
 /// A design prepared for C2M queries. Built once per design and maximum distance.
 pub struct C2mIndex {
     mesh: Mesh,
-    /// Design triangle → internal position.
-    internal: Vec<u32>,
     bvh: Bvh,
     grid: Grid,
     max_distance: f64,
@@ -154,10 +152,6 @@ impl C2mIndex {
         let (bvh, order) = Bvh::build(&vertices, triangles);
         let mesh = Mesh::new(vertices, triangles, &order, normals);
         drop(order);
-        let mut internal = vec![0u32; mesh.len()];
-        for (k, &t) in mesh.ids.iter().enumerate() {
-            internal[t as usize] = k as u32;
-        }
         let (lo, hi) = bounds(&mesh);
         let extent = (hi - lo).max();
         if !extent.is_finite() || extent > 1e7 {
@@ -173,7 +167,6 @@ impl C2mIndex {
         let grid = Grid::build(&mesh, &bvh, h, lo, hi, budget, candidates);
         Ok(Self {
             mesh,
-            internal,
             bvh,
             grid,
             max_distance: params.max_distance,
@@ -205,10 +198,7 @@ impl C2mIndex {
             cells: g.cells,
             candidates: g.candidates,
             bvh_cells: g.bvh_cells,
-            bytes: g.bytes
-                + self.mesh.bytes()
-                + self.internal.len() * size_of::<u32>()
-                + self.bvh.bytes(),
+            bytes: g.bytes + self.mesh.bytes() + self.bvh.bytes(),
         }
     }
 
@@ -338,7 +328,7 @@ impl C2mIndex {
 
     /// Unit normal of design triangle `t`, outward for a consistently oriented mesh.
     pub fn face_normal(&self, t: u32) -> Vector3<f64> {
-        match self.internal.get(t as usize) {
+        match self.mesh.internal.get(t as usize) {
             Some(&i) => self.mesh.face_normal(i as usize),
             // A cap triangle of a cut design faces up.
             None => Vector3::z(),

@@ -15,23 +15,31 @@ const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
 const TOLERANCE: f64 = 0.005;
 
-/// Runs `job` through a fresh agent with findings on; returns the findings of the last scan
-/// layer, after all its stations.
-fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
+/// Starts an agent on `job`'s design (written as STL, metres), with `config` after the
+/// `[design]` table of its agent.toml, and opens the cell's side of its services.
+fn start(test: &str, job: &SimJob, config: &str) -> (Agent, Cell) {
     let dir = tempfile::tempdir().unwrap();
     let stl = dir.path().join("design.stl");
     sim::write_stl(&stl, &job.part.design).unwrap();
     let prefix = unique_prefix(test);
     let config = format!(
-        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = {TOLERANCE}\n\
-         max_distance = 0.03\n[limits]\nmax_points_per_chunk = {}\n[findings]\nenabled = true\n\
-         layer_height = {}\n",
-        stl.display().to_string(),
-        job.chunk_points,
-        job.part.layer_height
+        "[design]\npath = {:?}\nunits = \"m\"\n{config}",
+        stl.display().to_string()
     );
     let agent = Agent::start_in(AGENT, &prefix, &config, dir);
     let cell = Cell::open(&prefix, job.chunk_points);
+    (agent, cell)
+}
+
+/// Runs `job` through a fresh agent with findings on; returns the findings of the last scan
+/// layer, after all its stations.
+fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
+    let config = format!(
+        "[inspect]\ntolerance = {TOLERANCE}\nmax_distance = 0.03\n[limits]\n\
+         max_points_per_chunk = {}\n[findings]\nenabled = true\nlayer_height = {}\n",
+        job.chunk_points, job.part.layer_height
+    );
+    let (agent, cell) = start(test, job, &config);
     let out = sim::run(job, &cell.ports, true, Duration::from_secs(60), &mut |_| {})
         .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()));
     let n = job.plan().len();
@@ -319,17 +327,12 @@ fn a_cell_running_far_ahead_of_the_agent_loses_no_point() {
     job.scan_after = vec![2, 4, 6];
     job.one_station_at_a_time = false;
     job.chunk_points = 4096;
-    let dir = tempfile::tempdir().unwrap();
-    let stl = dir.path().join("design.stl");
-    sim::write_stl(&stl, &job.part.design).unwrap();
-    let prefix = unique_prefix("sim_ahead");
-    let config = format!(
-        "[design]\npath = {:?}\nunits = \"m\"\n[limits]\nmax_points_per_chunk = 4096\n\
-         open_stations = 2\npending_chunks = 2\n[findings]\nenabled = true\nlayer_height = 0.02\n",
-        stl.display().to_string()
+    let (agent, cell) = start(
+        "sim_ahead",
+        &job,
+        "[limits]\nmax_points_per_chunk = 4096\nopen_stations = 2\npending_chunks = 2\n\
+         [findings]\nenabled = true\nlayer_height = 0.02\n",
     );
-    let agent = Agent::start_in(AGENT, &prefix, &config, dir);
-    let cell = Cell::open(&prefix, job.chunk_points);
     let out = sim::run(
         &job,
         &cell.ports,
@@ -365,18 +368,11 @@ fn the_agent_keeps_its_status_period_while_a_new_printed_height_is_prepared() {
     job.scanner.step_deg = 0.2;
     job.rate = None;
     job.seed = 7;
-    let dir = tempfile::tempdir().unwrap();
-    let stl = dir.path().join("design.stl");
-    sim::write_stl(&stl, &job.part.design).unwrap();
-    let prefix = unique_prefix("sim_height_switch");
     let config = format!(
-        "[design]\npath = {:?}\nunits = \"m\"\n[limits]\nmax_points_per_chunk = {}\n\
-         [status]\nperiod_s = 0.1\n",
-        stl.display().to_string(),
-        job.chunk_points,
+        "[limits]\nmax_points_per_chunk = {}\n[status]\nperiod_s = 0.1\n",
+        job.chunk_points
     );
-    let agent = Agent::start_in(AGENT, &prefix, &config, dir);
-    let cell = Cell::open(&prefix, job.chunk_points);
+    let (agent, cell) = start("sim_height_switch", &job, &config);
     let out = sim::run(
         &job,
         &cell.ports,

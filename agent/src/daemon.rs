@@ -535,7 +535,7 @@ fn drain(
             break;
         }
     }
-    lifecycle.on_idle(out);
+    lifecycle.on_idle(Instant::now(), out);
     Drained::Empty
 }
 

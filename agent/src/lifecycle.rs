@@ -59,6 +59,13 @@ pub struct LifecycleLimits {
 /// How many closed stations are remembered, to tell a late chunk from one of an unknown station.
 const CLOSED_MEMORY: usize = 64;
 
+/// How long a station that said it is done, with chunks missing, stays open while the queues are
+/// empty. Its End travels on another service than its chunks, possibly from another process (the
+/// robot controller while the scanner driver still sends): chunks sent just before it must not
+/// arrive to a closed station and be lost. The event loop wakes at least every 250 ms, so an
+/// incomplete station is reported within about half a second of its End.
+pub const END_GRACE: Duration = Duration::from_millis(200);
+
 type StationKey = (u64, u32);
 
 struct OpenStation {
@@ -68,6 +75,8 @@ struct OpenStation {
     pose: Option<PoseSnapshot>,
     /// Sequence of a chunk flagged `last`.
     last_sequence: Option<u64>,
+    /// When the scanner first said it is done (End event or a chunk flagged last).
+    finished_at: Option<Instant>,
     inspector: StationInspector,
     /// The design as printed when this station scanned (the whole design until told).
     design: Arc<PrintedDesign>,
@@ -346,8 +355,10 @@ impl<C: ChunkSource> Lifecycle<C> {
             }
             Some(StationEventKind::End) => match self.find(&key) {
                 Some(i) => {
-                    self.open[i].end = Some(*ev);
-                    self.open[i].last_activity = now;
+                    let s = &mut self.open[i];
+                    s.end = Some(*ev);
+                    s.last_activity = now;
+                    s.finished_at.get_or_insert(now);
                     self.close_if_complete(i, out);
                 }
                 None if self.closed.contains(&key) => {
@@ -433,13 +444,17 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
     }
 
-    /// The input queues are empty: a station whose scanner said it is done closes now, even if
-    /// chunks are missing.
-    pub fn on_idle(&mut self, out: &mut impl Outputs) {
+    /// The input queues are empty: a station whose scanner said it is done, at least
+    /// [`END_GRACE`] ago, closes now, even if chunks are missing.
+    pub fn on_idle(&mut self, now: Instant, out: &mut impl Outputs) {
         let mut i = 0;
         while i < self.open.len() {
+            let s = &self.open[i];
             // A station waiting for its printed design has its chunks still queued.
-            if self.open[i].finished_sending() && self.open[i].awaiting.is_none() {
+            let settled = s
+                .finished_at
+                .is_some_and(|t| now.saturating_duration_since(t) >= END_GRACE);
+            if settled && s.awaiting.is_none() {
                 self.close(i, None, out);
             } else {
                 i += 1;
@@ -569,6 +584,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             end: None,
             pose: None,
             last_sequence: None,
+            finished_at: None,
             inspector: StationInspector::new(
                 self.designs.full().clone(),
                 nalgebra::Isometry3::identity(),
@@ -672,6 +688,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         s.last_activity = now;
         if h.last != 0 {
             s.last_sequence = Some(h.sequence);
+            s.finished_at.get_or_insert(now);
         }
         let input = &mut self.counters.input;
         if h.point_count as usize != n {
@@ -962,6 +979,33 @@ mod tests {
     }
 
     #[test]
+    fn an_end_that_overtakes_its_last_chunks_waits_for_them() {
+        let (mut lc, mut out, t) = setup(cube());
+        lc.on_event(&event(StationEventKind::Begin, 2, 3), t, &mut out);
+        lc.on_pose(&pose(2), t, &mut out);
+        lc.on_chunk(chunk(2, 0, 10), t, &mut out);
+        lc.on_event(&event(StationEventKind::End, 2, 3), t, &mut out);
+        // The queues run empty before the last chunks, sent by another process, are seen.
+        lc.on_idle(t + END_GRACE / 2, &mut out);
+        assert!(out.reports.is_empty());
+        lc.on_chunk(chunk(2, 1, 10), t + END_GRACE / 2, &mut out);
+        lc.on_chunk(chunk(2, 2, 10), t + END_GRACE / 2, &mut out);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::Complete));
+        assert_eq!(out.reports[0].stats.count, 30);
+
+        // A chunk that never comes: the station is reported incomplete after the grace.
+        lc.on_event(&event(StationEventKind::Begin, 3, 2), t, &mut out);
+        lc.on_pose(&pose(3), t, &mut out);
+        lc.on_chunk(chunk(3, 0, 10), t, &mut out);
+        lc.on_event(&event(StationEventKind::End, 3, 2), t, &mut out);
+        lc.on_idle(t + END_GRACE / 2, &mut out);
+        assert_eq!(out.reports.len(), 1);
+        lc.on_idle(t + END_GRACE, &mut out);
+        assert_eq!(out.reports[1].status(), Some(StationStatus::Incomplete));
+        assert_eq!(out.reports[1].chunks.missing, 1);
+    }
+
+    #[test]
     fn a_station_without_pose_is_reported_with_every_point_counted() {
         let index = cube();
         let (mut lc, mut out, t) = setup(index);
@@ -972,7 +1016,7 @@ mod tests {
         // Two were pushed out of the 4-chunk buffer.
         assert_eq!(lc.counters.input.chunks_pending_overflow, 2);
         lc.on_event(&event(StationEventKind::End, 3, 6), t, &mut out);
-        lc.on_idle(&mut out);
+        lc.on_idle(t + END_GRACE, &mut out);
         let r = out.reports[0];
         assert_eq!(r.status(), Some(StationStatus::Incomplete));
         assert_eq!(r.points_received, 60);
@@ -1003,7 +1047,7 @@ mod tests {
         lc.on_chunk(future, t, &mut out);
         lc.on_chunk(chunk(1, 5, 10), t, &mut out);
         lc.on_event(&event(StationEventKind::End, 1, 6), t, &mut out);
-        lc.on_idle(&mut out);
+        lc.on_idle(t + END_GRACE, &mut out);
         let r = out.reports[0];
         let i = lc.counters.input;
         assert_eq!(

@@ -452,7 +452,12 @@ fn memory_stays_flat_over_twenty_million_points() {
     for station in 0..STATIONS {
         clean_station(&cell, 1, station, CHUNKS, &points);
         let r = report_of(&cell.reports(1, LONG), 1, station);
-        assert_eq!(r.status(), Some(StationStatus::Complete));
+        assert_eq!(
+            r.status(),
+            Some(StationStatus::Complete),
+            "station {station}: {r:?}\nlog:\n{}",
+            agent.log()
+        );
         assert_eq!(r.stats.count, CHUNK as u64 * CHUNKS as u64);
         let (rss, _, _) = memory_kib(agent.pid());
         peak_rss = peak_rss.max(rss);

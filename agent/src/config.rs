@@ -260,6 +260,16 @@ impl Limits {
     pub fn station_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.station_timeout_s)
     }
+
+    /// What the station lifecycle needs of these limits.
+    pub fn lifecycle(&self) -> crate::lifecycle::LifecycleLimits {
+        crate::lifecycle::LifecycleLimits {
+            max_points_per_chunk: self.max_points_per_chunk,
+            pending_chunks: self.pending_chunks,
+            open_stations: self.open_stations,
+            station_timeout: self.station_timeout(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -435,6 +445,21 @@ pub fn recorded_settings(text: &str) -> Result<(FrameChain, InspectSettings), Ve
     check_inspect(&inspect, &mut problems);
     if problems.is_empty() {
         Ok((frames, inspect))
+    } else {
+        Err(problems)
+    }
+}
+
+/// The `[limits]` of a recorded configuration (the defaults where it has none), so that a reader
+/// of the recording assembles its stations as the agent did.
+pub fn recorded_limits(text: &str) -> Result<Limits, Vec<String>> {
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
+    let mut problems = Vec::new();
+    let limits: Limits = section(&table, "limits", &mut problems, true).unwrap_or_default();
+    check_limits(&limits, &mut problems);
+    if problems.is_empty() {
+        Ok(limits)
     } else {
         Err(problems)
     }

@@ -19,7 +19,7 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 use crate::config::AgentConfig;
 use crate::findings::FindingsStage;
 use crate::ipc::{AgentPorts, ChunkSample, Ipc, QueueSizes, ServiceNames};
-use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
+use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::Recorder;
 use crate::viewer::{self, View, Viewer, ViewerSettings};
 use crate::{error, info, warn};
@@ -249,17 +249,8 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         // not on the event loop (a printed height's are found where it is prepared).
         designs.full().sharp_edges();
     }
-    let mut lifecycle: Lifecycle<ChunkSample> = Lifecycle::new(
-        designs,
-        config.frames.clone(),
-        inspect,
-        LifecycleLimits {
-            max_points_per_chunk: limits.max_points_per_chunk,
-            pending_chunks: limits.pending_chunks,
-            open_stations: limits.open_stations,
-            station_timeout: limits.station_timeout(),
-        },
-    );
+    let mut lifecycle: Lifecycle<ChunkSample> =
+        Lifecycle::new(designs, config.frames.clone(), inspect, limits.lifecycle());
     if config.findings.enabled {
         let f = &config.findings;
         info!(

@@ -16,7 +16,7 @@ use std::sync::mpsc;
 
 use asbuilt_core::layers::CutError;
 use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
-use asbuilt_core::station::{InspectConfig, StationInspector};
+use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, InputRejects, Message, PointDeviation, PoseSnapshot,
     RejectCounts, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
@@ -34,6 +34,16 @@ pub trait ChunkSource {
     fn points(&self) -> &[ScanPoint];
 }
 
+/// A chunk read back from a recording.
+impl ChunkSource for (ChunkHeader, Vec<ScanPoint>) {
+    fn header(&self) -> &ChunkHeader {
+        &self.0
+    }
+    fn points(&self) -> &[ScanPoint] {
+        &self.1
+    }
+}
+
 /// Where results go.
 pub trait Outputs {
     /// Publishes one deviation chunk of `n` entries: `fill` writes the entries into the buffer it
@@ -44,6 +54,9 @@ pub trait Outputs {
         fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
     );
     fn report(&mut self, report: &StationReport);
+    /// Everything a station's report was computed from, just before the report: a reader of a
+    /// recording merges these into its overall statistics.
+    fn tally(&mut self, _tally: &Tally) {}
     /// Findings of a station's scan layer, after its report (when `[findings]` is on).
     fn findings(&mut self, _findings: &StationFindings) {}
 }
@@ -260,9 +273,27 @@ impl<C: ChunkSource> Lifecycle<C> {
     /// Takes up the printed heights prepared since the last call: their stations compare with
     /// them from now on and the chunks they held are processed.
     pub fn poll_designs(&mut self, now: Instant, out: &mut impl Outputs) {
+        self.take_prepared(now, out, false);
+    }
+
+    /// Waits for every printed height being prepared and takes them up: for a reader of a
+    /// recording, which has no robot to keep serving.
+    pub fn wait_designs(&mut self, now: Instant, out: &mut impl Outputs) {
+        self.take_prepared(now, out, true);
+    }
+
+    fn take_prepared(&mut self, now: Instant, out: &mut impl Outputs, block: bool) {
         let mut k = 0;
         while k < self.preparing.len() {
-            let result = match self.preparing[k].done.try_recv() {
+            let received = if block {
+                self.preparing[k]
+                    .done
+                    .recv()
+                    .map_err(|_| mpsc::TryRecvError::Disconnected)
+            } else {
+                self.preparing[k].done.try_recv()
+            };
+            let result = match received {
                 Ok(r) => r.map_err(|e| e.to_string()),
                 Err(mpsc::TryRecvError::Empty) => {
                     k += 1;
@@ -801,6 +832,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             StationStatus::Incomplete
         });
         report.status = status as u8;
+        out.tally(s.inspector.tally());
         out.report(&report);
         if s.findings == Some(true)
             && let Some(stage) = self.findings.as_mut()

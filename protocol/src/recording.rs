@@ -377,6 +377,93 @@ pub fn messages(
     }))
 }
 
+/// The messages of a recording with its inputs (station events, poses, scan chunks) in the order the agent
+/// processed them, for every reader that re-runs a job: `report`, `replay`, the Python reader.
+///
+/// An agent reads station events ahead of the chunks still queued, and records each message as
+/// it reads it, so a recording can hold a station's End before chunks the End counts. The agent
+/// still waits for those chunks; a reader that closed the station at its End would lose them.
+/// Here an End is held back until its station's announced chunks have gone by, or the file
+/// ends. An End that announces no count goes where it was recorded. Outputs (reports, findings,
+/// deviations, status) stay where they are.
+pub fn messages_in_agent_order(
+    bytes: &[u8],
+) -> Result<impl Iterator<Item = Result<(u64, Recorded), ReadError>> + '_, ReadError> {
+    Ok(AgentOrder::new(messages(bytes)?))
+}
+
+/// See [`messages_in_agent_order`]; over any stream of recorded messages.
+pub struct AgentOrder<I> {
+    inner: I,
+    /// Chunks seen per station.
+    chunks: BTreeMap<(u64, u32), u64>,
+    /// Ends waiting for their chunks, with the log time they were recorded at.
+    held: BTreeMap<(u64, u32), (u64, StationEvent)>,
+    /// Ends due now (their last chunk just went by, or the file ended).
+    due: std::collections::VecDeque<(u64, Recorded)>,
+    ended: bool,
+}
+
+impl<I> AgentOrder<I> {
+    pub fn new(inner: I) -> Self {
+        Self {
+            inner,
+            chunks: BTreeMap::new(),
+            held: BTreeMap::new(),
+            due: std::collections::VecDeque::new(),
+            ended: false,
+        }
+    }
+}
+
+impl<I: Iterator<Item = Result<(u64, Recorded), ReadError>>> Iterator for AgentOrder<I> {
+    type Item = Result<(u64, Recorded), ReadError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(m) = self.due.pop_front() {
+                return Some(Ok(m));
+            }
+            if self.ended {
+                return None;
+            }
+            let Some(item) = self.inner.next() else {
+                self.ended = true;
+                let held = std::mem::take(&mut self.held);
+                self.due
+                    .extend(held.into_values().map(|(t, e)| (t, Recorded::Event(e))));
+                continue;
+            };
+            let (t, m) = match item {
+                Ok(m) => m,
+                Err(e) => return Some(Err(e)),
+            };
+            match m {
+                Recorded::Event(e)
+                    if e.kind() == Some(crate::StationEventKind::End)
+                        && self.chunks.get(&(e.job, e.station)).copied().unwrap_or(0)
+                            < u64::from(e.expected_chunks) =>
+                {
+                    self.held.insert((e.job, e.station), (t, e));
+                }
+                Recorded::Chunk(h, p) => {
+                    let key = (h.job, h.station);
+                    let seen = self.chunks.entry(key).or_insert(0);
+                    *seen += 1;
+                    if let Some(&(_, e)) = self.held.get(&key)
+                        && *seen >= u64::from(e.expected_chunks)
+                    {
+                        let (te, e) = self.held.remove(&key).expect("just seen");
+                        self.due.push_back((te.max(t), Recorded::Event(e)));
+                    }
+                    return Some(Ok((t, Recorded::Chunk(h, p))));
+                }
+                m => return Some(Ok((t, m))),
+            }
+        }
+    }
+}
+
 /// A design file attached to a recording: its name and bytes.
 pub type DesignAttachment = (String, Vec<u8>);
 
@@ -524,6 +611,68 @@ mod tests {
             )));
         }
         out
+    }
+
+    /// A station of three chunks whose End sits at `end_at` among them (0: before all).
+    fn station_with_end_at(end_at: usize, announced: u32) -> Vec<Recorded> {
+        let chunk = |seq| Recorded::Chunk(ChunkHeader::new(1, 5, seq, 0), Vec::new());
+        let mut end = StationEvent::new(StationEventKind::End, 1, 5);
+        end.expected_chunks = announced;
+        let mut out = vec![
+            Recorded::Event(StationEvent::new(StationEventKind::Begin, 1, 5)),
+            Recorded::Pose(PoseSnapshot::new(1, 5, PoseMode::DesignScanner)),
+        ];
+        for seq in 0..3 {
+            if seq == end_at as u64 {
+                out.push(Recorded::Event(end));
+            }
+            out.push(chunk(seq));
+        }
+        if end_at >= 3 {
+            out.push(Recorded::Event(end));
+        }
+        // An output the agent wrote after the End: it stays where it is.
+        out.push(Recorded::Deviations(
+            crate::DeviationHeader::new(1, 5, 0),
+            Vec::new(),
+        ));
+        out
+    }
+
+    /// The messages in agent order, as their bytes (an unset printed height is NaN).
+    fn in_agent_order(messages: Vec<Recorded>) -> Vec<Vec<u8>> {
+        let numbered = messages.into_iter().enumerate();
+        AgentOrder::new(numbered.map(|(i, m)| Ok((i as u64, m))))
+            .map(|m| m.unwrap().1.encode())
+            .collect()
+    }
+
+    fn encoded(messages: &[Recorded]) -> Vec<Vec<u8>> {
+        messages.iter().map(Recorded::encode).collect()
+    }
+
+    #[test]
+    fn an_end_recorded_before_its_chunks_comes_after_them() {
+        let ordered = station_with_end_at(3, 3);
+        assert_eq!(ordered.len(), 7);
+        for end_at in 0..=3 {
+            assert_eq!(
+                in_agent_order(station_with_end_at(end_at, 3)),
+                encoded(&ordered),
+                "End recorded before chunk {end_at}"
+            );
+        }
+        // Chunks the recording lost: the End still comes, when the file ends.
+        let mut lost = station_with_end_at(1, 3);
+        lost.retain(|m| !matches!(m, Recorded::Chunk(h, _) if h.sequence == 2));
+        let got = in_agent_order(lost);
+        assert_eq!(got.len(), 6);
+        assert_eq!(got[5], ordered[5].encode());
+        // An End that announces no count stays where it was.
+        assert_eq!(
+            in_agent_order(station_with_end_at(1, 0))[3],
+            station_with_end_at(1, 0)[3].encode()
+        );
     }
 
     fn write_job(flush_per_station: bool) -> (Vec<u8>, Vec<usize>) {

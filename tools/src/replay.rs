@@ -2,7 +2,7 @@
 //! running agent over iceoryx2, with the recorded timing or as fast as the agent takes them.
 //! A recording replayed into a fresh agent gives the same station reports.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::ServiceNames;
 use asbuilt_protocol::recording::{self, Channel, Recorded};
-use asbuilt_protocol::{StationEvent, StationEventKind, StationReport, StationStatus};
+use asbuilt_protocol::{StationReport, StationStatus};
 use clap::Args;
 
 use crate::publish::collect_reports;
@@ -83,9 +83,8 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     let mut reports: Vec<StationReport> = Vec::new();
     let jobs: BTreeSet<u64> = stations.iter().map(|s| s.0).collect();
     let mut points = 0u64;
-    let mut chunks_sent: BTreeMap<(u64, u32), u64> = BTreeMap::new();
-    let mut held_ends: BTreeMap<(u64, u32), StationEvent> = BTreeMap::new();
-    for m in recording::messages(&bytes).map_err(bad)? {
+    // In the order the agent processed them: an End recorded ahead of its chunks follows them.
+    for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
         let (log_time, m) = m.map_err(bad)?;
         if !Channel::INPUTS.contains(&m.channel()) {
             continue;
@@ -98,41 +97,17 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
             }
         }
         match &m {
-            // An agent reads station events ahead of queued chunks, so its recording can hold
-            // a station's End before the chunks the End counts. Sent in that order, a replay
-            // would close the station before its chunks arrive: hold the End until they have
-            // gone out (or the file ends).
-            Recorded::Event(e)
-                if e.kind() == Some(StationEventKind::End)
-                    && chunks_sent.get(&(e.job, e.station)).copied().unwrap_or(0)
-                        < e.expected_chunks as u64 =>
-            {
-                held_ends.insert((e.job, e.station), *e);
-            }
             Recorded::Event(e) => ports.send_event(e)?,
             Recorded::Pose(p) => ports.send_pose(p)?,
             Recorded::Chunk(h, p) => {
                 ports.send_chunk(h, p)?;
                 points += p.len() as u64;
-                let key = (h.job, h.station);
-                let sent = chunks_sent.entry(key).or_insert(0);
-                *sent += 1;
-                if let Some(e) = held_ends.get(&key)
-                    && *sent >= e.expected_chunks as u64
-                {
-                    ports.send_event(e)?;
-                    held_ends.remove(&key);
-                }
             }
             _ => {}
         }
         for &job in &jobs {
             collect_reports(&ports, job, &mut reports, Duration::ZERO)?;
         }
-    }
-    // Ends whose chunks the recording does not hold (dropped or never sent).
-    for e in std::mem::take(&mut held_ends).values() {
-        ports.send_event(e)?;
     }
     let deadline = Instant::now() + wait;
     while reports.len() < stations.len() && Instant::now() < deadline {

@@ -10,13 +10,15 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
+use asbuilt_agent::lifecycle::{Lifecycle, Outputs};
 use asbuilt_core::frames::FrameChain;
 use asbuilt_core::printed::PrintedDesigns;
-use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
+use asbuilt_core::station::{InspectConfig, Tally};
 use asbuilt_core::{C2mParams, Design, Units};
 use asbuilt_protocol::recording::{self, Recorded};
-use asbuilt_protocol::{PointDeviation, StationEventKind};
+use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationReport};
 use clap::Args;
+use std::time::{Duration, Instant};
 
 use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
 
@@ -35,13 +37,6 @@ pub struct ReportArgs {
     max_distance: Option<f64>,
 }
 
-struct Open {
-    inspector: StationInspector,
-    name: String,
-    has_pose: bool,
-    sigma: f64,
-}
-
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     write(
         &args.recording,
@@ -50,6 +45,44 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         args.max_distance,
     )?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// What the station lifecycle hands out while a recording is read back: each station's
+/// section, and every station's statistics merged.
+struct Collected {
+    done: Vec<((u64, u32), Section)>,
+    total: Tally,
+    buffer: Vec<PointDeviation>,
+}
+
+impl Collected {
+    fn new(stats: asbuilt_core::stats::StatsConfig) -> Self {
+        Self {
+            done: Vec::new(),
+            total: Tally::new(stats),
+            buffer: Vec::new(),
+        }
+    }
+}
+
+impl Outputs for Collected {
+    fn deviations(
+        &mut self,
+        n: usize,
+        fill: &mut dyn FnMut(&mut [PointDeviation]) -> asbuilt_protocol::DeviationHeader,
+    ) {
+        self.buffer.resize(n, PointDeviation::default());
+        fill(&mut self.buffer);
+    }
+
+    fn tally(&mut self, tally: &Tally) {
+        self.total.merge(tally);
+    }
+
+    fn report(&mut self, r: &StationReport) {
+        self.done
+            .push(((r.job, r.station), Section::from_report(r, None, 0)));
+    }
 }
 
 /// Writes `out/report.json` and `out/report.html` for `recording`.
@@ -91,11 +124,19 @@ pub fn write(
     std::fs::write(&design_file, &design_bytes)?;
     let design = Design::load(&design_file, units)?;
 
-    let (frames, settings) = if meta.writer == "asbuilt-agent" {
-        asbuilt_agent::config::recorded_settings(&meta.config)
-            .map_err(|p| anyhow::anyhow!("the recording's configuration: {}", p.join("; ")))?
+    let (frames, settings, limits) = if meta.writer == "asbuilt-agent" {
+        let problems =
+            |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
+        let (frames, settings) =
+            asbuilt_agent::config::recorded_settings(&meta.config).map_err(problems)?;
+        let limits = asbuilt_agent::config::recorded_limits(&meta.config).map_err(problems)?;
+        (frames, settings, limits)
     } else {
-        (FrameChain::default(), Default::default())
+        (
+            FrameChain::default(),
+            Default::default(),
+            Default::default(),
+        )
     };
     let tolerance = args.tolerance.unwrap_or(settings.tolerance);
     let max_distance = args
@@ -105,114 +146,66 @@ pub fn write(
         bail!("--tolerance and --max-distance must be positive metres");
     }
     // Stations scanned while printing were compared with the design as printed then.
-    let mut designs = PrintedDesigns::new(
+    let designs = PrintedDesigns::new(
         design,
         C2mParams {
             max_distance,
             cell_size: settings.cell_size,
         },
     )?;
-    let mut findings: BTreeMap<(u64, u64), asbuilt_protocol::StationFindings> = BTreeMap::new();
+    let full = designs.full().clone();
     let mut config = InspectConfig::with_tolerance(tolerance);
     config.max_range = settings.max_range;
 
-    let mut open: BTreeMap<(u64, u32), Open> = BTreeMap::new();
-    let mut done: Vec<((u64, u32), Section)> = Vec::new();
-    let mut total = Tally::new(config.stats);
-    let mut buffer: Vec<PointDeviation> = Vec::new();
-    let close =
-        |key: (u64, u32), o: Open, done: &mut Vec<((u64, u32), Section)>, total: &mut Tally| {
-            let mut r = o.inspector.report(key.0, key.1, &o.name);
-            r.position_sigma = o.sigma;
-            total.merge(o.inspector.tally());
-            done.push((key, Section::from_report(&r, None, 0)));
-        };
-    for m in recording::messages(&bytes).map_err(bad)? {
-        let (_, m) = m.map_err(bad)?;
+    // The agent's own station lifecycle, fed in the order the agent processed the inputs: a
+    // recording read back gives what the live agent gave, whatever order its file holds.
+    let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> =
+        Lifecycle::new(designs, frames, config, limits.lifecycle());
+    let mut out = Collected::new(config.stats);
+    let mut findings: BTreeMap<(u64, u64), asbuilt_protocol::StationFindings> = BTreeMap::new();
+    let mut first_time = None;
+    let start = Instant::now();
+    for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
+        let (log_time, m) = m.map_err(bad)?;
+        // The recording's clock, so that a chunk's wait for its pose is measured as it was.
+        let t0 = *first_time.get_or_insert(log_time);
+        let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
         match m {
             Recorded::Event(e) => {
-                let key = (e.job, e.station);
-                match e.kind() {
-                    Some(StationEventKind::Begin) => {
-                        let printed = designs.at(e.printed_height).unwrap_or_else(|err| {
-                            eprintln!(
-                                "warning: job {} station {}: printed height {} m: {err}; compared \
-                                 with the whole design",
-                                e.job, e.station, e.printed_height
-                            );
-                            designs.full().clone()
-                        });
-                        let o = open.entry(key).or_insert_with(|| Open {
-                            inspector: StationInspector::new(
-                                printed.clone(),
-                                nalgebra::Isometry3::identity(),
-                                config,
-                            ),
-                            name: String::new(),
-                            has_pose: false,
-                            sigma: 0.0,
-                        });
-                        o.name = e.name.as_str().to_string();
-                    }
-                    Some(StationEventKind::End) => {
-                        if let Some(o) = open.remove(&key) {
-                            close(key, o, &mut done, &mut total);
-                        }
-                    }
-                    None => {}
-                }
+                lifecycle.on_event(&e, now, &mut out);
             }
-            Recorded::Pose(p) => {
-                let Some(o) = open.get_mut(&(p.job, p.station)) else {
-                    continue;
-                };
-                match frames.t_design_scanner(&p) {
-                    Ok(t) => {
-                        o.inspector.set_pose(t);
-                        o.has_pose = true;
-                        o.sigma = p.position_sigma;
-                    }
-                    Err(e) => eprintln!(
-                        "warning: job {} station {}: pose rejected: {e}",
-                        p.job, p.station
-                    ),
-                }
-            }
-            Recorded::Chunk(h, pts) => {
-                let key = (h.job, h.station);
-                let Some(o) = open.get_mut(&key) else {
-                    continue;
-                };
-                if !o.has_pose {
-                    o.inspector.reject_without_pose(pts.len() as u64);
-                } else {
-                    buffer.resize(pts.len(), PointDeviation::default());
-                    o.inspector.process(&pts, &mut buffer);
-                }
-                if h.last != 0
-                    && let Some(o) = open.remove(&key)
-                {
-                    close(key, o, &mut done, &mut total);
-                }
-            }
+            Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
             // The latest findings of each scan layer cover all its stations so far.
             Recorded::Findings(f) => {
                 findings.insert((f.job, f.printed_height.to_bits()), *f);
             }
+            Recorded::Chunk(h, pts) => {
+                if lifecycle.awaits_design(&h) {
+                    lifecycle.wait_designs(now, &mut out);
+                }
+                lifecycle.on_chunk((h, pts), now, &mut out);
+            }
             _ => {}
         }
     }
-    // Stations the recording never closed (the agent stopped, a publisher died).
-    let unfinished = open.len();
-    for (key, o) in std::mem::take(&mut open) {
-        close(key, o, &mut done, &mut total);
-    }
+    lifecycle.wait_designs(Instant::now(), &mut out);
+    // The file is over: stations that said they were done close as the idle agent closes them,
+    // the others (the agent stopped, a publisher died) as far as recorded.
+    lifecycle.on_idle(
+        Instant::now() + asbuilt_agent::lifecycle::END_GRACE,
+        &mut out,
+    );
+    let unfinished = lifecycle.stations_open();
+    lifecycle.shutdown(&mut out);
+    let Collected {
+        mut done, total, ..
+    } = out;
     done.sort_by_key(|(k, _)| *k);
     if done.is_empty() {
         bail!("{} holds no station", args.recording.display());
     }
-    let ix = designs.full().index.stats();
-    let design = designs.full().design();
+    let ix = full.index.stats();
+    let design = full.design();
     let mut warnings = design.report.warnings();
     if unfinished > 0 {
         warnings.push(format!(

@@ -2,11 +2,13 @@
 //! `asbuilt inspect` reports; a recording cut at 60 % of its bytes gives back every station it
 //! had finished; an independent MCAP reader (Python `mcap`, when installed) reads the file.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use asbuilt_protocol::StationEventKind;
+use asbuilt_protocol::recording::RecordingWriter;
 use asbuilt_protocol::recording::{self, Recorded};
+use asbuilt_protocol::{StationEventKind, StationReport};
 use asbuilt_tests::{Agent, bunny_agent_config, publish_bunny, shared_data, unique_prefix};
 use serde_json::Value;
 
@@ -408,4 +410,103 @@ fn a_nearly_full_disk_stops_the_scans_but_never_the_reports() {
         10
     );
     assert!(log.contains("0 scan chunks recorded, 43 left out"), "{log}");
+}
+
+/// A recording read back gives what the live agent gave, wherever the file puts a station's End
+/// among that station's chunks: the agent reads station events ahead of the chunks still queued,
+/// so its recordings can hold an End before, between or after them.
+#[test]
+fn a_recording_reports_the_live_reports_wherever_a_station_end_is_recorded() {
+    let (agent, files, _log) = record_bunny("");
+    assert_eq!(files.len(), 1);
+    let messages = &files[0];
+    let live: BTreeMap<String, StationReport> = messages
+        .iter()
+        .filter_map(|(_, m)| match m {
+            Recorded::Report(r) => Some((r.name.as_str().to_string(), **r)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(live.len(), 10);
+    let path = std::fs::read_dir(agent.dir.path().join("rec"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let (meta, attachments) = recording::job(&std::fs::read(path).unwrap()).unwrap();
+    let (name, design) = &attachments[0];
+
+    let is_end =
+        |m: &Recorded| matches!(m, Recorded::Event(e) if e.kind() == Some(StationEventKind::End));
+    for place in ["before", "between", "after"] {
+        // Every End taken out, then put back at `place` among its station's chunks.
+        let mut moved: Vec<(u64, Recorded)> = messages
+            .iter()
+            .filter(|(_, m)| !is_end(m))
+            .cloned()
+            .collect();
+        for (t, m) in messages.iter().filter(|(_, m)| is_end(m)) {
+            let Recorded::Event(e) = m else {
+                unreachable!()
+            };
+            assert!(e.expected_chunks > 0);
+            let chunks: Vec<usize> = (0..moved.len())
+                .filter(|&i| {
+                    matches!(&moved[i].1, Recorded::Chunk(h, _) if (h.job, h.station) == (e.job, e.station))
+                })
+                .collect();
+            let at = match place {
+                "before" => chunks[0],
+                "between" => chunks[chunks.len() / 2],
+                _ => chunks[chunks.len() - 1] + 1,
+            };
+            moved.insert(at, (*t, m.clone()));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let rec = dir.path().join(format!("end-{place}.mcap"));
+        let mut w = RecordingWriter::new(std::fs::File::create(&rec).unwrap()).unwrap();
+        w.metadata(meta.as_ref().unwrap()).unwrap();
+        w.attach_design(name.trim_start_matches("design/"), design, 0)
+            .unwrap();
+        for (t, m) in &moved {
+            w.write(*t, m).unwrap();
+        }
+        w.finish().unwrap();
+        let out = dir.path().join("report");
+        run(&[
+            "report",
+            rec.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let got: Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        let stations = got["stations"].as_array().unwrap();
+        assert_eq!(stations.len(), 10, "End {place} its chunks");
+        for s in stations {
+            let r = &live[s["id"].as_str().unwrap()];
+            let what = format!("End {place} the chunks of {}", s["id"]);
+            assert_eq!(s["points"], r.points_received, "{what}");
+            assert_eq!(s["matched"], r.stats.count, "{what}");
+            assert_eq!(
+                s["mean"].as_f64().unwrap().to_bits(),
+                r.stats.mean.to_bits(),
+                "{what}"
+            );
+            assert_eq!(
+                s["std"].as_f64().unwrap().to_bits(),
+                r.stats.std.to_bits(),
+                "{what}"
+            );
+            assert_eq!(
+                s["median_abs"].as_f64().unwrap().to_bits(),
+                r.stats.median_abs.to_bits(),
+                "{what}"
+            );
+            let bins: Vec<u64> = serde_json::from_value(s["histogram"]["bins"].clone()).unwrap();
+            assert_eq!(bins, r.histogram.bins.to_vec(), "{what}");
+        }
+    }
 }

@@ -17,6 +17,7 @@ use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
 use crate::codec::{self, DecodeError, Message};
+use crate::mcap_records::{Chunks, Damaged, RecordError, Records};
 use crate::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
     StationEvent, StationFindings, StationReport,
@@ -345,6 +346,8 @@ impl<W: Write + Seek> RecordingWriter<W> {
 pub enum ReadError {
     #[error("not a readable MCAP file: {0}")]
     Mcap(#[from] mcap::McapError),
+    #[error("the file is damaged: {0}")]
+    Damaged(#[from] Damaged),
     #[error("message {index} on {topic}: {source}")]
     Decode {
         index: usize,
@@ -353,28 +356,52 @@ pub enum ReadError {
     },
 }
 
+impl From<RecordError> for ReadError {
+    fn from(e: RecordError) -> Self {
+        match e {
+            RecordError::Mcap(e) => ReadError::Mcap(e),
+            RecordError::Damaged(e) => ReadError::Damaged(e),
+        }
+    }
+}
+
 /// The messages of a recording in file order, decoded one at a time (chunks are decompressed as
 /// they are reached, so a large file is never held whole). Channels of other topics are skipped.
+/// Reading stops at the first error.
 pub fn messages(
     bytes: &[u8],
 ) -> Result<impl Iterator<Item = Result<(u64, Recorded), ReadError>> + '_, ReadError> {
-    let stream = mcap::MessageStream::new(bytes)?;
-    Ok(stream.enumerate().filter_map(|(index, m)| {
-        let m = match m {
-            Ok(m) => m,
-            Err(e) => return Some(Err(ReadError::Mcap(e))),
-        };
-        let channel = Channel::from_topic(&m.channel.topic)?;
-        Some(
-            Recorded::decode(channel, &m.data)
-                .map(|msg| (m.log_time, msg))
-                .map_err(|source| ReadError::Decode {
-                    index,
-                    topic: m.channel.topic.clone(),
-                    source,
-                }),
-        )
-    }))
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err(ReadError::Mcap(mcap::McapError::BadMagic));
+    }
+    let mut channels: BTreeMap<u16, (Channel, String)> = BTreeMap::new();
+    let mut index = 0usize;
+    Ok(
+        Records::new(bytes, Chunks::Open, true).filter_map(move |record| match record {
+            Err(e) => Some(Err(e.into())),
+            Ok(mcap::records::Record::Channel(c)) => {
+                match Channel::from_topic(&c.topic) {
+                    Some(ch) => channels.insert(c.id, (ch, c.topic)),
+                    None => channels.remove(&c.id),
+                };
+                None
+            }
+            Ok(mcap::records::Record::Message { header, data }) => {
+                index += 1;
+                let (channel, topic) = channels.get(&header.channel_id)?;
+                Some(
+                    Recorded::decode(*channel, &data)
+                        .map(|msg| (header.log_time, msg))
+                        .map_err(|source| ReadError::Decode {
+                            index: index - 1,
+                            topic: topic.clone(),
+                            source,
+                        }),
+                )
+            }
+            Ok(_) => None,
+        }),
+    )
 }
 
 /// The messages of a recording with its inputs (station events, poses, scan chunks) in the order the agent
@@ -469,9 +496,12 @@ pub type DesignAttachment = (String, Vec<u8>);
 
 /// The job metadata and the design attachments of a recording.
 pub fn job(bytes: &[u8]) -> Result<(Option<JobMetadata>, Vec<DesignAttachment>), ReadError> {
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err(ReadError::Mcap(mcap::McapError::BadMagic));
+    }
     let mut metadata = None;
     let mut attachments = Vec::new();
-    for record in mcap::read::LinearReader::new(bytes)? {
+    for record in Records::new(bytes, Chunks::Skip, true) {
         match record? {
             mcap::records::Record::Metadata(m) if m.name == METADATA_JOB => {
                 metadata = Some(JobMetadata::from_map(&m.metadata));
@@ -531,37 +561,15 @@ pub fn recover<W: Write + Seek>(
         }
         Ok(())
     };
-    let reader = mcap::read::LinearReader::new_with_options(
-        broken,
-        enumset::enum_set!(mcap::read::Options::IgnoreEndMagic),
-    )?;
-    for record in reader {
-        let record = match record {
-            Ok(r) => r,
+    // Chunks are opened one at a time and all or nothing: a chunk's checksum is checked before
+    // any of its records is kept.
+    for record in Records::new(broken, Chunks::Open, false) {
+        match record {
+            Ok(r) => take(r, &mut w, &mut topics, &mut counts)?,
             Err(_) => {
                 counts.truncated = true;
                 break;
             }
-        };
-        if let mcap::records::Record::Chunk { header, data } = record {
-            // A chunk is all or nothing: read it whole before keeping any of it.
-            let inner: Result<Vec<_>, _> = match mcap::read::ChunkReader::new(header, &data) {
-                Ok(r) => r.collect(),
-                Err(e) => Err(e),
-            };
-            match inner {
-                Ok(records) => {
-                    for r in records {
-                        take(r, &mut w, &mut topics, &mut counts)?;
-                    }
-                }
-                Err(_) => {
-                    counts.truncated = true;
-                    break;
-                }
-            }
-        } else {
-            take(record, &mut w, &mut topics, &mut counts)?;
         }
     }
     Ok((w.finish()?, counts))

@@ -5,6 +5,8 @@
 //! builds the shipped `main.rs` files of the agent and the command line again under the names
 //! `e2e-asbuilt-agent` and `e2e-asbuilt` (see Cargo.toml): the same source, not a stand-in.
 
+pub mod fuzz;
+
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};

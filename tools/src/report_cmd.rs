@@ -43,7 +43,16 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
         &args.out,
         args.tolerance,
         args.max_distance,
-    )?;
+    )
+    .map_err(|e| {
+        // Every refusal names the recording it is about.
+        let path = args.recording.display().to_string();
+        if format!("{e:#}").contains(&path) {
+            e
+        } else {
+            e.context(format!("cannot report on {path}"))
+        }
+    })?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -10,8 +10,75 @@ use nalgebra::{Isometry3, Vector3};
 use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
 
 fn open(path: &Path) -> Result<las::Reader> {
-    las::Reader::from_path(path)
+    check_laz_chunk_table(path)?;
+    contain(path, || las::Reader::from_path(path))?
         .map_err(|e| anyhow::anyhow!("cannot read {} as LAS/LAZ: {e}", path.display()))
+}
+
+/// Runs a call into the LAS/LAZ decoder, which panics on some corrupt compressed data, as an
+/// error naming the file.
+fn contain<T>(path: &Path, f: impl FnOnce() -> T) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|_| {
+        anyhow::anyhow!(
+            "{}: the LAZ decoder failed on corrupt compressed data; the file is damaged",
+            path.display()
+        )
+    })
+}
+
+/// The `laz` crate reserves memory for as many chunks as a LAZ file's chunk table claims (up
+/// to 64 GB from one corrupt count) before it reads one. Checks the count against the bytes
+/// the chunks could occupy first. Files that are not LAZ, or too short to tell, are left to
+/// the reader's own errors.
+fn check_laz_chunk_table(path: &Path) -> Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    let damaged = |what: String| anyhow::anyhow!("{}: damaged LAZ file: {what}", path.display());
+    let mut f = std::fs::File::open(path)
+        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
+    let size = f.metadata()?.len();
+    let mut header = [0u8; 105];
+    if f.read_exact(&mut header).is_err() || &header[..4] != b"LASF" {
+        return Ok(());
+    }
+    // Point data format with bit 7 (or 6) set: compressed.
+    if header[104] & 0xc0 == 0 {
+        return Ok(());
+    }
+    let data_start = u64::from(u32::from_le_bytes(header[96..100].try_into()?));
+    let mut read_i64 = |at: SeekFrom| -> Option<i64> {
+        let mut b = [0u8; 8];
+        f.seek(at).ok()?;
+        f.read_exact(&mut b).ok()?;
+        Some(i64::from_le_bytes(b))
+    };
+    let Some(mut table) = read_i64(SeekFrom::Start(data_start)) else {
+        return Ok(());
+    };
+    if table <= data_start as i64 {
+        // The writer could not seek back: the offset is at the end of the file.
+        match read_i64(SeekFrom::End(-8)) {
+            Some(t) if t > data_start as i64 => table = t,
+            _ => return Ok(()),
+        }
+    }
+    let table = table as u64;
+    if table.saturating_add(8) > size {
+        return Err(damaged(format!(
+            "its chunk table is said to start at byte {table}, beyond the end ({size} bytes)"
+        )));
+    }
+    let mut counts = [0u8; 8];
+    f.seek(SeekFrom::Start(table))?;
+    f.read_exact(&mut counts)?;
+    let chunks = u64::from(u32::from_le_bytes(counts[4..8].try_into()?));
+    // Every chunk holds at least one byte of compressed points.
+    let room = table.saturating_sub(data_start + 8);
+    if chunks > room {
+        return Err(damaged(format!(
+            "its chunk table lists {chunks} chunks in {room} bytes of points"
+        )));
+    }
+    Ok(())
 }
 
 fn origin(header: &las::Header) -> Vector3<f64> {
@@ -57,9 +124,13 @@ pub fn stream(
         .for_header(reader.header())
         .build();
     let mut out = Batcher::new(chunk, sink);
+    // The decoder's buffer is points × record length: a corrupt record length must not make it
+    // larger than the file.
+    let record = u64::from(reader.header().point_format().len()).max(1);
+    let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let batch = (chunk as u64).min((size / record).max(1));
     loop {
-        let n = reader
-            .fill_points(chunk as u64, &mut data)
+        let n = contain(path, || reader.fill_points(batch, &mut data))?
             .map_err(|e| anyhow::anyhow!("cannot read the points of {}: {e}", path.display()))?;
         if n == 0 {
             break;

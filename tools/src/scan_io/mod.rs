@@ -110,6 +110,16 @@ pub struct ScanFile {
     pub scans: Vec<ScanInfo>,
 }
 
+/// An error that says which file it is about: the readers' own messages mostly do, and those
+/// of the libraries beneath them (a UTF-8 or I/O error) get the path in front.
+fn naming(path: &Path, e: anyhow::Error) -> anyhow::Error {
+    if format!("{e:#}").contains(&path.display().to_string()) {
+        e
+    } else {
+        e.context(format!("cannot read {}", path.display()))
+    }
+}
+
 /// The chunk size used when a caller has no reason to pick another.
 pub const DEFAULT_CHUNK: usize = 1 << 16;
 
@@ -121,12 +131,13 @@ impl ScanFile {
         }
         let format = Format::from_path(path)?;
         let scans = match format {
-            Format::E57 => e57::scans(path)?,
-            Format::Las => las::scans(path)?,
-            Format::Ptx => ptx::scans(path)?,
-            Format::Ply => ply::scans(path)?,
-            Format::Xyz => xyz::scans(path),
-        };
+            Format::E57 => e57::scans(path),
+            Format::Las => las::scans(path),
+            Format::Ptx => ptx::scans(path),
+            Format::Ply => ply::scans(path),
+            Format::Xyz => Ok(xyz::scans(path)),
+        }
+        .map_err(|e| naming(path, e))?;
         Ok(Self {
             path: path.to_path_buf(),
             format,
@@ -156,6 +167,7 @@ impl ScanFile {
             Format::Ply => ply::stream(&self.path, chunk, sink),
             Format::Xyz => xyz::stream(&self.path, chunk, sink),
         }
+        .map_err(|e| naming(&self.path, e))
     }
 
     /// Every point of one scan in memory: for small files and tests.

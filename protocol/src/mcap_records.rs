@@ -1,0 +1,357 @@
+//! The records of an MCAP file, each checked before the `mcap` crate parses it.
+//!
+//! `mcap` reserves a string's memory from its 32-bit length field before it reads the bytes,
+//! so one flipped bit in a damaged recording asked for up to 4 GiB; a chunk's claimed
+//! uncompressed size was taken as it came. Here every length inside a record must fit in what
+//! is left of that record, and a chunk may not claim to open to more than lz4 can make of its
+//! bytes, before any record is parsed. What does not fit is a [`Damaged`] error naming the
+//! record and the field. Chunks are opened one at a time and all or nothing.
+
+use mcap::records::{Record, op};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+
+/// A record whose lengths do not fit: the file is damaged there.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("damaged {record} record: {what}")]
+pub struct Damaged {
+    pub record: &'static str,
+    pub what: String,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error(transparent)]
+    Mcap(#[from] mcap::McapError),
+    #[error(transparent)]
+    Damaged(#[from] Damaged),
+}
+
+/// Whether chunks are opened (their records come out one by one) or passed over whole.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Chunks {
+    Open,
+    Skip,
+}
+
+/// The records of `buf` in file order, each checked, then parsed.
+pub struct Records<'a> {
+    buf: &'a [u8],
+    reader: LinearReader,
+    chunks: Chunks,
+    /// The records of the chunk being handed out.
+    opened: std::collections::VecDeque<Record<'static>>,
+    /// After an error nothing more is read: a damaged file's reader could loop on it.
+    failed: bool,
+}
+
+/// lz4, the one compression recordings use, opens at most 255 bytes from one.
+const MAX_RATIO: u64 = 255;
+
+impl<'a> Records<'a> {
+    /// `ends_cleanly`: false for a file whose writer died (no end magic to expect).
+    pub fn new(buf: &'a [u8], chunks: Chunks, ends_cleanly: bool) -> Self {
+        let options = LinearReaderOptions::default()
+            .with_record_length_limit(buf.len())
+            .with_skip_end_magic(!ends_cleanly)
+            // Chunks come out whole and are opened here, one at a time, all or nothing.
+            .with_emit_chunks(true);
+        Self {
+            buf,
+            reader: LinearReader::new_with_options(options),
+            chunks,
+            opened: std::collections::VecDeque::new(),
+            failed: false,
+        }
+    }
+}
+
+impl Iterator for Records<'_> {
+    type Item = Result<Record<'static>, RecordError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        let item = self.read();
+        self.failed = matches!(item, Some(Err(_)));
+        item
+    }
+}
+
+impl Records<'_> {
+    fn read(&mut self) -> Option<Result<Record<'static>, RecordError>> {
+        loop {
+            if let Some(r) = self.opened.pop_front() {
+                return Some(Ok(r));
+            }
+            let (opcode, data) = match self.reader.next_event()? {
+                Ok(LinearReadEvent::ReadRequest(need)) => {
+                    let len = need.min(self.buf.len());
+                    self.reader.insert(len).copy_from_slice(&self.buf[..len]);
+                    self.reader.notify_read(len);
+                    self.buf = &self.buf[len..];
+                    continue;
+                }
+                Ok(LinearReadEvent::Record { data, opcode }) => (opcode, data),
+                Err(e) => return Some(Err(e.into())),
+            };
+            if let Err(e) = check(opcode, data) {
+                return Some(Err(e.into()));
+            }
+            if opcode != op::CHUNK {
+                return Some(
+                    mcap::parse_record(opcode, data)
+                        .map(Record::into_owned)
+                        .map_err(RecordError::from),
+                );
+            }
+            if self.chunks == Chunks::Open {
+                match open_chunk(data) {
+                    Ok(records) => self.opened = records.into(),
+                    Err(e) => return Some(Err(e)),
+                }
+            }
+        }
+    }
+}
+
+/// Every record of a chunk (its body `body`, checked), or the first error.
+fn open_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, RecordError> {
+    let uncompressed = u64::from_le_bytes(body[16..24].try_into().expect("checked"));
+    let limit = (body.len() as u64)
+        .saturating_mul(MAX_RATIO)
+        .saturating_add(1 << 16);
+    if uncompressed > limit {
+        return Err(Damaged {
+            record: "chunk",
+            what: format!(
+                "claims {uncompressed} bytes uncompressed from {} compressed",
+                body.len()
+            ),
+        }
+        .into());
+    }
+    // The chunk as a stream of one record, opened by a reader of its own.
+    let mut stream = Vec::with_capacity(9 + body.len());
+    stream.push(op::CHUNK);
+    stream.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    stream.extend_from_slice(body);
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_start_magic(true)
+            .with_skip_end_magic(true)
+            .with_emit_chunks(false)
+            .with_record_length_limit(limit as usize),
+    );
+    let mut rest = stream.as_slice();
+    let mut out = Vec::new();
+    while let Some(event) = reader.next_event() {
+        match event? {
+            LinearReadEvent::ReadRequest(need) => {
+                let len = need.min(rest.len());
+                reader.insert(len).copy_from_slice(&rest[..len]);
+                reader.notify_read(len);
+                rest = &rest[len..];
+            }
+            LinearReadEvent::Record { data, opcode } => {
+                check(opcode, data)?;
+                out.push(mcap::parse_record(opcode, data)?.into_owned());
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// A cursor over a record's body that refuses any length beyond what is left.
+struct Fields<'a> {
+    record: &'static str,
+    rest: &'a [u8],
+}
+
+impl Fields<'_> {
+    fn fail(&self, what: String) -> Damaged {
+        Damaged {
+            record: self.record,
+            what,
+        }
+    }
+
+    fn skip(&mut self, n: u64, field: &str) -> Result<(), Damaged> {
+        if n > self.rest.len() as u64 {
+            return Err(self.fail(format!(
+                "{field} claims {n} bytes where {} are left",
+                self.rest.len()
+            )));
+        }
+        self.rest = &self.rest[n as usize..];
+        Ok(())
+    }
+
+    fn u32(&mut self, field: &str) -> Result<u64, Damaged> {
+        let b = self
+            .rest
+            .get(..4)
+            .ok_or_else(|| self.fail(format!("{field} cut off")))?;
+        let v = u32::from_le_bytes(b.try_into().expect("4 bytes"));
+        self.rest = &self.rest[4..];
+        Ok(v.into())
+    }
+
+    fn u64(&mut self, field: &str) -> Result<u64, Damaged> {
+        let b = self
+            .rest
+            .get(..8)
+            .ok_or_else(|| self.fail(format!("{field} cut off")))?;
+        let v = u64::from_le_bytes(b.try_into().expect("8 bytes"));
+        self.rest = &self.rest[8..];
+        Ok(v)
+    }
+
+    /// A string or byte array behind a 32-bit length.
+    fn bytes32(&mut self, field: &str) -> Result<(), Damaged> {
+        let n = self.u32(field)?;
+        self.skip(n, field)
+    }
+
+    /// A map behind its 32-bit length in bytes; `strings`: keys and values are strings (else
+    /// fixed-size entries, which the length bounds already).
+    fn map(&mut self, field: &str, strings: bool) -> Result<(), Damaged> {
+        let n = self.u32(field)?;
+        if n > self.rest.len() as u64 {
+            return Err(self.fail(format!(
+                "{field} claims {n} bytes where {} are left",
+                self.rest.len()
+            )));
+        }
+        let (inside, after) = self.rest.split_at(n as usize);
+        if strings {
+            let mut m = Fields {
+                record: self.record,
+                rest: inside,
+            };
+            while !m.rest.is_empty() {
+                m.bytes32(field)?;
+                m.bytes32(field)?;
+            }
+        }
+        self.rest = after;
+        Ok(())
+    }
+}
+
+/// Checks every length in a record against what is left of it.
+fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
+    let name = match opcode {
+        op::HEADER => "header",
+        op::SCHEMA => "schema",
+        op::CHANNEL => "channel",
+        op::CHUNK => "chunk",
+        op::MESSAGE_INDEX => "message index",
+        op::CHUNK_INDEX => "chunk index",
+        op::ATTACHMENT => "attachment",
+        op::ATTACHMENT_INDEX => "attachment index",
+        op::STATISTICS => "statistics",
+        op::METADATA => "metadata",
+        op::METADATA_INDEX => "metadata index",
+        // Fixed-size records, messages and records of later versions: nothing to check.
+        _ => return Ok(()),
+    };
+    let mut f = Fields {
+        record: name,
+        rest: body,
+    };
+    match opcode {
+        op::HEADER => {
+            f.bytes32("profile")?;
+            f.bytes32("library")?;
+        }
+        op::SCHEMA => {
+            f.skip(2, "id")?;
+            f.bytes32("name")?;
+            f.bytes32("encoding")?;
+            f.bytes32("data")?;
+        }
+        op::CHANNEL => {
+            f.skip(4, "ids")?;
+            f.bytes32("topic")?;
+            f.bytes32("message encoding")?;
+            f.map("metadata", true)?;
+        }
+        op::CHUNK => {
+            f.skip(16, "times")?;
+            f.u64("uncompressed size")?;
+            f.skip(4, "checksum")?;
+            f.bytes32("compression")?;
+            let n = f.u64("records length")?;
+            f.skip(n, "records")?;
+        }
+        op::MESSAGE_INDEX => {
+            f.skip(2, "channel id")?;
+            f.map("entries", false)?;
+        }
+        op::CHUNK_INDEX => {
+            f.skip(32, "times and offsets")?;
+            f.map("message index offsets", false)?;
+            f.skip(8, "message index length")?;
+            f.bytes32("compression")?;
+        }
+        op::ATTACHMENT => {
+            f.skip(16, "times")?;
+            f.bytes32("name")?;
+            f.bytes32("media type")?;
+            let n = f.u64("data length")?;
+            f.skip(n, "data")?;
+        }
+        op::ATTACHMENT_INDEX => {
+            f.skip(40, "offsets, times and size")?;
+            f.bytes32("name")?;
+            f.bytes32("media type")?;
+        }
+        op::STATISTICS => {
+            f.skip(8 + 2 + 4 * 4 + 16, "counts and times")?;
+            f.map("channel message counts", false)?;
+        }
+        op::METADATA => {
+            f.bytes32("name")?;
+            f.map("metadata", true)?;
+        }
+        op::METADATA_INDEX => {
+            f.skip(16, "offset and length")?;
+            f.bytes32("name")?;
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_string_longer_than_its_record_is_damage_not_an_allocation() {
+        // A metadata record whose name claims 4 GiB.
+        let mut body = u32::MAX.to_le_bytes().to_vec();
+        body.extend_from_slice(b"job");
+        let e = check(op::METADATA, &body).unwrap_err();
+        assert_eq!(e.record, "metadata");
+        assert!(e.what.contains("name claims 4294967295 bytes"), "{e}");
+        // One string of a map that claims more than the map.
+        let mut body = 3u32.to_le_bytes().to_vec();
+        body.extend_from_slice(b"job");
+        body.extend_from_slice(&12u32.to_le_bytes());
+        body.extend_from_slice(&1000u32.to_le_bytes());
+        body.extend_from_slice(b"abcdefgh");
+        assert!(check(op::METADATA, &body).is_err());
+        // The same record, well formed.
+        let mut body = 3u32.to_le_bytes().to_vec();
+        body.extend_from_slice(b"job");
+        body.extend_from_slice(&10u32.to_le_bytes());
+        body.extend_from_slice(&1u32.to_le_bytes());
+        body.push(b'k');
+        body.extend_from_slice(&1u32.to_le_bytes());
+        body.push(b'v');
+        check(op::METADATA, &body).unwrap();
+        assert!(mcap::parse_record(op::METADATA, &body).is_ok());
+    }
+}

@@ -65,7 +65,14 @@ struct IpcOutputs<'p> {
     /// statistics stay whole. Sized once for the largest accepted chunk.
     scratch: Vec<PointDeviation>,
     unloaned: u64,
+    /// Reports waiting for the recorder to have them on disk, with their flush ticket and since
+    /// when: the cell learns of a station only once a crash can no longer lose it.
+    unpublished: std::collections::VecDeque<(u64, Instant, StationReport)>,
 }
+
+/// How long a report waits for the recorder's disk before it is published anyway: a slow disk
+/// must not hold the cell's results back for long.
+const ON_DISK_WAIT: Duration = Duration::from_secs(1);
 
 /// One name per station in the view, the same for its pose, points and report.
 fn view_name(job: u64, station: u32) -> String {
@@ -168,7 +175,11 @@ impl Outputs for IpcOutputs<'_> {
 
     fn report(&mut self, report: &StationReport) {
         if let Some(r) = &self.recorder {
-            r.report(report);
+            let ticket = r.report(report);
+            self.unpublished
+                .push_back((ticket, Instant::now(), *report));
+        } else {
+            self.publish_report(report);
         }
         if let Some(v) = &self.viewer {
             self.shown.remove(&(report.job, report.station));
@@ -178,10 +189,35 @@ impl Outputs for IpcOutputs<'_> {
                 report: Box::new(*report),
             });
         }
+    }
+}
+
+impl IpcOutputs<'_> {
+    fn publish_report(&self, report: &StationReport) {
         if let Err(e) = self.ports.reports.send_copy(*report) {
             warn!("report of station {} not published: {e:?}", report.station);
         }
         self.notify();
+    }
+
+    /// Publishes the reports the recorder has on disk (all of them when `all`, or when one has
+    /// waited [`ON_DISK_WAIT`]).
+    fn publish_recorded_reports(&mut self, all: bool) {
+        while let Some(&(ticket, since, report)) = self.unpublished.front() {
+            let on_disk = self.recorder.as_ref().is_none_or(|r| r.is_on_disk(ticket));
+            let late = since.elapsed() >= ON_DISK_WAIT;
+            if !(on_disk || late || all) {
+                break;
+            }
+            if !on_disk {
+                warn!(
+                    "job {} station {}: report published before the recorder had it on disk",
+                    report.job, report.station
+                );
+            }
+            self.unpublished.pop_front();
+            self.publish_report(&report);
+        }
     }
 }
 
@@ -331,6 +367,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         frames: &config.frames,
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
         unloaned: 0,
+        unpublished: std::collections::VecDeque::new(),
     };
 
     let tick = config.status.period().min(MAX_TICK);
@@ -365,11 +402,12 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let mut held = HeldControl::default();
     let mut more = false;
     while !terminated {
-        // While a printed height is prepared off the loop, wake often to take it up at once;
+        // While a printed height is prepared off the loop, or a report waits for the recorder to
+        // have it on disk, wake often to take it up at once;
         // with chunks still queued after a slice of reading, do not wait at all.
         let result = if more {
             Ok(WaitSetRunResult::AllEventsHandled)
-        } else if lifecycle.is_preparing() {
+        } else if lifecycle.is_preparing() || !out.unpublished.is_empty() {
             waitset.wait_and_process_once_with_timeout(
                 |_| CallbackProgression::Continue,
                 PREPARING_POLL,
@@ -395,6 +433,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         more = drained == Drained::More;
         let now = Instant::now();
         lifecycle.on_tick(now, &mut out);
+        out.publish_recorded_reports(false);
         if now >= status.next {
             status.dead_nodes += cleanup_dead_nodes(&node);
             status.publish(&ports, &lifecycle, &out, AgentState::Serving);
@@ -414,6 +453,9 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     }
     if let Some(mut r) = out.recorder.take() {
         r.finish();
+        // Everything is on disk now.
+        out.recorder = None;
+        out.publish_recorded_reports(true);
         use std::sync::atomic::Ordering::Relaxed;
         info!(
             "recorder: {} file(s), {} scan chunks recorded, {} left out (queue or disk), {} \

@@ -41,6 +41,8 @@ pub struct RecorderCounters {
     /// Chunks left out by `scan_every`.
     pub chunks_decimated: AtomicU64,
     pub files: AtomicU64,
+    /// Flushes done (or failed) by the writer: what was queued before the n-th is on disk.
+    pub flushes: AtomicU64,
 }
 
 pub struct Recorder {
@@ -53,6 +55,8 @@ pub struct Recorder {
     deviations: bool,
     /// Set by the writer when free disk space is below the guard.
     disk_low: Arc<std::sync::atomic::AtomicBool>,
+    /// Flushes asked for so far.
+    flushes_asked: AtomicU64,
     pub counters: Arc<RecorderCounters>,
 }
 
@@ -104,6 +108,7 @@ impl Recorder {
             seen_chunks: 0,
             deviations: cfg.deviations,
             disk_low,
+            flushes_asked: AtomicU64::new(0),
             counters,
         })
     }
@@ -139,25 +144,39 @@ impl Recorder {
     }
 
     /// Reports are never dropped: the agent waits for queue room (only a stalled writer could
-    /// make it wait), then the station's chunk is closed and flushed.
-    pub fn report(&self, r: &StationReport) {
-        self.flushed(Recorded::Report(Box::new(*r)));
+    /// make it wait), then the station's chunk is closed and flushed. Returns the ticket that
+    /// [`Recorder::is_on_disk`] takes: the report and everything before it are in the file
+    /// once that flush is done.
+    pub fn report(&self, r: &StationReport) -> u64 {
+        self.flushed(Recorded::Report(Box::new(*r)))
     }
 
     pub fn findings(&self, f: &StationFindings) {
         self.flushed(Recorded::Findings(Box::new(f.clone())));
     }
 
+    /// Whether the flush of `ticket` is done: what was queued before it survives a crash of the
+    /// agent (it is in the operating system's hands). True too once the writer is gone.
+    pub fn is_on_disk(&self, ticket: u64) -> bool {
+        self.counters
+            .flushes
+            .load(std::sync::atomic::Ordering::Acquire)
+            >= ticket
+            || self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
     /// A result that is never left out, followed by a flush so a crash keeps it.
-    fn flushed(&self, msg: Recorded) {
-        if let Some(tx) = &self.tx {
-            // Weighed as the writer will unweigh it: every small message counts 256 bytes.
-            self.queued.fetch_add(256, Relaxed);
-            if tx.send(Item::Message(unix_time_ns(), msg)).is_err() {
-                self.queued.fetch_sub(256, Relaxed);
-            }
-            let _ = tx.send(Item::Flush);
+    fn flushed(&self, msg: Recorded) -> u64 {
+        let Some(tx) = &self.tx else { return 0 };
+        // Weighed as the writer will unweigh it: every small message counts 256 bytes.
+        self.queued.fetch_add(256, Relaxed);
+        if tx.send(Item::Message(unix_time_ns(), msg)).is_err() {
+            self.queued.fetch_sub(256, Relaxed);
         }
+        if tx.send(Item::Flush).is_err() {
+            return 0;
+        }
+        self.flushes_asked.fetch_add(1, Relaxed) + 1
     }
 
     /// Whether a bulk chunk of `bytes` may go in now; counts it when it may not.
@@ -322,6 +341,10 @@ impl Writer {
                     {
                         warn!("recorder: cannot flush {}: {e}", f.path.display());
                     }
+                    // Done, or failed: either way nothing waits on it any longer.
+                    self.counters
+                        .flushes
+                        .fetch_add(1, std::sync::atomic::Ordering::Release);
                     self.check_disk();
                 }
             }

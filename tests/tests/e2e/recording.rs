@@ -510,3 +510,80 @@ fn a_recording_reports_the_live_reports_wherever_a_station_end_is_recorded() {
         }
     }
 }
+
+/// The agent killed with SIGKILL in the middle of a recorded job: `recover`, then `report`, give
+/// every station the agent reported before the kill, equal to its live reports. (The agent
+/// publishes a report only once the recorder has it on disk.)
+#[test]
+fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
+    let config = bunny_agent_config("[recorder]\ndir = \"rec\"\n");
+    let prefix = unique_prefix("sigkill");
+    let mut agent = Agent::start(AGENT, &prefix, &config);
+    let cell = asbuilt_tests::Cell::open(&prefix, 16);
+    // Paced, so that the kill lands while stations are still coming.
+    let mut publish = Command::new(ASBUILT)
+        .arg("publish")
+        .arg("--stations")
+        .arg(repo().join("examples/bunny/stations.toml"))
+        .args([
+            "--prefix",
+            &prefix,
+            "--chunk-points",
+            "10000",
+            "--rate",
+            "150000",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut live = cell.reports(3, std::time::Duration::from_secs(60));
+    assert!(live.len() >= 3, "{}", agent.log());
+    agent.signal("KILL");
+    agent.wait_exit(std::time::Duration::from_secs(10));
+    // Reports that were on their way when the agent died count too.
+    live.extend(cell.reports(10, std::time::Duration::from_millis(200)));
+    let _ = publish.kill();
+    let _ = publish.wait();
+    assert!(
+        live.len() < 10,
+        "the job ended before the kill: {} reports",
+        live.len()
+    );
+
+    let broken = std::fs::read_dir(agent.dir.path().join("rec"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let dir = tempfile::tempdir().unwrap();
+    let fixed = dir.path().join("fixed.mcap");
+    run(&["recover", broken.to_str().unwrap(), fixed.to_str().unwrap()]);
+    let out = dir.path().join("report");
+    run(&[
+        "report",
+        fixed.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let got: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let stations = got["stations"].as_array().unwrap();
+    for r in &live {
+        let name = r.name.as_str();
+        let s = stations
+            .iter()
+            .find(|s| s["id"] == name)
+            .unwrap_or_else(|| panic!("station {name}, reported live, is not in {got:#}"));
+        assert_eq!(s["points"], r.points_received, "{name}");
+        assert_eq!(s["matched"], r.stats.count, "{name}");
+        assert_eq!(
+            s["mean"].as_f64().unwrap().to_bits(),
+            r.stats.mean.to_bits(),
+            "{name}"
+        );
+        let bins: Vec<u64> = serde_json::from_value(s["histogram"]["bins"].clone()).unwrap();
+        assert_eq!(bins, r.histogram.bins.to_vec(), "{name}");
+    }
+}

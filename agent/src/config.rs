@@ -50,8 +50,12 @@ pub struct FindingsConfig {
     /// Nominal layer height, metres, for the per-layer rows. None: no per-layer rows.
     pub layer_height: Option<f64>,
     /// A design sample with a scan point this close is observed, metres. Default
-    /// max(3 mm, tolerance / 2).
+    /// max(3 mm, tolerance / 2), raised to the scan's point spacing where that is wider
+    /// (measured per station, or from `scanner_step_mrad`). Set here, it is used as it is.
     pub coverage_threshold: Option<f64>,
+    /// The scanner's angular step, milliradians: coverage expects points step × range apart
+    /// instead of measuring the spacing of each station's points.
+    pub scanner_step_mrad: Option<f64>,
     /// Steeper views than this do not call a surface missing, degrees.
     pub max_incidence_deg: f64,
     /// Regions and missing areas of fewer samples are not reported.
@@ -70,6 +74,7 @@ impl Default for FindingsConfig {
             max_depth: None,
             layer_height: None,
             coverage_threshold: None,
+            scanner_step_mrad: None,
             max_incidence_deg: 65.0,
             min_region_samples: 5,
             min_missing_area_m2: 0.001,
@@ -88,6 +93,16 @@ impl FindingsConfig {
     pub fn coverage_threshold(&self, tolerance: f64) -> f64 {
         self.coverage_threshold
             .unwrap_or_else(|| (0.5 * tolerance).max(0.003))
+    }
+
+    /// What raises the coverage threshold where the scan is sparser (see the fields).
+    pub fn coverage_spacing(&self) -> asbuilt_core::coverage::ScanSpacing {
+        use asbuilt_core::coverage::ScanSpacing;
+        match (self.scanner_step_mrad, self.coverage_threshold) {
+            (Some(step), _) => ScanSpacing::AngularStep(step * 1e-3),
+            (None, Some(_)) => ScanSpacing::Fixed,
+            (None, None) => ScanSpacing::Measured,
+        }
     }
 }
 
@@ -531,6 +546,14 @@ fn check_findings(f: &FindingsConfig, problems: &mut Vec<String>) {
                 "findings.{key}: give a positive number of metres, got {v}"
             ));
         }
+    }
+    if let Some(step) = f.scanner_step_mrad
+        && !(positive(step) && step < 100.0)
+    {
+        problems.push(format!(
+            "findings.scanner_step_mrad: give the scanner's angular step in milliradians \
+             (0 < step < 100), got {step}"
+        ));
     }
     if !(0.0..=89.0).contains(&f.max_incidence_deg) {
         problems.push(format!(

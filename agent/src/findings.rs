@@ -126,6 +126,8 @@ impl FindingsStage {
                 let threshold = c.coverage_threshold(self.tolerance);
                 let mut params = CoverageParams::with_threshold(threshold, 2.0 * threshold);
                 params.max_incidence_deg = c.max_incidence_deg;
+                // Lattice gaps are allowed up to the reach, twice the threshold.
+                params.spacing = c.coverage_spacing();
                 let coverage = Coverage::new(&samples, params).map_err(|e| e.to_string())?;
                 Ok((samples.len(), samples.area_per_sample, m3c2, coverage))
             });

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use asbuilt_core::coverage::ScanSpacing;
 use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
 use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
@@ -74,9 +75,15 @@ pub struct InspectArgs {
     #[arg(long)]
     normal_diameter: Option<f64>,
     /// A design sample with no scan point this close, that a station should have seen, is
-    /// missing. Metres; default 3 × the default pose σ (1 mm), at least the tolerance / 2.
+    /// missing. Metres; default 3 × the default pose σ (1 mm), at least the tolerance / 2,
+    /// raised to the scan's point spacing where that is wider (measured per station, or from
+    /// --scanner-step). Given here, it is used as it is.
     #[arg(long)]
     coverage_threshold: Option<f64>,
+    /// The scanner's angular step, milliradians (0.31 for a Z+F IMAGER at "high"): coverage
+    /// expects points step × range apart instead of measuring the spacing.
+    #[arg(long)]
+    scanner_step_mrad: Option<f64>,
     /// Compare with the design as printed so far: cut at this height (design frame z,
     /// metres) and capped. Points above it count as excess.
     #[arg(long)]
@@ -127,6 +134,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     positive("--max-depth", args.max_depth)?;
     positive("--normal-diameter", args.normal_diameter)?;
     positive("--coverage-threshold", args.coverage_threshold)?;
+    positive("--scanner-step-mrad", args.scanner_step_mrad)?;
     positive("--layer-height", args.layer_height)?;
     let mut methods: Vec<Method> = args.method.0.clone();
     methods.push(Method::C2m);
@@ -215,6 +223,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             max_depth,
             normal_diameter: args.normal_diameter.unwrap_or(args.projection_diameter),
             coverage_threshold: coverage_threshold.min(max_distance),
+            coverage_spacing: coverage_spacing(&args),
             reach: max_distance,
             layer_height: args.layer_height,
             printed_height: args.printed_height,
@@ -455,6 +464,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             histogram_range_m: config.stats.histogram_range,
             spacing_m: args.spacing,
             coverage_threshold_m: coverage_threshold.min(max_distance),
+            coverage_spacing: describe_spacing(coverage_spacing(&args)),
             projection_diameter_m: args.projection_diameter,
             max_depth_m: max_depth,
             printed_height_m: args.printed_height,
@@ -542,6 +552,24 @@ fn format_ratio(r: f64) -> String {
 }
 
 /// One line per station for the methods beside C2M, in millimetres and square centimetres.
+/// A threshold given by hand is used as it is; else it is raised to the scan's spacing, from
+/// the scanner's step when given, measured per station otherwise.
+fn coverage_spacing(args: &InspectArgs) -> ScanSpacing {
+    match (args.scanner_step_mrad, args.coverage_threshold) {
+        (Some(step), _) => ScanSpacing::AngularStep(step * 1e-3),
+        (None, Some(_)) => ScanSpacing::Fixed,
+        (None, None) => ScanSpacing::Measured,
+    }
+}
+
+fn describe_spacing(s: ScanSpacing) -> String {
+    match s {
+        ScanSpacing::Fixed => "fixed".into(),
+        ScanSpacing::AngularStep(a) => format!("scanner step {:.3} mrad", a * 1e3),
+        ScanSpacing::Measured => "measured per station".into(),
+    }
+}
+
 fn method_line(s: &suite::SuiteSection) -> String {
     let mut parts = Vec::new();
     if let Some(c) = &s.c2c {
@@ -554,12 +582,15 @@ fn method_line(s: &suite::SuiteSection) -> String {
     }
     if let Some(c) = &s.coverage {
         parts.push(format!(
-            "coverage: {} observed, {} missing ({:.1} cm²), {} occluded, {} not scanned",
+            "coverage: {} observed, {} missing ({:.1} cm²), {} occluded, {} not scanned{}",
             c.observed,
             c.missing,
             c.missing_area_m2 * 1e4,
             c.occluded,
-            c.not_scanned
+            c.not_scanned,
+            c.angular_step_mrad
+                .map(|a| format!(" (gaps up to the scan spacing allowed: {a:.2} mrad step)"))
+                .unwrap_or_default()
         ));
     }
     if let Some(m) = &s.m3c2 {

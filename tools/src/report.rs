@@ -44,6 +44,9 @@ pub struct Parameters {
     pub histogram_range_m: f64,
     pub spacing_m: f64,
     pub coverage_threshold_m: f64,
+    /// What raised the coverage threshold where the scan is sparser.
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub coverage_spacing: String,
     pub projection_diameter_m: f64,
     pub max_depth_m: f64,
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -239,6 +239,7 @@ pub fn write(
             histogram_range_m: config.stats.histogram_range,
             spacing_m: 0.0,
             coverage_threshold_m: 0.0,
+            coverage_spacing: String::new(),
             projection_diameter_m: 0.0,
             max_depth_m: 0.0,
             printed_height_m: None,

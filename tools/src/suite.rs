@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
-use asbuilt_core::coverage::{Coverage, CoverageParams, CoverageSummary, SampleClass};
+use asbuilt_core::coverage::{Coverage, CoverageParams, CoverageSummary, SampleClass, ScanSpacing};
 use asbuilt_core::layers::{BandRow, LayerBands};
 use asbuilt_core::m3c2::classic::{self, ClassicParams};
 use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams, StreamingSummary};
@@ -84,6 +84,8 @@ pub struct SuiteConfig {
     pub max_depth: f64,
     pub normal_diameter: f64,
     pub coverage_threshold: f64,
+    /// What raises the coverage threshold where the scan is sparser.
+    pub coverage_spacing: ScanSpacing,
     pub reach: f64,
     pub layer_height: Option<f64>,
     pub printed_height: Option<f64>,
@@ -141,6 +143,10 @@ pub struct CoverageSection {
     pub not_scanned: u64,
     pub missing_area_m2: f64,
     pub area_per_sample_m2: f64,
+    /// The scanner's angular step the threshold was raised by, mrad (given or measured);
+    /// absent with a fixed threshold.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub angular_step_mrad: Option<f64>,
     /// Signed distance from each design sample to the nearest scan point within reach
     /// (negative: the scan lies inside the design). Overall only.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -156,6 +162,7 @@ impl CoverageSection {
             not_scanned: s.not_scanned,
             missing_area_m2: s.missing_area_m2,
             area_per_sample_m2: area,
+            angular_step_mrad: s.angular_step.map(|a| a * 1e3),
             reverse_c2c: None,
         }
     }
@@ -362,7 +369,10 @@ impl Suite {
         let coverage = match (&samples, config.has(Method::Coverage)) {
             (Some(s), true) => Some(Coverage::new(
                 s,
-                CoverageParams::with_threshold(config.coverage_threshold, config.reach),
+                CoverageParams {
+                    spacing: config.coverage_spacing,
+                    ..CoverageParams::with_threshold(config.coverage_threshold, config.reach)
+                },
             )?),
             _ => None,
         };

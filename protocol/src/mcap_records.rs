@@ -213,9 +213,9 @@ impl Fields<'_> {
         self.skip(n, field)
     }
 
-    /// A map behind its 32-bit length in bytes; `strings`: keys and values are strings (else
-    /// fixed-size entries, which the length bounds already).
-    fn map(&mut self, field: &str, strings: bool) -> Result<(), Damaged> {
+    /// A map of strings behind its 32-bit length in bytes. Every entry must end inside it
+    /// (mcap reads whole entries while it has not reached the length).
+    fn string_map(&mut self, field: &str) -> Result<(), Damaged> {
         let n = self.u32(field)?;
         if n > self.rest.len() as u64 {
             return Err(self.fail(format!(
@@ -224,18 +224,23 @@ impl Fields<'_> {
             )));
         }
         let (inside, after) = self.rest.split_at(n as usize);
-        if strings {
-            let mut m = Fields {
-                record: self.record,
-                rest: inside,
-            };
-            while !m.rest.is_empty() {
-                m.bytes32(field)?;
-                m.bytes32(field)?;
-            }
+        let mut m = Fields {
+            record: self.record,
+            rest: inside,
+        };
+        while !m.rest.is_empty() {
+            m.bytes32(field)?;
+            m.bytes32(field)?;
         }
         self.rest = after;
         Ok(())
+    }
+
+    /// Entries of `entry` bytes behind a 32-bit length in bytes: mcap reads whole entries while
+    /// it has not reached the length, so a length that is not a multiple reads one entry more.
+    fn entries(&mut self, field: &str, entry: u64) -> Result<(), Damaged> {
+        let n = self.u32(field)?;
+        self.skip(n.div_ceil(entry) * entry, field)
     }
 }
 
@@ -275,7 +280,7 @@ fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
             f.skip(4, "ids")?;
             f.bytes32("topic")?;
             f.bytes32("message encoding")?;
-            f.map("metadata", true)?;
+            f.string_map("metadata")?;
         }
         op::CHUNK => {
             f.skip(16, "times")?;
@@ -287,11 +292,11 @@ fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
         }
         op::MESSAGE_INDEX => {
             f.skip(2, "channel id")?;
-            f.map("entries", false)?;
+            f.entries("entries", 16)?;
         }
         op::CHUNK_INDEX => {
             f.skip(32, "times and offsets")?;
-            f.map("message index offsets", false)?;
+            f.entries("message index offsets", 10)?;
             f.skip(8, "message index length")?;
             f.bytes32("compression")?;
         }
@@ -309,11 +314,11 @@ fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
         }
         op::STATISTICS => {
             f.skip(8 + 2 + 4 * 4 + 16, "counts and times")?;
-            f.map("channel message counts", false)?;
+            f.entries("channel message counts", 10)?;
         }
         op::METADATA => {
             f.bytes32("name")?;
-            f.map("metadata", true)?;
+            f.string_map("metadata")?;
         }
         op::METADATA_INDEX => {
             f.skip(16, "offset and length")?;

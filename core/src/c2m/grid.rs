@@ -92,9 +92,10 @@ impl Grid {
     ) -> Self {
         let (origin, keys) = loop {
             let origin = lo - Vector3::repeat(2.0 * h);
-            let emitted = emitted_estimate(mesh, &origin, h);
-            if emitted <= 64.0 * max_surface_cells as f64 {
-                let surface = surface_cells(mesh, &origin, h);
+            let limit = 64.0 * max_surface_cells as f64;
+            let emitted = emitted_estimate(mesh, &origin, h, limit);
+            if emitted <= limit {
+                let surface = surface_cells(mesh, &origin, h, limit);
                 if surface.len() <= max_surface_cells {
                     break (origin, dilate(&surface));
                 }
@@ -246,54 +247,95 @@ impl Grid {
     }
 }
 
-/// How many cell keys enumerating the surface would emit, at most (before duplicates go).
-fn emitted_estimate(mesh: &Mesh, origin: &Point3<f64>, h: f64) -> f64 {
+/// How many cell keys enumerating the surface would emit, at most (before duplicates go):
+/// the cells of every piece's box.
+fn emitted_estimate(mesh: &Mesh, origin: &Point3<f64>, h: f64, limit: f64) -> f64 {
     (0..mesh.len())
         .into_par_iter()
-        .map(|t| {
-            let tri = mesh.triangle(t);
-            let (a, b) = tri.aabb();
-            let cell = |v: f64, k: usize| ((v - origin[k]) / h).floor();
-            let boxed: f64 = (0..3)
-                .map(|k| cell(b[k], k) - cell(a[k], k) + 1.0)
-                .product();
-            let area = 0.5 * tri.ab.cross(&tri.ac).norm();
-            let perimeter = tri.ab.norm() + tri.ac.norm() + (tri.ac - tri.ab).norm();
-            boxed.min(3.0 * (area / (h * h) + perimeter / h + 1.0))
+        .map_init(Vec::new, |stack, t| {
+            let mut emitted = 0.0;
+            pieces(mesh, t, origin, h, limit, stack, |_, i0, i1| {
+                emitted += (0..3).map(|k| (i1[k] - i0[k] + 1) as f64).product::<f64>();
+            });
+            emitted
         })
         .sum()
 }
 
-/// The keys of the cells a triangle's box and plane both reach (a superset of the cells it
-/// meets), sorted.
-fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64) -> Vec<u64> {
+/// The pieces a triangle's cells are enumerated in, each with the first and last cell of its
+/// box. A sliver's box holds far more cells than the triangle meets (a 1 m needle on a
+/// diagonal: 10^8 cells of 0.1 mm, where it meets 10^4), so a piece whose box holds more than
+/// 8 times the cells it can meet is halved at its longest edge, until it is under a cell. A
+/// triangle that can meet more than `limit` cells is not split: the cells are too small anyway.
+fn pieces(
+    mesh: &Mesh,
+    t: usize,
+    origin: &Point3<f64>,
+    h: f64,
+    limit: f64,
+    stack: &mut Vec<[Point3<f64>; 3]>,
+    mut each: impl FnMut(&[Point3<f64>; 3], [i64; 3], [i64; 3]),
+) {
     let inv_h = 1.0 / h;
     let cell_of = |p: &Point3<f64>| -> [i64; 3] {
         std::array::from_fn(|k| ((p[k] - origin[k]) * inv_h).floor() as i64)
     };
+    let tri = mesh.triangle(t);
+    stack.clear();
+    stack.push([tri.a, tri.a + tri.ab, tri.a + tri.ac]);
+    let mut split = true;
+    while let Some(p) = stack.pop() {
+        let lo = p[0].inf(&p[1]).inf(&p[2]);
+        let hi = p[0].sup(&p[1]).sup(&p[2]);
+        let (i0, i1) = (cell_of(&lo), cell_of(&hi));
+        let boxed: f64 = (0..3).map(|k| (i1[k] - i0[k] + 1) as f64).product();
+        let edges = [p[1] - p[0], p[2] - p[1], p[0] - p[2]];
+        let lengths = edges.map(|e| e.norm());
+        let area = 0.5 * edges[0].cross(&edges[2]).norm();
+        let meets = area * inv_h * inv_h + lengths.iter().sum::<f64>() * inv_h + 1.0;
+        let longest = (0..3)
+            .max_by(|&x, &y| lengths[x].total_cmp(&lengths[y]))
+            .expect("three edges");
+        // Whole, the triangle says whether splitting it could pay.
+        split &= meets <= limit;
+        if split && boxed > 8.0 * meets && lengths[longest] > h {
+            let (u, v, w) = (longest, (longest + 1) % 3, (longest + 2) % 3);
+            let mid = p[u] + 0.5 * (p[v] - p[u]);
+            stack.push([p[u], mid, p[w]]);
+            stack.push([mid, p[v], p[w]]);
+        } else {
+            each(&p, i0, i1);
+        }
+    }
+}
+
+/// The keys of the cells a triangle's box and plane both reach (a superset of the cells it
+/// meets), sorted; a sliver by pieces (see [`pieces`]).
+fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64, limit: f64) -> Vec<u64> {
     let mut surface: Vec<u64> = (0..mesh.len())
         .into_par_iter()
         .chunks(512)
         .flat_map_iter(|chunk| {
             let mut keys = Vec::new();
+            let mut stack = Vec::new();
             for t in chunk {
                 let tri = mesh.triangle(t);
-                let (a, b) = tri.aabb();
-                let (i0, i1) = (cell_of(&a), cell_of(&b));
                 let n = tri.ab.cross(&tri.ac);
                 let reach = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
-                for i in i0[0]..=i1[0] {
-                    for j in i0[1]..=i1[1] {
-                        for k in i0[2]..=i1[2] {
-                            let c = center(origin, h, [i, j, k]);
-                            // A NaN from a huge design keeps the cell.
-                            let off = n.dot(&(c - tri.a)).abs();
-                            if off <= reach || off.is_nan() {
-                                keys.push(pack([i, j, k]));
+                pieces(mesh, t, origin, h, limit, &mut stack, |_, i0, i1| {
+                    for i in i0[0]..=i1[0] {
+                        for j in i0[1]..=i1[1] {
+                            for k in i0[2]..=i1[2] {
+                                let c = center(origin, h, [i, j, k]);
+                                // A NaN from a huge design keeps the cell.
+                                let off = n.dot(&(c - tri.a)).abs();
+                                if off <= reach || off.is_nan() {
+                                    keys.push(pack([i, j, k]));
+                                }
                             }
                         }
                     }
-                }
+                });
             }
             keys.sort_unstable();
             keys.dedup();

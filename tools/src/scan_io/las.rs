@@ -10,6 +10,7 @@ use nalgebra::{Isometry3, Vector3};
 use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
 
 fn open(path: &Path) -> Result<las::Reader> {
+    check_evlrs(path)?;
     check_laz_chunk_table(path)?;
     contain(path, || las::Reader::from_path(path))?
         .map_err(|e| anyhow::anyhow!("cannot read {} as LAS/LAZ: {e}", path.display()))
@@ -24,6 +25,46 @@ fn contain<T>(path: &Path, f: impl FnOnce() -> T) -> Result<T> {
             path.display()
         )
     })
+}
+
+/// The `las` crate sizes an extended VLR's buffer from its 64-bit length before it reads it
+/// (7.8 EB from one corrupt length). Checks every extended VLR of a LAS 1.4 header against
+/// the file's size first.
+fn check_evlrs(path: &Path) -> Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    let damaged = |what: String| anyhow::anyhow!("{}: damaged LAS file: {what}", path.display());
+    let mut f = std::fs::File::open(path)
+        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
+    let size = f.metadata()?.len();
+    let mut header = [0u8; 247];
+    if f.read_exact(&mut header).is_err() || &header[..4] != b"LASF" || header[25] < 4 {
+        return Ok(());
+    }
+    let mut at = u64::from_le_bytes(header[235..243].try_into()?);
+    let count = u32::from_le_bytes(header[243..247].try_into()?);
+    // An extended VLR's own header: reserved, user id, record id, length, description.
+    const EVLR_HEADER: u64 = 2 + 16 + 2 + 8 + 32;
+    for i in 0..count {
+        if at.saturating_add(EVLR_HEADER) > size {
+            return Err(damaged(format!(
+                "extended VLR {} of {count} would start at byte {at}, beyond the end ({size} bytes)",
+                i + 1
+            )));
+        }
+        let mut len = [0u8; 8];
+        f.seek(SeekFrom::Start(at + 20))?;
+        f.read_exact(&mut len)?;
+        let len = u64::from_le_bytes(len);
+        let end = (at + EVLR_HEADER).saturating_add(len);
+        if end > size {
+            return Err(damaged(format!(
+                "extended VLR {} claims {len} bytes, beyond the end of the file ({size} bytes)",
+                i + 1
+            )));
+        }
+        at = end;
+    }
+    Ok(())
 }
 
 /// The `laz` crate reserves memory for as many chunks as a LAZ file's chunk table claims (up

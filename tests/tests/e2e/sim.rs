@@ -305,6 +305,33 @@ fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
     assert_eq!(report["stations"].as_array().unwrap().len(), 4);
+    // The final table (report.json read back from the recording) is what the agent reported live.
+    let mut live = Vec::new();
+    for f in std::fs::read_dir(out.path().join("recording")).unwrap() {
+        let bytes = std::fs::read(f.unwrap().path()).unwrap();
+        for m in asbuilt_protocol::recording::messages(&bytes).unwrap() {
+            if let (_, asbuilt_protocol::recording::Recorded::Report(r)) = m.unwrap() {
+                live.push(*r);
+            }
+        }
+    }
+    assert_eq!(live.len(), 4);
+    for r in &live {
+        let s = report["stations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["id"] == r.name.as_str())
+            .unwrap();
+        assert_eq!(s["points"], r.points_received, "{}", r.name.as_str());
+        assert_eq!(s["matched"], r.stats.count, "{}", r.name.as_str());
+        assert_eq!(
+            s["mean"].as_f64().map(f64::to_bits),
+            Some(r.stats.mean.to_bits()),
+            "{}",
+            r.name.as_str()
+        );
+    }
     let findings = report["findings"].as_array().unwrap();
     assert_eq!(findings.len(), 2);
     let rows = findings[1]["layers"].as_array().unwrap();

@@ -122,6 +122,10 @@ impl Viewer {
 
     /// Shows on an existing stream (tests use rerun's memory sink).
     pub fn with_stream(rec: rerun::RecordingStream, settings: ViewerSettings) -> Self {
+        // The layout a reviewer opens on, sent ahead of the data (a failure leaves rerun's own).
+        if let Err(e) = blueprint().send(&rec, Default::default()) {
+            warn!("viewer: the layout was not sent: {e}");
+        }
         let (tx, rx) = sync_channel(settings.queue.max(1));
         let tolerance = settings.tolerance;
         let thread = std::thread::Builder::new()
@@ -170,6 +174,66 @@ impl Drop for Viewer {
     fn drop(&mut self) {
         self.finish();
     }
+}
+
+/// What a reviewer sees first: the part (design, stations, coloured points, findings) large,
+/// beside the current station's histogram, the station statistics and the findings as text; a
+/// second tab with each layer band's history across scan layers. The `station` timeline first.
+pub fn blueprint() -> rerun::blueprint::Blueprint {
+    use rerun::blueprint::{
+        BarChartView, Blueprint, Horizontal, Spatial3DView, Tabs, TextDocumentView, TimePanel,
+        TimeSeriesView, Vertical,
+    };
+    let part = Horizontal::new([
+        Spatial3DView::new("part")
+            .with_origin("/")
+            .with_contents([
+                "+ /design",
+                "+ /stations/**",
+                "+ /deviations/**",
+                "+ /findings/**",
+                "+ /missing",
+                "+ /m3c2",
+                "- /stations/*/histogram",
+                "- /findings/summary",
+            ])
+            .into(),
+        Vertical::new([
+            BarChartView::new("current station: deviation histogram")
+                .with_origin("/histogram")
+                .into(),
+            TimeSeriesView::new("station statistics (mm)")
+                .with_origin("/stats")
+                .into(),
+            TextDocumentView::new("findings")
+                .with_origin("/findings/summary")
+                .into(),
+            TextDocumentView::new("colours")
+                .with_origin("/legend")
+                .into(),
+        ])
+        .with_row_shares([1.0, 1.0, 1.4, 0.6])
+        .into(),
+    ])
+    .with_name("part")
+    .with_column_shares([3.0, 1.0]);
+    let history = Vertical::new([
+        TimeSeriesView::new("width per layer band (mm), by scan layer")
+            .with_origin("/history/width_mm")
+            .into(),
+        TimeSeriesView::new("shift per layer band (mm), by scan layer")
+            .with_origin("/history/shift_mm")
+            .into(),
+        TimeSeriesView::new("top height deviation (mm), by scan layer")
+            .with_origin("/history/top_mm")
+            .into(),
+        TimeSeriesView::new("mean deviation per layer band (mm)")
+            .with_origin("/layers")
+            .into(),
+    ])
+    .with_name("layer history");
+    Blueprint::new(Tabs::new([part.into(), history.into()]))
+        .with_time_panel(TimePanel::new().with_timeline("station"))
 }
 
 /// Every `step`-th valid point of a deviation chunk: design-frame positions and distances.
@@ -336,10 +400,10 @@ impl Painter {
                     }
                 }
                 let bins: Vec<f64> = report.histogram.bins.iter().map(|&b| b as f64).collect();
-                self.rec.log(
-                    format!("stations/{name}/histogram"),
-                    &rerun::BarChart::new(bins.as_slice()),
-                )?;
+                let chart = rerun::BarChart::new(bins.as_slice());
+                self.rec.log(format!("stations/{name}/histogram"), &chart)?;
+                // The one the side column shows: the station at the time cursor.
+                self.rec.log("histogram", &chart)?;
             }
             View::Samples {
                 path,
@@ -364,60 +428,14 @@ impl Painter {
                         .with_radii([rerun::Radius::new_ui_points(3.0)]),
                 )?;
             }
-            View::Findings { index, findings } => {
-                let f = &*findings;
-                self.rec.set_time_sequence("station", index as i64);
-                self.rec.set_time_sequence("layer", f.layer as i64);
-                let mut centres = Vec::new();
-                let mut halves = Vec::new();
-                let mut colours = Vec::new();
-                let mut labels = Vec::new();
-                for r in f.regions.iter().chain(f.missing.iter()) {
-                    let (lo, hi) = (Point3::from(r.min), Point3::from(r.max));
-                    centres.push(self.local(&nalgebra::center(&lo, &hi)));
-                    let h = (hi - lo) * 0.5;
-                    // A flat region still gets a visible box.
-                    halves.push([h.x, h.y, h.z].map(|v| v.max(0.002) as f32));
-                    let [red, g, b] = match r.kind {
-                        asbuilt_protocol::RegionKind::Excess => [255, 60, 60],
-                        asbuilt_protocol::RegionKind::Deficit => [60, 60, 255],
-                        asbuilt_protocol::RegionKind::Missing => [255, 200, 0],
-                    };
-                    colours.push(rerun::Color::from_rgb(red, g, b));
-                    labels.push(if r.peak.is_finite() {
-                        format!("{} {:+.1} mm", r.kind.as_str(), r.peak * 1e3)
-                    } else {
-                        format!("{} {:.0} cm²", r.kind.as_str(), r.area_m2 * 1e4)
-                    });
-                }
-                self.rec.log(
-                    "findings/regions",
-                    &rerun::Boxes3D::from_centers_and_half_sizes(centres, halves)
-                        .with_colors(colours)
-                        .with_labels(labels),
-                )?;
-                if f.top_height_deviation.is_finite() {
-                    self.rec.log(
-                        "layers/top_height_deviation_mm",
-                        &rerun::Scalars::new([f.top_height_deviation * 1e3]),
-                    )?;
-                }
-                for row in &f.layers {
-                    if row.width_deviation.is_finite() {
-                        self.rec.set_time_sequence("layer", row.layer as i64);
-                        self.rec.log(
-                            "layers/width_deviation_mm",
-                            &rerun::Scalars::new([row.width_deviation * 1e3]),
-                        )?;
-                    }
-                }
-            }
+            View::Findings { index, findings } => self.findings(index, &findings)?,
             View::LayerValue {
                 series,
                 layer,
                 value,
             } => {
-                self.rec.set_time_sequence("layer", layer as i64);
+                // A profile over the bands, on a timeline of its own.
+                self.rec.set_time_sequence("band", layer as i64);
                 if value.is_finite() {
                     self.rec
                         .log(format!("layers/{series}"), &rerun::Scalars::new([value]))?;
@@ -426,6 +444,132 @@ impl Painter {
         }
         Ok(())
     }
+
+    /// A scan layer's findings: labelled boxes (red excess, blue deficit) and translucent
+    /// amber patches where material is missing, under an entity of their own per scan layer so
+    /// each can be switched off; the findings as text; and each layer band's width and shift,
+    /// and the top height, as one series per band across scan layers (time `layer`: the scan
+    /// layer).
+    fn findings(
+        &mut self,
+        index: u32,
+        f: &asbuilt_protocol::StationFindings,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        use asbuilt_protocol::RegionKind;
+        self.rec.set_time_sequence("station", index as i64);
+        self.rec.set_time_sequence("layer", f.layer as i64);
+        let scan_layer = format!("findings/scan_layer_{:03}", f.layer);
+        for (what, list) in [("regions", &f.regions[..]), ("missing", &f.missing[..])] {
+            let mut centres = Vec::new();
+            let mut halves = Vec::new();
+            let mut colours = Vec::new();
+            let mut labels = Vec::new();
+            for r in list {
+                let (lo, hi) = (Point3::from(r.min), Point3::from(r.max));
+                centres.push(self.local(&nalgebra::center(&lo, &hi)));
+                let h = (hi - lo) * 0.5;
+                // A flat region still gets a visible box.
+                halves.push([h.x, h.y, h.z].map(|v| v.max(0.002) as f32));
+                colours.push(match r.kind {
+                    RegionKind::Excess => rerun::Color::from_rgb(230, 40, 40),
+                    RegionKind::Deficit => rerun::Color::from_rgb(40, 70, 230),
+                    RegionKind::Missing => rerun::Color::from_unmultiplied_rgba(255, 190, 0, 110),
+                });
+                labels.push(label(r));
+            }
+            let boxes = rerun::Boxes3D::from_centers_and_half_sizes(centres, halves)
+                .with_colors(colours)
+                .with_labels(labels);
+            let boxes = if what == "missing" {
+                boxes.with_fill_mode(rerun::FillMode::Solid)
+            } else {
+                boxes
+            };
+            self.rec.log(format!("{scan_layer}/{what}"), &boxes)?;
+        }
+        self.rec.log(
+            "findings/summary",
+            &rerun::TextDocument::new(summary(f)).with_media_type(rerun::MediaType::markdown()),
+        )?;
+        if f.top_height_deviation.is_finite() {
+            self.rec.log(
+                "history/top_mm",
+                &rerun::Scalars::new([f.top_height_deviation * 1e3]),
+            )?;
+        }
+        for row in &f.layers {
+            let band = format!("band_{:03}", row.layer);
+            if row.width_deviation.is_finite() {
+                self.rec.log(
+                    format!("history/width_mm/{band}"),
+                    &rerun::Scalars::new([row.width_deviation * 1e3]),
+                )?;
+            }
+            if row.shift.iter().all(|v| v.is_finite()) {
+                let shift = row.shift[0].hypot(row.shift[1]);
+                self.rec.log(
+                    format!("history/shift_mm/{band}"),
+                    &rerun::Scalars::new([shift * 1e3]),
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A finding's label in the 3D view: its kind and peak, or its area.
+fn label(r: &asbuilt_protocol::RegionFinding) -> String {
+    let layers = if r.layers[0] == u32::MAX {
+        String::new()
+    } else {
+        format!(", layers {}-{}", r.layers[0], r.layers[1])
+    };
+    if r.peak.is_finite() {
+        format!("{} {:+.1} mm{layers}", r.kind.as_str(), r.peak * 1e3)
+    } else {
+        format!("{} {:.0} cm²{layers}", r.kind.as_str(), r.area_m2 * 1e4)
+    }
+}
+
+/// The findings of a scan layer as a markdown table.
+fn summary(f: &asbuilt_protocol::StationFindings) -> String {
+    let mut s = format!(
+        "# Scan layer {} ({} station(s))\n\nTop height {}; tolerance ±{:.1} mm.\n\n",
+        f.layer,
+        f.stations,
+        if f.top_height_deviation.is_finite() {
+            format!("{:+.1} mm", f.top_height_deviation * 1e3)
+        } else {
+            "not seen".into()
+        },
+        f.tolerance * 1e3
+    );
+    if f.regions.is_empty() && f.missing.is_empty() {
+        s += "Nothing out of tolerance.\n";
+        return s;
+    }
+    s += "| finding | peak / area | layers | where (m) |\n| --- | --- | --- | --- |\n";
+    for r in f.regions.iter().chain(f.missing.iter()) {
+        let [x, y, z] = r.centroid;
+        let value = if r.peak.is_finite() {
+            format!("{:+.1} mm", r.peak * 1e3)
+        } else {
+            format!("{:.0} cm²", r.area_m2 * 1e4)
+        };
+        let layers = if r.layers[0] == u32::MAX {
+            "-".to_string()
+        } else {
+            format!("{}-{}", r.layers[0], r.layers[1])
+        };
+        s += &format!(
+            "| {} | {value} | {layers} | {x:.2}, {y:.2}, {z:.2} |\n",
+            r.kind.as_str()
+        );
+    }
+    if f.truncated > 0 {
+        s += &format!("\n{} more not listed.\n", f.truncated);
+    }
+    s
 }
 
 #[cfg(test)]

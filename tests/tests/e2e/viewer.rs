@@ -117,3 +117,134 @@ fn the_agent_writes_a_view_of_a_job() {
     }
     verify_with_rerun(&rrd);
 }
+
+/// The views and containers of the blueprint an `.rrd` file carries: blueprint entity path →
+/// (class or container kind, name, contents).
+fn blueprint_layout(
+    rrd: &Path,
+) -> (
+    Option<String>,
+    std::collections::BTreeMap<String, (String, String, Vec<String>)>,
+) {
+    use rerun::external::re_sdk_types::blueprint::components as bp;
+    use rerun::external::re_sdk_types::{Component, components as c};
+    let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
+    let mut root = None;
+    let mut items: std::collections::BTreeMap<String, (String, String, Vec<String>)> =
+        Default::default();
+    for msg in DecoderApp::decode_eager(reader).unwrap() {
+        let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() else {
+            continue;
+        };
+        if store.kind() != rerun::StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = rerun::log::Chunk::from_arrow_msg(&arrow).unwrap();
+        let path = chunk.entity_path().to_string();
+        let item = items.entry(path).or_default();
+        for d in chunk.component_descriptors() {
+            let Some(ty) = d.component_type else { continue };
+            if ty == bp::RootContainer::name() {
+                for r in chunk.iter_component::<bp::RootContainer>(d.component) {
+                    root = r.first().map(|u| format!("/container/{}", uuid_of(&u.0)));
+                }
+            } else if ty == bp::ViewClass::name() {
+                for v in chunk.iter_component::<bp::ViewClass>(d.component) {
+                    item.0 = v.first().map(|s| s.0.to_string()).unwrap_or_default();
+                }
+            } else if ty == bp::ContainerKind::name() {
+                for v in chunk.iter_component::<bp::ContainerKind>(d.component) {
+                    item.0 = v.first().map(|k| format!("{k:?}")).unwrap_or_default();
+                }
+            } else if ty == c::Name::name() {
+                for v in chunk.iter_component::<c::Name>(d.component) {
+                    item.1 = v.first().map(|s| s.to_string()).unwrap_or_default();
+                }
+            } else if ty == bp::IncludedContent::name() {
+                for v in chunk.iter_component::<bp::IncludedContent>(d.component) {
+                    item.2 = v
+                        .iter()
+                        .map(|p| format!("/{}", p.0.as_str().trim_start_matches('/')))
+                        .collect();
+                }
+            }
+        }
+    }
+    (root, items)
+}
+
+/// A UUID as blueprint entity paths spell it: 8-4-4-4-12 lower-case hex digits.
+fn uuid_of(u: &rerun::external::re_sdk_types::datatypes::Uuid) -> String {
+    let hex: String = u.bytes.iter().map(|b| format!("{b:02x}")).collect();
+    format!(
+        "{}-{}-{}-{}-{}",
+        &hex[..8],
+        &hex[8..12],
+        &hex[12..16],
+        &hex[16..20],
+        &hex[20..]
+    )
+}
+
+/// The demo's view opens on the part: a blueprint whose first tab starts with the 3D view,
+/// and one history series per layer band.
+#[test]
+fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
+    let out = tempfile::tempdir().unwrap();
+    let o = Command::new(ASBUILT)
+        .args([
+            "demo",
+            "--scan-after",
+            "6,12",
+            "--stations",
+            "2",
+            "--step-deg",
+            "0.1",
+        ])
+        .args([
+            "--rate",
+            "max",
+            "--defect",
+            "over-extrusion:layers=2-3,width=12mm",
+            "--out",
+        ])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rrd = out.path().join("demo.rrd");
+    let (root, items) = blueprint_layout(&rrd);
+    let root = root.expect("a blueprint with a root container");
+    let (kind, _, tabs) = &items[&root];
+    assert_eq!(kind, "Tabs", "{items:#?}");
+    let (kind, name, first) = &items[&tabs[0]];
+    assert_eq!(
+        (kind.as_str(), name.as_str()),
+        ("Horizontal", "part"),
+        "{items:#?}"
+    );
+    let (class, name, _) = &items[&first[0]];
+    assert_eq!(
+        (class.as_str(), name.as_str()),
+        ("3D", "part"),
+        "{items:#?}"
+    );
+    let (_, history, _) = &items[&tabs[1]];
+    assert_eq!(history, "layer history");
+
+    // One width series per layer band, across scan layers.
+    let (paths, _) = entities(&rrd);
+    let bands: Vec<&String> = paths
+        .iter()
+        .filter(|p| p.starts_with("/history/width_mm/band_"))
+        .collect();
+    assert!(bands.len() >= 6, "{paths:?}");
+    assert!(paths.contains("/findings/summary"), "{paths:?}");
+    // Each scan layer's findings under their own entity, to switch on and off.
+    let layers = paths
+        .iter()
+        .filter(|p| p.starts_with("/findings/scan_layer_") && p.ends_with("/regions"))
+        .count();
+    assert_eq!(layers, 2, "{paths:?}");
+    verify_with_rerun(&rrd);
+}

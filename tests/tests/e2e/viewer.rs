@@ -118,20 +118,17 @@ fn the_agent_writes_a_view_of_a_job() {
     verify_with_rerun(&rrd);
 }
 
-/// The views and containers of the blueprint an `.rrd` file carries: blueprint entity path →
-/// (class or container kind, name, contents).
-fn blueprint_layout(
-    rrd: &Path,
-) -> (
-    Option<String>,
-    std::collections::BTreeMap<String, (String, String, Vec<String>)>,
-) {
+/// A blueprint's views and containers by entity path: (class or container kind, name,
+/// contents).
+type Layout = std::collections::BTreeMap<String, (String, String, Vec<String>)>;
+
+/// The root container and the layout of the blueprint an `.rrd` file carries.
+fn blueprint_layout(rrd: &Path) -> (Option<String>, Layout) {
     use rerun::external::re_sdk_types::blueprint::components as bp;
     use rerun::external::re_sdk_types::{Component, components as c};
     let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
     let mut root = None;
-    let mut items: std::collections::BTreeMap<String, (String, String, Vec<String>)> =
-        Default::default();
+    let mut items = Layout::default();
     for msg in DecoderApp::decode_eager(reader).unwrap() {
         let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() else {
             continue;

@@ -181,8 +181,8 @@ impl Drop for Viewer {
 /// second tab with each layer band's history across scan layers. The `station` timeline first.
 pub fn blueprint() -> rerun::blueprint::Blueprint {
     use rerun::blueprint::{
-        BarChartView, Blueprint, Horizontal, Spatial3DView, Tabs, TextDocumentView, TimePanel,
-        TimeSeriesView, Vertical,
+        BarChartView, Blueprint, BlueprintPanel, Horizontal, SelectionPanel, Spatial3DView, Tabs,
+        TextDocumentView, TimePanel, TimeSeriesView, Vertical,
     };
     let part = Horizontal::new([
         Spatial3DView::new("part")
@@ -232,7 +232,11 @@ pub fn blueprint() -> rerun::blueprint::Blueprint {
             .into(),
     ])
     .with_name("layer history");
+    // The side panels start folded away: the part gets the window.
+    let folded = rerun::blueprint::components::PanelState::Collapsed;
     Blueprint::new(Tabs::new([part.into(), history.into()]))
+        .with_blueprint_panel(BlueprintPanel::new().with_state(folded))
+        .with_selection_panel(SelectionPanel::new().with_state(folded))
         .with_time_panel(TimePanel::new().with_timeline("station"))
 }
 

@@ -12,8 +12,39 @@ use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
 fn open(path: &Path) -> Result<las::Reader> {
     check_evlrs(path)?;
     check_laz_chunk_table(path)?;
-    contain(path, || las::Reader::from_path(path))?
-        .map_err(|e| anyhow::anyhow!("cannot read {} as LAS/LAZ: {e}", path.display()))
+    let reader = contain(path, || las::Reader::from_path(path))?
+        .map_err(|e| anyhow::anyhow!("cannot read {} as LAS/LAZ: {e}", path.display()))?;
+    check_point_count(path, reader.header())?;
+    Ok(reader)
+}
+
+/// Most points a compressed byte can hold: LAZ makes real scans 5 to 10 times smaller and a
+/// cloud of one repeated point a few hundred times.
+const LAZ_POINTS_PER_BYTE: u64 = 1000;
+
+/// A header that claims more points than the file's point data can hold is damage: the LAZ
+/// decoder would go on making points from nothing (two billion from an 830-byte file).
+fn check_point_count(path: &Path, header: &las::Header) -> Result<()> {
+    use std::io::Read;
+    let claimed = header.number_of_points();
+    let size = std::fs::metadata(path)?.len();
+    let mut raw = [0u8; 100];
+    std::fs::File::open(path)?.read_exact(&mut raw)?;
+    let data = size.saturating_sub(u64::from(u32::from_le_bytes(raw[96..100].try_into()?)));
+    let record = u64::from(header.point_format().len()).max(1);
+    let room = if header.point_format().is_compressed {
+        data.saturating_mul(LAZ_POINTS_PER_BYTE)
+    } else {
+        data / record
+    };
+    if claimed > room {
+        anyhow::bail!(
+            "{}: the header claims {claimed} points, more than its {data} bytes of point data can \
+             hold; the file is damaged or cut short",
+            path.display()
+        );
+    }
+    Ok(())
 }
 
 /// Runs a call into the LAS/LAZ decoder, which panics on some corrupt compressed data, as an

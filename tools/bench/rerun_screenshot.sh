@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Screenshots of what a remote reviewer sees: the demo's demo.rrd (or the .rrd given) served by
+# `rerun --serve-web` and opened in headless Chromium, software-rendered.
+# Installs rerun-sdk (PyPI), Debian's chromium and puppeteer-core (npm): run by hand, never in CI.
+#
+#   tools/bench/rerun_screenshot.sh [FILE.rrd] [OUT_DIR]
+#
+# Writes OUT_DIR/part.png (the opening view) and OUT_DIR/history.png (the layer history tab).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out=${2:-out/screenshot}
+mkdir -p "$out"
+
+command -v rerun >/dev/null || pip install "rerun-sdk==0.36.*"
+command -v chromium >/dev/null || { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium; }
+(cd tools/screenshot && [ -d node_modules ] || npm install --silent)
+
+rrd=${1:-}
+if [ -z "$rrd" ]; then
+  cargo build --release -p asbuilt-tools
+  target/release/asbuilt demo --out "$out/demo" >/dev/null
+  rrd="$out/demo/demo.rrd"
+fi
+
+rerun --serve-web "$rrd" --port 9877 --web-viewer-port 9091 >"$out/rerun.log" 2>&1 &
+server=$!
+trap 'kill $server 2>/dev/null || true' EXIT
+sleep 5
+url="http://127.0.0.1:9091/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9877%2Fproxy"
+node tools/screenshot/shoot.mjs "$url" "$out/part.png" "${WAIT:-60}"
+# The second tab's title sits right of the first in the viewport's tab bar.
+node tools/screenshot/shoot.mjs "$url" "$out/history.png" "${WAIT:-60}" "${HISTORY_TAB:-300,40}"
+echo "screenshots in $out"

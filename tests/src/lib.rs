@@ -256,3 +256,28 @@ pub fn publish_bunny(asbuilt: &str, prefix: &str) -> std::process::Output {
         .output()
         .unwrap()
 }
+
+/// A small demo (two scan layers of two stations, one over-extruded band) into `out`, as the
+/// end-to-end tests of the demo and of its view run it.
+pub fn small_demo(asbuilt: &str, out: &Path) -> std::process::Output {
+    Command::new(asbuilt)
+        .args([
+            "demo",
+            "--scan-after",
+            "6,12",
+            "--stations",
+            "2",
+            "--step-deg",
+            "0.1",
+        ])
+        .args([
+            "--rate",
+            "max",
+            "--defect",
+            "over-extrusion:layers=2-3,width=12mm",
+        ])
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}

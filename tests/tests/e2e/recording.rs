@@ -473,19 +473,9 @@ fn a_recording_reports_the_live_reports_wherever_a_station_end_is_recorded() {
             w.write(*t, m).unwrap();
         }
         w.finish().unwrap();
-        let out = dir.path().join("report");
-        run(&[
-            "report",
-            rec.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        let got: Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
-                .unwrap();
-        let stations = got["stations"].as_array().unwrap();
+        let stations = reported_stations(&rec, &dir.path().join("report"));
         assert_eq!(stations.len(), 10, "End {place} its chunks");
-        for s in stations {
+        for s in &stations {
             let r = &live[s["id"].as_str().unwrap()];
             let what = format!("End {place} the chunks of {}", s["id"]);
             assert_eq!(s["points"], r.points_received, "{what}");
@@ -560,22 +550,13 @@ fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
     let dir = tempfile::tempdir().unwrap();
     let fixed = dir.path().join("fixed.mcap");
     run(&["recover", broken.to_str().unwrap(), fixed.to_str().unwrap()]);
-    let out = dir.path().join("report");
-    run(&[
-        "report",
-        fixed.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    let got: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    let stations = got["stations"].as_array().unwrap();
+    let stations = reported_stations(&fixed, &dir.path().join("report"));
     for r in &live {
         let name = r.name.as_str();
         let s = stations
             .iter()
             .find(|s| s["id"] == name)
-            .unwrap_or_else(|| panic!("station {name}, reported live, is not in {got:#}"));
+            .unwrap_or_else(|| panic!("station {name}, reported live, is not in {stations:#?}"));
         assert_eq!(s["points"], r.points_received, "{name}");
         assert_eq!(s["matched"], r.stats.count, "{name}");
         assert_eq!(
@@ -586,4 +567,17 @@ fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
         let bins: Vec<u64> = serde_json::from_value(s["histogram"]["bins"].clone()).unwrap();
         assert_eq!(bins, r.histogram.bins.to_vec(), "{name}");
     }
+}
+
+/// `asbuilt report` on `recording` into `out`: the stations of its report.json.
+fn reported_stations(recording: &Path, out: &Path) -> Vec<Value> {
+    run(&[
+        "report",
+        recording.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let got: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    got["stations"].as_array().unwrap().clone()
 }

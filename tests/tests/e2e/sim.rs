@@ -3,7 +3,6 @@
 //! print without defects raises nothing at a 5 mm tolerance; and a smaller `asbuilt demo` runs
 //! from start to finish.
 
-use std::process::Command;
 use std::time::Duration;
 
 use asbuilt_core::sim::{Defect, Part, Truth};
@@ -269,24 +268,7 @@ fn a_bulge_is_found_with_its_peak_and_place() {
 #[test]
 fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
     let out = tempfile::tempdir().unwrap();
-    let o = Command::new(ASBUILT)
-        .args([
-            "demo",
-            "--scan-after",
-            "6,12",
-            "--stations",
-            "2",
-            "--step-deg",
-            "0.1",
-            "--rate",
-            "max",
-            "--defect",
-            "over-extrusion:layers=2-3,width=12mm",
-            "--out",
-        ])
-        .arg(out.path())
-        .output()
-        .unwrap();
+    let o = asbuilt_tests::small_demo(ASBUILT, out.path());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     for f in [

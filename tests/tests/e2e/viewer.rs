@@ -188,26 +188,7 @@ fn uuid_of(u: &rerun::external::re_sdk_types::datatypes::Uuid) -> String {
 #[test]
 fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
     let out = tempfile::tempdir().unwrap();
-    let o = Command::new(ASBUILT)
-        .args([
-            "demo",
-            "--scan-after",
-            "6,12",
-            "--stations",
-            "2",
-            "--step-deg",
-            "0.1",
-        ])
-        .args([
-            "--rate",
-            "max",
-            "--defect",
-            "over-extrusion:layers=2-3,width=12mm",
-            "--out",
-        ])
-        .arg(out.path())
-        .output()
-        .unwrap();
+    let o = asbuilt_tests::small_demo(ASBUILT, out.path());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rrd = out.path().join("demo.rrd");
     let (root, items) = blueprint_layout(&rrd);

@@ -22,12 +22,12 @@ if [ -z "$rrd" ]; then
   rrd="$out/demo/demo.rrd"
 fi
 
-rerun --serve-web "$rrd" --port 9877 --web-viewer-port 9091 >"$out/rerun.log" 2>&1 &
-server=$!
-trap 'kill $server 2>/dev/null || true' EXIT
+# Ports of this run's own; the server is found by its command line when the script ends
+# (`rerun` is a Python launcher whose server is a child process).
+grpc=$((20000 + $$ % 10000)); web=$((grpc + 1))
+rerun --serve-web "$rrd" --port "$grpc" --web-viewer-port "$web" >"$out/rerun.log" 2>&1 &
+trap 'pkill -f "serve-web $rrd --port $grpc" || true' EXIT
 sleep 5
-url="http://127.0.0.1:9091/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9877%2Fproxy"
-node tools/screenshot/shoot.mjs "$url" "$out/part.png" "${WAIT:-60}"
-# The second tab's title sits right of the first in the viewport's tab bar.
-node tools/screenshot/shoot.mjs "$url" "$out/history.png" "${WAIT:-60}" "${HISTORY_TAB:-300,40}"
+url="http://127.0.0.1:$web/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A$grpc%2Fproxy"
+node tools/screenshot/shoot.mjs "$url" "$out" "${WAIT:-60}" "${HISTORY_TAB:-119,40}"
 echo "screenshots in $out"

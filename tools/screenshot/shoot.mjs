@@ -1,8 +1,10 @@
-// Opens the rerun web viewer in headless Chromium and saves what a reviewer sees.
-// Usage: node shoot.mjs URL OUT.png [SECONDS] [TAB]
+// Opens the rerun web viewer in headless Chromium and saves what a reviewer sees: the opening
+// view (part.png), then the layer history tab (history.png).
+// Usage: node shoot.mjs URL OUT_DIR [SECONDS] [TAB_X,TAB_Y]
 import puppeteer from "puppeteer-core";
 
-const [url, out, seconds = "60", tab = ""] = process.argv.slice(2);
+const [url, out, seconds = "60", tab = "119,40"] = process.argv.slice(2);
+const wait = (s) => new Promise((r) => setTimeout(r, s * 1000));
 const browser = await puppeteer.launch({
   executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
   headless: true,
@@ -21,13 +23,13 @@ page.on("console", (m) => {
 });
 await page.goto(url, { waitUntil: "load", timeout: 120_000 });
 // The viewer is a WebAssembly app drawing into a canvas: give it time to load and decode.
-await new Promise((r) => setTimeout(r, Number(seconds) * 1000));
-if (tab) {
-  // Tabs are drawn on the canvas: click where the tab's title is (x,y given as "x,y").
-  const [x, y] = tab.split(",").map(Number);
-  await page.mouse.click(x, y);
-  await new Promise((r) => setTimeout(r, 10_000));
-}
-await page.screenshot({ path: out });
+await wait(Number(seconds));
+await page.screenshot({ path: `${out}/part.png` });
+console.log(`wrote ${out}/part.png`);
+// Tabs are drawn on the canvas: click where the second tab's title is.
+const [x, y] = tab.split(",").map(Number);
+await page.mouse.click(x, y);
+await wait(15);
+await page.screenshot({ path: `${out}/history.png` });
+console.log(`wrote ${out}/history.png`);
 await browser.close();
-console.log(`wrote ${out}`);

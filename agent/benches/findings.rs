@@ -9,7 +9,7 @@
 use std::time::{Duration, Instant};
 
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
-use asbuilt_core::sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
+use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
 use asbuilt_protocol::{
     ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationStatus,
 };

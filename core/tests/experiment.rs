@@ -9,7 +9,9 @@ use asbuilt_core::Design;
 use asbuilt_core::c2m::{C2mIndex, C2mParams, Cursor};
 use asbuilt_core::coverage::{Coverage, CoverageParams, SampleClass};
 use asbuilt_core::design::shapes;
-use asbuilt_core::icp::{self, IcpParams};
+mod icp;
+
+use icp::IcpParams;
 use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams};
 use asbuilt_core::sampling::DesignSamples;
 use nalgebra::{Isometry3, Point3, Vector3};

@@ -45,7 +45,7 @@ fn main() -> anyhow::Result<()> {
     pts.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(7));
     write_ply(&out.join("bunny_shuffled.ply"), &pts)?;
     let column = twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250);
-    asbuilt_tools::sim::write_stl(&out.join("column.stl"), &column)?;
+    asbuilt_sim::write_stl(&out.join("column.stl"), &column)?;
     // Points from the design as the STL stores it (f32), as both tools read it.
     let column = Design::load(&out.join("column.stl"), Units::Metres)?;
     write_ply(

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
-use asbuilt_tools::sim::{SimJob, SimOutcome};
+use asbuilt_sim::{SimJob, SimOutcome};
 use clap::Args;
 use iceoryx2::prelude::*;
 
@@ -63,7 +63,7 @@ pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     let out = &args.out;
     prepare(out)?;
     let design = out.join("design.stl");
-    asbuilt_tools::sim::write_stl(&design, &job.part.design)?;
+    asbuilt_sim::write_stl(&design, &job.part.design)?;
     let prefix = format!("asbuilt-demo-{}", std::process::id());
     let config = out.join("agent.toml");
     std::fs::write(&config, agent_config(&job, &prefix, &args))

@@ -1,6 +1,5 @@
 //! The pieces of the `asbuilt` command that other crates and tests use: reading and writing
-//! scan files, and the simulated print cell on the wire. The subcommands themselves live in the
-//! binary.
+//! scan files. The subcommands themselves live in the binary; the simulated print cell is
+//! `asbuilt-sim`.
 
 pub mod scan_io;
-pub mod sim;

@@ -7,10 +7,10 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, ServiceNames};
-use asbuilt_core::sim::{Defect, Part, Truth};
+use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_core::{Design, Units};
 use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
-use asbuilt_tools::sim::{SimEvent, SimJob, SimOutcome};
+use asbuilt_sim::{SimEvent, SimJob, SimOutcome};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -283,7 +283,7 @@ pub fn run_with_progress(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let outcome = asbuilt_tools::sim::run(job, ports, expect_findings, wait, &mut |e| match e {
+    let outcome = asbuilt_sim::run(job, ports, expect_findings, wait, &mut |e| match e {
         SimEvent::Scanned {
             station,
             scan,

@@ -389,7 +389,7 @@ pub fn perturb(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::{Part, as_built};
+    use crate::{Part, as_built};
 
     fn quiet() -> ScannerModel {
         ScannerModel {

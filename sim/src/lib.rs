@@ -1,8 +1,12 @@
 //! A simulated print cell: a part printed layer by layer with known defects, and a
 //! robot-mounted laser scanner that scans it. Pure and seeded, so a test knows the truth the
-//! agent should find, and a replay gives the same points.
+//! agent should find, and a replay gives the same points. [`run`] sends such a job to a running
+//! agent over its iceoryx2 services as a robot cell would.
+//!
+//! A crate of its own so that the agent, which never simulates, does not link it.
 
 mod asbuilt;
+mod cell;
 mod defects;
 mod part;
 mod scanner;
@@ -10,4 +14,5 @@ mod scanner;
 pub use asbuilt::{AsBuilt, as_built};
 pub use defects::{Defect, Truth};
 pub use part::{OUTLINE_SPACING, Part, PartError, Ring, resample, signed_area2};
+pub use cell::{PlannedStation, SimEvent, SimJob, SimOutcome, run, write_stl};
 pub use scanner::{Scan, ScannerModel, perturb, scan, stations_around};

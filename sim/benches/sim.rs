@@ -3,9 +3,9 @@
 //! to noisy points in scan-line order. `asbuilt sim --rate max` and the agent benchmarks can
 //! only be fed as fast as this; the goal is ≥ 5 M points/s on 2 cores.
 //!
-//! Run: `cargo bench -p asbuilt-core --bench sim`
+//! Run: `cargo bench -p asbuilt-sim --bench sim`
 
-use asbuilt_core::sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
+use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
 fn bench(c: &mut Criterion) {

@@ -4,9 +4,9 @@ use std::collections::HashMap;
 
 use nalgebra::Point3;
 
-use crate::Design;
-use crate::design::shapes;
-use crate::layers::{CutError, cut_at};
+use asbuilt_core::Design;
+use asbuilt_core::design::shapes;
+use asbuilt_core::layers::{CutError, cut_at};
 
 /// A closed outline in the plane, metres. Counter-clockwise around material, clockwise around
 /// a hole, as seen from above.

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::CellPorts;
-use asbuilt_core::sim::{
+use crate::{
     AsBuilt, Defect, Part, Scan, ScannerModel, Truth, as_built, perturb, scan, stations_around,
 };
 use asbuilt_protocol::{

@@ -7,7 +7,7 @@
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
-use crate::c2m::{C2mIndex, Cursor};
+use asbuilt_core::c2m::{C2mIndex, Cursor};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IcpParams {
@@ -154,9 +154,9 @@ fn accumulate(design: &C2mIndex, points: &[Point3<f64>], t: &Isometry3<f64>, k: 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::c2m::C2mParams;
-    use crate::design::shapes;
-    use crate::sampling::DesignSamples;
+    use asbuilt_core::c2m::C2mParams;
+    use asbuilt_core::design::shapes;
+    use asbuilt_core::sampling::DesignSamples;
 
     #[test]
     fn recovers_a_known_offset_of_a_box() {

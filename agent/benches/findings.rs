@@ -9,10 +9,10 @@
 use std::time::{Duration, Instant};
 
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
-use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
 use asbuilt_protocol::{
     ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationStatus,
 };
+use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
 use iceoryx2::prelude::*;
 use nalgebra::Isometry3;
 

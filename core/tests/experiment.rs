@@ -11,9 +11,9 @@ use asbuilt_core::coverage::{Coverage, CoverageParams, SampleClass};
 use asbuilt_core::design::shapes;
 mod icp;
 
-use icp::IcpParams;
 use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams};
 use asbuilt_core::sampling::DesignSamples;
+use icp::IcpParams;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

@@ -6,11 +6,11 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::CellPorts;
 use crate::{
     AsBuilt, Defect, Part, Scan, ScannerModel, Truth, as_built, perturb, scan, stations_around,
 };
+use anyhow::{Context, Result, bail};
+use asbuilt_agent::ipc::CellPorts;
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind,
     StationFindings, StationReport, codec, unix_time_ns,

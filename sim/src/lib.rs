@@ -12,7 +12,7 @@ mod part;
 mod scanner;
 
 pub use asbuilt::{AsBuilt, as_built};
+pub use cell::{PlannedStation, SimEvent, SimJob, SimOutcome, run, write_stl};
 pub use defects::{Defect, Truth};
 pub use part::{OUTLINE_SPACING, Part, PartError, Ring, resample, signed_area2};
-pub use cell::{PlannedStation, SimEvent, SimJob, SimOutcome, run, write_stl};
 pub use scanner::{Scan, ScannerModel, perturb, scan, stations_around};

@@ -7,9 +7,9 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, ServiceNames};
-use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_core::{Design, Units};
 use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
+use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_sim::{SimEvent, SimJob, SimOutcome};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};

@@ -5,10 +5,10 @@
 
 use std::time::Duration;
 
-use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_protocol::{RegionKind, StationFindings, StationStatus};
-use asbuilt_tests::{Agent, Cell, unique_prefix};
 use asbuilt_sim::{self as sim, SimJob, SimOutcome};
+use asbuilt_sim::{Defect, Part, Truth};
+use asbuilt_tests::{Agent, Cell, unique_prefix};
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");

@@ -174,7 +174,8 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             );
             if report.open_chains > 0 {
                 let w = format!(
-                    "the cut at {h} m crosses {} open outline(s) of the design (it has holes):                      those are not capped, so points on the printed top there measure to the walls",
+                    "the cut at {h} m crosses {} open outline(s) of the design (it has holes): \
+                     those are not capped, so points on the printed top there measure to the walls",
                     report.open_chains
                 );
                 eprintln!("warning: {w}");
@@ -450,7 +451,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         asbuilt_version: env!("CARGO_PKG_VERSION"),
         design: DesignSection {
             path: args.design.display().to_string(),
-            units: format!("{:?}", args.units),
+            units: args.units.to_string(),
             vertices: design.vertices.len(),
             triangles: design.triangles.len(),
             warnings: design_warnings,

@@ -64,7 +64,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         writer: "asbuilt pack".into(),
         asbuilt_version: env!("CARGO_PKG_VERSION").into(),
         design_path: args.design.display().to_string(),
-        design_units: format!("{:?}", args.units),
+        design_units: args.units.to_string(),
         design_sha256: format!("{:x}", Sha256::digest(&design)),
         config: format!(
             "packed from {}\n\n{}",

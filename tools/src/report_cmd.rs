@@ -120,11 +120,12 @@ pub fn write(
         .into_iter()
         .find(|(n, _)| n.starts_with(recording::ATTACHMENT_DESIGN))
         .with_context(|| format!("{} carries no design attachment", args.recording.display()))?;
-    let units: Units = match meta.design_units.to_ascii_lowercase().as_str() {
-        "m" | "metres" => Units::Metres,
-        "mm" | "millimetres" => Units::Millimetres,
-        other => bail!("the recording's design units {other:?} are not m or mm"),
-    };
+    // "m" or "mm"; older recordings wrote "Metres" or "Millimetres".
+    let units: Units = meta
+        .design_units
+        .to_ascii_lowercase()
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("the recording's design units: {e}"))?;
     // The design as it was, under its own name so its format is recognised.
     let tmp = tempfile::tempdir()?;
     let design_file = tmp
@@ -225,7 +226,7 @@ pub fn write(
         asbuilt_version: env!("CARGO_PKG_VERSION"),
         design: DesignSection {
             path: meta.design_path.clone(),
-            units: format!("{units:?}"),
+            units: units.to_string(),
             vertices: design.vertices.len(),
             triangles: design.triangles.len(),
             warnings: design.report.warnings(),

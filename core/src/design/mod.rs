@@ -30,6 +30,16 @@ impl Units {
     }
 }
 
+/// As the command line and agent.toml write it: `m` or `mm`.
+impl std::fmt::Display for Units {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Units::Metres => "m",
+            Units::Millimetres => "mm",
+        })
+    }
+}
+
 impl std::str::FromStr for Units {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {

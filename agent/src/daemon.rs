@@ -18,7 +18,7 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 
 use crate::config::AgentConfig;
 use crate::findings::FindingsStage;
-use crate::ipc::{AgentPorts, ChunkSample, Ipc, QueueSizes, ServiceNames};
+use crate::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::Recorder;
 use crate::viewer::{self, View, Viewer, ViewerSettings};
@@ -31,10 +31,23 @@ const PREPARING_POLL: Duration = Duration::from_millis(2);
 
 #[derive(Debug, thiserror::Error)]
 pub enum AgentError {
-    #[error("design: {0}")]
-    Design(String),
-    #[error("{0}")]
-    Ipc(String),
+    /// The design file named in `[design]` could not be loaded.
+    #[error(transparent)]
+    Design(#[from] asbuilt_core::DesignError),
+    /// The design loaded but cannot be indexed (its extent, the maximum distance).
+    #[error("indexing the design: {0}")]
+    Index(#[from] asbuilt_core::c2m::C2mError),
+    #[error("cannot start the recorder in {dir}: {source}")]
+    Recorder {
+        dir: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Viewer(#[from] crate::viewer::ViewerError),
+    /// The cell's services: a node, a port or the wait set could not be made.
+    #[error(transparent)]
+    Ipc(#[from] crate::ipc::IpcError),
 }
 
 /// What a run did, for the exit message.
@@ -229,8 +242,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     set_log_level_from_env_or(LogLevel::Error);
     let started = Instant::now();
 
-    let design = Design::load(&config.design.path, config.design.units())
-        .map_err(|e| AgentError::Design(e.to_string()))?;
+    let design = Design::load(&config.design.path, config.design.units())?;
     for w in design.report.warnings() {
         warn!("design: {w}");
     }
@@ -243,8 +255,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             max_distance: config.inspect.max_distance(),
             cell_size: config.inspect.cell_size,
         },
-    )
-    .map_err(|e| AgentError::Design(e.to_string()))?;
+    )?;
     let ix = designs.full().index.stats();
     info!(
         "design {} ({}): {} triangles, index {} cells of {:.2} mm, {:.0} MB, ready in {:.1} s",
@@ -260,7 +271,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let node = NodeBuilder::new()
         .name(&"asbuilt-agent".try_into().expect("valid node name"))
         .create::<Ipc>()
-        .map_err(|e| AgentError::Ipc(format!("cannot create the iceoryx2 node: {e:?}")))?;
+        .map_err(|e| IpcError(format!("cannot create the iceoryx2 node: {e:?}")))?;
     let dead_nodes = node.try_cleanup_dead_nodes().cleanups;
     if dead_nodes > 0 {
         info!("removed the resources of {dead_nodes} dead iceoryx2 node(s) from an earlier run");
@@ -275,8 +286,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             chunk_queue: limits.chunk_queue,
             pending_chunks: limits.pending_chunks,
         },
-    )
-    .map_err(|e| AgentError::Ipc(e.0))?;
+    )?;
 
     let mut inspect = InspectConfig::with_tolerance(config.inspect.tolerance);
     inspect.max_range = config.inspect.max_range;
@@ -308,11 +318,9 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let recorder = match &config.recorder.dir {
         Some(dir) => {
             let r = Recorder::start(&config.recorder, job_metadata(config), &config.design.path)
-                .map_err(|e| {
-                    AgentError::Design(format!(
-                        "cannot start the recorder in {}: {e}",
-                        dir.display()
-                    ))
+                .map_err(|source| AgentError::Recorder {
+                    dir: dir.clone(),
+                    source,
                 })?;
             info!(
                 "recording every job to {} (files up to {} MB, every {} scan chunk(s))",
@@ -331,8 +339,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             max_points_per_station: config.viewer.max_points_per_station,
             queue: config.viewer.queue,
             tolerance: config.inspect.tolerance,
-        })
-        .map_err(|e| AgentError::Design(e.to_string()))?;
+        })?;
         if let Some((vertices, triangles)) = design_view {
             v.show(View::Design {
                 vertices,
@@ -373,13 +380,13 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let tick = config.status.period().min(MAX_TICK);
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
-        .map_err(|e| AgentError::Ipc(format!("cannot create the wait set: {e:?}")))?;
+        .map_err(|e| IpcError(format!("cannot create the wait set: {e:?}")))?;
     let _inbox_guard = waitset
         .attach_notification(&ports.inbox)
-        .map_err(|e| AgentError::Ipc(format!("cannot wait on the inbox: {e:?}")))?;
+        .map_err(|e| IpcError(format!("cannot wait on the inbox: {e:?}")))?;
     let _tick_guard = waitset
         .attach_interval(tick)
-        .map_err(|e| AgentError::Ipc(format!("cannot attach the tick: {e:?}")))?;
+        .map_err(|e| IpcError(format!("cannot attach the tick: {e:?}")))?;
 
     info!(
         "serving {}/… (chunks up to {} points, {} queued, {} held for a pose; station timeout \

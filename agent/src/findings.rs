@@ -14,8 +14,7 @@ use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams};
 use asbuilt_core::printed::PrintedDesign;
 use asbuilt_core::sampling::DesignSamples;
 use asbuilt_protocol::{
-    DeviationFlags, LayerFinding, PointDeviation, RegionFinding, RegionKind, StationFindings,
-    StationReport,
+    DeviationFlags, LayerFinding, PointDeviation, RegionFinding, StationFindings, StationReport,
 };
 use nalgebra::Point3;
 
@@ -288,13 +287,8 @@ fn to_message(
 }
 
 fn region(r: &Region) -> RegionFinding {
-    use asbuilt_core::findings::RegionKind as K;
     RegionFinding {
-        kind: match r.kind {
-            K::Excess => RegionKind::Excess,
-            K::Deficit => RegionKind::Deficit,
-            K::Missing => RegionKind::Missing,
-        },
+        kind: r.kind,
         samples: r.samples,
         area_m2: r.area_m2,
         centroid: r.centroid.into(),

@@ -66,15 +66,9 @@ pub struct TopRow {
     pub samples: u32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RegionKind {
-    /// Material outside the design (d > tolerance).
-    Excess,
-    /// The surface lies inside the design (d < −tolerance).
-    Deficit,
-    /// No material where a station should have seen it.
-    Missing,
-}
+/// Excess (d > tolerance), deficit (d < −tolerance) or missing material: the kind the agent's
+/// `StationFindings` carry, one definition for both.
+pub use asbuilt_protocol::RegionKind;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Region {

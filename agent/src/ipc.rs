@@ -523,3 +523,20 @@ impl CellPorts {
             .map_err(|e| err("waiting for the agent", e))
     }
 }
+
+/// A station sent straight to a running agent, stamped with the wall clock.
+impl asbuilt_protocol::StationSink for &CellPorts {
+    type Error = IpcError;
+    fn now_ns(&mut self, _points_sent: u64) -> u64 {
+        asbuilt_protocol::unix_time_ns()
+    }
+    fn event(&mut self, event: &StationEvent) -> Result<(), IpcError> {
+        self.send_event(event)
+    }
+    fn pose(&mut self, pose: &PoseSnapshot) -> Result<(), IpcError> {
+        self.send_pose(pose)
+    }
+    fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), IpcError> {
+        self.send_chunk(header, points)
+    }
+}

@@ -17,6 +17,7 @@ mod pose;
 pub mod recording;
 mod report;
 mod scan;
+mod sending;
 mod station;
 mod status;
 mod text;
@@ -33,6 +34,7 @@ pub use report::{
     StationStatus,
 };
 pub use scan::{ChunkHeader, ScanPoint, ScanPointFlags};
+pub use sending::{StationSender, StationSink};
 pub use station::{StationEvent, StationEventKind};
 pub use status::{AgentState, AgentStatus, InputRejects, OutputDrops};
 pub use text::{FixedText, TextTooLong};

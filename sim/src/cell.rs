@@ -12,8 +12,8 @@ use crate::{
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::CellPorts;
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind,
-    StationFindings, StationReport, codec, unix_time_ns,
+    ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
+    StationFindings, StationReport, StationSender, StationSink, codec, unix_time_ns,
 };
 use nalgebra::{Isometry3, Point3};
 use rand::SeedableRng;
@@ -266,48 +266,68 @@ fn send_station(
     on: &mut dyn FnMut(SimEvent<'_>),
 ) -> Result<()> {
     let n = s.points.len();
-    let chunks = n.div_ceil(job.chunk_points);
     let mut begin = StationEvent::new(StationEventKind::Begin, job.job, st.index);
     begin.name = FixedText::truncated(&st.name);
     begin.layer = st.printed - 1;
     begin.printed_height = st.printed_height;
-    begin.expected_chunks = chunks as u32;
+    begin.expected_chunks = n.div_ceil(job.chunk_points) as u32;
     begin.expected_points = n as u64;
-    begin.timestamp_ns = unix_time_ns();
-    ports.send_event(&begin)?;
-
     let mut pose = PoseSnapshot::new(job.job, st.index, job.pose_mode);
     pose.translation = st.nominal.translation.vector.into();
     let q = st.nominal.rotation.coords;
     pose.rotation_xyzw = [q.x, q.y, q.z, q.w];
     pose.position_sigma = job.position_sigma;
-    pose.timestamp_ns = unix_time_ns();
-    ports.send_pose(&pose)?;
+    let mut sink = CellSink {
+        ports,
+        job: job.job,
+        chunk_points: job.chunk_points,
+        rate: job.rate,
+        started: Instant::now(),
+        out,
+        on,
+    };
+    let mut sender = StationSender::start(begin, pose, &mut sink)?;
+    for chunk in s.points.chunks(job.chunk_points) {
+        sender.chunk(chunk, &mut sink)?;
+    }
+    sender.finish(&mut sink)?;
+    collect(job.job, ports, sink.out, sink.on)
+}
 
-    let started = Instant::now();
-    for (seq, chunk) in s.points.chunks(job.chunk_points).enumerate() {
-        let mut h = ChunkHeader::new(job.job, st.index, seq as u64, chunk.len() as u32);
-        h.timestamp_ns = unix_time_ns();
-        h.last = u8::from(seq + 1 == chunks);
-        ports.send_chunk(&h, chunk)?;
-        out.points_sent += chunk.len() as u64;
-        if let Some(rate) = job.rate {
-            let due = Duration::from_secs_f64((seq + 1) as f64 * job.chunk_points as f64 / rate);
-            if let Some(ahead) = due.checked_sub(started.elapsed()) {
+/// The cell's ports at the scanner's rate, taking the agent's answers after every chunk.
+struct CellSink<'a> {
+    ports: &'a CellPorts,
+    job: u64,
+    chunk_points: usize,
+    rate: Option<f64>,
+    started: Instant,
+    out: &'a mut SimOutcome,
+    on: &'a mut dyn FnMut(SimEvent<'_>),
+}
+
+impl StationSink for CellSink<'_> {
+    type Error = anyhow::Error;
+    fn now_ns(&mut self, _points_sent: u64) -> u64 {
+        unix_time_ns()
+    }
+    fn event(&mut self, event: &StationEvent) -> Result<()> {
+        Ok(self.ports.send_event(event)?)
+    }
+    fn pose(&mut self, pose: &PoseSnapshot) -> Result<()> {
+        Ok(self.ports.send_pose(pose)?)
+    }
+    fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<()> {
+        self.ports.send_chunk(header, points)?;
+        self.out.points_sent += points.len() as u64;
+        if let Some(rate) = self.rate {
+            let sent = (header.sequence + 1) as f64 * self.chunk_points as f64;
+            let due = Duration::from_secs_f64(sent / rate);
+            if let Some(ahead) = due.checked_sub(self.started.elapsed()) {
                 std::thread::sleep(ahead);
             }
         }
-        collect(job.job, ports, out, on)?;
+        collect(self.job, self.ports, self.out, self.on)
     }
-    let mut end = StationEvent::new(StationEventKind::End, job.job, st.index);
-    end.name = begin.name;
-    end.layer = begin.layer;
-    end.printed_height = begin.printed_height;
-    end.expected_chunks = chunks as u32;
-    end.expected_points = n as u64;
-    end.timestamp_ns = unix_time_ns();
-    ports.send_event(&end)?;
-    collect(job.job, ports, out, on)
 }
 
 /// Takes whatever the agent sent back; deviations are for other subscribers.

@@ -10,7 +10,8 @@ use anyhow::{Context, Result, bail};
 use asbuilt_core::Units;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind, unix_time_ns,
+    ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
+    StationSender, StationSink, unix_time_ns,
 };
 use asbuilt_tools::scan_io::ScanFile;
 use clap::Args;
@@ -81,7 +82,6 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
     w.attach_design(&name, &design, t0)?;
 
     let mut sent = 0u64;
-    let clock = |sent: u64| t0 + (sent as f64 / args.rate * 1e9) as u64;
     for (n, st) in stations.iter().enumerate() {
         let station = n as u32;
         let scan = ScanFile::open(&st.scan)?;
@@ -91,49 +91,22 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         begin.name = FixedText::truncated(&st.id);
         begin.expected_points = declared.unwrap_or(0);
         begin.expected_chunks = declared.map_or(0, |p| p.div_ceil(args.chunk_points as u64)) as u32;
-        begin.timestamp_ns = clock(sent);
-        w.write(begin.timestamp_ns, &Recorded::Event(begin))?;
         let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
         pose.position_sigma = st.position_sigma;
-        pose.timestamp_ns = clock(sent);
-        w.write(pose.timestamp_ns, &Recorded::Pose(pose))?;
-        // One chunk held back, so the last goes out flagged.
-        let mut held: Option<Vec<asbuilt_protocol::ScanPoint>> = None;
-        let mut seq = 0u64;
-        let mut points = 0u64;
-        let emit = |pts: Vec<asbuilt_protocol::ScanPoint>,
-                    last: bool,
-                    seq: &mut u64,
-                    sent: &mut u64,
-                    w: &mut RecordingWriter<_>|
-         -> Result<()> {
-            *sent += pts.len() as u64;
-            let mut h = ChunkHeader::new(args.job, station, *seq, pts.len() as u32);
-            h.last = u8::from(last);
-            h.timestamp_ns = clock(*sent);
-            w.write(h.timestamp_ns, &Recorded::Chunk(h, pts))?;
-            *seq += 1;
-            Ok(())
+        let mut sink = Packed {
+            w: &mut w,
+            t0,
+            rate: args.rate,
+            sent_before: sent,
         };
+        let mut sender = StationSender::start(begin, pose, &mut sink)?;
         scan.stream(st.scan_index, args.chunk_points, &mut |chunk| {
-            if let Some(prev) = held.take() {
-                emit(prev, false, &mut seq, &mut sent, &mut w)?;
-            }
-            held = Some(chunk.to_vec());
-            points += chunk.len() as u64;
-            Ok(())
+            sender.chunk(chunk, &mut sink)
         })?;
-        if let Some(prev) = held.take() {
-            emit(prev, true, &mut seq, &mut sent, &mut w)?;
-        }
-        let mut end = StationEvent::new(StationEventKind::End, args.job, station);
-        end.name = begin.name;
-        end.expected_chunks = seq as u32;
-        end.expected_points = points;
-        end.timestamp_ns = clock(sent);
-        w.write(end.timestamp_ns, &Recorded::Event(end))?;
+        sent += sender.points_sent();
+        sender.finish(&mut sink)?;
         // A station per chunk of the file: a cut file keeps every finished station.
         w.flush()?;
     }
@@ -146,4 +119,30 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         args.rate
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// A recording written as a scanner at `rate` points per second would have sent the stations.
+struct Packed<'w, W: std::io::Write + std::io::Seek> {
+    w: &'w mut RecordingWriter<W>,
+    t0: u64,
+    rate: f64,
+    /// Points of the stations before this one.
+    sent_before: u64,
+}
+
+impl<W: std::io::Write + std::io::Seek> StationSink for Packed<'_, W> {
+    type Error = anyhow::Error;
+    fn now_ns(&mut self, points_sent: u64) -> u64 {
+        self.t0 + ((self.sent_before + points_sent) as f64 / self.rate * 1e9) as u64
+    }
+    fn event(&mut self, event: &StationEvent) -> Result<()> {
+        Ok(self.w.write(event.timestamp_ns, &Recorded::Event(*event))?)
+    }
+    fn pose(&mut self, pose: &PoseSnapshot) -> Result<()> {
+        Ok(self.w.write(pose.timestamp_ns, &Recorded::Pose(*pose))?)
+    }
+    fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<()> {
+        let chunk = Recorded::Chunk(*header, points.to_vec());
+        Ok(self.w.write(header.timestamp_ns, &chunk)?)
+    }
 }

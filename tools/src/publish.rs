@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, PoseMode, PoseSnapshot, StationEvent, StationEventKind, StationReport,
-    StationStatus, unix_time_ns,
+    ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
+    StationReport, StationSender, StationSink, StationStatus, unix_time_ns,
 };
 use clap::Args;
 use iceoryx2::prelude::*;
@@ -107,54 +107,22 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         begin.name = FixedText::truncated(&st.id);
         begin.expected_chunks = chunks as u32;
         begin.expected_points = declared.unwrap_or(0);
-        begin.timestamp_ns = unix_time_ns();
-        ports.send_event(&begin)?;
-
         let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
         pose.position_sigma = st.position_sigma;
-        pose.timestamp_ns = unix_time_ns();
-        ports.send_pose(&pose)?;
-
-        // One chunk is held back so that the last one goes out flagged as last.
-        let mut held: Vec<asbuilt_protocol::ScanPoint> = Vec::with_capacity(args.chunk_points);
-        let mut seq = 0u64;
-        let mut station_points = 0u64;
-        let mut send =
-            |chunk: &[asbuilt_protocol::ScanPoint], last: bool, seq: &mut u64| -> Result<()> {
-                let mut h = ChunkHeader::new(args.job, station, *seq, chunk.len() as u32);
-                h.timestamp_ns = unix_time_ns();
-                h.last = u8::from(last);
-                ports.send_chunk(&h, chunk)?;
-                *seq += 1;
-                sent_points += chunk.len() as u64;
-                if let Some(rate) = rate {
-                    let due = Duration::from_secs_f64(sent_points as f64 / rate);
-                    if let Some(ahead) = due.checked_sub(started.elapsed()) {
-                        std::thread::sleep(ahead);
-                    }
-                }
-                Ok(())
-            };
+        let mut sink = Paced {
+            ports: &ports,
+            rate,
+            started,
+            sent_before: sent_points,
+        };
+        let mut sender = StationSender::start(begin, pose, &mut sink)?;
         file.stream(st.scan_index, args.chunk_points, &mut |chunk| {
-            if !held.is_empty() {
-                send(&held, false, &mut seq)?;
-            }
-            held.clear();
-            held.extend_from_slice(chunk);
-            station_points += chunk.len() as u64;
-            Ok(())
+            Ok(sender.chunk(chunk, &mut sink)?)
         })?;
-        if !held.is_empty() {
-            send(&held, true, &mut seq)?;
-        }
-        let mut end = StationEvent::new(StationEventKind::End, args.job, station);
-        end.name = begin.name;
-        end.expected_chunks = seq as u32;
-        end.expected_points = station_points;
-        end.timestamp_ns = unix_time_ns();
-        ports.send_event(&end)?;
+        sent_points += sender.points_sent();
+        sender.finish(&mut sink)?;
         expected.push(station);
         collect_reports(&ports, args.job, &mut reports, Duration::ZERO)?;
     }
@@ -223,4 +191,37 @@ pub(crate) fn collect_reports(
     // Deviations are for other subscribers; keep this one's queue from filling.
     while let Ok(Some(_)) = ports.deviations.receive() {}
     Ok(())
+}
+
+/// The cell's ports, with chunks held to `rate` points per second over the whole job.
+struct Paced<'p> {
+    ports: &'p CellPorts,
+    rate: Option<f64>,
+    started: Instant,
+    /// Points of the stations before this one.
+    sent_before: u64,
+}
+
+impl StationSink for Paced<'_> {
+    type Error = asbuilt_agent::ipc::IpcError;
+    fn now_ns(&mut self, _points_sent: u64) -> u64 {
+        unix_time_ns()
+    }
+    fn event(&mut self, event: &StationEvent) -> Result<(), Self::Error> {
+        self.ports.send_event(event)
+    }
+    fn pose(&mut self, pose: &PoseSnapshot) -> Result<(), Self::Error> {
+        self.ports.send_pose(pose)
+    }
+    fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), Self::Error> {
+        self.ports.send_chunk(header, points)?;
+        self.sent_before += points.len() as u64;
+        if let Some(rate) = self.rate {
+            let due = Duration::from_secs_f64(self.sent_before as f64 / rate);
+            if let Some(ahead) = due.checked_sub(self.started.elapsed()) {
+                std::thread::sleep(ahead);
+            }
+        }
+        Ok(())
+    }
 }

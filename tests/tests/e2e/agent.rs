@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent,
-    StationEventKind, StationReport, StationStatus,
+    StationEventKind, StationReport, StationSender, StationStatus,
 };
 use asbuilt_tests::{Agent, Cell, memory_kib, shared_data, unique_prefix, write_box_stl};
 
@@ -58,15 +58,16 @@ fn pose(job: u64, station: u32) -> PoseSnapshot {
 }
 
 /// Begin, pose, `chunks` chunks of `points` each, End.
+/// A station as a cell sends it: Begin, pose, `chunks` chunks of `points` (the last flagged),
+/// End.
 fn clean_station(cell: &Cell, job: u64, station: u32, chunks: u32, points: &[ScanPoint]) {
-    let p = &cell.ports;
-    p.send_event(&begin(job, station, chunks)).unwrap();
-    p.send_pose(&pose(job, station)).unwrap();
-    for s in 0..chunks {
-        let h = ChunkHeader::new(job, station, s as u64, points.len() as u32);
-        p.send_chunk(&h, points).unwrap();
+    let mut ports = &cell.ports;
+    let mut sender =
+        StationSender::start(begin(job, station, chunks), pose(job, station), &mut ports).unwrap();
+    for _ in 0..chunks {
+        sender.chunk(points, &mut ports).unwrap();
     }
-    p.send_event(&end(job, station, chunks)).unwrap();
+    sender.finish(&mut ports).unwrap();
 }
 
 fn report_of(reports: &[StationReport], job: u64, station: u32) -> StationReport {

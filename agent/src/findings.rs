@@ -29,7 +29,8 @@ const MIN_POINTS: u32 = 5;
 const EPOCHS: usize = 2;
 const SAMPLE_SEED: u64 = 1;
 
-struct Epoch {
+/// One scan layer's findings state: its design samples, streaming M3C2 and coverage.
+pub(crate) struct Epoch {
     job: u64,
     design: Arc<PrintedDesign>,
     /// Where M3C2 cylinders would average two faces.
@@ -49,65 +50,24 @@ impl Epoch {
 }
 
 pub struct FindingsStage {
-    config: FindingsConfig,
-    tolerance: f64,
-    max_depth: f64,
+    maker: EpochMaker,
     epochs: Vec<Epoch>,
     /// Design-frame points of the chunk being ingested, sized once for the largest chunk.
     scratch: Vec<Point3<f64>>,
 }
 
-impl FindingsStage {
-    pub fn new(
-        config: FindingsConfig,
-        tolerance: f64,
-        max_distance: f64,
-        max_points_per_chunk: usize,
-    ) -> Self {
-        Self {
-            max_depth: config.max_depth.unwrap_or(max_distance),
-            config,
-            tolerance,
-            epochs: Vec::with_capacity(EPOCHS),
-            scratch: Vec::with_capacity(max_points_per_chunk),
-        }
-    }
+/// Makes a scan layer's state: design samples of the printed design, streaming M3C2 and
+/// coverage over them. Cloned into the thread that prepares a printed height, so that this
+/// work (tens of milliseconds on a large design) stays off the event loop.
+#[derive(Clone)]
+pub(crate) struct EpochMaker {
+    config: FindingsConfig,
+    tolerance: f64,
+    max_depth: f64,
+}
 
-    /// A station starts sending points compared with `design`. False when it is left out.
-    pub fn begin(&mut self, key: StationKey, design: &Arc<PrintedDesign>) -> bool {
-        let i = match self.epochs.iter().position(|e| e.is(key.0, design)) {
-            Some(i) => i,
-            None => match self.new_epoch(key.0, design) {
-                Some(e) => {
-                    if self.epochs.len() == EPOCHS {
-                        self.epochs.remove(0);
-                    }
-                    self.epochs.push(e);
-                    self.epochs.len() - 1
-                }
-                None => return false,
-            },
-        };
-        let e = &mut self.epochs[i];
-        match e.active {
-            Some(other) if other != key.1 => {
-                warn!(
-                    "job {} station {}: starts while station {other} of the same scan layer still \
-                     sends; its points are left out of the findings",
-                    key.0, key.1
-                );
-                false
-            }
-            _ => {
-                e.active = Some(key.1);
-                e.m3c2.begin_station();
-                e.coverage.begin_station();
-                true
-            }
-        }
-    }
-
-    fn new_epoch(&self, job: u64, design: &Arc<PrintedDesign>) -> Option<Epoch> {
+impl EpochMaker {
+    pub(crate) fn make(&self, job: u64, design: &Arc<PrintedDesign>) -> Option<Epoch> {
         let c = &self.config;
         let started = std::time::Instant::now();
         let made = DesignSamples::generate(design.design(), c.spacing, SAMPLE_SEED)
@@ -160,6 +120,75 @@ impl FindingsStage {
             }
         }
     }
+}
+
+impl FindingsStage {
+    pub fn new(
+        config: FindingsConfig,
+        tolerance: f64,
+        max_distance: f64,
+        max_points_per_chunk: usize,
+    ) -> Self {
+        Self {
+            maker: EpochMaker {
+                max_depth: config.max_depth.unwrap_or(max_distance),
+                config,
+                tolerance,
+            },
+            epochs: Vec::with_capacity(EPOCHS),
+            scratch: Vec::with_capacity(max_points_per_chunk),
+        }
+    }
+
+    /// A station starts sending points compared with `design`. False when it is left out.
+    pub fn begin(&mut self, key: StationKey, design: &Arc<PrintedDesign>) -> bool {
+        let i = match self.epochs.iter().position(|e| e.is(key.0, design)) {
+            Some(i) => i,
+            // Made here only when the printed height was not prepared off the loop.
+            None => match self.maker.make(key.0, design) {
+                Some(e) => self.keep(e),
+                None => return false,
+            },
+        };
+        let e = &mut self.epochs[i];
+        match e.active {
+            Some(other) if other != key.1 => {
+                warn!(
+                    "job {} station {}: starts while station {other} of the same scan layer still \
+                     sends; its points are left out of the findings",
+                    key.0, key.1
+                );
+                false
+            }
+            _ => {
+                e.active = Some(key.1);
+                e.m3c2.begin_station();
+                e.coverage.begin_station();
+                true
+            }
+        }
+    }
+
+    /// What makes a scan layer's state, for a thread that prepares a printed height.
+    pub(crate) fn maker(&self) -> EpochMaker {
+        self.maker.clone()
+    }
+
+    /// A scan layer's state made off the loop, kept for the stations that will compare with its
+    /// design.
+    pub(crate) fn adopt(&mut self, epoch: Epoch) {
+        if !self.epochs.iter().any(|e| e.is(epoch.job, &epoch.design)) {
+            self.keep(epoch);
+        }
+    }
+
+    fn keep(&mut self, epoch: Epoch) -> usize {
+        if self.epochs.len() == EPOCHS {
+            self.epochs.remove(0);
+        }
+        self.epochs.push(epoch);
+        self.epochs.len() - 1
+    }
 
     /// A chunk's deviations (design-frame positions) of a station that began.
     pub fn ingest(&mut self, key: StationKey, devs: &[PointDeviation]) {
@@ -186,14 +215,14 @@ impl FindingsStage {
         report: &StationReport,
     ) -> Option<StationFindings> {
         let (tolerance, layer_height, spacing) = (
-            self.tolerance,
-            self.config.layer_height,
-            self.config.spacing,
+            self.maker.tolerance,
+            self.maker.config.layer_height,
+            self.maker.config.spacing,
         );
-        let radius = 0.5 * self.config.projection_diameter();
-        let min_region_samples = self.config.min_region_samples;
-        let coverage_threshold = self.config.coverage_threshold(tolerance);
-        let min_missing_area_m2 = self.config.min_missing_area_m2;
+        let radius = 0.5 * self.maker.config.projection_diameter();
+        let min_region_samples = self.maker.config.min_region_samples;
+        let coverage_threshold = self.maker.config.coverage_threshold(tolerance);
+        let min_missing_area_m2 = self.maker.config.min_missing_area_m2;
         let e = active(&mut self.epochs, key)?;
         e.active = None;
         let Some(origin) = origin else {

@@ -161,11 +161,12 @@ fn ms(d: Duration) -> f64 {
 }
 
 /// A printed height prepared on a worker thread, with how long its section and (for findings)
-/// its cut mesh took.
+/// its cut mesh and its scan layer's findings state took.
 struct Prepared {
-    design: PrintedDesign,
+    design: Arc<PrintedDesign>,
     section: Duration,
     mesh: Option<Duration>,
+    epoch: Option<crate::findings::Epoch>,
 }
 
 /// A printed height being prepared on a worker thread.
@@ -306,10 +307,13 @@ impl<C: ChunkSource> Lifecycle<C> {
             let p = self.preparing.swap_remove(k);
             let design = match result {
                 Ok(prepared) => {
-                    let d = Arc::new(prepared.design);
+                    let d = prepared.design;
+                    if let (Some(e), Some(stage)) = (prepared.epoch, self.findings.as_mut()) {
+                        stage.adopt(e);
+                    }
                     let mesh = prepared
                         .mesh
-                        .map(|m| format!(", the cut mesh for findings {:.1} ms", ms(m)))
+                        .map(|m| format!(", the findings' mesh and samples {:.1} ms", ms(m)))
                         .unwrap_or_default();
                     info!(
                         "design at printed height {} m ready in {:.1} ms (section of {} \
@@ -552,22 +556,24 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         let (tx, done) = mpsc::channel();
         let preparer = self.designs.preparer();
-        // Findings sample the printed design as a mesh: make it off the loop too.
-        let mesh = self.findings.is_some();
+        // Findings sample the printed design as a mesh and set up the scan layer's M3C2 and
+        // coverage over the samples: make those off the loop too.
+        let maker = self.findings.as_ref().map(|f| f.maker());
+        let job = self.open[i].key.0;
         let spawned = std::thread::Builder::new()
             .name("design-height".into())
             .spawn(move || {
                 let started = Instant::now();
                 let prepared = preparer.prepare(height, false).map(|design| {
                     let section = started.elapsed();
-                    let mesh = mesh.then(|| {
-                        design.sharp_edges();
-                        started.elapsed() - section
-                    });
+                    let design = Arc::new(design);
+                    let epoch = maker.as_ref().and_then(|m| m.make(job, &design));
+                    let mesh = maker.is_some().then(|| started.elapsed() - section);
                     Prepared {
                         design,
                         section,
                         mesh,
+                        epoch,
                     }
                 });
                 let _ = tx.send(prepared);

@@ -20,7 +20,7 @@ pub struct AgentConfig {
     pub source: PathBuf,
     pub design: DesignConfig,
     pub frames: FrameChain,
-    pub inspect: InspectSettings,
+    pub inspect: InspectConfig,
     pub services: ServicesConfig,
     pub limits: Limits,
     pub status: StatusConfig,
@@ -199,7 +199,7 @@ struct CalibrationSection {
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct InspectSettings {
+pub struct InspectConfig {
     pub methods: Vec<String>,
     /// Metres: |d| <= tolerance is within tolerance.
     pub tolerance: f64,
@@ -211,7 +211,7 @@ pub struct InspectSettings {
     pub cell_size: Option<f64>,
 }
 
-impl Default for InspectSettings {
+impl Default for InspectConfig {
     fn default() -> Self {
         Self {
             methods: vec!["c2m".into()],
@@ -223,7 +223,7 @@ impl Default for InspectSettings {
     }
 }
 
-impl InspectSettings {
+impl InspectConfig {
     pub fn max_distance(&self) -> f64 {
         self.max_distance.unwrap_or(10.0 * self.tolerance)
     }
@@ -356,7 +356,7 @@ impl AgentConfig {
         let design: Option<DesignConfig> = section(&table, "design", &mut problems, false);
         let calibration: CalibrationSection =
             section(&table, "calibration", &mut problems, true).unwrap_or_default();
-        let inspect: InspectSettings =
+        let inspect: InspectConfig =
             section(&table, "inspect", &mut problems, true).unwrap_or_default();
         let services: ServicesConfig =
             section(&table, "services", &mut problems, true).unwrap_or_default();
@@ -448,13 +448,13 @@ impl AgentConfig {
 /// The parts of a configuration that decide what a recorded job's reports are: the frames and
 /// the inspection settings. For reading a recording on a machine where the design path and the
 /// services mean nothing.
-pub fn recorded_settings(text: &str) -> Result<(FrameChain, InspectSettings), Vec<String>> {
+pub fn recorded_settings(text: &str) -> Result<(FrameChain, InspectConfig), Vec<String>> {
     let table: toml::Table =
         toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
     let mut problems = Vec::new();
     let calibration: CalibrationSection =
         section(&table, "calibration", &mut problems, true).unwrap_or_default();
-    let inspect: InspectSettings =
+    let inspect: InspectConfig =
         section(&table, "inspect", &mut problems, true).unwrap_or_default();
     let frames = frames(&calibration, &mut problems);
     check_inspect(&inspect, &mut problems);
@@ -567,7 +567,7 @@ fn positive(v: f64) -> bool {
     v > 0.0 && v.is_finite()
 }
 
-fn check_inspect(i: &InspectSettings, problems: &mut Vec<String>) {
+fn check_inspect(i: &InspectConfig, problems: &mut Vec<String>) {
     if i.methods.is_empty() {
         problems.push("inspect.methods: empty; give at least [\"c2m\"]".into());
     }

@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use asbuilt_core::printed::PrintedDesigns;
-use asbuilt_core::station::InspectConfig;
+use asbuilt_core::station::InspectParams;
 use asbuilt_core::{C2mParams, Design};
 use asbuilt_protocol::{
     AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
@@ -21,7 +21,7 @@ use crate::findings::FindingsStage;
 use crate::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::Recorder;
-use crate::viewer::{self, View, Viewer, ViewerSettings};
+use crate::viewer::{self, View, Viewer, ViewerParams};
 use crate::{error, info, warn};
 
 /// Station timeouts are checked this often at least.
@@ -288,7 +288,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         },
     )?;
 
-    let mut inspect = InspectConfig::with_tolerance(config.inspect.tolerance);
+    let mut inspect = InspectParams::with_tolerance(config.inspect.tolerance);
     inspect.max_range = config.inspect.max_range;
     if config.findings.enabled {
         // Findings keep M3C2 cylinders off sharp edges: find the whole design's at start-up,
@@ -333,7 +333,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         None => None,
     };
     let viewer = if config.viewer.rrd.is_some() || config.viewer.url.is_some() {
-        let v = Viewer::start(ViewerSettings {
+        let v = Viewer::start(ViewerParams {
             rrd: config.viewer.rrd.clone(),
             url: config.viewer.url.clone(),
             max_points_per_station: config.viewer.max_points_per_station,

@@ -16,7 +16,7 @@ use std::sync::mpsc;
 
 use asbuilt_core::layers::CutError;
 use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
-use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
+use asbuilt_core::station::{InspectParams, StationInspector, Tally};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, InputRejects, Message, PointDeviation, PoseSnapshot,
     RejectCounts, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
@@ -181,7 +181,7 @@ pub struct Lifecycle<C> {
     preparing: Vec<Preparation>,
     findings: Option<FindingsStage>,
     frames: FrameChain,
-    config: InspectConfig,
+    config: InspectParams,
     limits: LifecycleLimits,
     open: Vec<OpenStation>,
     pending: VecDeque<Pending<C>>,
@@ -193,7 +193,7 @@ impl<C: ChunkSource> Lifecycle<C> {
     pub fn new(
         designs: PrintedDesigns,
         frames: FrameChain,
-        config: InspectConfig,
+        config: InspectParams,
         limits: LifecycleLimits,
     ) -> Self {
         Self {
@@ -996,8 +996,8 @@ mod tests {
         (lc, Collect::default(), Instant::now())
     }
 
-    fn cfg() -> InspectConfig {
-        InspectConfig::with_tolerance(0.005)
+    fn cfg() -> InspectParams {
+        InspectParams::with_tolerance(0.005)
     }
 
     #[test]

@@ -27,7 +27,7 @@ use crate::warn;
 
 /// Where the view goes, and how much of it.
 #[derive(Debug, Clone)]
-pub struct ViewerSettings {
+pub struct ViewerParams {
     /// A `.rrd` file to write.
     pub rrd: Option<PathBuf>,
     /// A viewer to stream to, `rerun+http://HOST:PORT/proxy`.
@@ -89,7 +89,7 @@ pub struct Viewer {
     tx: Option<SyncSender<View>>,
     thread: Option<JoinHandle<()>>,
     pub dropped: Arc<AtomicU64>,
-    settings: ViewerSettings,
+    settings: ViewerParams,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -98,7 +98,7 @@ pub struct ViewerError(String);
 
 impl Viewer {
     /// Opens the sinks the settings name; at least one is needed.
-    pub fn start(settings: ViewerSettings) -> Result<Self, ViewerError> {
+    pub fn start(settings: ViewerParams) -> Result<Self, ViewerError> {
         let builder = rerun::RecordingStreamBuilder::new("asbuilt");
         let err = |e: &dyn std::fmt::Display| ViewerError(e.to_string());
         let rec = match (&settings.rrd, &settings.url) {
@@ -121,7 +121,7 @@ impl Viewer {
     }
 
     /// Shows on an existing stream (tests use rerun's memory sink).
-    pub fn with_stream(rec: rerun::RecordingStream, settings: ViewerSettings) -> Self {
+    pub fn with_stream(rec: rerun::RecordingStream, settings: ViewerParams) -> Self {
         // The layout a reviewer opens on, sent ahead of the data (a failure leaves rerun's own).
         if let Err(e) = blueprint().send(&rec, Default::default()) {
             warn!("viewer: the layout was not sent: {e}");

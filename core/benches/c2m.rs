@@ -12,7 +12,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use asbuilt_core::design::shapes::twisted_column;
-use asbuilt_core::station::{InspectConfig, StationInspector};
+use asbuilt_core::station::{InspectParams, StationInspector};
 use asbuilt_core::{C2mIndex, C2mParams, Closest, Design, Units};
 use asbuilt_protocol::{PointDeviation, ScanPoint};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -77,7 +77,7 @@ fn bench(c: &mut Criterion) {
             let mut st = StationInspector::new(
                 &index,
                 Isometry3::identity(),
-                InspectConfig::with_tolerance(0.005),
+                InspectParams::with_tolerance(0.005),
             );
             for chunk in scan.chunks(1 << 16) {
                 st.process(chunk, &mut devs[..chunk.len()]);

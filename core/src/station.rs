@@ -23,13 +23,13 @@ pub const DEFAULT_MAX_RANGE: f64 = 2_000.0;
 const TASK_POINTS: usize = 4096;
 
 #[derive(Debug, Clone, Copy)]
-pub struct InspectConfig {
+pub struct InspectParams {
     pub stats: StatsConfig,
     /// Metres, scanner frame.
     pub max_range: f64,
 }
 
-impl InspectConfig {
+impl InspectParams {
     pub fn with_tolerance(tolerance: f64) -> Self {
         Self {
             stats: StatsConfig::with_tolerance(tolerance),
@@ -103,7 +103,7 @@ impl Tally {
 pub struct StationInspector<I = std::sync::Arc<crate::printed::PrintedDesign>> {
     index: I,
     t_design_scanner: Isometry3<f64>,
-    config: InspectConfig,
+    config: InspectParams,
     tally: Tally,
 }
 
@@ -112,7 +112,7 @@ where
     I: std::ops::Deref,
     I::Target: Surface,
 {
-    pub fn new(index: I, t_design_scanner: Isometry3<f64>, config: InspectConfig) -> Self {
+    pub fn new(index: I, t_design_scanner: Isometry3<f64>, config: InspectParams) -> Self {
         Self {
             index,
             t_design_scanner,
@@ -181,7 +181,7 @@ where
 fn inspect_task<S: Surface + ?Sized>(
     index: &S,
     t: &Isometry3<f64>,
-    config: &InspectConfig,
+    config: &InspectParams,
     points: &[ScanPoint],
     out: &mut [PointDeviation],
 ) -> Tally {

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_core::coverage::ScanSpacing;
-use asbuilt_core::station::{InspectConfig, StationInspector, Tally};
+use asbuilt_core::station::{InspectParams, StationInspector, Tally};
 use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 use clap::Args;
@@ -17,7 +17,7 @@ use crate::deviations_ply::DeviationsPly;
 use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use crate::suite::{self, Method, Methods, Suite, SuiteConfig};
-use asbuilt_agent::viewer::{self, View, Viewer, ViewerSettings};
+use asbuilt_agent::viewer::{self, View, Viewer, ViewerParams};
 use asbuilt_tools::scan_io::ScanFile;
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
@@ -206,7 +206,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
     let mut ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
-    let config = InspectConfig::with_tolerance(args.tolerance);
+    let config = InspectParams::with_tolerance(args.tolerance);
     let (design_lo, design_hi) = design.bounds();
     let design_size = (design_hi - design_lo).norm();
 
@@ -235,7 +235,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     )?;
 
     let viewer = if args.rerun.is_some() || args.rerun_url.is_some() {
-        let v = Viewer::start(ViewerSettings {
+        let v = Viewer::start(ViewerParams {
             rrd: args.rerun.clone(),
             url: args.rerun_url.clone(),
             max_points_per_station: args.rerun_points,

@@ -13,7 +13,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_agent::lifecycle::{Lifecycle, Outputs};
 use asbuilt_core::frames::FrameChain;
 use asbuilt_core::printed::PrintedDesigns;
-use asbuilt_core::station::{InspectConfig, Tally};
+use asbuilt_core::station::{InspectParams, Tally};
 use asbuilt_core::{C2mParams, Design, Units};
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationReport};
@@ -164,7 +164,7 @@ pub fn write(
         },
     )?;
     let full = designs.full().clone();
-    let mut config = InspectConfig::with_tolerance(tolerance);
+    let mut config = InspectParams::with_tolerance(tolerance);
     config.max_range = settings.max_range;
 
     // The agent's own station lifecycle, fed in the order the agent processed the inputs: a

@@ -5,7 +5,7 @@ use std::process::Command;
 
 use asbuilt_agent::lifecycle::{Lifecycle, LifecycleLimits, Outputs};
 use asbuilt_core::printed::PrintedDesigns;
-use asbuilt_core::station::InspectConfig;
+use asbuilt_core::station::InspectParams;
 use asbuilt_core::{C2mParams, Design, Units};
 use asbuilt_protocol::recording::{self, Channel, Recorded};
 use asbuilt_protocol::{
@@ -166,7 +166,7 @@ fn wire(_: &str, bytes: &[u8], _: &Path) -> Outcome {
     let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
         box_design(),
         Default::default(),
-        InspectConfig::with_tolerance(0.005),
+        InspectParams::with_tolerance(0.005),
         LifecycleLimits {
             max_points_per_chunk: 4096,
             pending_chunks: 4,

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use asbuilt_core::station::{InspectConfig, StationInspector};
+use asbuilt_core::station::{InspectParams, StationInspector};
 use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
 use asbuilt_protocol::{DeviationFlags, PointDeviation, ScanPoint, StationReport, codec};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
@@ -70,7 +70,7 @@ fn inspect(
     points: &[ScanPoint],
     chunk: usize,
 ) -> (StationReport, Vec<PointDeviation>) {
-    let mut st = StationInspector::new(index, t, InspectConfig::with_tolerance(0.005));
+    let mut st = StationInspector::new(index, t, InspectParams::with_tolerance(0.005));
     let mut all = vec![PointDeviation::default(); points.len()];
     for (ps, out) in points.chunks(chunk).zip(all.chunks_mut(chunk)) {
         st.process(ps, out);

@@ -1,4 +1,4 @@
-//! Deviation-suite throughput on the brief's shotcrete wall (173.4 × 2000 × 980 mm): 2 M noisy
+//! Deviation-suite throughput on the source study's shotcrete wall (173.4 × 2000 × 980 mm): 2 M noisy
 //! scan points (σ 0.5 mm, scan-like order) streamed in 64 k-point chunks, as the agent feeds
 //! them, into
 //! - streaming M3C2 with 100 k core points on the design (10 mm cylinders, 20 mm deep);

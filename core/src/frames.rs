@@ -1,5 +1,5 @@
-//! The transform chain of the brief: `T_design_scanner = T_design_base · T_base_flange ·
-//! T_flange_scanner`. `T_a_b` maps coordinates in frame `b` to frame `a`.
+//! The transform chain from the scanner to the design: `T_design_scanner = T_design_base ·
+//! T_base_flange · T_flange_scanner`, the outer two calibrated, the middle one each pose snapshot. `T_a_b` maps coordinates in frame `b` to frame `a`.
 
 use asbuilt_protocol::{PoseMode, PoseSnapshot};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};

@@ -3,7 +3,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::codec::Message;
 
-/// How the robot's pose is to be read; see the brief, section 2.
+/// How the robot's pose is to be read: all six degrees of freedom, or the translation alone with
+/// the scanner's calibrated orientation (a scanner whose azimuth zero never turns).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
 pub enum PoseMode {

@@ -615,7 +615,7 @@ fn drain_control(
             v.show(View::Station {
                 index: p.station,
                 name: view_name(p.job, p.station),
-                layer: 0,
+                layer: lifecycle.layer_of(p.job, p.station),
                 pose: t,
                 time_ns: p.timestamp_ns,
             });

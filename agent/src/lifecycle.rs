@@ -216,6 +216,13 @@ impl<C: ChunkSource> Lifecycle<C> {
         self
     }
 
+    /// The printed layer an open station's Begin gave (0 until it is known).
+    pub fn layer_of(&self, job: u64, station: u32) -> u32 {
+        self.find(&(job, station))
+            .and_then(|i| self.open[i].begin)
+            .map_or(0, |b| b.layer)
+    }
+
     pub fn stations_open(&self) -> usize {
         self.open.len()
     }
@@ -1014,6 +1021,18 @@ mod tests {
         let r = out.reports[0];
         assert_eq!(r.status(), Some(StationStatus::Complete));
         assert_eq!(r.stats.count, 20);
+    }
+
+    #[test]
+    fn a_station_knows_the_layer_its_begin_gave() {
+        let (mut lc, mut out, t) = setup(cube());
+        assert_eq!(lc.layer_of(4, 1), 0);
+        let mut begin = event(StationEventKind::Begin, 1, 2);
+        begin.job = 4;
+        begin.layer = 17;
+        lc.on_event(&begin, t, &mut out);
+        assert_eq!(lc.layer_of(4, 1), 17);
+        assert_eq!(lc.layer_of(4, 2), 0);
     }
 
     #[test]

@@ -463,7 +463,11 @@ impl Painter {
         self.rec.set_time_sequence("station", index as i64);
         self.rec.set_time_sequence("layer", f.layer as i64);
         let scan_layer = format!("findings/scan_layer_{:03}", f.layer);
-        for (what, list) in [("regions", &f.regions[..]), ("missing", &f.missing[..])] {
+        // Out-of-tolerance regions as outlines, missing material as filled patches.
+        for (what, list, fill) in [
+            ("regions", &f.regions[..], rerun::FillMode::MajorWireframe),
+            ("missing", &f.missing[..], rerun::FillMode::Solid),
+        ] {
             let mut centres = Vec::new();
             let mut halves = Vec::new();
             let mut colours = Vec::new();
@@ -483,12 +487,8 @@ impl Painter {
             }
             let boxes = rerun::Boxes3D::from_centers_and_half_sizes(centres, halves)
                 .with_colors(colours)
-                .with_labels(labels);
-            let boxes = if what == "missing" {
-                boxes.with_fill_mode(rerun::FillMode::Solid)
-            } else {
-                boxes
-            };
+                .with_labels(labels)
+                .with_fill_mode(fill);
             self.rec.log(format!("{scan_layer}/{what}"), &boxes)?;
         }
         self.rec.log(

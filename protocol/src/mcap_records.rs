@@ -131,11 +131,11 @@ fn open_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, RecordError> {
         }
         .into());
     }
-    // The chunk as a stream of one record, opened by a reader of its own.
-    let mut stream = Vec::with_capacity(9 + body.len());
-    stream.push(op::CHUNK);
-    stream.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    stream.extend_from_slice(body);
+    // The chunk as a stream of one record, opened by a reader of its own: its opcode and
+    // length, then its body, fed straight from the file's bytes.
+    let mut head = [0u8; 9];
+    head[0] = op::CHUNK;
+    head[1..].copy_from_slice(&(body.len() as u64).to_le_bytes());
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_skip_start_magic(true)
@@ -143,15 +143,18 @@ fn open_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, RecordError> {
             .with_emit_chunks(false)
             .with_record_length_limit(limit as usize),
     );
-    let mut rest = stream.as_slice();
+    let mut parts = [&head[..], body];
     let mut out = Vec::new();
     while let Some(event) = reader.next_event() {
         match event? {
             LinearReadEvent::ReadRequest(need) => {
-                let len = need.min(rest.len());
-                reader.insert(len).copy_from_slice(&rest[..len]);
+                let rest = parts.iter_mut().find(|p| !p.is_empty());
+                let len = rest.as_ref().map_or(0, |r| need.min(r.len()));
+                if let Some(rest) = rest {
+                    reader.insert(len).copy_from_slice(&rest[..len]);
+                    *rest = &rest[len..];
+                }
                 reader.notify_read(len);
-                rest = &rest[len..];
             }
             LinearReadEvent::Record { data, opcode } => {
                 check(opcode, data)?;

@@ -188,9 +188,8 @@ fn wire(_: &str, bytes: &[u8], _: &Path) -> Outcome {
                     _ => {}
                 }
             }
-            Err(e) => {
-                let _ = e.to_string();
-            }
+            // The error's message is what a user reads: it must format without a panic.
+            Err(e) => drop(e.to_string()),
         }
     }
     lifecycle.on_idle(now + std::time::Duration::from_secs(1), &mut out);

@@ -9,13 +9,41 @@ use nalgebra::{Isometry3, Vector3};
 
 use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
 
-fn open(path: &Path) -> Result<las::Reader> {
-    check_evlrs(path)?;
-    check_laz_chunk_table(path)?;
+/// The reader, after the checks on the raw header that the `las` and `laz` crates do not make,
+/// and the file's size.
+fn open(path: &Path) -> Result<(las::Reader, u64)> {
+    let mut raw = Raw::open(path)?;
+    check_evlrs(path, &mut raw)?;
+    check_laz_chunk_table(path, &mut raw)?;
     let reader = contain(path, || las::Reader::from_path(path))?
         .map_err(|e| anyhow::anyhow!("cannot read {} as LAS/LAZ: {e}", path.display()))?;
-    check_point_count(path, reader.header())?;
-    Ok(reader)
+    check_point_count(path, reader.header(), &raw)?;
+    Ok((reader, raw.size))
+}
+
+/// The file, its size and the first bytes of its header (up to a LAS 1.4 header's 375), read
+/// once for the checks.
+struct Raw {
+    file: std::fs::File,
+    size: u64,
+    head: Vec<u8>,
+}
+
+impl Raw {
+    fn open(path: &Path) -> Result<Self> {
+        use std::io::Read;
+        let file = std::fs::File::open(path)
+            .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
+        let size = file.metadata()?.len();
+        let mut head = Vec::with_capacity(375);
+        (&file).take(375).read_to_end(&mut head)?;
+        Ok(Self { file, size, head })
+    }
+
+    /// The first `n` header bytes of a LAS file; `None` for another file or a shorter one.
+    fn las_header(&self, n: usize) -> Option<&[u8]> {
+        (self.head.len() >= n && self.head.starts_with(b"LASF")).then(|| &self.head[..n])
+    }
 }
 
 /// Most points a compressed byte can hold: LAZ makes real scans 5 to 10 times smaller and a
@@ -24,13 +52,14 @@ const LAZ_POINTS_PER_BYTE: u64 = 1000;
 
 /// A header that claims more points than the file's point data can hold is damage: the LAZ
 /// decoder would go on making points from nothing (two billion from an 830-byte file).
-fn check_point_count(path: &Path, header: &las::Header) -> Result<()> {
-    use std::io::Read;
+fn check_point_count(path: &Path, header: &las::Header, raw: &Raw) -> Result<()> {
     let claimed = header.number_of_points();
-    let size = std::fs::metadata(path)?.len();
-    let mut raw = [0u8; 100];
-    std::fs::File::open(path)?.read_exact(&mut raw)?;
-    let data = size.saturating_sub(u64::from(u32::from_le_bytes(raw[96..100].try_into()?)));
+    let Some(head) = raw.las_header(100) else {
+        return Ok(());
+    };
+    let data = raw
+        .size
+        .saturating_sub(u64::from(u32::from_le_bytes(head[96..100].try_into()?)));
     let record = u64::from(header.point_format().len()).max(1);
     let room = if header.point_format().is_compressed {
         data.saturating_mul(LAZ_POINTS_PER_BYTE)
@@ -61,16 +90,13 @@ fn contain<T>(path: &Path, f: impl FnOnce() -> T) -> Result<T> {
 /// The `las` crate sizes an extended VLR's buffer from its 64-bit length before it reads it
 /// (7.8 EB from one corrupt length). Checks every extended VLR of a LAS 1.4 header against
 /// the file's size first.
-fn check_evlrs(path: &Path) -> Result<()> {
+fn check_evlrs(path: &Path, raw: &mut Raw) -> Result<()> {
     use std::io::{Read, Seek, SeekFrom};
     let damaged = |what: String| anyhow::anyhow!("{}: damaged LAS file: {what}", path.display());
-    let mut f = std::fs::File::open(path)
-        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
-    let size = f.metadata()?.len();
-    let mut header = [0u8; 247];
-    if f.read_exact(&mut header).is_err() || &header[..4] != b"LASF" || header[25] < 4 {
+    let size = raw.size;
+    let Some(header) = raw.las_header(247).filter(|h| h[25] >= 4) else {
         return Ok(());
-    }
+    };
     let mut at = u64::from_le_bytes(header[235..243].try_into()?);
     let count = u32::from_le_bytes(header[243..247].try_into()?);
     // An extended VLR's own header: reserved, user id, record id, length, description.
@@ -83,8 +109,8 @@ fn check_evlrs(path: &Path) -> Result<()> {
             )));
         }
         let mut len = [0u8; 8];
-        f.seek(SeekFrom::Start(at + 20))?;
-        f.read_exact(&mut len)?;
+        raw.file.seek(SeekFrom::Start(at + 20))?;
+        raw.file.read_exact(&mut len)?;
         let len = u64::from_le_bytes(len);
         let end = (at + EVLR_HEADER).saturating_add(len);
         if end > size {
@@ -102,21 +128,16 @@ fn check_evlrs(path: &Path) -> Result<()> {
 /// to 64 GB from one corrupt count) before it reads one. Checks the count against the bytes
 /// the chunks could occupy first. Files that are not LAZ, or too short to tell, are left to
 /// the reader's own errors.
-fn check_laz_chunk_table(path: &Path) -> Result<()> {
+fn check_laz_chunk_table(path: &Path, raw: &mut Raw) -> Result<()> {
     use std::io::{Read, Seek, SeekFrom};
     let damaged = |what: String| anyhow::anyhow!("{}: damaged LAZ file: {what}", path.display());
-    let mut f = std::fs::File::open(path)
-        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
-    let size = f.metadata()?.len();
-    let mut header = [0u8; 105];
-    if f.read_exact(&mut header).is_err() || &header[..4] != b"LASF" {
-        return Ok(());
-    }
+    let size = raw.size;
     // Point data format with bit 7 (or 6) set: compressed.
-    if header[104] & 0xc0 == 0 {
+    let Some(header) = raw.las_header(105).filter(|h| h[104] & 0xc0 != 0) else {
         return Ok(());
-    }
+    };
     let data_start = u64::from(u32::from_le_bytes(header[96..100].try_into()?));
+    let f = &mut raw.file;
     let mut read_i64 = |at: SeekFrom| -> Option<i64> {
         let mut b = [0u8; 8];
         f.seek(at).ok()?;
@@ -169,7 +190,7 @@ fn origin(header: &las::Header) -> Vector3<f64> {
 }
 
 pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
-    let reader = open(path)?;
+    let (reader, _) = open(path)?;
     let header = reader.header();
     Ok(vec![ScanInfo {
         index: 0,
@@ -190,7 +211,7 @@ pub fn stream(
     chunk: usize,
     sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
 ) -> Result<ReadNotes> {
-    let mut reader = open(path)?;
+    let (mut reader, size) = open(path)?;
     let o = origin(reader.header());
     let mut data = las::PointDataBuilder::new()
         .for_header(reader.header())
@@ -199,7 +220,6 @@ pub fn stream(
     // The decoder's buffer is points × record length: a corrupt record length must not make it
     // larger than the file.
     let record = u64::from(reader.header().point_format().len()).max(1);
-    let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
     let batch = (chunk as u64).min((size / record).max(1));
     loop {
         let n = contain(path, || reader.fill_points(batch, &mut data))?

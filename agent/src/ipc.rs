@@ -481,38 +481,63 @@ impl CellPorts {
     }
 
     pub fn send_pose(&self, pose: &PoseSnapshot) -> Result<(), IpcError> {
-        self.poses
-            .send_copy(*pose)
-            .map_err(|e| err("pose not delivered", e))?;
+        self.deliver("pose", || self.poses.send_copy(*pose))?;
         self.wake_agent()
     }
 
     pub fn send_event(&self, ev: &StationEvent) -> Result<(), IpcError> {
-        self.stations
-            .send_copy(*ev)
-            .map_err(|e| err("station event not delivered", e))?;
+        self.deliver("station event", || self.stations.send_copy(*ev))?;
         self.wake_agent()
     }
 
     /// Sends one chunk; `header.point_count` is the caller's to set (the agent checks it).
     pub fn send_chunk(&self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), IpcError> {
-        let sample = self
-            .chunks
-            .loan_slice_uninit(points.len())
-            .map_err(|e| err("cannot loan a chunk sample", e))?;
-        let mut sample = sample.write_from_slice(points);
-        *sample.user_header_mut() = *header;
-        sample.send().map_err(|e| {
-            err(
-                format!(
-                    "chunk {} not delivered within {} s: the agent is not taking chunks",
-                    header.sequence,
-                    DELIVERY_DEADLINE.as_secs()
-                ),
-                e,
-            )
+        self.deliver(&format!("chunk {}", header.sequence), || {
+            let sample = self
+                .chunks
+                .loan_slice_uninit(points.len())
+                .map_err(|e| format!("cannot loan a chunk sample: {e:?}"))?;
+            let mut sample = sample.write_from_slice(points);
+            *sample.user_header_mut() = *header;
+            sample.send().map_err(|e| format!("{e:?}"))
         })?;
         self.wake_agent()
+    }
+
+    /// Sends until at least one subscriber took the message. A send can reach nobody without
+    /// an error: iceoryx2 drops a message for a subscriber that has not yet attached to this
+    /// publisher's connection when that connection's queue is already full (it cannot wait
+    /// for a reader that may never come). An agent attaches on its next read, so the message
+    /// is sent again, waking the agent, until [`DELIVERY_DEADLINE`].
+    fn deliver<E: std::fmt::Debug>(
+        &self,
+        what: &str,
+        mut send: impl FnMut() -> Result<usize, E>,
+    ) -> Result<(), IpcError> {
+        let start = Instant::now();
+        loop {
+            match send() {
+                Ok(0) if start.elapsed() < DELIVERY_DEADLINE => {
+                    self.wake_agent()?;
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+                Ok(0) => {
+                    return Err(IpcError(format!(
+                        "{what} not delivered: no agent took it within {} s. Check that \
+                         asbuilt-agent is running and printing its health lines",
+                        DELIVERY_DEADLINE.as_secs()
+                    )));
+                }
+                Ok(_) => return Ok(()),
+                Err(e) => {
+                    return Err(IpcError(format!(
+                        "{what} not delivered ({e:?}); a full agent queue is waited for up to \
+                         {} s. Check that asbuilt-agent is running and printing its health lines",
+                        DELIVERY_DEADLINE.as_secs()
+                    )));
+                }
+            }
+        }
     }
 
     /// Waits up to `timeout` for the agent to publish something.
@@ -538,5 +563,57 @@ impl asbuilt_protocol::StationSink for &CellPorts {
     }
     fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), IpcError> {
         self.send_chunk(header, points)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::mpsc;
+
+    fn node() -> Node<Ipc> {
+        NodeBuilder::new().create::<Ipc>().unwrap()
+    }
+
+    /// A cell that fills the agent's chunk queue before the agent's first read must not lose
+    /// what it sends next: iceoryx2 drops, without an error, a message for a subscriber that
+    /// has not attached to the connection yet when the queue is full.
+    #[test]
+    fn chunks_sent_before_the_agent_first_reads_all_arrive() {
+        const QUEUE: usize = 2;
+        const CHUNKS: u64 = 7;
+        let names = ServiceNames::new(&format!("asbuilt-ipc-test/{}", std::process::id()));
+        let (ready_tx, ready_rx) = mpsc::channel();
+        let agent_names = names.clone();
+        let agent = std::thread::spawn(move || {
+            let node = node();
+            let sizes = QueueSizes {
+                max_points_per_chunk: 4,
+                chunk_queue: QUEUE,
+                pending_chunks: 1,
+            };
+            let ports = AgentPorts::create(&node, &agent_names, sizes).unwrap();
+            ready_tx.send(()).unwrap();
+            // The cell fills the queue and goes on sending while the agent is busy.
+            std::thread::sleep(Duration::from_millis(300));
+            let mut got = Vec::new();
+            let start = Instant::now();
+            while got.len() < CHUNKS as usize && start.elapsed() < Duration::from_secs(20) {
+                match ports.chunks.receive().unwrap() {
+                    Some(s) => got.push(s.user_header().sequence),
+                    None => std::thread::sleep(Duration::from_millis(1)),
+                }
+            }
+            got
+        });
+        ready_rx.recv().unwrap();
+        let node = node();
+        let cell = CellPorts::open(&node, &names, 4, Duration::from_secs(5)).unwrap();
+        for sequence in 0..CHUNKS {
+            let points = [ScanPoint::new(1.0, 2.0, 3.0)];
+            cell.send_chunk(&ChunkHeader::new(1, 0, sequence, 1), &points)
+                .unwrap();
+        }
+        assert_eq!(agent.join().unwrap(), (0..CHUNKS).collect::<Vec<_>>());
     }
 }

@@ -489,3 +489,28 @@ fn slivers_duplicates_and_specks_index_within_the_memory_bound() {
         );
     }
 }
+
+#[test]
+fn an_index_that_takes_the_design_over_answers_as_one_that_borrows_it() {
+    let design = icosphere(Point3::new(0.1, -0.2, 0.3), 0.5, 4);
+    let points = probe_points(&design, 20_000, 0.01, 11);
+    let borrowed = index(&design, 0.02);
+    let owned = C2mIndex::from_design(
+        design.clone(),
+        C2mParams {
+            max_distance: 0.02,
+            cell_size: None,
+        },
+    )
+    .unwrap();
+    let (mut a, mut b) = (Cursor::default(), Cursor::default());
+    for p in &points {
+        let (x, y) = (borrowed.query(p, &mut a), owned.query(p, &mut b));
+        assert_eq!(
+            x.map(|c| (c.distance.to_bits(), c.triangle)),
+            y.map(|c| (c.distance.to_bits(), c.triangle)),
+            "{p:?}"
+        );
+    }
+    assert_eq!(borrowed.stats().bytes, owned.stats().bytes);
+}

@@ -185,24 +185,6 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         }
         None => full_design,
     };
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance,
-            cell_size: None,
-        },
-    )?;
-    let ix = index.stats();
-    eprintln!(
-        "design {}: {} triangles, index {} cells of {:.2} mm, {:.0} MB, built in {:.1} s",
-        args.design.display(),
-        ix.triangles,
-        ix.cells,
-        ix.cell_size * 1e3,
-        ix.bytes as f64 / 1e6,
-        started.elapsed().as_secs_f64()
-    );
-
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
     let mut ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
@@ -251,6 +233,26 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     } else {
         None
     };
+
+    // The design's counts are all the report needs of it from here: the index takes it over.
+    let (design_vertices, design_triangles) = (design.vertices.len(), design.triangles.len());
+    let index = C2mIndex::from_design(
+        design,
+        C2mParams {
+            max_distance,
+            cell_size: None,
+        },
+    )?;
+    let ix = index.stats();
+    eprintln!(
+        "design {}: {} triangles, index {} cells of {:.2} mm, {:.0} MB, built in {:.1} s",
+        args.design.display(),
+        ix.triangles,
+        ix.cells,
+        ix.cell_size * 1e3,
+        ix.bytes as f64 / 1e6,
+        started.elapsed().as_secs_f64()
+    );
 
     let mut sections = Vec::new();
     let mut total = Tally::new(config.stats);
@@ -452,8 +454,8 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         design: DesignSection {
             path: args.design.display().to_string(),
             units: args.units.to_string(),
-            vertices: design.vertices.len(),
-            triangles: design.triangles.len(),
+            vertices: design_vertices,
+            triangles: design_triangles,
             warnings: design_warnings,
             index_cell_size_m: ix.cell_size,
             index_cells: ix.cells,

@@ -20,6 +20,8 @@ mod normals;
 mod section;
 pub mod triangle;
 
+use std::borrow::Cow;
+
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
@@ -129,7 +131,19 @@ impl C2mIndex {
     pub fn build(design: &Design, params: C2mParams) -> Result<Self, C2mError> {
         Self::build_mesh(
             design.vertices.clone(),
-            &design.triangles,
+            Cow::Borrowed(&design.triangles),
+            NormalSource::Own,
+            params,
+        )
+    }
+
+    /// [`C2mIndex::build`] for a caller done with the design: its vertices become the index's
+    /// and its triangles go once the index has its own copy, so a large design is not held
+    /// twice while the grid is built (24 bytes a triangle less at the peak).
+    pub fn from_design(design: Design, params: C2mParams) -> Result<Self, C2mError> {
+        Self::build_mesh(
+            design.vertices,
+            Cow::Owned(design.triangles),
             NormalSource::Own,
             params,
         )
@@ -137,7 +151,7 @@ impl C2mIndex {
 
     fn build_mesh(
         vertices: Vec<Point3<f64>>,
-        triangles: &[[u32; 3]],
+        triangles: Cow<'_, [[u32; 3]]>,
         normals: NormalSource,
         params: C2mParams,
     ) -> Result<Self, C2mError> {
@@ -149,9 +163,9 @@ impl C2mIndex {
         {
             return Err(C2mError::CellSize(h));
         }
-        let (bvh, order) = Bvh::build(&vertices, triangles);
-        let mesh = Mesh::new(vertices, triangles, &order, normals);
-        drop(order);
+        let (bvh, order) = Bvh::build(&vertices, &triangles);
+        let mesh = Mesh::new(vertices, &triangles, &order, normals);
+        drop((order, triangles));
         let (lo, hi) = bounds(&mesh);
         let extent = (hi - lo).max();
         if !extent.is_finite() || extent > 1e7 {

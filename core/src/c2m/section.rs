@@ -270,8 +270,13 @@ impl C2mIndex {
                 cell_size: Some(SECTION_CELLS * self.grid.cell_size()),
             };
             Some(
-                C2mIndex::build_mesh(vertices, &section_tris, NormalSource::Given(given), params)
-                    .expect("the design's own parameters were valid"),
+                C2mIndex::build_mesh(
+                    vertices,
+                    section_tris.into(),
+                    NormalSource::Given(given),
+                    params,
+                )
+                .expect("the design's own parameters were valid"),
             )
         };
         let has_index = index.is_some();

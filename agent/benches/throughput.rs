@@ -97,7 +97,8 @@ fn main() {
     let rounds = if quick { 1 } else { 5 };
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     let mesh = data.join("stanford-bunny/bun_zipper.ply");
-    let design = Design::load(&mesh, Units::Metres).expect("the bunny in ../shared/data");
+    let design =
+        asbuilt_io::read_design(&mesh, Units::Metres).expect("the bunny in ../shared/data");
     let points = surface_points(&design, STATION_POINTS);
 
     let dir = tempfile::tempdir().unwrap();

@@ -4,9 +4,9 @@
 
 use std::time::{Duration, Instant};
 
+use asbuilt_core::C2mParams;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
-use asbuilt_core::{C2mParams, Design};
 use asbuilt_protocol::{
     AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
     PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
@@ -33,7 +33,7 @@ const PREPARING_POLL: Duration = Duration::from_millis(2);
 pub enum AgentError {
     /// The design file named in `[design]` could not be loaded.
     #[error(transparent)]
-    Design(#[from] asbuilt_core::DesignError),
+    Design(#[from] asbuilt_io::IoError),
     /// The design loaded but cannot be indexed (its extent, the maximum distance).
     #[error("indexing the design: {0}")]
     Index(#[from] asbuilt_core::c2m::C2mError),
@@ -242,7 +242,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     set_log_level_from_env_or(LogLevel::Error);
     let started = Instant::now();
 
-    let design = Design::load(&config.design.path, config.design.units())?;
+    let design = asbuilt_io::read_design(&config.design.path, config.design.units())?;
     for w in design.report.warnings() {
         warn!("design: {w}");
     }

@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use asbuilt_core::design::shapes::twisted_column;
 use asbuilt_core::station::{InspectParams, StationInspector};
-use asbuilt_core::{C2mIndex, C2mParams, Closest, Design, Units};
+use asbuilt_core::{C2mIndex, C2mParams, Closest, Units};
 use asbuilt_protocol::{PointDeviation, ScanPoint};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::Isometry3;
@@ -27,7 +27,8 @@ use points::noisy_surface_points;
 fn bench(c: &mut Criterion) {
     let mesh = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/data/stanford-bunny/bun_zipper.ply");
-    let design = Design::load(&mesh, Units::Metres).expect("bunny mesh in ../shared/data");
+    let design =
+        asbuilt_io::read_design(&mesh, Units::Metres).expect("bunny mesh in ../shared/data");
     let t0 = Instant::now();
     let index = C2mIndex::build(
         &design,

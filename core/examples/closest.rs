@@ -1,5 +1,5 @@
 //! Prints the brute-force closest distance of a point to a design: `closest MESH UNITS X Y Z`.
-use asbuilt_core::{C2mIndex, C2mParams, Design};
+use asbuilt_core::{C2mIndex, C2mParams};
 use nalgebra::Point3;
 
 fn main() {
@@ -8,7 +8,8 @@ fn main() {
         eprintln!("usage: closest MESH m|mm X Y Z");
         std::process::exit(2);
     }
-    let design = Design::load(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design");
+    let design =
+        asbuilt_io::read_design(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design");
     let index = C2mIndex::build(
         &design,
         C2mParams {

@@ -3,7 +3,7 @@
 use std::time::Instant;
 
 use asbuilt_core::design::shapes::twisted_column;
-use asbuilt_core::{C2mIndex, C2mParams, Closest, Design};
+use asbuilt_core::{C2mIndex, C2mParams, Closest};
 use nalgebra::Point3;
 use rand::{SeedableRng, seq::SliceRandom};
 use rand_chacha::ChaCha8Rng;
@@ -14,7 +14,7 @@ mod points;
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let design = if a.len() >= 3 {
-        Design::load(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design")
+        asbuilt_io::read_design(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design")
     } else {
         twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250)
     };

@@ -251,7 +251,7 @@ fn equals_brute_force_on_a_cube_100k_points_with_far_band() {
 #[test]
 fn equals_brute_force_on_the_bunny() {
     let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = Design::load(&path, Units::Metres).unwrap();
+    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
     let points = probe_points(&bunny, 12_000, 0.004, 13);
     assert_equals_brute_force(&bunny, 0.005, &points);
     // With a cell size forced small, a band far narrower than the maximum distance.
@@ -279,7 +279,7 @@ fn signs_agree_with_parry_on_the_bunny() {
     use parry3d_f64::shape::{TriMesh, TriMeshFlags};
 
     let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = Design::load(&path, Units::Metres).unwrap();
+    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
     let mesh = TriMesh::with_flags(
         bunny
             .vertices
@@ -436,7 +436,7 @@ fn a_cut_from_the_one_index_equals_brute_force_over_the_cut_mesh() {
 #[test]
 fn a_cut_of_the_bunny_equals_brute_force_over_the_cut_mesh() {
     let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = Design::load(&path, Units::Metres).unwrap();
+    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
     let (lo, hi) = bunny.bounds();
     let heights = [lo.z + 0.3 * (hi.z - lo.z), lo.z + 0.71 * (hi.z - lo.z)];
     assert_cut_equals_brute_force(&bunny, 0.005, &heights, 20_000);

@@ -8,9 +8,9 @@
 
 use std::time::Instant;
 
+use asbuilt_io::scan::write::{self, OutScan};
+use asbuilt_io::scan::{DEFAULT_CHUNK, ScanFile};
 use asbuilt_protocol::ScanPoint;
-use asbuilt_tools::scan_io::write::{self, OutScan};
-use asbuilt_tools::scan_io::{DEFAULT_CHUNK, ScanFile};
 use nalgebra::Isometry3;
 
 fn status_kib(field: &str) -> u64 {

@@ -9,8 +9,8 @@
 use std::io::Write;
 use std::path::Path;
 
+use asbuilt_core::Units;
 use asbuilt_core::design::shapes::twisted_column;
-use asbuilt_core::{Design, Units};
 use nalgebra::Point3;
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -39,7 +39,7 @@ fn main() -> anyhow::Result<()> {
     std::fs::create_dir_all(&out)?;
     let bunny = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/data/stanford-bunny/bun_zipper.ply");
-    let design = Design::load(&bunny, Units::Metres)?;
+    let design = asbuilt_io::read_design(&bunny, Units::Metres)?;
     let mut pts = points::noisy_surface_points(&design, 2_000_000);
     write_ply(&out.join("bunny_scan.ply"), &pts)?;
     pts.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(7));
@@ -47,7 +47,7 @@ fn main() -> anyhow::Result<()> {
     let column = twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250);
     asbuilt_sim::write_stl(&out.join("column.stl"), &column)?;
     // Points from the design as the STL stores it (f32), as both tools read it.
-    let column = Design::load(&out.join("column.stl"), Units::Metres)?;
+    let column = asbuilt_io::read_design(&out.join("column.stl"), Units::Metres)?;
     write_ply(
         &out.join("column_scan.ply"),
         &points::noisy_surface_points(&column, 1_000_000),

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use asbuilt_core::calibration::rigid::{self, RigidFit};
 use asbuilt_core::calibration::{matching, sphere};
-use asbuilt_tools::scan_io::{DEFAULT_CHUNK, ScanFile};
+use asbuilt_io::scan::{DEFAULT_CHUNK, ScanFile};
 use clap::{Args, ValueEnum};
 use nalgebra::{Point3, UnitQuaternion};
 use serde::Deserialize;

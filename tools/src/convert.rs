@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Result, bail};
-use asbuilt_tools::scan_io::write::{self, OutScan};
-use asbuilt_tools::scan_io::{DEFAULT_CHUNK, Format, ScanFile};
+use asbuilt_io::scan::write::{self, OutScan};
+use asbuilt_io::scan::{DEFAULT_CHUNK, Format, ScanFile};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
@@ -28,7 +28,7 @@ pub fn run(args: ConvertArgs) -> Result<ExitCode> {
         .inputs
         .iter()
         .map(|p| ScanFile::open(p))
-        .collect::<Result<_>>()?;
+        .collect::<Result<_, _>>()?;
     if args.inputs.iter().any(|p| p == &args.out) {
         bail!("--out {} is also an input", args.out.display());
     }

@@ -7,18 +7,18 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use asbuilt_core::coverage::ScanSpacing;
 use asbuilt_core::station::{InspectParams, StationInspector, Tally};
-use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
+use asbuilt_core::{C2mIndex, C2mParams, Units};
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Point3;
 
-use crate::deviations_ply::DeviationsPly;
 use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use crate::suite::{self, Method, Methods, Suite, SuiteConfig};
 use asbuilt_agent::viewer::{self, View, Viewer, ViewerParams};
-use asbuilt_tools::scan_io::ScanFile;
+use asbuilt_io::DeviationsPly;
+use asbuilt_io::scan::ScanFile;
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
 const CHUNK: usize = 1 << 16;
@@ -156,7 +156,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
     };
 
     let started = Instant::now();
-    let full_design = Design::load(&args.design, args.units)?;
+    let full_design = asbuilt_io::read_design(&args.design, args.units)?;
     let mut warnings = Vec::new();
     let design_warnings = full_design.report.warnings();
     for w in &design_warnings {

@@ -3,11 +3,9 @@
 mod calibrate;
 mod convert;
 mod demo;
-mod deviations_ply;
 mod html;
 mod inspect;
 mod pack;
-mod ply_out;
 mod publish;
 mod recording_file;
 mod recover;

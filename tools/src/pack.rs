@@ -8,12 +8,12 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_core::Units;
+use asbuilt_io::scan::ScanFile;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
     StationSender, StationSink, unix_time_ns,
 };
-use asbuilt_tools::scan_io::ScanFile;
 use clap::Args;
 use sha2::{Digest, Sha256};
 
@@ -56,7 +56,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
     let design = std::fs::read(&args.design)
         .with_context(|| format!("cannot read design {}", args.design.display()))?;
     // Refuse a design the agent could not load, before writing anything.
-    asbuilt_core::Design::load(&args.design, args.units)?;
+    asbuilt_io::read_design(&args.design, args.units)?;
     let file =
         File::create(&args.out).with_context(|| format!("cannot write {}", args.out.display()))?;
     let mut w = RecordingWriter::new(BufWriter::with_capacity(1 << 20, file))?;

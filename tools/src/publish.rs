@@ -15,7 +15,7 @@ use clap::Args;
 use iceoryx2::prelude::*;
 
 use crate::stations;
-use asbuilt_tools::scan_io::ScanFile;
+use asbuilt_io::scan::ScanFile;
 
 #[derive(Args)]
 pub struct PublishArgs {

@@ -14,7 +14,7 @@ use asbuilt_agent::lifecycle::{Lifecycle, Outputs};
 use asbuilt_core::frames::FrameChain;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::{InspectParams, Tally};
-use asbuilt_core::{C2mParams, Design, Units};
+use asbuilt_core::{C2mParams, Units};
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationReport};
 use clap::Args;
@@ -126,13 +126,9 @@ pub fn write(
         .to_ascii_lowercase()
         .parse()
         .map_err(|e: String| anyhow::anyhow!("the recording's design units: {e}"))?;
-    // The design as it was, under its own name so its format is recognised.
-    let tmp = tempfile::tempdir()?;
-    let design_file = tmp
-        .path()
-        .join(name.rsplit('/').next().unwrap_or("design.stl"));
-    std::fs::write(&design_file, &design_bytes)?;
-    let design = Design::load(&design_file, units)?;
+    // The design as it was, read from the recording's bytes; its name gives the format.
+    let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
+        .with_context(|| format!("the design recorded in {}", args.recording.display()))?;
 
     let (frames, settings, limits) = if meta.writer == "asbuilt-agent" {
         let problems =

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, ServiceNames};
-use asbuilt_core::{Design, Units};
+use asbuilt_core::Units;
 use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
 use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_sim::{SimEvent, SimJob, SimOutcome};
@@ -77,7 +77,7 @@ impl JobArgs {
                 let h = self
                     .layer_height
                     .context("--layer-height METRES is required with a design file")?;
-                let design = Design::load(Path::new(file), units)?;
+                let design = asbuilt_io::read_design(Path::new(file), units)?;
                 let name = Path::new(file)
                     .file_stem()
                     .map(|s| s.to_string_lossy().into_owned())

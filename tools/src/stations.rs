@@ -3,7 +3,7 @@
 use std::path::{Component, Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use asbuilt_tools::scan_io::ScanFile;
+use asbuilt_io::scan::ScanFile;
 use nalgebra::{Isometry3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 

@@ -19,8 +19,8 @@ use asbuilt_protocol::{DeviationFlags, DeviationStats, PointDeviation};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
-use crate::ply_out::{self, Column};
 use crate::report::finite;
+use asbuilt_io::ply::{Property, Scalar, write_table};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Method {
@@ -325,7 +325,7 @@ impl Suite {
         };
         let reference = match &config.reference {
             Some(path) if config.has(Method::C2c) || config.has(Method::M3c2) => {
-                let (pts, notes) = asbuilt_tools::scan_io::read_cloud(path)?;
+                let (pts, notes) = asbuilt_io::scan::read_cloud(path)?;
                 if notes.malformed_lines > 0 {
                     eprintln!(
                         "warning: reference {}: {} unreadable lines skipped (first at line {})",
@@ -576,23 +576,17 @@ impl Suite {
                 .iter()
                 .filter_map(|r| r.distance.map(|d| (r.position, d as f32, r.significant)))
                 .collect();
-            ply_out::write(
+            write_table(
                 &out.join("m3c2.ply"),
                 "asbuilt design-referenced M3C2: core points on the design (metres), distance \
                  along the design normal (positive: outside), NaN where the cylinder is empty",
-                &[
-                    Column::Double("x"),
-                    Column::Double("y"),
-                    Column::Double("z"),
-                    Column::Float("nx"),
-                    Column::Float("ny"),
-                    Column::Float("nz"),
-                    Column::Float("distance"),
-                    Column::Float("lod95"),
-                    Column::Float("spread"),
-                    Column::Float("count"),
-                    Column::Float("significant"),
-                ],
+                &with_position_and_normal(&[
+                    Property::new("distance", Scalar::F32),
+                    Property::new("lod95", Scalar::F32),
+                    Property::new("spread", Scalar::F32),
+                    Property::new("count", Scalar::F32),
+                    Property::new("significant", Scalar::F32),
+                ]),
                 results.iter().map(|r| {
                     vec![
                         r.position.x,
@@ -707,24 +701,27 @@ fn write_missing(
                 -1.0,
             ]
         });
-    ply_out::write(
+    write_table(
         path,
         "asbuilt missing material: design samples (metres) a station should have seen with no \
          scan point within the coverage threshold. station = -1: the whole job, with normal and \
          reverse_c2c (signed distance to the nearest scan point, NaN: none within reach); \
          station = k: what station k alone missed",
-        &[
-            Column::Double("x"),
-            Column::Double("y"),
-            Column::Double("z"),
-            Column::Float("nx"),
-            Column::Float("ny"),
-            Column::Float("nz"),
-            Column::Float("reverse_c2c"),
-            Column::Float("station"),
-        ],
+        &with_position_and_normal(&[
+            Property::new("reverse_c2c", Scalar::F32),
+            Property::new("station", Scalar::F32),
+        ]),
         stations.chain(total),
     )
+    .map_err(Into::into)
+}
+
+/// A sample table's columns: the point (metres, f64), its unit normal, then `rest`.
+fn with_position_and_normal(rest: &[Property]) -> Vec<Property> {
+    let axes = [("x", "nx"), ("y", "ny"), ("z", "nz")];
+    let point = axes.map(|(p, _)| Property::new(p, Scalar::F64));
+    let normal = axes.map(|(_, n)| Property::new(n, Scalar::F32));
+    [&point[..], &normal, rest].concat()
 }
 
 fn two_cloud(
@@ -761,17 +758,17 @@ fn two_cloud(
     params.orientation = Vector3::z();
     let results = classic::compare(&reference, &scan_index, &cores, &params)?;
     let with: Vec<f64> = results.iter().filter_map(|r| r.distance).collect();
-    ply_out::write(
+    write_table(
         &out.join("m3c2_two_cloud.ply"),
         "asbuilt two-cloud M3C2 from the reference to the scans: core points subsampled from the \
          reference, distance along the normal (NaN where a cylinder is empty)",
         &[
-            Column::Double("x"),
-            Column::Double("y"),
-            Column::Double("z"),
-            Column::Float("distance"),
-            Column::Float("lod95"),
-            Column::Float("significant"),
+            Property::new("x", Scalar::F64),
+            Property::new("y", Scalar::F64),
+            Property::new("z", Scalar::F64),
+            Property::new("distance", Scalar::F32),
+            Property::new("lod95", Scalar::F32),
+            Property::new("significant", Scalar::F32),
         ],
         cores.iter().zip(&results).map(|(p, r)| {
             vec![

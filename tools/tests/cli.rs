@@ -298,7 +298,7 @@ fn station_without_pose_is_named() {
     let e = stderr(&o);
     assert!(e.contains("station \"south\" has no pose"), "{e}");
     assert!(e.contains("station \"west\": rotation quaternion"), "{e}");
-    assert!(e.contains("missing.xyz does not exist"), "{e}");
+    assert!(e.contains("missing.xyz: it does not exist"), "{e}");
 }
 
 #[test]

@@ -1,17 +1,25 @@
 //! The as-designed model: an indexed triangle mesh in metres, checked for the defects that make
 //! signed distances unreliable.
 
-mod load;
 pub mod shapes;
 pub(crate) mod topology;
 
 use std::collections::HashMap;
-use std::path::Path;
 
 use nalgebra::Point3;
 
-pub use load::{DesignError, MeshFormat, ply_scalar};
 pub use topology::Topology;
+
+/// Why triangles do not make a design. Reading design files is `asbuilt-io`'s, which names the
+/// file in its own error.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DesignError {
+    #[error(
+        "the mesh has no usable triangles (empty, or every triangle degenerate): export the \
+         surface as a triangle mesh"
+    )]
+    Empty,
+}
 
 /// The unit a design file was written in. Declared by the user, never guessed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -116,17 +124,6 @@ pub struct Design {
 }
 
 impl Design {
-    /// Reads an STL (binary or ASCII), OBJ or PLY file whose coordinates are in `units`.
-    pub fn load(path: &Path, units: Units) -> Result<Self, DesignError> {
-        let (vertices, triangles) = load::read_mesh(path)?;
-        Self::from_indexed(vertices, triangles, units.scale()).map_err(|e| match e {
-            DesignError::Empty { .. } => DesignError::Empty {
-                path: path.to_path_buf(),
-            },
-            other => other,
-        })
-    }
-
     /// Builds a design from vertices and triangles in file units, scaled to metres by `scale`.
     /// Vertices at the same position are merged and degenerate triangles dropped.
     pub fn from_indexed(
@@ -171,9 +168,7 @@ impl Design {
             kept.push(t);
         }
         if kept.is_empty() {
-            return Err(DesignError::Empty {
-                path: Default::default(),
-            });
+            return Err(DesignError::Empty);
         }
         report.topology = Topology::of(&kept);
         Ok(Self {

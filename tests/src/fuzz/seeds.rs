@@ -4,12 +4,12 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use asbuilt_io::scan::write::{OutScan, create};
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseMode, PoseSnapshot, ScanPoint,
     StationEvent, StationEventKind, StationFindings, StationReport,
 };
-use asbuilt_tools::scan_io::write::{OutScan, create};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
 /// The agent configuration the seed recordings carry, and a seed of the agent.toml target.

@@ -7,11 +7,11 @@ use asbuilt_agent::lifecycle::{Lifecycle, LifecycleLimits, Outputs};
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
 use asbuilt_core::{C2mParams, Design, Units};
+use asbuilt_io::scan::ScanFile;
 use asbuilt_protocol::recording::{self, Channel, Recorded};
 use asbuilt_protocol::{
     ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, StationFindings, StationReport,
 };
-use asbuilt_tools::scan_io::ScanFile;
 
 use super::Outcome;
 
@@ -129,7 +129,7 @@ fn read_scan(name: &str, bytes: &[u8], scratch: &Path) -> Outcome {
 /// The design loaded and indexed, as the agent does at start-up.
 fn load_design(name: &str, bytes: &[u8], scratch: &Path) -> Outcome {
     let path = as_file(name, bytes, scratch);
-    let design = match Design::load(&path, Units::Metres) {
+    let design = match asbuilt_io::read_design(&path, Units::Metres) {
         Ok(d) => d,
         Err(e) => return named(name, e.to_string()),
     };

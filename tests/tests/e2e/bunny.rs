@@ -50,7 +50,7 @@ fn read_scan(name: &str) -> Vec<ScanPoint> {
 }
 
 fn bunny_mesh(file: &str) -> Design {
-    Design::load(&bunny_dir().join(file), Units::Metres).unwrap()
+    asbuilt_io::read_design(&bunny_dir().join(file), Units::Metres).unwrap()
 }
 
 fn c2m_index(design: &Design, max_distance: f64) -> C2mIndex {

@@ -7,8 +7,8 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use asbuilt_core::calibration::sphere::visible_cap;
+use asbuilt_io::scan::write::{self, OutScan};
 use asbuilt_protocol::ScanPoint;
-use asbuilt_tools::scan_io::write::{self, OutScan};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

@@ -7,7 +7,7 @@ use std::process::Command;
 
 use std::collections::HashMap;
 
-use asbuilt_core::design::ply_scalar;
+use asbuilt_io::ply_scalar;
 use asbuilt_tests::write_box_stl;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::DefaultElement;

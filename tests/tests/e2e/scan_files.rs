@@ -3,9 +3,9 @@
 
 use std::process::Command;
 
+use asbuilt_io::scan::write::{self, OutScan};
 use asbuilt_protocol::ScanPoint;
 use asbuilt_tests::{shared_data, write_box_stl};
-use asbuilt_tools::scan_io::write::{self, OutScan};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
@@ -105,7 +105,7 @@ fn convert_writes_the_e57_bunny_as_ply_ascii_and_ptx() {
             .output()
             .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let back = asbuilt_tools::scan_io::ScanFile::open(&out).unwrap();
+        let back = asbuilt_io::scan::ScanFile::open(&out).unwrap();
         let (pts, _) = back.read_all(0).unwrap();
         assert_eq!(pts.len(), 30_571, "{name}");
     }

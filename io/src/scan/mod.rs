@@ -18,9 +18,11 @@ mod xyz;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use asbuilt_protocol::ScanPoint;
 use nalgebra::Isometry3;
+
+use crate::IoError;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
@@ -32,7 +34,8 @@ pub enum Format {
 }
 
 impl Format {
-    pub fn from_path(path: &Path) -> Result<Self> {
+    /// The scan format a file name's extension says.
+    pub fn from_path(path: &Path) -> Result<Self, IoError> {
         let ext = path
             .extension()
             .and_then(|e| e.to_str())
@@ -44,10 +47,14 @@ impl Format {
             "ptx" => Format::Ptx,
             "ply" => Format::Ply,
             "xyz" | "txt" | "pts" | "asc" | "csv" => Format::Xyz,
-            _ => bail!(
-                "{}: unknown scan format .{ext}: use .e57, .las/.laz, .ptx, .ply or .xyz/.pts/.txt",
-                path.display()
-            ),
+            _ => {
+                return Err(IoError::UnknownFormat {
+                    path: path.to_path_buf(),
+                    kind: "scan",
+                    extension: ext,
+                    expected: ".e57, .las/.laz, .ptx, .ply or .xyz/.pts/.txt",
+                });
+            }
         })
     }
 }
@@ -110,13 +117,11 @@ pub struct ScanFile {
     pub scans: Vec<ScanInfo>,
 }
 
-/// An error that says which file it is about: the readers' own messages mostly do, and those
-/// of the libraries beneath them (a UTF-8 or I/O error) get the path in front.
-fn naming(path: &Path, e: anyhow::Error) -> anyhow::Error {
-    if format!("{e:#}").contains(&path.display().to_string()) {
-        e
-    } else {
-        e.context(format!("cannot read {}", path.display()))
+/// A reader's error, with the file it is about.
+fn naming(path: &Path, cause: anyhow::Error) -> IoError {
+    IoError::Scan {
+        path: path.to_path_buf(),
+        cause,
     }
 }
 
@@ -125,9 +130,12 @@ pub const DEFAULT_CHUNK: usize = 1 << 16;
 
 impl ScanFile {
     /// Reads the file's headers: which scans it holds, their sizes and poses.
-    pub fn open(path: &Path) -> Result<Self> {
+    pub fn open(path: &Path) -> Result<Self, IoError> {
         if !path.is_file() {
-            bail!("scan file {} does not exist", path.display());
+            return Err(IoError::NotFound {
+                path: path.to_path_buf(),
+                kind: "scan",
+            });
         }
         let format = Format::from_path(path)?;
         let scans = match format {
@@ -145,20 +153,24 @@ impl ScanFile {
         })
     }
 
-    /// Hands scan `index`'s points to `sink` in chunks of at most `chunk` points.
+    /// Hands scan `index`'s points to `sink` in chunks of at most `chunk` points. An error of
+    /// the sink ends the read and comes back as the reader's.
     pub fn stream(
         &self,
         index: usize,
         chunk: usize,
         sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
-    ) -> Result<ReadNotes> {
+    ) -> Result<ReadNotes, IoError> {
         let chunk = chunk.max(1);
         let Some(info) = self.scans.get(index) else {
-            bail!(
-                "{} holds {} scan(s); there is no scan {index}",
-                self.path.display(),
-                self.scans.len()
-            );
+            return Err(naming(
+                &self.path,
+                anyhow::anyhow!(
+                    "{} holds {} scan(s); there is no scan {index}",
+                    self.path.display(),
+                    self.scans.len()
+                ),
+            ));
         };
         match self.format {
             Format::E57 => e57::stream(&self.path, info, chunk, sink),
@@ -171,7 +183,7 @@ impl ScanFile {
     }
 
     /// Every point of one scan in memory: for small files and tests.
-    pub fn read_all(&self, index: usize) -> Result<(Vec<ScanPoint>, ReadNotes)> {
+    pub fn read_all(&self, index: usize) -> Result<(Vec<ScanPoint>, ReadNotes), IoError> {
         let mut all = Vec::new();
         let notes = self.stream(index, DEFAULT_CHUNK, &mut |c| {
             all.extend_from_slice(c);
@@ -183,7 +195,7 @@ impl ScanFile {
 
 /// A reference cloud in the file's frame at f64: every valid point of every scan, placed by the
 /// scan's pose when the file holds one. In memory: for reference clouds, not for scans.
-pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes)> {
+pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes), IoError> {
     let file = ScanFile::open(path)?;
     let mut out = Vec::new();
     let mut notes = ReadNotes::default();
@@ -211,7 +223,10 @@ pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes)
         }
     }
     if out.is_empty() {
-        bail!("cloud {} has no valid point", path.display());
+        return Err(naming(
+            path,
+            anyhow::anyhow!("cloud {} has no valid point", path.display()),
+        ));
     }
     Ok((out, notes))
 }

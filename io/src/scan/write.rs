@@ -12,6 +12,7 @@ use asbuilt_protocol::ScanPoint;
 use nalgebra::{Isometry3, Point3};
 
 use super::Format;
+use crate::ply::{PlyWriter, Property, Scalar};
 
 /// A scan to write: its name, pose (`p_file = pose · p_scan`) and point count.
 #[derive(Debug, Clone)]
@@ -47,7 +48,7 @@ pub fn create(path: &Path, total: u64) -> Result<Box<dyn CloudWriter>> {
             writeln!(out, "//X Y Z Intensity Scan")?;
             Box::new(Ascii { out, scan: 0 })
         }
-        Format::Ply => Box::new(Ply::new(file(path)?, total)?),
+        Format::Ply => Box::new(Ply::new(path, total)?),
         Format::Las => Box::new(Las {
             path: path.to_path_buf(),
             writer: None,
@@ -154,27 +155,27 @@ impl CloudWriter for Ascii {
 /// Binary PLY: x y z double, intensity float, scan ushort. The header's count is the total
 /// announced; invalid points are written at NaN so the count holds.
 struct Ply {
-    out: BufWriter<File>,
-    total: u64,
-    written: u64,
+    out: PlyWriter,
     scan: u16,
 }
 
+const PLY_POINT: [Property; 5] = [
+    Property::new("x", Scalar::F64),
+    Property::new("y", Scalar::F64),
+    Property::new("z", Scalar::F64),
+    Property::new("intensity", Scalar::F32),
+    Property::new("scan", Scalar::U16),
+];
+
 impl Ply {
-    fn new(mut out: BufWriter<File>, total: u64) -> Result<Self> {
-        write!(
-            out,
-            "ply\nformat binary_little_endian 1.0\ncomment asbuilt point cloud, metres; NaN \
-             coordinates mark points the scanner flagged invalid\nelement vertex {total}\n\
-             property double x\nproperty double y\nproperty double z\nproperty float intensity\n\
-             property ushort scan\nend_header\n"
+    fn new(path: &Path, total: u64) -> Result<Self> {
+        let out = PlyWriter::create(
+            path,
+            "asbuilt point cloud, metres; NaN coordinates mark points the scanner flagged invalid",
+            &PLY_POINT,
+            Some(total),
         )?;
-        Ok(Self {
-            out,
-            total,
-            written: 0,
-            scan: 0,
-        })
+        Ok(Self { out, scan: 0 })
     }
 }
 
@@ -195,25 +196,17 @@ impl CloudWriter for Ply {
                 rec[16..24].copy_from_slice(&w.z.to_le_bytes());
                 rec[24..28].copy_from_slice(&p.intensity.to_le_bytes());
                 rec[28..30].copy_from_slice(&k.to_le_bytes());
-                o.write_all(&rec)?;
+                o.record(&rec)?;
             }
             n += chunk.len() as u64;
             Ok(())
         })?;
-        self.written += n;
         self.scan = self.scan.saturating_add(1);
         Ok(n)
     }
 
-    fn finish(mut self: Box<Self>) -> Result<()> {
-        if self.written != self.total {
-            bail!(
-                "PLY header announced {} points but {} were written",
-                self.total,
-                self.written
-            );
-        }
-        self.out.flush()?;
+    fn finish(self: Box<Self>) -> Result<()> {
+        self.out.finish()?;
         Ok(())
     }
 }

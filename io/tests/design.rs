@@ -4,7 +4,8 @@ use std::io::Write;
 use std::path::Path;
 
 use asbuilt_core::design::shapes::cuboid;
-use asbuilt_core::{Design, DesignError, Units};
+use asbuilt_core::{Design, Units};
+use asbuilt_io::IoError;
 use nalgebra::Point3;
 
 fn cube() -> Design {
@@ -94,7 +95,8 @@ fn every_format_loads_the_same_closed_mesh_in_metres() {
     for (name, write) in files {
         let path = dir.path().join(name);
         write(&path, &reference);
-        let d = Design::load(&path, Units::Millimetres).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let d = asbuilt_io::read_design(&path, Units::Millimetres)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(d.vertices.len(), 8, "{name}: duplicate vertices merged");
         assert_eq!(d.triangles.len(), 12, "{name}");
         assert!(
@@ -112,12 +114,32 @@ fn every_format_loads_the_same_closed_mesh_in_metres() {
             (hi - Point3::new(0.5, 0.25, 0.1)).norm() < 1e-12,
             "{name}: {hi}"
         );
-        let m = Design::load(&path, Units::Metres).unwrap();
+        let m = asbuilt_io::read_design(&path, Units::Metres).unwrap();
         assert!(
             (m.bounds().1.x - 500.0).abs() < 1e-9,
             "{name}: metres are not scaled"
         );
+        // The same file from memory, as a recording's attachment is read.
+        let bytes = std::fs::read(&path).unwrap();
+        let b = asbuilt_io::read_design_bytes(&bytes, name, Units::Millimetres)
+            .unwrap_or_else(|e| panic!("{name} from bytes: {e}"));
+        assert_eq!(
+            (b.vertices, b.triangles),
+            (d.vertices, d.triangles),
+            "{name}"
+        );
     }
+}
+
+#[test]
+fn a_design_in_memory_is_named_in_its_errors() {
+    let e = asbuilt_io::read_design_bytes(b"solid x\nfacet oops", "part.stl", Units::Metres)
+        .unwrap_err();
+    assert!(matches!(e, IoError::Malformed { .. }), "{e}");
+    assert!(e.to_string().contains("part.stl"), "{e}");
+    let e = asbuilt_io::read_design_bytes(b"", "part.step", Units::Metres).unwrap_err();
+    assert!(matches!(e, IoError::UnknownFormat { .. }), "{e}");
+    assert!(e.to_string().contains(".obj"), "{e}");
 }
 
 #[test]
@@ -154,8 +176,8 @@ fn defects_are_counted_as_warnings() {
 fn unreadable_empty_and_unknown_files_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("nope.stl");
-    let e = Design::load(&missing, Units::Metres).unwrap_err();
-    assert!(matches!(e, DesignError::Open { .. }));
+    let e = asbuilt_io::read_design(&missing, Units::Metres).unwrap_err();
+    assert!(matches!(e, IoError::NotFound { .. }), "{e}");
     assert!(e.to_string().contains("nope.stl"), "{e}");
 
     let empty = dir.path().join("empty.ply");
@@ -164,22 +186,22 @@ fn unreadable_empty_and_unknown_files_are_clear_errors() {
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n",
     )
     .unwrap();
-    let e = Design::load(&empty, Units::Metres).unwrap_err();
-    assert!(matches!(e, DesignError::Empty { .. }), "{e}");
+    let e = asbuilt_io::read_design(&empty, Units::Metres).unwrap_err();
+    assert!(matches!(e, IoError::EmptyDesign { .. }), "{e}");
     assert!(e.to_string().contains("no usable triangles"), "{e}");
 
     let garbage = dir.path().join("garbage.stl");
     std::fs::write(&garbage, b"\x00\x01 not an stl").unwrap();
-    assert!(Design::load(&garbage, Units::Metres).is_err());
+    assert!(asbuilt_io::read_design(&garbage, Units::Metres).is_err());
 
     let step = dir.path().join("part.step");
     std::fs::write(&step, "ISO-10303-21;").unwrap();
-    let e = Design::load(&step, Units::Metres).unwrap_err();
+    let e = asbuilt_io::read_design(&step, Units::Metres).unwrap_err();
     assert!(e.to_string().contains(".stl"), "{e}");
 
     let bad_index = dir.path().join("bad.obj");
     std::fs::write(&bad_index, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n").unwrap();
-    match Design::load(&bad_index, Units::Metres) {
+    match asbuilt_io::read_design(&bad_index, Units::Metres) {
         Ok(d) => assert_eq!(d.triangles.len(), 1),
         Err(e) => assert!(e.to_string().contains("bad.obj"), "{e}"),
     }

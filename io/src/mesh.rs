@@ -1,10 +1,16 @@
+//! Design meshes: STL (binary or ASCII), OBJ and PLY, from a file or from bytes, in the units
+//! the caller declares.
+
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufRead, BufReader, Cursor};
 use std::path::{Path, PathBuf};
 
+use asbuilt_core::{Design, DesignError, Units};
 use nalgebra::Point3;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{DefaultElement, Property};
+
+use crate::IoError;
 
 /// Mesh file formats a design can come in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -14,7 +20,10 @@ pub enum MeshFormat {
     Ply,
 }
 
+const EXPECTED: &str = ".stl (binary or ASCII), .obj or .ply (a triangle mesh)";
+
 impl MeshFormat {
+    /// The format a file name's extension says, if it names one.
     pub fn from_path(path: &Path) -> Option<Self> {
         let ext = path.extension()?.to_str()?.to_ascii_lowercase();
         match ext.as_str() {
@@ -24,54 +33,79 @@ impl MeshFormat {
             _ => None,
         }
     }
+
+    fn name(self) -> &'static str {
+        match self {
+            MeshFormat::Stl => "STL",
+            MeshFormat::Obj => "OBJ",
+            MeshFormat::Ply => "PLY",
+        }
+    }
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum DesignError {
-    #[error("cannot open design file {path}: {source}")]
-    Open {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error(
-        "design file {path} has an unknown extension: use a .stl (binary or ASCII), .obj or .ply \
-         triangle mesh"
-    )]
-    UnknownFormat { path: PathBuf },
-    #[error("cannot read design file {path} as {format:?}: {reason}")]
-    Parse {
-        path: PathBuf,
-        format: MeshFormat,
-        reason: String,
-    },
-    #[error(
-        "design file {path} has no usable triangles (empty, or every triangle degenerate): \
-         export the surface as a triangle mesh"
-    )]
-    Empty { path: PathBuf },
+/// Reads a design file whose coordinates are in `units`: vertices at one position are merged
+/// and degenerate triangles dropped (the design's report counts both).
+pub fn read_design(path: &Path, units: Units) -> Result<Design, IoError> {
+    let format = format_of(path)?;
+    if !path.is_file() {
+        return Err(IoError::NotFound {
+            path: path.to_path_buf(),
+            kind: "design",
+        });
+    }
+    let file = File::open(path).map_err(|source| IoError::Open {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mesh = parse(BufReader::new(file), format, path)?;
+    design(mesh, units, path)
+}
+
+/// [`read_design`] for a design held in memory (one attached to a recording): `name` is the
+/// file name it had, which gives its format and names it in errors.
+pub fn read_design_bytes(bytes: &[u8], name: &str, units: Units) -> Result<Design, IoError> {
+    let path = PathBuf::from(name);
+    let format = format_of(&path)?;
+    let mesh = parse(Cursor::new(bytes), format, &path)?;
+    design(mesh, units, &path)
+}
+
+fn format_of(path: &Path) -> Result<MeshFormat, IoError> {
+    MeshFormat::from_path(path).ok_or_else(|| IoError::UnknownFormat {
+        path: path.to_path_buf(),
+        kind: "design",
+        extension: path
+            .extension()
+            .map(|e| e.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        expected: EXPECTED,
+    })
+}
+
+fn design(mesh: Mesh, units: Units, path: &Path) -> Result<Design, IoError> {
+    let (vertices, triangles) = mesh;
+    Design::from_indexed(vertices, triangles, units.scale()).map_err(|e| match e {
+        DesignError::Empty => IoError::EmptyDesign {
+            path: path.to_path_buf(),
+        },
+    })
 }
 
 type Mesh = (Vec<Point3<f64>>, Vec<[u32; 3]>);
 
-pub(super) fn read_mesh(path: &Path) -> Result<Mesh, DesignError> {
-    let format = MeshFormat::from_path(path).ok_or_else(|| DesignError::UnknownFormat {
+fn parse<R: BufRead + std::io::Seek>(
+    mut reader: R,
+    format: MeshFormat,
+    path: &Path,
+) -> Result<Mesh, IoError> {
+    let malformed = |what: String| IoError::Malformed {
         path: path.to_path_buf(),
-    })?;
-    let parse = |reason: String| DesignError::Parse {
-        path: path.to_path_buf(),
-        format,
-        reason,
-    };
-    let open = || {
-        File::open(path).map_err(|source| DesignError::Open {
-            path: path.to_path_buf(),
-            source,
-        })
+        format: format.name(),
+        what,
     };
     match format {
         MeshFormat::Stl => {
-            let mut reader = BufReader::new(open()?);
-            let mesh = stl_io::read_stl(&mut reader).map_err(|e| parse(e.to_string()))?;
+            let mesh = stl_io::read_stl(&mut reader).map_err(|e| malformed(e.to_string()))?;
             let vertices = mesh
                 .vertices
                 .iter()
@@ -85,14 +119,17 @@ pub(super) fn read_mesh(path: &Path) -> Result<Mesh, DesignError> {
             Ok((vertices, triangles))
         }
         MeshFormat::Obj => {
-            open()?;
             let options = tobj::LoadOptions {
                 triangulate: true,
                 single_index: false,
                 ignore_points: true,
                 ignore_lines: true,
             };
-            let (models, _) = tobj::load_obj(path, &options).map_err(|e| parse(e.to_string()))?;
+            // Materials do not shape a design: a missing .mtl is not an error.
+            let (models, _) = tobj::load_obj_buf(&mut reader, &options, |_| {
+                Err(tobj::LoadError::OpenFileFailed)
+            })
+            .map_err(|e| malformed(e.to_string()))?;
             let mut vertices = Vec::new();
             let mut triangles = Vec::new();
             for m in models {
@@ -112,20 +149,19 @@ pub(super) fn read_mesh(path: &Path) -> Result<Mesh, DesignError> {
             Ok((vertices, triangles))
         }
         MeshFormat::Ply => {
-            let mut reader = BufReader::new(open()?);
             let ply = Parser::<DefaultElement>::new()
                 .read_ply(&mut reader)
-                .map_err(|e| parse(e.to_string()))?;
+                .map_err(|e| malformed(e.to_string()))?;
             let vertex_el = ply
                 .payload
                 .get("vertex")
-                .ok_or_else(|| parse("no `vertex` element".into()))?;
+                .ok_or_else(|| malformed("no `vertex` element".into()))?;
             let mut vertices = Vec::with_capacity(vertex_el.len());
             for (i, v) in vertex_el.iter().enumerate() {
                 let coord = |k: &str| {
                     v.get(k)
                         .and_then(ply_scalar)
-                        .ok_or_else(|| parse(format!("vertex {i} has no numeric `{k}`")))
+                        .ok_or_else(|| malformed(format!("vertex {i} has no numeric `{k}`")))
                 };
                 vertices.push(Point3::new(coord("x")?, coord("y")?, coord("z")?));
             }
@@ -136,7 +172,9 @@ pub(super) fn read_mesh(path: &Path) -> Result<Mesh, DesignError> {
                         .get("vertex_indices")
                         .or_else(|| f.get("vertex_index"))
                         .and_then(index_list)
-                        .ok_or_else(|| parse(format!("face {i} has no `vertex_indices` list")))?;
+                        .ok_or_else(|| {
+                            malformed(format!("face {i} has no `vertex_indices` list"))
+                        })?;
                     // Fan-triangulate polygons; a negative index is caught as invalid later.
                     for k in 1..list.len().saturating_sub(1) {
                         triangles.push([list[0], list[k], list[k + 1]]);

@@ -1,0 +1,80 @@
+//! One error for every file: which file, what kind of failure, and the cause beneath it.
+
+use std::path::PathBuf;
+
+/// What went wrong reading or writing a file. The message names the file; the source (an I/O
+/// error, a parser's error) stays attached for callers that walk the chain.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    #[error("cannot open {kind} file {path}: it does not exist; check the path")]
+    NotFound {
+        path: PathBuf,
+        /// "scan" or "design".
+        kind: &'static str,
+    },
+    #[error("cannot open {path}: {source}")]
+    Open {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: unknown {kind} format .{extension}: use {expected}")]
+    UnknownFormat {
+        path: PathBuf,
+        /// "scan" or "design".
+        kind: &'static str,
+        extension: String,
+        /// The formats that would be read, as a user types them.
+        expected: &'static str,
+    },
+    /// The file is there but its content is not what its format says: `what` names the line,
+    /// record or element where that is known.
+    #[error("cannot read {path} as {format}: {what}")]
+    Malformed {
+        path: PathBuf,
+        format: &'static str,
+        what: String,
+    },
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(
+        "design file {path} has no usable triangles (empty, or every triangle degenerate): \
+         export the surface as a triangle mesh"
+    )]
+    EmptyDesign { path: PathBuf },
+    /// A scan reader or writer failed; its message says where in the file. The reader's
+    /// chain of causes is kept whole in `cause` and written out in the message, so it is not
+    /// also offered as `source()` (a caller printing the chain would print it twice).
+    #[error("{}", scan_message(path, cause))]
+    Scan { path: PathBuf, cause: anyhow::Error },
+}
+
+impl IoError {
+    /// The file the error is about.
+    pub fn path(&self) -> &std::path::Path {
+        match self {
+            IoError::NotFound { path, .. }
+            | IoError::Open { path, .. }
+            | IoError::Write { path, .. }
+            | IoError::UnknownFormat { path, .. }
+            | IoError::Malformed { path, .. }
+            | IoError::EmptyDesign { path }
+            | IoError::Scan { path, .. } => path,
+        }
+    }
+}
+
+/// A scan reader's message mostly names the file already; those of the libraries beneath it
+/// (a UTF-8 or I/O error) get the path in front.
+fn scan_message(path: &std::path::Path, e: &anyhow::Error) -> String {
+    let message = format!("{e:#}");
+    if message.contains(&path.display().to_string()) {
+        message
+    } else {
+        format!("cannot read {}: {message}", path.display())
+    }
+}

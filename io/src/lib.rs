@@ -1,0 +1,18 @@
+//! Every file format asbuilt reads or writes, in one place: design meshes (STL, OBJ, PLY), read
+//! from a path or from bytes (a design attached to a recording), and scans (E57, LAS/LAZ, PTX,
+//! PLY, XYZ), streamed in chunks and written back out. Nothing here computes: files become
+//! `asbuilt-core` designs and `asbuilt-protocol` scan points.
+//!
+//! A design file's units are declared by the caller, never guessed. Every error names the file,
+//! the line or record where it can, and what to do.
+
+mod deviations;
+mod error;
+mod mesh;
+pub mod ply;
+pub mod scan;
+
+pub use deviations::DeviationsPly;
+pub use error::IoError;
+pub use mesh::{MeshFormat, ply_scalar, read_design, read_design_bytes};
+pub use scan::{DEFAULT_CHUNK, Format, PoseSource, ReadNotes, ScanFile, ScanInfo, read_cloud};

@@ -67,32 +67,71 @@ pub struct FindingsConfig {
 
 impl Default for FindingsConfig {
     fn default() -> Self {
+        use asbuilt_core::scan_layer::defaults;
         Self {
             enabled: false,
-            spacing: 0.01,
+            spacing: defaults::SPACING,
             projection_diameter: None,
             max_depth: None,
             layer_height: None,
             coverage_threshold: None,
             scanner_step_mrad: None,
-            max_incidence_deg: 65.0,
-            min_region_samples: 5,
-            min_missing_area_m2: 0.001,
+            max_incidence_deg: defaults::MAX_INCIDENCE_DEG,
+            min_region_samples: defaults::MIN_REGION_SAMPLES,
+            min_missing_area_m2: defaults::MIN_MISSING_AREA_M2,
         }
     }
 }
 
 impl FindingsConfig {
     pub fn projection_diameter(&self) -> f64 {
-        self.projection_diameter.unwrap_or_else(|| {
-            let d = 2.0 * self.spacing;
-            self.layer_height.map_or(d, |h| d.min(0.5 * h))
-        })
+        use asbuilt_core::scan_layer::defaults;
+        self.projection_diameter
+            .unwrap_or_else(|| defaults::projection_diameter(self.spacing, self.layer_height))
     }
 
     pub fn coverage_threshold(&self, tolerance: f64) -> f64 {
+        use asbuilt_core::scan_layer::defaults;
         self.coverage_threshold
-            .unwrap_or_else(|| (0.5 * tolerance).max(0.003))
+            .unwrap_or_else(|| defaults::coverage_threshold(tolerance))
+    }
+
+    /// What a scan layer at `printed_height` measures: M3C2 and coverage over the design's
+    /// samples, and the findings drawn from them.
+    pub fn scan_layer(
+        &self,
+        tolerance: f64,
+        max_depth: f64,
+        printed_height: f64,
+    ) -> asbuilt_core::scan_layer::ScanLayerParams {
+        use asbuilt_core::coverage::CoverageParams;
+        use asbuilt_core::findings::FindingParams;
+        use asbuilt_core::m3c2::streaming::StreamingParams;
+        use asbuilt_core::scan_layer::{ScanLayerParams, defaults};
+        let threshold = self.coverage_threshold(tolerance);
+        // Coverage reaches twice the threshold: far enough to tell excess and deficit from
+        // missing, near enough to stay cheap.
+        let mut coverage = CoverageParams::with_threshold(threshold, 2.0 * threshold);
+        coverage.max_incidence_deg = self.max_incidence_deg;
+        coverage.spacing = self.coverage_spacing();
+        ScanLayerParams {
+            m3c2: Some(StreamingParams {
+                projection_diameter: self.projection_diameter(),
+                max_depth,
+                min_points: defaults::MIN_POINTS,
+            }),
+            coverage: Some(coverage),
+            findings: FindingParams {
+                tolerance,
+                layer_height: self.layer_height,
+                printed_height,
+                spacing: self.spacing,
+                radius: 0.5 * self.projection_diameter(),
+                min_region_samples: self.min_region_samples,
+                coverage_threshold: threshold,
+                min_missing_area_m2: self.min_missing_area_m2,
+            },
+        }
     }
 
     /// What raises the coverage threshold where the scan is sparser (see the fields).

@@ -8,14 +8,10 @@
 
 use std::sync::Arc;
 
-use asbuilt_core::coverage::{Coverage, CoverageParams};
-use asbuilt_core::findings::{self, FindingParams, Findings, Region};
-use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams};
 use asbuilt_core::printed::PrintedDesign;
 use asbuilt_core::sampling::DesignSamples;
-use asbuilt_protocol::{
-    DeviationFlags, LayerFinding, PointDeviation, RegionFinding, StationFindings, StationReport,
-};
+use asbuilt_core::scan_layer::{ScanLayer, defaults};
+use asbuilt_protocol::{DeviationFlags, PointDeviation, StationFindings, StationReport};
 use nalgebra::Point3;
 
 use crate::config::FindingsConfig;
@@ -23,22 +19,14 @@ use crate::{info, warn};
 
 type StationKey = (u64, u32);
 
-/// M3C2 cylinders with fewer points give a distance but never a significant change.
-const MIN_POINTS: u32 = 5;
 /// Scan layers kept at once: the current one and the one before, for a late station.
 const EPOCHS: usize = 2;
-const SAMPLE_SEED: u64 = 1;
 
-/// One scan layer's findings state: its design samples, streaming M3C2 and coverage.
+/// One scan layer's findings state (core's [`ScanLayer`]) and who feeds it.
 pub(crate) struct Epoch {
     job: u64,
     design: Arc<PrintedDesign>,
-    /// Where M3C2 cylinders would average two faces.
-    sharp_edges: Vec<[Point3<f64>; 2]>,
-    m3c2: StreamingM3c2,
-    coverage: Coverage,
-    area_per_sample: f64,
-    stations: u32,
+    layer: ScanLayer,
     /// The station sending now.
     active: Option<u32>,
 }
@@ -68,45 +56,31 @@ pub(crate) struct EpochMaker {
 
 impl EpochMaker {
     pub(crate) fn make(&self, job: u64, design: &Arc<PrintedDesign>) -> Option<Epoch> {
-        let c = &self.config;
         let started = std::time::Instant::now();
-        let made = DesignSamples::generate(design.design(), c.spacing, SAMPLE_SEED)
-            .map_err(|e| e.to_string())
-            .and_then(|samples| {
-                let m3c2 = StreamingM3c2::new(
-                    &samples,
-                    StreamingParams {
-                        projection_diameter: c.projection_diameter(),
-                        max_depth: self.max_depth,
-                        min_points: MIN_POINTS,
-                    },
-                )
-                .map_err(|e| e.to_string())?;
-                let threshold = c.coverage_threshold(self.tolerance);
-                let mut params = CoverageParams::with_threshold(threshold, 2.0 * threshold);
-                params.max_incidence_deg = c.max_incidence_deg;
-                // Lattice gaps are allowed up to the reach, twice the threshold.
-                params.spacing = c.coverage_spacing();
-                let coverage = Coverage::new(&samples, params).map_err(|e| e.to_string())?;
-                Ok((samples.len(), samples.area_per_sample, m3c2, coverage))
-            });
+        let params = self
+            .config
+            .scan_layer(self.tolerance, self.max_depth, design.height);
+        let made =
+            DesignSamples::generate(design.design(), self.config.spacing, defaults::SAMPLE_SEED)
+                .map_err(|e| e.to_string())
+                .and_then(|samples| {
+                    ScanLayer::new(&samples, design.sharp_edges().to_vec(), params)
+                        .map_err(|e| e.to_string())
+                });
         match made {
-            Ok((n, area_per_sample, m3c2, coverage)) => {
+            Ok(layer) => {
                 info!(
-                    "findings: scan layer at {} of job {job}: {n} design samples, {:.1} MB, ready \
+                    "findings: scan layer at {} of job {job}: {} design samples, {:.1} MB, ready \
                      in {:.2} s",
                     height_text(design.height),
-                    (m3c2.bytes() + coverage.bytes()) as f64 / 1e6,
+                    layer.samples(),
+                    layer.bytes() as f64 / 1e6,
                     started.elapsed().as_secs_f64()
                 );
                 Some(Epoch {
                     job,
-                    sharp_edges: design.sharp_edges().to_vec(),
                     design: design.clone(),
-                    m3c2,
-                    coverage,
-                    area_per_sample,
-                    stations: 0,
+                    layer,
                     active: None,
                 })
             }
@@ -162,8 +136,7 @@ impl FindingsStage {
             }
             _ => {
                 e.active = Some(key.1);
-                e.m3c2.begin_station();
-                e.coverage.begin_station();
+                e.layer.begin_station();
                 true
             }
         }
@@ -202,8 +175,7 @@ impl FindingsStage {
                 .map(|d| Point3::from(d.position))
                 .filter(|p| p.coords.iter().all(|v| v.is_finite())),
         );
-        e.m3c2.ingest(&self.scratch);
-        e.coverage.ingest(&self.scratch);
+        e.layer.ingest(&self.scratch);
     }
 
     /// Closes a station scanned from `origin` and returns the findings of its scan layer so
@@ -214,15 +186,7 @@ impl FindingsStage {
         origin: Option<Point3<f64>>,
         report: &StationReport,
     ) -> Option<StationFindings> {
-        let (tolerance, layer_height, spacing) = (
-            self.maker.tolerance,
-            self.maker.config.layer_height,
-            self.maker.config.spacing,
-        );
-        let radius = 0.5 * self.maker.config.projection_diameter();
-        let min_region_samples = self.maker.config.min_region_samples;
-        let coverage_threshold = self.maker.config.coverage_threshold(tolerance);
-        let min_missing_area_m2 = self.maker.config.min_missing_area_m2;
+        let tolerance = self.maker.tolerance;
         let e = active(&mut self.epochs, key)?;
         e.active = None;
         let Some(origin) = origin else {
@@ -234,26 +198,14 @@ impl FindingsStage {
         } else {
             0.0
         };
-        e.coverage.end_station(origin, &*e.design);
-        e.m3c2.end_station(sigma);
-        e.stations += 1;
-        let f = findings::find(
-            &e.m3c2.results(sigma),
-            &e.coverage.outcomes(&*e.design),
-            &e.sharp_edges,
-            e.area_per_sample,
-            &FindingParams {
-                tolerance,
-                layer_height,
-                printed_height: e.design.height,
-                spacing,
-                radius,
-                min_region_samples,
-                coverage_threshold,
-                min_missing_area_m2,
-            },
-        );
-        Some(to_message(&f, key, e.stations, tolerance, report))
+        e.layer.end_station(origin, sigma, &*e.design);
+        let f = e.layer.findings(sigma, &*e.design)?;
+        Some(f.to_message(
+            key,
+            e.layer.stations(),
+            tolerance,
+            (report.layer, report.printed_height),
+        ))
     }
 }
 
@@ -269,63 +221,5 @@ fn height_text(h: f64) -> String {
         format!("{:.3} m", h)
     } else {
         "full height".into()
-    }
-}
-
-fn to_message(
-    f: &Findings,
-    key: StationKey,
-    stations: u32,
-    tolerance: f64,
-    report: &StationReport,
-) -> StationFindings {
-    let mut m = StationFindings::new(key.0, key.1);
-    m.layer = report.layer;
-    m.printed_height = report.printed_height;
-    m.tolerance = tolerance;
-    m.stations = stations;
-    if let Some(t) = f.top {
-        m.top_height_deviation = t.height_deviation;
-        m.top_samples = t.samples;
-    }
-    for r in &f.layers {
-        let row = LayerFinding {
-            layer: r.layer,
-            z_min: r.z_min,
-            z_max: r.z_max,
-            samples: r.samples,
-            mean: r.mean,
-            width_deviation: r.width_deviation.unwrap_or(f64::NAN),
-            shift: r.shift.unwrap_or([f64::NAN; 2]),
-        };
-        if m.layers.push(row).is_err() {
-            m.truncated += 1;
-        }
-    }
-    for r in &f.regions {
-        if m.regions.push(region(r)).is_err() {
-            m.truncated += 1;
-        }
-    }
-    for r in &f.missing {
-        if m.missing.push(region(r)).is_err() {
-            m.truncated += 1;
-        }
-    }
-    m
-}
-
-fn region(r: &Region) -> RegionFinding {
-    RegionFinding {
-        kind: r.kind,
-        samples: r.samples,
-        area_m2: r.area_m2,
-        centroid: r.centroid.into(),
-        min: r.min.into(),
-        max: r.max.into(),
-        peak: r.peak,
-        peak_at: r.peak_at.into(),
-        mean: r.mean,
-        layers: r.layers.map_or([u32::MAX; 2], |(a, b)| [a, b]),
     }
 }

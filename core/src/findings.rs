@@ -22,6 +22,7 @@ use rustc_hash::FxHashMap;
 use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
 use crate::m3c2::streaming::CoreResult;
+use asbuilt_protocol::{LayerFinding, RegionFinding, StationFindings};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FindingParams {
@@ -398,6 +399,69 @@ fn components(pts: &[Point3<f64>], link: f64) -> Vec<Vec<usize>> {
     let mut out: Vec<Vec<usize>> = groups.into_values().collect();
     out.sort_by_key(|g| g[0]);
     out
+}
+
+impl Findings {
+    /// The findings as the agent publishes them: of job `job`'s scan layer, after station
+    /// `station`, the `stations`-th of that layer. Rows past the message's capacity are
+    /// counted in `truncated`.
+    pub fn to_message(
+        &self,
+        (job, station): (u64, u32),
+        stations: u32,
+        tolerance: f64,
+        (layer, printed_height): (u32, f64),
+    ) -> StationFindings {
+        let mut m = StationFindings::new(job, station);
+        m.layer = layer;
+        m.printed_height = printed_height;
+        m.tolerance = tolerance;
+        m.stations = stations;
+        if let Some(t) = self.top {
+            m.top_height_deviation = t.height_deviation;
+            m.top_samples = t.samples;
+        }
+        for r in &self.layers {
+            let row = LayerFinding {
+                layer: r.layer,
+                z_min: r.z_min,
+                z_max: r.z_max,
+                samples: r.samples,
+                mean: r.mean,
+                width_deviation: r.width_deviation.unwrap_or(f64::NAN),
+                shift: r.shift.unwrap_or([f64::NAN; 2]),
+            };
+            if m.layers.push(row).is_err() {
+                m.truncated += 1;
+            }
+        }
+        for r in &self.regions {
+            if m.regions.push(region_message(r)).is_err() {
+                m.truncated += 1;
+            }
+        }
+        for r in &self.missing {
+            if m.missing.push(region_message(r)).is_err() {
+                m.truncated += 1;
+            }
+        }
+        m
+    }
+}
+
+fn region_message(r: &Region) -> RegionFinding {
+    RegionFinding {
+        kind: r.kind,
+        samples: r.samples,
+        area_m2: r.area_m2,
+        centroid: r.centroid.into(),
+        min: r.min.into(),
+        max: r.max.into(),
+        peak: r.peak,
+        peak_at: r.peak_at.into(),
+        mean: r.mean,
+        layers: r.layers.map_or([u32::MAX; 2], |(a, b)| [a, b]),
+    }
 }
 
 #[cfg(test)]

@@ -19,3 +19,4 @@ pub mod m3c2;
 pub mod printed;
 pub mod probes;
 pub mod sampling;
+pub mod scan_layer;

@@ -399,7 +399,33 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         sections.push(section);
     }
     let written = ply.finish()?;
-    let totals = suite.finish(&index, &args.out)?;
+    let mut totals = suite.finish(&index, &args.out)?;
+    // The job's findings, drawn as the agent draws a scan layer's: offline there is one.
+    let findings: Vec<_> = totals
+        .findings
+        .take()
+        .map(|(f, stations)| {
+            eprintln!(
+                "findings: {} region(s) out of tolerance, {} missing area(s){}",
+                f.regions.len(),
+                f.missing.len(),
+                if f.layers.is_empty() {
+                    ""
+                } else {
+                    ", a row per layer band"
+                }
+            );
+            // The layer printed when the scans were taken, counted from the design's base.
+            let layer = match (args.printed_height, args.layer_height) {
+                (Some(h), Some(lh)) => ((h - design_lo.z) / lh).round().max(0.0) as u32,
+                _ => 0,
+            };
+            let last = stations.saturating_sub(1);
+            let printed = args.printed_height.unwrap_or(f64::NAN);
+            f.to_message((0, last), stations, args.tolerance, (layer, printed))
+        })
+        .into_iter()
+        .collect();
     if let Some(mut v) = viewer {
         for (path, samples) in [
             ("missing", &totals.missing_view),
@@ -479,7 +505,7 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         overall,
         layers: totals.layers,
         m3c2_two_cloud: totals.m3c2_two_cloud,
-        findings: Vec::new(),
+        findings,
         warnings,
     };
     let json_path = args.out.join("report.json");

@@ -8,11 +8,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
-use asbuilt_core::coverage::{Coverage, CoverageParams, CoverageSummary, SampleClass, ScanSpacing};
+use asbuilt_core::coverage::{CoverageParams, CoverageSummary, SampleClass, ScanSpacing};
+use asbuilt_core::findings::{FindingParams, Findings};
 use asbuilt_core::layers::{BandRow, LayerBands};
 use asbuilt_core::m3c2::classic::{self, ClassicParams};
-use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams, StreamingSummary};
+use asbuilt_core::m3c2::streaming::{StreamingParams, StreamingSummary};
 use asbuilt_core::sampling::DesignSamples;
+use asbuilt_core::scan_layer::{ScanLayer, ScanLayerParams, defaults};
 use asbuilt_core::stats::{DeviationAccumulator, StatsConfig};
 use asbuilt_core::{C2mIndex, Design};
 use asbuilt_protocol::{DeviationFlags, DeviationStats, PointDeviation};
@@ -271,6 +273,10 @@ pub struct SuiteTotals {
     pub missing_view: Vec<(Point3<f64>, f32, bool)>,
     #[serde(skip)]
     pub m3c2_view: Vec<(Point3<f64>, f32, bool)>,
+    /// With M3C2 and coverage: the job's findings, as the agent draws them for a scan layer,
+    /// and the stations they come from.
+    #[serde(skip)]
+    pub findings: Option<(Findings, u32)>,
 }
 
 struct C2cRun {
@@ -291,8 +297,8 @@ struct Layers {
 pub struct Suite {
     config: SuiteConfig,
     c2c: Option<C2cRun>,
-    coverage: Option<Coverage>,
-    m3c2: Option<StreamingM3c2>,
+    /// M3C2 and coverage over the design samples: the agent's scan-layer state.
+    scan_layer: Option<ScanLayer>,
     layers: Option<Layers>,
     /// Reference and every scan point kept, only for two-cloud M3C2 (offline, in memory).
     two_cloud: Option<(CloudIndex, Vec<Point3<f64>>)>,
@@ -366,25 +372,10 @@ impl Suite {
         } else {
             None
         };
-        let coverage = match (&samples, config.has(Method::Coverage)) {
-            (Some(s), true) => Some(Coverage::new(
-                s,
-                CoverageParams {
-                    spacing: config.coverage_spacing,
-                    ..CoverageParams::with_threshold(config.coverage_threshold, config.reach)
-                },
-            )?),
-            _ => None,
-        };
-        let m3c2 = match (&samples, config.has(Method::M3c2)) {
-            (Some(s), true) => Some(StreamingM3c2::new(
-                s,
-                StreamingParams {
-                    projection_diameter: config.projection_diameter,
-                    max_depth: config.max_depth,
-                    min_points: 5,
-                },
-            )?),
+        let scan_layer = match &samples {
+            Some(s) if config.has(Method::Coverage) || config.has(Method::M3c2) => {
+                Some(Self::scan_layer(design, s, &config)?)
+            }
             _ => None,
         };
         let layers = match config.layer_height {
@@ -408,8 +399,7 @@ impl Suite {
         Ok(Self {
             config,
             c2c,
-            coverage,
-            m3c2,
+            scan_layer,
             layers,
             two_cloud,
             positions: Vec::new(),
@@ -420,16 +410,54 @@ impl Suite {
         })
     }
 
+    /// M3C2 and coverage over `samples`, as the agent sets up a scan layer, with the
+    /// command's parameters.
+    fn scan_layer(
+        design: &Design,
+        samples: &DesignSamples,
+        config: &SuiteConfig,
+    ) -> Result<ScanLayer> {
+        let coverage = CoverageParams {
+            spacing: config.coverage_spacing,
+            max_incidence_deg: defaults::MAX_INCIDENCE_DEG,
+            ..CoverageParams::with_threshold(config.coverage_threshold, config.reach)
+        };
+        let m3c2 = StreamingParams {
+            projection_diameter: config.projection_diameter,
+            max_depth: config.max_depth,
+            min_points: defaults::MIN_POINTS,
+        };
+        // Findings need both; their M3C2 cylinders must not average across sharp edges.
+        let both = config.has(Method::Coverage) && config.has(Method::M3c2);
+        let sharp_edges = if both {
+            design.sharp_edges(asbuilt_core::printed::SHARP_EDGE_DEG)
+        } else {
+            Vec::new()
+        };
+        let params = ScanLayerParams {
+            m3c2: config.has(Method::M3c2).then_some(m3c2),
+            coverage: config.has(Method::Coverage).then_some(coverage),
+            findings: FindingParams {
+                tolerance: config.tolerance,
+                layer_height: config.layer_height,
+                printed_height: config.printed_height.unwrap_or(f64::NAN),
+                spacing: config.spacing,
+                radius: 0.5 * config.projection_diameter,
+                min_region_samples: defaults::MIN_REGION_SAMPLES,
+                coverage_threshold: config.coverage_threshold,
+                min_missing_area_m2: defaults::MIN_MISSING_AREA_M2,
+            },
+        };
+        ScanLayer::new(samples, sharp_edges, params).context("--method coverage/m3c2")
+    }
+
     pub fn begin_station(&mut self) {
         if let Some(c) = &mut self.c2c {
             c.station = DeviationAccumulator::new(c.station.config());
             c.station_no_match = 0;
         }
-        if let Some(c) = &mut self.coverage {
-            c.begin_station();
-        }
-        if let Some(m) = &mut self.m3c2 {
-            m.begin_station();
+        if let Some(l) = &mut self.scan_layer {
+            l.begin_station();
         }
         self.above_station = 0;
     }
@@ -470,11 +498,8 @@ impl Suite {
                 }
             }
         }
-        if let Some(c) = &mut self.coverage {
-            c.ingest(positions);
-        }
-        if let Some(m) = &mut self.m3c2 {
-            m.ingest(positions);
+        if let Some(l) = &mut self.scan_layer {
+            l.ingest(positions);
         }
         if let Some((_, kept)) = &mut self.two_cloud {
             kept.extend_from_slice(positions);
@@ -502,13 +527,15 @@ impl Suite {
             c.total.merge(&c.station);
             c.total_no_match += c.station_no_match;
         }
-        if let Some(c) = &mut self.coverage {
-            let summary = c.end_station(origin, index);
-            s.coverage = Some(CoverageSection::new(&summary, c.area_per_sample()));
-            self.missing_by_station.push(summary.missing_samples);
-        }
-        if let Some(m) = &mut self.m3c2 {
-            s.m3c2 = Some(M3c2Section::new(&m.end_station(sigma), sigma));
+        if let Some(l) = &mut self.scan_layer {
+            let part = l.end_station(origin, sigma, index);
+            if let Some(summary) = part.coverage {
+                s.coverage = Some(CoverageSection::new(&summary, l.area_per_sample()));
+                self.missing_by_station.push(summary.missing_samples);
+            }
+            if let Some(m) = part.m3c2 {
+                s.m3c2 = Some(M3c2Section::new(&m, sigma));
+            }
         }
         s
     }
@@ -525,8 +552,11 @@ impl Suite {
         if let Some(c) = &self.c2c {
             t.section.c2c = Some(DistanceSection::new(&c.total.finish(), c.total_no_match));
         }
+        let layer = self.scan_layer.as_ref();
+        t.findings =
+            layer.and_then(|l| l.findings(self.sigma_max, index).map(|f| (f, l.stations())));
         let mut missing_bands: Option<LayerBands> = None;
-        if let Some(c) = &self.coverage {
+        if let Some(c) = layer.and_then(ScanLayer::coverage) {
             eprintln!("coverage: classifying {} design samples", c.samples().len());
             let outcomes = c.outcomes(index);
             let summary = c.summary_of(&outcomes);
@@ -568,7 +598,7 @@ impl Suite {
             }
         }
         let mut m3c2_bands: Option<LayerBands> = None;
-        if let Some(m) = &self.m3c2 {
+        if let Some(m) = layer.and_then(ScanLayer::m3c2) {
             let sigma = self.sigma_max;
             t.section.m3c2 = Some(M3c2Section::new(&m.total(sigma), sigma));
             let results = m.results(sigma);

@@ -1,0 +1,187 @@
+//! One scan layer's deviation state: the design's samples, streaming M3C2 over them, coverage,
+//! and the findings they give. The agent keeps one per printed height it scans; `asbuilt
+//! inspect` keeps one for its job. Both feed it the same way (a station begins, its points come
+//! chunk by chunk, it ends at its scanner's origin), so offline and live give the same findings
+//! from the same code. Memory grows with the design and the spacing, never with the scan.
+
+use nalgebra::Point3;
+
+use crate::Surface;
+use crate::coverage::{Coverage, CoverageError, CoverageParams, CoverageSummary};
+use crate::findings::{self, FindingParams, Findings};
+use crate::m3c2::streaming::{StreamingError, StreamingM3c2, StreamingParams, StreamingSummary};
+use crate::sampling::DesignSamples;
+
+/// The defaults every caller starts from, so the agent's `[findings]` and `inspect`'s flags
+/// mean the same when left out.
+pub mod defaults {
+    /// Spacing of the design samples (the M3C2 core points), metres.
+    pub const SPACING: f64 = 0.01;
+    /// Seed of the design samples: the same design gives the same samples.
+    pub const SAMPLE_SEED: u64 = 1;
+    /// M3C2 cylinders with fewer points give a distance but never a significant change.
+    pub const MIN_POINTS: u32 = 5;
+    /// Steeper views than this do not call a surface missing, degrees.
+    pub const MAX_INCIDENCE_DEG: f64 = 65.0;
+    /// Regions and missing areas of fewer samples are noise.
+    pub const MIN_REGION_SAMPLES: usize = 5;
+    /// Missing areas smaller than this are left out, m² (a ledge that sticks out shadows a strip
+    /// below it).
+    pub const MIN_MISSING_AREA_M2: f64 = 0.001;
+    /// The coverage threshold's floor, metres: about three times the robot's position σ.
+    pub const COVERAGE_THRESHOLD_FLOOR: f64 = 0.003;
+
+    /// M3C2 cylinder diameter: twice the spacing, at most half a layer height (so a layer's
+    /// cylinders do not reach into the next).
+    pub fn projection_diameter(spacing: f64, layer_height: Option<f64>) -> f64 {
+        let d = 2.0 * spacing;
+        layer_height.map_or(d, |h| d.min(0.5 * h))
+    }
+
+    /// A design sample with a scan point this close is observed: max(3 mm, tolerance / 2).
+    pub fn coverage_threshold(tolerance: f64) -> f64 {
+        (0.5 * tolerance).max(COVERAGE_THRESHOLD_FLOOR)
+    }
+}
+
+/// What a scan layer measures. Either method may be left out; findings need both.
+#[derive(Debug, Clone)]
+pub struct ScanLayerParams {
+    pub m3c2: Option<StreamingParams>,
+    pub coverage: Option<CoverageParams>,
+    /// How the findings are drawn; `printed_height` is this layer's.
+    pub findings: FindingParams,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ScanLayerError {
+    #[error("M3C2: {0}")]
+    M3c2(#[from] StreamingError),
+    #[error("coverage: {0}")]
+    Coverage(#[from] CoverageError),
+}
+
+/// What one station added, per method that runs.
+#[derive(Debug, Clone)]
+pub struct StationPart {
+    pub coverage: Option<CoverageSummary>,
+    pub m3c2: Option<StreamingSummary>,
+}
+
+pub struct ScanLayer {
+    m3c2: Option<StreamingM3c2>,
+    coverage: Option<Coverage>,
+    /// Where M3C2 cylinders would average two faces.
+    sharp_edges: Vec<[Point3<f64>; 2]>,
+    area_per_sample: f64,
+    samples: usize,
+    findings: FindingParams,
+    stations: u32,
+}
+
+impl ScanLayer {
+    /// The state over `samples` of the design as printed at this layer, whose sharp edges are
+    /// `sharp_edges`.
+    pub fn new(
+        samples: &DesignSamples,
+        sharp_edges: Vec<[Point3<f64>; 2]>,
+        params: ScanLayerParams,
+    ) -> Result<Self, ScanLayerError> {
+        let m3c2 = params
+            .m3c2
+            .map(|p| StreamingM3c2::new(samples, p))
+            .transpose()?;
+        let coverage = params
+            .coverage
+            .map(|p| Coverage::new(samples, p))
+            .transpose()?;
+        Ok(Self {
+            m3c2,
+            coverage,
+            sharp_edges,
+            area_per_sample: samples.area_per_sample,
+            samples: samples.len(),
+            findings: params.findings,
+            stations: 0,
+        })
+    }
+
+    /// Design samples the layer measures at.
+    pub fn samples(&self) -> usize {
+        self.samples
+    }
+
+    pub fn area_per_sample(&self) -> f64 {
+        self.area_per_sample
+    }
+
+    /// Stations ended so far.
+    pub fn stations(&self) -> u32 {
+        self.stations
+    }
+
+    pub fn m3c2(&self) -> Option<&StreamingM3c2> {
+        self.m3c2.as_ref()
+    }
+
+    pub fn coverage(&self) -> Option<&Coverage> {
+        self.coverage.as_ref()
+    }
+
+    /// Memory held, bytes.
+    pub fn bytes(&self) -> usize {
+        self.m3c2.as_ref().map_or(0, |m| m.bytes())
+            + self.coverage.as_ref().map_or(0, |c| c.bytes())
+            + self.sharp_edges.len() * size_of::<[Point3<f64>; 2]>()
+    }
+
+    pub fn begin_station(&mut self) {
+        if let Some(m) = &mut self.m3c2 {
+            m.begin_station();
+        }
+        if let Some(c) = &mut self.coverage {
+            c.begin_station();
+        }
+    }
+
+    /// A chunk's design-frame points (valid and finite).
+    pub fn ingest(&mut self, points: &[Point3<f64>]) {
+        if let Some(m) = &mut self.m3c2 {
+            m.ingest(points);
+        }
+        if let Some(c) = &mut self.coverage {
+            c.ingest(points);
+        }
+    }
+
+    /// Closes a station scanned from `origin` with position σ `sigma` against `surface` (the
+    /// design as printed at this layer).
+    pub fn end_station(
+        &mut self,
+        origin: Point3<f64>,
+        sigma: f64,
+        surface: &dyn Surface,
+    ) -> StationPart {
+        self.stations += 1;
+        StationPart {
+            coverage: self
+                .coverage
+                .as_mut()
+                .map(|c| c.end_station(origin, surface)),
+            m3c2: self.m3c2.as_mut().map(|m| m.end_station(sigma)),
+        }
+    }
+
+    /// The findings of every station so far, with M3C2's significance at position σ `sigma`.
+    /// `None` unless both M3C2 and coverage run.
+    pub fn findings(&self, sigma: f64, surface: &dyn Surface) -> Option<Findings> {
+        let (m3c2, coverage) = (self.m3c2.as_ref()?, self.coverage.as_ref()?);
+        Some(findings::find(
+            &m3c2.results(sigma),
+            &coverage.outcomes(surface),
+            &self.sharp_edges,
+            self.area_per_sample,
+            &self.findings,
+        ))
+    }
+}

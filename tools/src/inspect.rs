@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use asbuilt_core::coverage::ScanSpacing;
 use asbuilt_core::station::{InspectParams, StationInspector, Tally};
-use asbuilt_core::{C2mIndex, C2mParams, Units};
+use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -114,58 +114,117 @@ pub struct InspectArgs {
     local_plane: Option<usize>,
 }
 
+/// `asbuilt inspect`: the arguments checked into a plan, then the job's steps in order.
 pub fn run(args: InspectArgs) -> Result<ExitCode> {
-    if !(args.tolerance > 0.0 && args.tolerance.is_finite()) {
-        bail!(
-            "--tolerance must be a positive number of metres, got {}",
-            args.tolerance
-        );
-    }
-    let positive = |name: &str, v: Option<f64>| -> Result<()> {
-        match v {
-            Some(v) if !(v > 0.0 && v.is_finite()) => {
-                bail!("{name} must be a positive number of metres, got {v}")
-            }
-            _ => Ok(()),
-        }
-    };
-    positive("--spacing", Some(args.spacing))?;
-    positive("--projection-diameter", Some(args.projection_diameter))?;
-    positive("--max-depth", args.max_depth)?;
-    positive("--normal-diameter", args.normal_diameter)?;
-    positive("--coverage-threshold", args.coverage_threshold)?;
-    positive("--scanner-step-mrad", args.scanner_step_mrad)?;
-    positive("--layer-height", args.layer_height)?;
-    let mut methods: Vec<Method> = args.method.0.clone();
-    methods.push(Method::C2m);
-    methods.sort();
-    methods.dedup();
-    if args.reference.is_some()
-        && !methods
-            .iter()
-            .any(|m| matches!(m, Method::C2c | Method::M3c2))
-    {
-        bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
-    }
-
-    let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
-    let stations = match (&args.stations, &args.scan) {
-        (Some(path), _) => stations::load(path)?,
-        (None, Some(scan)) => single_station(&args, scan)?,
-        (None, None) => bail!("give --stations FILE or --scan FILE"),
-    };
-
+    let plan = Plan::check(args)?;
     let started = Instant::now();
-    let full_design = asbuilt_io::read_design(&args.design, args.units)?;
+    let (design, mut warnings) = load_design(&plan.args)?;
+    let mut job = Job::start(&plan, design, started)?;
+    for (n, station) in plan.stations.iter().enumerate() {
+        job.station(&plan, n, station, &mut warnings);
+    }
+    let (report, written, failed) = job.finish(&plan, warnings)?;
+    write_report(&plan, &report, written, &failed, started)
+}
+
+/// What the arguments ask for, checked, with the defaults that depend on each other resolved.
+struct Plan {
+    args: InspectArgs,
+    methods: Vec<Method>,
+    max_distance: f64,
+    coverage_threshold: f64,
+    max_depth: f64,
+    stations: Vec<Station>,
+}
+
+impl Plan {
+    fn check(args: InspectArgs) -> Result<Self> {
+        if !(args.tolerance > 0.0 && args.tolerance.is_finite()) {
+            bail!(
+                "--tolerance must be a positive number of metres, got {}",
+                args.tolerance
+            );
+        }
+        let positive = |name: &str, v: Option<f64>| -> Result<()> {
+            match v {
+                Some(v) if !(v > 0.0 && v.is_finite()) => {
+                    bail!("{name} must be a positive number of metres, got {v}")
+                }
+                _ => Ok(()),
+            }
+        };
+        positive("--spacing", Some(args.spacing))?;
+        positive("--projection-diameter", Some(args.projection_diameter))?;
+        positive("--max-depth", args.max_depth)?;
+        positive("--normal-diameter", args.normal_diameter)?;
+        positive("--coverage-threshold", args.coverage_threshold)?;
+        positive("--scanner-step-mrad", args.scanner_step_mrad)?;
+        positive("--layer-height", args.layer_height)?;
+        let mut methods: Vec<Method> = args.method.0.clone();
+        methods.push(Method::C2m);
+        methods.sort();
+        methods.dedup();
+        if args.reference.is_some()
+            && !methods
+                .iter()
+                .any(|m| matches!(m, Method::C2c | Method::M3c2))
+        {
+            bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
+        }
+        let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
+        let stations = match (&args.stations, &args.scan) {
+            (Some(path), _) => stations::load(path)?,
+            (None, Some(scan)) => single_station(&args, scan)?,
+            (None, None) => bail!("give --stations FILE or --scan FILE"),
+        };
+        let coverage_threshold = args
+            .coverage_threshold
+            .unwrap_or((3.0 * DEFAULT_POSITION_SIGMA).max(0.5 * args.tolerance))
+            .min(max_distance);
+        Ok(Self {
+            max_depth: args.max_depth.unwrap_or(max_distance),
+            methods,
+            max_distance,
+            coverage_threshold,
+            stations,
+            args,
+        })
+    }
+
+    fn suite_config(&self) -> SuiteConfig {
+        let args = &self.args;
+        SuiteConfig {
+            methods: self.methods.clone(),
+            tolerance: args.tolerance,
+            spacing: args.spacing,
+            projection_diameter: args.projection_diameter,
+            max_depth: self.max_depth,
+            normal_diameter: args.normal_diameter.unwrap_or(args.projection_diameter),
+            coverage_threshold: self.coverage_threshold,
+            coverage_spacing: coverage_spacing(args),
+            reach: self.max_distance,
+            layer_height: args.layer_height,
+            printed_height: args.printed_height,
+            reference: args.reference.clone(),
+            local_plane: args.local_plane,
+            seed: 1,
+        }
+    }
+}
+
+/// The design as compared with: the whole model, or with --printed-height the part cut there
+/// and capped. Warnings about the cut are returned for the report.
+fn load_design(args: &InspectArgs) -> Result<(LoadedDesign, Vec<String>)> {
+    let full = asbuilt_io::read_design(&args.design, args.units)?;
     let mut warnings = Vec::new();
-    let design_warnings = full_design.report.warnings();
+    let design_warnings = full.report.warnings();
     for w in &design_warnings {
         eprintln!("warning: design: {w}");
     }
     let design = match args.printed_height {
         Some(h) => {
             let (cut, report) =
-                asbuilt_core::layers::cut_at(&full_design, h).context("--printed-height")?;
+                asbuilt_core::layers::cut_at(&full, h).context("--printed-height")?;
             eprintln!(
                 "design cut at {h} m: {} triangles, cap of {} triangles over {} outlines",
                 cut.triangles.len(),
@@ -183,110 +242,117 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             }
             cut
         }
-        None => full_design,
+        None => full,
     };
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
-    let mut ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
-    let config = InspectParams::with_tolerance(args.tolerance);
-    let (design_lo, design_hi) = design.bounds();
-    let design_size = (design_hi - design_lo).norm();
-
-    let coverage_threshold = args
-        .coverage_threshold
-        .unwrap_or((3.0 * DEFAULT_POSITION_SIGMA).max(0.5 * args.tolerance));
-    let max_depth = args.max_depth.unwrap_or(max_distance);
-    let mut suite = Suite::new(
-        &design,
-        SuiteConfig {
-            methods: methods.clone(),
-            tolerance: args.tolerance,
-            spacing: args.spacing,
-            projection_diameter: args.projection_diameter,
-            max_depth,
-            normal_diameter: args.normal_diameter.unwrap_or(args.projection_diameter),
-            coverage_threshold: coverage_threshold.min(max_distance),
-            coverage_spacing: coverage_spacing(&args),
-            reach: max_distance,
-            layer_height: args.layer_height,
-            printed_height: args.printed_height,
-            reference: args.reference.clone(),
-            local_plane: args.local_plane,
-            seed: 1,
+    Ok((
+        LoadedDesign {
+            design,
+            warnings: design_warnings,
         },
-    )?;
+        warnings,
+    ))
+}
 
-    let viewer = if args.rerun.is_some() || args.rerun_url.is_some() {
-        let v = Viewer::start(ViewerParams {
-            rrd: args.rerun.clone(),
-            url: args.rerun_url.clone(),
-            max_points_per_station: args.rerun_points,
-            // Offline nothing waits on the view: a deep queue keeps every item.
-            queue: 4096,
-            tolerance: args.tolerance,
-        })?;
-        v.show(View::Design {
-            vertices: design.vertices.clone(),
-            triangles: design.triangles.clone(),
-        });
-        Some(v)
-    } else {
-        None
-    };
+struct LoadedDesign {
+    design: Design,
+    warnings: Vec<String>,
+}
 
-    // The design's counts are all the report needs of it from here: the index takes it over.
-    let (design_vertices, design_triangles) = (design.vertices.len(), design.triangles.len());
-    let index = C2mIndex::from_design(
-        design,
-        C2mParams {
-            max_distance,
-            cell_size: None,
-        },
-    )?;
-    let ix = index.stats();
-    eprintln!(
-        "design {}: {} triangles, index {} cells of {:.2} mm, {:.0} MB, built in {:.1} s",
-        args.design.display(),
-        ix.triangles,
-        ix.cells,
-        ix.cell_size * 1e3,
-        ix.bytes as f64 / 1e6,
-        started.elapsed().as_secs_f64()
-    );
+/// What the report says of the design, kept once the index has taken the design over.
+struct DesignFacts {
+    vertices: usize,
+    triangles: usize,
+    warnings: Vec<String>,
+    lowest: f64,
+    size: f64,
+    index: asbuilt_core::c2m::IndexStats,
+}
 
-    let mut sections = Vec::new();
-    let mut total = Tally::new(config.stats);
-    let mut total_malformed = 0u64;
-    let mut failed = Vec::new();
-    let mut buffer = vec![PointDeviation::default(); CHUNK];
+/// The job under way: the index, the methods beside C2M, the outputs, and what the stations
+/// have given so far.
+struct Job {
+    index: C2mIndex,
+    facts: DesignFacts,
+    suite: Suite,
+    viewer: Option<Viewer>,
+    ply: DeviationsPly,
+    params: InspectParams,
+    sections: Vec<Section>,
+    total: Tally,
+    total_malformed: u64,
+    failed: Vec<String>,
+    buffer: Vec<PointDeviation>,
+}
 
-    for (n, station) in stations.iter().enumerate() {
+impl Job {
+    fn start(plan: &Plan, loaded: LoadedDesign, started: Instant) -> Result<Self> {
+        let args = &plan.args;
+        let LoadedDesign { design, warnings } = loaded;
+        std::fs::create_dir_all(&args.out)
+            .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
+        let ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
+        let (lo, hi) = design.bounds();
+        let suite = Suite::new(&design, plan.suite_config())?;
+        let viewer = start_viewer(args, &design)?;
+        // The design's counts are all the report needs of it from here: the index takes it over.
+        let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
+        let index = C2mIndex::from_design(
+            design,
+            C2mParams {
+                max_distance: plan.max_distance,
+                cell_size: None,
+            },
+        )?;
+        let ix = index.stats();
+        eprintln!(
+            "design {}: {} triangles, index {} cells of {:.2} mm, {:.0} MB, built in {:.1} s",
+            args.design.display(),
+            ix.triangles,
+            ix.cells,
+            ix.cell_size * 1e3,
+            ix.bytes as f64 / 1e6,
+            started.elapsed().as_secs_f64()
+        );
+        let params = InspectParams::with_tolerance(args.tolerance);
+        Ok(Self {
+            index,
+            facts: DesignFacts {
+                vertices,
+                triangles,
+                warnings,
+                lowest: lo.z,
+                size: (hi - lo).norm(),
+                index: ix,
+            },
+            suite,
+            viewer,
+            ply,
+            total: Tally::new(params.stats),
+            params,
+            sections: Vec::new(),
+            total_malformed: 0,
+            failed: Vec::new(),
+            buffer: vec![PointDeviation::default(); CHUNK],
+        })
+    }
+
+    /// Inspects station `n`; a station whose scan cannot be read is counted as failed and the
+    /// job goes on.
+    fn station(&mut self, plan: &Plan, n: usize, station: &Station, warnings: &mut Vec<String>) {
         let t0 = Instant::now();
         let file = match ScanFile::open(&station.scan) {
             Ok(f) => f,
             Err(e) => {
                 eprintln!("error: station {}: {e:#}", station.id);
-                failed.push(station.id.clone());
-                continue;
+                self.failed.push(station.id.clone());
+                return;
             }
         };
         eprintln!("station {}: pose from {}", station.id, station.pose_source);
-        let declared = file.scans[station.scan_index].points;
-        let bar = match declared {
-            Some(n) => ProgressBar::new(n).with_style(
-                ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} points ({per_sec})")
-                    .expect("valid template")
-                    .progress_chars("=> "),
-            ),
-            None => ProgressBar::no_length().with_style(
-                ProgressStyle::with_template("{msg:>12} {spinner} {pos} points ({per_sec})")
-                    .expect("valid template"),
-            ),
-        };
-        bar.set_message(station.id.clone());
-        let mut inspector = StationInspector::new(&index, station.t_design_scanner, config);
-        suite.begin_station();
-        if let Some(v) = &viewer {
+        let mut inspector =
+            StationInspector::new(&self.index, station.t_design_scanner, self.params);
+        self.suite.begin_station();
+        if let Some(v) = &self.viewer {
             v.show(View::Station {
                 index: n as u32,
                 name: station.id.clone(),
@@ -295,42 +361,25 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
                 time_ns: asbuilt_protocol::unix_time_ns(),
             });
         }
-        let view_step = viewer::stride(declared.unwrap_or(1_000_000) as usize, args.rerun_points);
-        let mut bounds = (
-            Point3::from([f64::INFINITY; 3]),
-            Point3::from([f64::NEG_INFINITY; 3]),
+        let read = stream_station(
+            &file,
+            station,
+            n,
+            plan.args.rerun_points,
+            &mut inspector,
+            StationOutputs {
+                buffer: &mut self.buffer,
+                ply: &mut self.ply,
+                suite: &mut self.suite,
+                viewer: self.viewer.as_ref(),
+            },
         );
-        let read = file.stream(station.scan_index, CHUNK, &mut |chunk| {
-            let out = &mut buffer[..chunk.len()];
-            inspector.process(chunk, out);
-            for d in out
-                .iter()
-                .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
-            {
-                let p = Point3::from(d.position);
-                bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
-            }
-            ply.write(n as u16, out)?;
-            suite.chunk(out);
-            if let Some(v) = &viewer {
-                let (positions, distances) = viewer::decimate(out, view_step);
-                v.show(View::Points {
-                    index: n as u32,
-                    name: station.id.clone(),
-                    positions,
-                    distances,
-                });
-            }
-            bar.inc(chunk.len() as u64);
-            Ok(())
-        });
-        let notes = match read {
-            Ok(notes) => notes,
+        let (notes, bounds) = match read {
+            Ok(r) => r,
             Err(e) => {
-                bar.finish_and_clear();
                 eprintln!("error: station {}: {e:#}", station.id);
-                failed.push(station.id.clone());
-                continue;
+                self.failed.push(station.id.clone());
+                return;
             }
         };
         if notes.malformed_lines > 0 {
@@ -343,44 +392,39 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
             eprintln!("warning: {w}");
             warnings.push(w);
         }
-        bar.finish_and_clear();
-
-        let scan_size = (bounds.1 - bounds.0).norm();
-        if scan_size.is_finite() && design_size > 0.0 && scan_size > 0.0 {
-            let ratio = design_size / scan_size;
-            if !(1.0 / 30.0..=30.0).contains(&ratio) {
-                let w = format!(
-                    "station {}: the design spans {:.3} m but the scan spans {:.3} m ({}× apart): \
-                     check --units (a millimetre design declared as m is 1000× too big)",
-                    station.id,
-                    design_size,
-                    scan_size,
-                    format_ratio(ratio)
-                );
-                eprintln!("warning: {w}");
-                warnings.push(w);
-            }
+        if let Some(w) = size_mismatch(&station.id, self.facts.size, bounds) {
+            eprintln!("warning: {w}");
+            warnings.push(w);
         }
         let mut report = inspector.report(0, n as u32, &station.id);
         report.position_sigma = station.position_sigma;
-        if let Some(v) = &viewer {
+        self.total.merge(inspector.tally());
+        self.close_station(n, station, report, notes.malformed_lines, t0);
+    }
+
+    /// The station's report to the view and its section, with the methods beside C2M.
+    fn close_station(
+        &mut self,
+        n: usize,
+        station: &Station,
+        report: asbuilt_protocol::StationReport,
+        malformed: u64,
+        t0: Instant,
+    ) {
+        if let Some(v) = &self.viewer {
             v.show(View::Report {
                 index: n as u32,
                 name: station.id.clone(),
                 report: Box::new(report),
             });
         }
-        total.merge(inspector.tally());
-        total_malformed += notes.malformed_lines;
-        let mut section = Section::from_report(
-            &report,
-            Some(station.scan.display().to_string()),
-            notes.malformed_lines,
-        );
-        section.suite = suite.end_station(
+        self.total_malformed += malformed;
+        let mut section =
+            Section::from_report(&report, Some(station.scan.display().to_string()), malformed);
+        section.suite = self.suite.end_station(
             Point3::from(station.t_design_scanner.translation.vector),
             station.position_sigma,
-            &index,
+            &self.index,
         );
         eprintln!(
             "station {:<10} {:>8} points  median |d| {} mm  ({:.2} s)",
@@ -396,123 +440,273 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
         if !extra.is_empty() {
             eprintln!("        {:<10} {extra}", "");
         }
-        sections.push(section);
+        self.sections.push(section);
     }
-    let written = ply.finish()?;
-    let mut totals = suite.finish(&index, &args.out)?;
-    // The job's findings, drawn as the agent draws a scan layer's: offline there is one.
-    let findings: Vec<_> = totals
-        .findings
-        .take()
-        .map(|(f, stations)| {
-            eprintln!(
-                "findings: {} region(s) out of tolerance, {} missing area(s){}",
-                f.regions.len(),
-                f.missing.len(),
-                if f.layers.is_empty() {
-                    ""
-                } else {
-                    ", a row per layer band"
-                }
-            );
-            // The layer printed when the scans were taken, counted from the design's base.
-            let layer = match (args.printed_height, args.layer_height) {
-                (Some(h), Some(lh)) => ((h - design_lo.z) / lh).round().max(0.0) as u32,
-                _ => 0,
-            };
-            let last = stations.saturating_sub(1);
-            let printed = args.printed_height.unwrap_or(f64::NAN);
-            f.to_message((0, last), stations, args.tolerance, (layer, printed))
-        })
-        .into_iter()
-        .collect();
-    if let Some(mut v) = viewer {
-        for (path, samples) in [
-            ("missing", &totals.missing_view),
-            ("m3c2", &totals.m3c2_view),
+
+    /// Closes the outputs and puts the report together; returns it with the points written and
+    /// the stations that could not be read.
+    fn finish(self, plan: &Plan, mut warnings: Vec<String>) -> Result<(Report, u64, Vec<String>)> {
+        let args = &plan.args;
+        let written = self.ply.finish()?;
+        let mut totals = self.suite.finish(&self.index, &args.out)?;
+        let findings: Vec<_> = totals
+            .findings
+            .take()
+            .map(|(f, stations)| findings_message(args, self.facts.lowest, &f, stations))
+            .into_iter()
+            .collect();
+        if let Some(v) = self.viewer {
+            finish_viewer(v, &totals, args);
+        }
+        let mut overall = Section::from_report(
+            &self.total.report(0, u32::MAX, "overall"),
+            None,
+            self.total_malformed,
+        );
+        overall.suite = totals.section;
+        if overall.matched == 0 {
+            warnings.push(format!(
+                "no point matched the design within {} m: check the poses, --units and \
+                 --max-distance",
+                plan.max_distance
+            ));
+        }
+        let ix = &self.facts.index;
+        let report = Report {
+            asbuilt_version: env!("CARGO_PKG_VERSION"),
+            design: DesignSection {
+                path: args.design.display().to_string(),
+                units: args.units.to_string(),
+                vertices: self.facts.vertices,
+                triangles: self.facts.triangles,
+                warnings: self.facts.warnings,
+                index_cell_size_m: ix.cell_size,
+                index_cells: ix.cells,
+                index_bytes: ix.bytes,
+            },
+            parameters: Parameters {
+                tolerance_m: args.tolerance,
+                max_distance_m: plan.max_distance,
+                histogram_range_m: self.params.stats.histogram_range,
+                spacing_m: args.spacing,
+                coverage_threshold_m: plan.coverage_threshold,
+                coverage_spacing: describe_spacing(coverage_spacing(args)),
+                projection_diameter_m: args.projection_diameter,
+                max_depth_m: plan.max_depth,
+                printed_height_m: args.printed_height,
+                layer_height_m: args.layer_height,
+                reference: args.reference.as_ref().map(|p| p.display().to_string()),
+            },
+            methods: plan.methods.iter().map(|m| m.name()).collect(),
+            stations: self.sections,
+            overall,
+            layers: totals.layers,
+            m3c2_two_cloud: totals.m3c2_two_cloud,
+            findings,
+            warnings,
+        };
+        Ok((report, written, self.failed))
+    }
+}
+
+/// The lowest and highest corner of the points that reached the design frame.
+type Bounds = (Point3<f64>, Point3<f64>);
+
+/// Where a station's deviations go besides the statistics.
+struct StationOutputs<'a> {
+    buffer: &'a mut [PointDeviation],
+    ply: &'a mut DeviationsPly,
+    suite: &'a mut Suite,
+    viewer: Option<&'a Viewer>,
+}
+
+/// Streams station `n`'s scan through its inspector into the outputs, with a progress bar.
+/// Returns what the reader noted and the bounds of the points that reached the design frame.
+fn stream_station(
+    file: &ScanFile,
+    station: &Station,
+    n: usize,
+    rerun_points: usize,
+    inspector: &mut StationInspector<&C2mIndex>,
+    out: StationOutputs<'_>,
+) -> Result<(asbuilt_io::ReadNotes, Bounds)> {
+    let declared = file.scans[station.scan_index].points;
+    let bar = progress_bar(declared, &station.id);
+    let view_step = viewer::stride(declared.unwrap_or(1_000_000) as usize, rerun_points);
+    let mut bounds = (
+        Point3::from([f64::INFINITY; 3]),
+        Point3::from([f64::NEG_INFINITY; 3]),
+    );
+    let StationOutputs {
+        buffer,
+        ply,
+        suite,
+        viewer,
+    } = out;
+    let read = file.stream(station.scan_index, CHUNK, &mut |chunk| {
+        let devs = &mut buffer[..chunk.len()];
+        inspector.process(chunk, devs);
+        for d in devs
+            .iter()
+            .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
+        {
+            let p = Point3::from(d.position);
+            bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
+        }
+        ply.write(n as u16, devs)?;
+        suite.chunk(devs);
+        if let Some(v) = viewer {
+            let (positions, distances) = viewer::decimate(devs, view_step);
+            v.show(View::Points {
+                index: n as u32,
+                name: station.id.clone(),
+                positions,
+                distances,
+            });
+        }
+        bar.inc(chunk.len() as u64);
+        Ok(())
+    });
+    bar.finish_and_clear();
+    Ok((read?, bounds))
+}
+
+fn progress_bar(declared: Option<u64>, name: &str) -> ProgressBar {
+    let bar = match declared {
+        Some(n) => ProgressBar::new(n).with_style(
+            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} points ({per_sec})")
+                .expect("valid template")
+                .progress_chars("=> "),
+        ),
+        None => ProgressBar::no_length().with_style(
+            ProgressStyle::with_template("{msg:>12} {spinner} {pos} points ({per_sec})")
+                .expect("valid template"),
+        ),
+    };
+    bar.set_message(name.to_string());
+    bar
+}
+
+/// A warning when the scan and the design differ in size by more than 30×: the units are
+/// almost certainly wrong.
+fn size_mismatch(station: &str, design_size: f64, bounds: Bounds) -> Option<String> {
+    let scan_size = (bounds.1 - bounds.0).norm();
+    if !(scan_size.is_finite() && design_size > 0.0 && scan_size > 0.0) {
+        return None;
+    }
+    let ratio = design_size / scan_size;
+    (!(1.0 / 30.0..=30.0).contains(&ratio)).then(|| {
+        format!(
+            "station {station}: the design spans {design_size:.3} m but the scan spans \
+             {scan_size:.3} m ({}× apart): check --units (a millimetre design declared as m is \
+             1000× too big)",
+            format_ratio(ratio)
+        )
+    })
+}
+
+fn start_viewer(args: &InspectArgs, design: &Design) -> Result<Option<Viewer>> {
+    if args.rerun.is_none() && args.rerun_url.is_none() {
+        return Ok(None);
+    }
+    let v = Viewer::start(ViewerParams {
+        rrd: args.rerun.clone(),
+        url: args.rerun_url.clone(),
+        max_points_per_station: args.rerun_points,
+        // Offline nothing waits on the view: a deep queue keeps every item.
+        queue: 4096,
+        tolerance: args.tolerance,
+    })?;
+    v.show(View::Design {
+        vertices: design.vertices.clone(),
+        triangles: design.triangles.clone(),
+    });
+    Ok(Some(v))
+}
+
+/// The job's findings, drawn as the agent draws a scan layer's: offline there is one.
+fn findings_message(
+    args: &InspectArgs,
+    lowest: f64,
+    f: &asbuilt_core::findings::Findings,
+    stations: u32,
+) -> asbuilt_protocol::StationFindings {
+    eprintln!(
+        "findings: {} region(s) out of tolerance, {} missing area(s){}",
+        f.regions.len(),
+        f.missing.len(),
+        if f.layers.is_empty() {
+            ""
+        } else {
+            ", a row per layer band"
+        }
+    );
+    // The layer printed when the scans were taken, counted from the design's base.
+    let layer = match (args.printed_height, args.layer_height) {
+        (Some(h), Some(lh)) => ((h - lowest) / lh).round().max(0.0) as u32,
+        _ => 0,
+    };
+    let last = stations.saturating_sub(1);
+    let printed = args.printed_height.unwrap_or(f64::NAN);
+    f.to_message((0, last), stations, args.tolerance, (layer, printed))
+}
+
+/// The job-level layers of the view (missing samples, M3C2 core points, per-band means), then
+/// the view closed.
+fn finish_viewer(mut v: Viewer, totals: &suite::SuiteTotals, args: &InspectArgs) {
+    for (path, samples) in [
+        ("missing", &totals.missing_view),
+        ("m3c2", &totals.m3c2_view),
+    ] {
+        if !samples.is_empty() {
+            v.show(View::Samples {
+                path: path.into(),
+                positions: samples.iter().map(|s| s.0).collect(),
+                values: samples.iter().map(|s| s.1).collect(),
+                significant: (path == "m3c2").then(|| samples.iter().map(|s| s.2).collect()),
+            });
+        }
+    }
+    for row in totals.layers.iter().flatten() {
+        for (series, stats) in [
+            ("c2m_mean_mm", &row.c2m),
+            ("c2c_mean_mm", &row.c2c),
+            ("m3c2_mean_mm", &row.m3c2),
         ] {
-            if !samples.is_empty() {
-                v.show(View::Samples {
-                    path: path.into(),
-                    positions: samples.iter().map(|s| s.0).collect(),
-                    values: samples.iter().map(|s| s.1).collect(),
-                    significant: (path == "m3c2").then(|| samples.iter().map(|s| s.2).collect()),
+            if let Some(st) = stats {
+                v.show(View::LayerValue {
+                    series: series.into(),
+                    layer: row.layer,
+                    value: st.mean * 1e3,
                 });
             }
         }
-        for row in totals.layers.iter().flatten() {
-            for (series, stats) in [
-                ("c2m_mean_mm", &row.c2m),
-                ("c2c_mean_mm", &row.c2c),
-                ("m3c2_mean_mm", &row.m3c2),
-            ] {
-                if let Some(st) = stats {
-                    v.show(View::LayerValue {
-                        series: series.into(),
-                        layer: row.layer,
-                        value: st.mean * 1e3,
-                    });
-                }
-            }
-        }
-        v.finish();
-        if let Some(p) = &args.rerun {
-            eprintln!(
-                "wrote {} (open it with `rerun {}`)",
-                p.display(),
-                p.display()
-            );
-        }
     }
-
-    let mut overall =
-        Section::from_report(&total.report(0, u32::MAX, "overall"), None, total_malformed);
-    overall.suite = totals.section;
-
-    if overall.matched == 0 {
-        warnings.push(format!(
-            "no point matched the design within {max_distance} m: check the poses, --units and \
-             --max-distance"
-        ));
+    v.finish();
+    if let Some(p) = &args.rerun {
+        eprintln!(
+            "wrote {} (open it with `rerun {}`)",
+            p.display(),
+            p.display()
+        );
     }
-    let report = Report {
-        asbuilt_version: env!("CARGO_PKG_VERSION"),
-        design: DesignSection {
-            path: args.design.display().to_string(),
-            units: args.units.to_string(),
-            vertices: design_vertices,
-            triangles: design_triangles,
-            warnings: design_warnings,
-            index_cell_size_m: ix.cell_size,
-            index_cells: ix.cells,
-            index_bytes: ix.bytes,
-        },
-        parameters: Parameters {
-            tolerance_m: args.tolerance,
-            max_distance_m: max_distance,
-            histogram_range_m: config.stats.histogram_range,
-            spacing_m: args.spacing,
-            coverage_threshold_m: coverage_threshold.min(max_distance),
-            coverage_spacing: describe_spacing(coverage_spacing(&args)),
-            projection_diameter_m: args.projection_diameter,
-            max_depth_m: max_depth,
-            printed_height_m: args.printed_height,
-            layer_height_m: args.layer_height,
-            reference: args.reference.as_ref().map(|p| p.display().to_string()),
-        },
-        methods: methods.iter().map(|m| m.name()).collect(),
-        stations: sections,
-        overall,
-        layers: totals.layers,
-        m3c2_two_cloud: totals.m3c2_two_cloud,
-        findings,
-        warnings,
-    };
+}
+
+/// report.json and the summary table; the exit code says whether every station was read and
+/// anything matched.
+fn write_report(
+    plan: &Plan,
+    report: &Report,
+    written: u64,
+    failed: &[String],
+    started: Instant,
+) -> Result<ExitCode> {
+    let args = &plan.args;
     let json_path = args.out.join("report.json");
-    std::fs::write(&json_path, serde_json::to_string_pretty(&report)?)
+    std::fs::write(&json_path, serde_json::to_string_pretty(report)?)
         .with_context(|| format!("cannot write {}", json_path.display()))?;
 
-    print!("{}", summary_table(&report));
+    print!("{}", summary_table(report));
     eprintln!(
         "wrote {} and {} ({} points) in {:.1} s",
         json_path.display(),

@@ -101,85 +101,182 @@ pub fn write(
     tolerance: Option<f64>,
     max_distance: Option<f64>,
 ) -> Result<()> {
-    let args = ReportArgs {
-        recording: recording_path.to_path_buf(),
-        out: out.to_path_buf(),
-        tolerance,
-        max_distance,
-    };
-    let bytes = crate::recording_file::map(&args.recording)?;
-    let bad = |e| crate::recording_file::unreadable(&args.recording, e);
-    let (meta, attachments) = recording::job(&bytes).map_err(bad)?;
-    let meta = meta.with_context(|| {
-        format!(
-            "{} has no asbuilt.job metadata: it was not written by asbuilt",
-            args.recording.display()
-        )
-    })?;
-    let (name, design_bytes) = attachments
-        .into_iter()
-        .find(|(n, _)| n.starts_with(recording::ATTACHMENT_DESIGN))
-        .with_context(|| format!("{} carries no design attachment", args.recording.display()))?;
-    // "m" or "mm"; older recordings wrote "Metres" or "Millimetres".
-    let units: Units = meta
-        .design_units
-        .to_ascii_lowercase()
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!("the recording's design units: {e}"))?;
-    // The design as it was, read from the recording's bytes; its name gives the format.
-    let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
-        .with_context(|| format!("the design recorded in {}", args.recording.display()))?;
+    let bytes = crate::recording_file::map(recording_path)?;
+    let (job, designs) = RecordedJob::read(recording_path, &bytes, tolerance, max_distance)?;
+    let replayed = replay_stations(recording_path, &bytes, &job, designs)?;
+    let report = job.report(replayed);
+    write_outputs(recording_path, out, &report)
+}
 
-    let (frames, settings, limits) = if meta.writer == "asbuilt-agent" {
-        let problems =
-            |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
-        let (frames, settings) =
-            asbuilt_agent::config::recorded_settings(&meta.config).map_err(problems)?;
-        let limits = asbuilt_agent::config::recorded_limits(&meta.config).map_err(problems)?;
-        (frames, settings, limits)
-    } else {
-        (
-            FrameChain::default(),
-            Default::default(),
-            Default::default(),
-        )
-    };
-    let tolerance = args.tolerance.unwrap_or(settings.tolerance);
-    let max_distance = args
-        .max_distance
-        .unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
-    if !(tolerance > 0.0 && max_distance > 0.0) {
-        bail!("--tolerance and --max-distance must be positive metres");
-    }
-    // Stations scanned while printing were compared with the design as printed then.
-    let designs = PrintedDesigns::new(
-        design,
-        C2mParams {
+/// What a recording says of its job: the design as attached, the agent's settings and limits
+/// as recorded (or the defaults), and the tolerance and maximum distance to use.
+struct RecordedJob {
+    design_path: String,
+    units: Units,
+    /// The whole design and its index, for the report's design section.
+    full: std::sync::Arc<asbuilt_core::printed::PrintedDesign>,
+    frames: FrameChain,
+    params: InspectParams,
+    limits: asbuilt_agent::config::Limits,
+    tolerance: f64,
+    max_distance: f64,
+}
+
+impl RecordedJob {
+    fn read(
+        path: &std::path::Path,
+        bytes: &[u8],
+        tolerance: Option<f64>,
+        max_distance: Option<f64>,
+    ) -> Result<(Self, PrintedDesigns)> {
+        let bad = |e| crate::recording_file::unreadable(path, e);
+        let (meta, attachments) = recording::job(bytes).map_err(bad)?;
+        let meta = meta.with_context(|| {
+            format!(
+                "{} has no asbuilt.job metadata: it was not written by asbuilt",
+                path.display()
+            )
+        })?;
+        let (name, design_bytes) = attachments
+            .into_iter()
+            .find(|(n, _)| n.starts_with(recording::ATTACHMENT_DESIGN))
+            .with_context(|| format!("{} carries no design attachment", path.display()))?;
+        // "m" or "mm"; older recordings wrote "Metres" or "Millimetres".
+        let units: Units = meta
+            .design_units
+            .to_ascii_lowercase()
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!("the recording's design units: {e}"))?;
+        // The design as it was, read from the recording's bytes; its name gives the format.
+        let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
+            .with_context(|| format!("the design recorded in {}", path.display()))?;
+        let (frames, settings, limits) = if meta.writer == "asbuilt-agent" {
+            let problems =
+                |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
+            let (frames, settings) =
+                asbuilt_agent::config::recorded_settings(&meta.config).map_err(problems)?;
+            let limits = asbuilt_agent::config::recorded_limits(&meta.config).map_err(problems)?;
+            (frames, settings, limits)
+        } else {
+            (
+                FrameChain::default(),
+                Default::default(),
+                Default::default(),
+            )
+        };
+        let tolerance = tolerance.unwrap_or(settings.tolerance);
+        let max_distance =
+            max_distance.unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
+        if !(tolerance > 0.0 && max_distance > 0.0) {
+            bail!("--tolerance and --max-distance must be positive metres");
+        }
+        // Stations scanned while printing were compared with the design as printed then.
+        let designs = PrintedDesigns::new(
+            design,
+            C2mParams {
+                max_distance,
+                cell_size: settings.cell_size,
+            },
+        )?;
+        let mut params = InspectParams::with_tolerance(tolerance);
+        params.max_range = settings.max_range;
+        let job = Self {
+            design_path: meta.design_path,
+            units,
+            full: designs.full().clone(),
+            frames,
+            params,
+            limits,
+            tolerance,
             max_distance,
-            cell_size: settings.cell_size,
-        },
-    )?;
-    let full = designs.full().clone();
-    let mut config = InspectParams::with_tolerance(tolerance);
-    config.max_range = settings.max_range;
+        };
+        Ok((job, designs))
+    }
 
-    // The agent's own station lifecycle, fed in the order the agent processed the inputs: a
-    // recording read back gives what the live agent gave, whatever order its file holds.
-    let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> =
-        Lifecycle::new(designs, frames, config, limits.lifecycle());
-    let mut out = Collected::new(config.stats);
-    let mut findings: BTreeMap<(u64, u64), asbuilt_protocol::StationFindings> = BTreeMap::new();
+    /// report.json's content: the stations as replayed, the agent's recorded findings.
+    fn report(self, replayed: Replayed) -> Report {
+        let ix = self.full.index.stats();
+        let design = self.full.design();
+        let mut warnings = design.report.warnings();
+        if replayed.unfinished > 0 {
+            warnings.push(format!(
+                "{} station(s) have no end in the recording: reported as far as recorded",
+                replayed.unfinished
+            ));
+        }
+        let mut findings: Vec<_> = replayed.findings.into_values().collect();
+        findings.sort_by_key(|a| (a.job, a.layer));
+        Report {
+            asbuilt_version: env!("CARGO_PKG_VERSION"),
+            design: DesignSection {
+                path: self.design_path,
+                units: self.units.to_string(),
+                vertices: design.vertices.len(),
+                triangles: design.triangles.len(),
+                warnings: design.report.warnings(),
+                index_cell_size_m: ix.cell_size,
+                index_cells: ix.cells,
+                index_bytes: ix.bytes,
+            },
+            parameters: Parameters {
+                tolerance_m: self.tolerance,
+                max_distance_m: self.max_distance,
+                histogram_range_m: self.params.stats.histogram_range,
+                spacing_m: 0.0,
+                coverage_threshold_m: 0.0,
+                coverage_spacing: String::new(),
+                projection_diameter_m: 0.0,
+                max_depth_m: 0.0,
+                printed_height_m: None,
+                layer_height_m: None,
+                reference: None,
+            },
+            methods: vec!["c2m"],
+            stations: replayed.stations,
+            overall: Section::from_report(&replayed.total.report(0, u32::MAX, "overall"), None, 0),
+            layers: None,
+            m3c2_two_cloud: None,
+            findings,
+            warnings,
+        }
+    }
+}
+
+/// The stations as the agent's lifecycle gives them back from the recording.
+struct Replayed {
+    stations: Vec<Section>,
+    total: Tally,
+    /// The latest findings of each scan layer (by job and printed height).
+    findings: BTreeMap<(u64, u64), asbuilt_protocol::StationFindings>,
+    unfinished: usize,
+}
+
+/// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
+/// recording read back gives what the live agent gave, whatever order its file holds.
+fn replay_stations(
+    path: &std::path::Path,
+    bytes: &[u8],
+    job: &RecordedJob,
+    designs: PrintedDesigns,
+) -> Result<Replayed> {
+    let bad = |e| crate::recording_file::unreadable(path, e);
+    let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
+        designs,
+        job.frames.clone(),
+        job.params,
+        job.limits.lifecycle(),
+    );
+    let mut out = Collected::new(job.params.stats);
+    let mut findings = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
-    for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
+    for m in recording::messages_in_agent_order(bytes).map_err(bad)? {
         let (log_time, m) = m.map_err(bad)?;
         // The recording's clock, so that a chunk's wait for its pose is measured as it was.
         let t0 = *first_time.get_or_insert(log_time);
         let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
         match m {
-            Recorded::Event(e) => {
-                lifecycle.on_event(&e, now, &mut out);
-            }
+            Recorded::Event(e) => lifecycle.on_event(&e, now, &mut out),
             Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
             // The latest findings of each scan layer cover all its stations so far.
             Recorded::Findings(f) => {
@@ -208,65 +305,32 @@ pub fn write(
     } = out;
     done.sort_by_key(|(k, _)| *k);
     if done.is_empty() {
-        bail!("{} holds no station", args.recording.display());
+        bail!("{} holds no station", path.display());
     }
-    let ix = full.index.stats();
-    let design = full.design();
-    let mut warnings = design.report.warnings();
-    if unfinished > 0 {
-        warnings.push(format!(
-            "{unfinished} station(s) have no end in the recording: reported as far as recorded"
-        ));
-    }
-    let report = Report {
-        asbuilt_version: env!("CARGO_PKG_VERSION"),
-        design: DesignSection {
-            path: meta.design_path.clone(),
-            units: units.to_string(),
-            vertices: design.vertices.len(),
-            triangles: design.triangles.len(),
-            warnings: design.report.warnings(),
-            index_cell_size_m: ix.cell_size,
-            index_cells: ix.cells,
-            index_bytes: ix.bytes,
-        },
-        parameters: Parameters {
-            tolerance_m: tolerance,
-            max_distance_m: max_distance,
-            histogram_range_m: config.stats.histogram_range,
-            spacing_m: 0.0,
-            coverage_threshold_m: 0.0,
-            coverage_spacing: String::new(),
-            projection_diameter_m: 0.0,
-            max_depth_m: 0.0,
-            printed_height_m: None,
-            layer_height_m: None,
-            reference: None,
-        },
-        methods: vec!["c2m"],
+    Ok(Replayed {
         stations: done.into_iter().map(|(_, s)| s).collect(),
-        overall: Section::from_report(&total.report(0, u32::MAX, "overall"), None, 0),
-        layers: None,
-        m3c2_two_cloud: None,
-        findings: {
-            let mut f: Vec<_> = findings.into_values().collect();
-            f.sort_by_key(|a| (a.job, a.layer));
-            f
-        },
-        warnings,
-    };
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let json = args.out.join("report.json");
-    std::fs::write(&json, serde_json::to_string_pretty(&report)?)
+        total,
+        findings,
+        unfinished,
+    })
+}
+
+fn write_outputs(
+    recording: &std::path::Path,
+    out: &std::path::Path,
+    report: &Report,
+) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let json = out.join("report.json");
+    std::fs::write(&json, serde_json::to_string_pretty(report)?)
         .with_context(|| format!("cannot write {}", json.display()))?;
-    let html = args.out.join("report.html");
+    let html = out.join("report.html");
     std::fs::write(
         &html,
-        crate::html::page(&report, &args.recording.display().to_string()),
+        crate::html::page(report, &recording.display().to_string()),
     )
     .with_context(|| format!("cannot write {}", html.display()))?;
-    print!("{}", summary_table(&report));
+    print!("{}", summary_table(report));
     eprintln!("wrote {} and {}", json.display(), html.display());
     Ok(())
 }

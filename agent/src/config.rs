@@ -519,6 +519,22 @@ pub fn recorded_limits(text: &str) -> Result<Limits, Vec<String>> {
     }
 }
 
+/// The `[findings]` of a recorded configuration (off where it has none), so that a reader of
+/// the recording draws the findings the agent drew.
+pub fn recorded_findings(text: &str) -> Result<FindingsConfig, Vec<String>> {
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
+    let mut problems = Vec::new();
+    let findings: FindingsConfig =
+        section(&table, "findings", &mut problems, true).unwrap_or_default();
+    check_findings(&findings, &mut problems);
+    if problems.is_empty() {
+        Ok(findings)
+    } else {
+        Err(problems)
+    }
+}
+
 /// Deserialises one section, recording its problem instead of stopping at it.
 fn section<T: DeserializeOwned>(
     table: &toml::Table,

@@ -19,7 +19,8 @@ pub struct Report {
     pub layers: Option<Vec<LayerRow>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
-    /// The agent's findings, the latest of each scan layer (from a recording).
+    /// Findings, the latest of each scan layer: drawn again from a recording's chunks with the
+    /// agent's own stage (`report`), or the job's (`inspect --method all`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub findings: Vec<asbuilt_protocol::StationFindings>,
     pub warnings: Vec<String>,

@@ -10,13 +10,14 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
+use asbuilt_agent::findings::FindingsStage;
 use asbuilt_agent::lifecycle::{Lifecycle, Outputs};
 use asbuilt_core::frames::FrameChain;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::{InspectParams, Tally};
 use asbuilt_core::{C2mParams, Units};
 use asbuilt_protocol::recording::{self, Recorded};
-use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationReport};
+use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationFindings, StationReport};
 use clap::Args;
 use std::time::{Duration, Instant};
 
@@ -62,6 +63,8 @@ struct Collected {
     done: Vec<((u64, u32), Section)>,
     total: Tally,
     buffer: Vec<PointDeviation>,
+    /// The latest findings of each scan layer (by job and printed height).
+    findings: BTreeMap<(u64, u64), StationFindings>,
 }
 
 impl Collected {
@@ -70,6 +73,7 @@ impl Collected {
             done: Vec::new(),
             total: Tally::new(stats),
             buffer: Vec::new(),
+            findings: BTreeMap::new(),
         }
     }
 }
@@ -91,6 +95,11 @@ impl Outputs for Collected {
     fn report(&mut self, r: &StationReport) {
         self.done
             .push(((r.job, r.station), Section::from_report(r, None, 0)));
+    }
+
+    fn findings(&mut self, f: &StationFindings) {
+        self.findings
+            .insert((f.job, f.printed_height.to_bits()), f.clone());
     }
 }
 
@@ -118,6 +127,8 @@ struct RecordedJob {
     frames: FrameChain,
     params: InspectParams,
     limits: asbuilt_agent::config::Limits,
+    /// The agent's `[findings]` when it drew findings: the report draws them again.
+    findings: Option<asbuilt_agent::config::FindingsConfig>,
     tolerance: f64,
     max_distance: f64,
 }
@@ -150,18 +161,25 @@ impl RecordedJob {
         // The design as it was, read from the recording's bytes; its name gives the format.
         let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
             .with_context(|| format!("the design recorded in {}", path.display()))?;
-        let (frames, settings, limits) = if meta.writer == "asbuilt-agent" {
+        let (frames, settings, limits, findings) = if meta.writer == "asbuilt-agent" {
+            use asbuilt_agent::config::{recorded_findings, recorded_limits, recorded_settings};
             let problems =
                 |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
-            let (frames, settings) =
-                asbuilt_agent::config::recorded_settings(&meta.config).map_err(problems)?;
-            let limits = asbuilt_agent::config::recorded_limits(&meta.config).map_err(problems)?;
-            (frames, settings, limits)
+            let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
+            let limits = recorded_limits(&meta.config).map_err(problems)?;
+            let findings = recorded_findings(&meta.config).map_err(problems)?;
+            (
+                frames,
+                settings,
+                limits,
+                findings.enabled.then_some(findings),
+            )
         } else {
             (
                 FrameChain::default(),
                 Default::default(),
                 Default::default(),
+                None,
             )
         };
         let tolerance = tolerance.unwrap_or(settings.tolerance);
@@ -187,6 +205,7 @@ impl RecordedJob {
             frames,
             params,
             limits,
+            findings,
             tolerance,
             max_distance,
         };
@@ -198,6 +217,14 @@ impl RecordedJob {
         let ix = self.full.index.stats();
         let design = self.full.design();
         let mut warnings = design.report.warnings();
+        if replayed.findings_differ {
+            warnings.push(
+                "the findings drawn from the recorded chunks differ from those the agent \
+                 recorded: a --tolerance or --max-distance given here, or another asbuilt \
+                 version than the agent's"
+                    .to_string(),
+            );
+        }
         if replayed.unfinished > 0 {
             warnings.push(format!(
                 "{} station(s) have no end in the recording: reported as far as recorded",
@@ -247,7 +274,9 @@ struct Replayed {
     stations: Vec<Section>,
     total: Tally,
     /// The latest findings of each scan layer (by job and printed height).
-    findings: BTreeMap<(u64, u64), asbuilt_protocol::StationFindings>,
+    findings: BTreeMap<(u64, u64), StationFindings>,
+    /// The findings drawn again differ from those the agent recorded.
+    findings_differ: bool,
     unfinished: usize,
 }
 
@@ -266,8 +295,18 @@ fn replay_stations(
         job.params,
         job.limits.lifecycle(),
     );
+    // The agent's findings stage, as the agent ran it: the findings are drawn again from the
+    // recorded chunks, not copied from the recording.
+    if let Some(f) = &job.findings {
+        lifecycle = lifecycle.with_findings(FindingsStage::new(
+            f.clone(),
+            job.tolerance,
+            job.max_distance,
+            job.limits.max_points_per_chunk,
+        ));
+    }
     let mut out = Collected::new(job.params.stats);
-    let mut findings = BTreeMap::new();
+    let mut recorded = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
     for m in recording::messages_in_agent_order(bytes).map_err(bad)? {
@@ -280,7 +319,7 @@ fn replay_stations(
             Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
             // The latest findings of each scan layer cover all its stations so far.
             Recorded::Findings(f) => {
-                findings.insert((f.job, f.printed_height.to_bits()), *f);
+                recorded.insert((f.job, f.printed_height.to_bits()), *f);
             }
             Recorded::Chunk(h, pts) => {
                 if lifecycle.awaits_design(&h) {
@@ -301,16 +340,30 @@ fn replay_stations(
     let unfinished = lifecycle.stations_open();
     lifecycle.shutdown(&mut out);
     let Collected {
-        mut done, total, ..
+        mut done,
+        total,
+        findings: drawn,
+        ..
     } = out;
     done.sort_by_key(|(k, _)| *k);
     if done.is_empty() {
         bail!("{} holds no station", path.display());
     }
+    let (findings, findings_differ) = if job.findings.is_some() {
+        // Bytes, not floats: NaN fields compare equal as bytes.
+        let bytes = |m: &BTreeMap<(u64, u64), StationFindings>| -> Vec<Vec<u8>> {
+            m.values().map(asbuilt_protocol::codec::encode).collect()
+        };
+        let differ = bytes(&drawn) != bytes(&recorded);
+        (drawn, differ)
+    } else {
+        (recorded, false)
+    };
     Ok(Replayed {
         stations: done.into_iter().map(|(_, s)| s).collect(),
         total,
         findings,
+        findings_differ,
         unfinished,
     })
 }

@@ -316,6 +316,15 @@ fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
     }
     let findings = report["findings"].as_array().unwrap();
     assert_eq!(findings.len(), 2);
+    // `report` draws the findings again from the recorded chunks with the agent's own stage, and
+    // warns when they differ from what the agent recorded: they do not.
+    let warnings = report["warnings"].as_array().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .all(|w| !w.as_str().unwrap().contains("findings drawn")),
+        "{warnings:?}"
+    );
     let rows = findings[1]["layers"].as_array().unwrap();
     let w = rows.iter().find(|r| r["layer"] == 2).unwrap()["width_deviation"]
         .as_f64()

@@ -409,33 +409,7 @@ impl AgentConfig {
         let findings: FindingsConfig =
             section(&table, "findings", &mut problems, true).unwrap_or_default();
         check_findings(&findings, &mut problems);
-        if let Some(d) = &mut viewer.rrd
-            && d.is_relative()
-        {
-            *d = base.join(&*d);
-        }
-        if let Some(u) = &viewer.url
-            && !u.starts_with("rerun+http://")
-            && !u.starts_with("rerun+https://")
-        {
-            problems.push(format!(
-                "viewer.url: {u:?} is not a rerun address; give rerun+http://HOST:PORT/proxy"
-            ));
-        }
-        if let Some(d) = &mut recorder.dir
-            && d.is_relative()
-        {
-            *d = base.join(&*d);
-        }
-        for (key, v) in [
-            ("max_file_mb", recorder.max_file_mb),
-            ("min_free_mb", recorder.min_free_mb + 1.0),
-            ("queue_mb", recorder.queue_mb),
-        ] {
-            if !positive(v) {
-                problems.push(format!("recorder.{key}: give a positive number of MB"));
-            }
-        }
+        check_outputs(&mut recorder, &mut viewer, base, &mut problems);
 
         let design = design.map(|mut d| {
             if d.path.is_relative() {
@@ -584,6 +558,43 @@ fn frames(c: &CalibrationSection, problems: &mut Vec<String>) -> FrameChain {
         }
     }
     chain
+}
+
+/// `[recorder]` and `[viewer]`: relative paths resolved against `base`, sizes and the viewer's
+/// address checked.
+fn check_outputs(
+    recorder: &mut RecorderConfig,
+    viewer: &mut ViewerConfig,
+    base: &Path,
+    problems: &mut Vec<String>,
+) {
+    if let Some(d) = &mut viewer.rrd
+        && d.is_relative()
+    {
+        *d = base.join(&*d);
+    }
+    if let Some(u) = &viewer.url
+        && !u.starts_with("rerun+http://")
+        && !u.starts_with("rerun+https://")
+    {
+        problems.push(format!(
+            "viewer.url: {u:?} is not a rerun address; give rerun+http://HOST:PORT/proxy"
+        ));
+    }
+    if let Some(d) = &mut recorder.dir
+        && d.is_relative()
+    {
+        *d = base.join(&*d);
+    }
+    for (key, v) in [
+        ("max_file_mb", recorder.max_file_mb),
+        ("min_free_mb", recorder.min_free_mb + 1.0),
+        ("queue_mb", recorder.queue_mb),
+    ] {
+        if !positive(v) {
+            problems.push(format!("recorder.{key}: give a positive number of MB"));
+        }
+    }
 }
 
 fn check_findings(f: &FindingsConfig, problems: &mut Vec<String>) {

@@ -220,26 +220,7 @@ impl AgentPorts {
 
         let deviation_drops = Arc::new(AtomicU64::new(0));
         let report_drops = Arc::new(AtomicU64::new(0));
-        let deviations = node
-            .service_builder(&service_name(&names.deviations)?)
-            .publish_subscribe::<[PointDeviation]>()
-            .user_header::<DeviationHeader>()
-            .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(0)
-            .subscriber_max_buffer_size(DEVIATION_QUEUE)
-            .subscriber_max_borrowed_samples(2)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.deviations, &e))?
-            .publisher_builder()
-            .initial_max_slice_len(q.max_points_per_chunk)
-            .allocation_strategy(AllocationStrategy::Static)
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(deviation_drops.clone()))
-            .create()
-            .map_err(|e| err("cannot publish deviations", e))?;
+        let deviations = deviation_publisher(node, names, q, &deviation_drops, &exists)?;
         let reports = node
             .service_builder(&service_name(&names.reports)?)
             .publish_subscribe::<StationReport>()
@@ -256,25 +237,7 @@ impl AgentPorts {
             .set_backpressure_handler(counting_handler(report_drops.clone()))
             .create()
             .map_err(|e| err("cannot publish reports", e))?;
-        let findings = node
-            .service_builder(&service_name(&names.findings)?)
-            .publish_subscribe::<[u8]>()
-            .user_header::<FindingsHeader>()
-            .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(REPORT_HISTORY)
-            .subscriber_max_buffer_size(REPORT_QUEUE)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.findings, &e))?
-            .publisher_builder()
-            .initial_max_slice_len(MAX_FINDINGS_BYTES)
-            .allocation_strategy(AllocationStrategy::Static)
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(report_drops.clone()))
-            .create()
-            .map_err(|e| err("cannot publish findings", e))?;
+        let findings = findings_publisher(node, names, &report_drops, &exists)?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -323,6 +286,66 @@ pub struct CellPorts {
 
 /// How long a chunk publisher waits for a full agent queue before it reports the agent stuck.
 pub const DELIVERY_DEADLINE: Duration = Duration::from_secs(10);
+
+type Exists<'a> = &'a dyn Fn(&str, &dyn std::fmt::Debug) -> IpcError;
+
+/// The agent's deviation publisher: chunks a full subscriber does not take are dropped and
+/// counted in `drops`, never waited for.
+fn deviation_publisher(
+    node: &Node<Ipc>,
+    names: &ServiceNames,
+    q: QueueSizes,
+    drops: &Arc<AtomicU64>,
+    exists: Exists<'_>,
+) -> Result<Publisher<Ipc, [PointDeviation], DeviationHeader>, IpcError> {
+    node.service_builder(&service_name(&names.deviations)?)
+        .publish_subscribe::<[PointDeviation]>()
+        .user_header::<DeviationHeader>()
+        .max_publishers(1)
+        .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+        .max_nodes(MAX_NODES)
+        .history_size(0)
+        .subscriber_max_buffer_size(DEVIATION_QUEUE)
+        .subscriber_max_borrowed_samples(2)
+        .enable_safe_overflow(false)
+        .open_or_create()
+        .map_err(|e| exists(&names.deviations, &e))?
+        .publisher_builder()
+        .initial_max_slice_len(q.max_points_per_chunk)
+        .allocation_strategy(AllocationStrategy::Static)
+        .backpressure_strategy(BackpressureStrategy::DiscardData)
+        .set_backpressure_handler(counting_handler(drops.clone()))
+        .create()
+        .map_err(|e| err("cannot publish deviations", e))
+}
+
+/// The agent's findings publisher (encoded `StationFindings`), dropping and counting in `drops`
+/// as reports do.
+fn findings_publisher(
+    node: &Node<Ipc>,
+    names: &ServiceNames,
+    drops: &Arc<AtomicU64>,
+    exists: Exists<'_>,
+) -> Result<Publisher<Ipc, [u8], FindingsHeader>, IpcError> {
+    node.service_builder(&service_name(&names.findings)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<FindingsHeader>()
+        .max_publishers(1)
+        .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+        .max_nodes(MAX_NODES)
+        .history_size(REPORT_HISTORY)
+        .subscriber_max_buffer_size(REPORT_QUEUE)
+        .enable_safe_overflow(false)
+        .open_or_create()
+        .map_err(|e| exists(&names.findings, &e))?
+        .publisher_builder()
+        .initial_max_slice_len(MAX_FINDINGS_BYTES)
+        .allocation_strategy(AllocationStrategy::Static)
+        .backpressure_strategy(BackpressureStrategy::DiscardData)
+        .set_backpressure_handler(counting_handler(drops.clone()))
+        .create()
+        .map_err(|e| err("cannot publish findings", e))
+}
 
 /// Inputs wait for a full agent queue, but not forever: a stuck agent becomes an error.
 fn deliver_or_fail(info: &BackpressureInfo) -> BackpressureAction {

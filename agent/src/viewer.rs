@@ -317,28 +317,88 @@ impl Painter {
         let _ = self.rec.flush_blocking();
     }
 
+    /// The design, once, as a translucent mesh; its centre becomes the view's origin.
+    fn design(
+        &mut self,
+        vertices: &[Point3<f64>],
+        triangles: &[[u32; 3]],
+    ) -> Result<(), rerun::RecordingStreamError> {
+        if let Some(first) = vertices.first() {
+            let (lo, hi) = vertices
+                .iter()
+                .fold((*first, *first), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
+            self.origin = (lo.coords + hi.coords) * 0.5;
+        }
+        let positions: Vec<[f32; 3]> = vertices.iter().map(|p| self.local(p)).collect();
+        self.rec.log_static(
+            "design",
+            &rerun::Mesh3D::new(positions)
+                .with_triangle_indices(triangles.iter().map(|t| (t[0], t[1], t[2])))
+                .with_albedo_factor(rerun::Rgba32::from_unmultiplied_rgba(200, 200, 200, 90)),
+        )?;
+        Ok(())
+    }
+
+    /// A station's statistics as series and its histogram, on the station timeline.
+    fn report(
+        &mut self,
+        index: u32,
+        name: &str,
+        report: &StationReport,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        self.rec.set_time_sequence("station", index as i64);
+        let s = &report.stats;
+        for (series, v) in [
+            ("mean_mm", s.mean),
+            ("median_abs_mm", s.median_abs),
+            ("p95_abs_mm", s.p95_abs),
+        ] {
+            if v.is_finite() {
+                self.rec
+                    .log(format!("stats/{series}"), &rerun::Scalars::new([v * 1e3]))?;
+            }
+        }
+        let bins: Vec<f64> = report.histogram.bins.iter().map(|&b| b as f64).collect();
+        let chart = rerun::BarChart::new(bins.as_slice());
+        self.rec.log(format!("stations/{name}/histogram"), &chart)?;
+        // The one the side column shows: the station at the time cursor.
+        self.rec.log("histogram", &chart)?;
+        Ok(())
+    }
+
+    /// Design samples or core points coloured by their value; M3C2's insignificant ones faint.
+    fn samples(
+        &mut self,
+        path: String,
+        positions: &[Point3<f64>],
+        values: &[f32],
+        significant: Option<&[bool]>,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        let colours: Vec<rerun::Color> = values
+            .iter()
+            .zip(0..)
+            .map(|(&d, i)| {
+                let faint = significant.as_ref().is_some_and(|s| !s[i]);
+                let [r, g, b] = colour(d, self.tolerance);
+                rerun::Color::from_unmultiplied_rgba(r, g, b, if faint { 60 } else { 255 })
+            })
+            .collect();
+        let pts: Vec<[f32; 3]> = positions.iter().map(|p| self.local(p)).collect();
+        self.rec.log_static(
+            path,
+            &rerun::Points3D::new(pts)
+                .with_colors(colours)
+                .with_radii([rerun::Radius::new_ui_points(3.0)]),
+        )?;
+        Ok(())
+    }
+
     fn paint(&mut self, v: View) -> Result<(), rerun::RecordingStreamError> {
         match v {
             View::Design {
                 vertices,
                 triangles,
-            } => {
-                if let Some(first) = vertices.first() {
-                    let (lo, hi) = vertices
-                        .iter()
-                        .fold((*first, *first), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
-                    self.origin = (lo.coords + hi.coords) * 0.5;
-                }
-                let positions: Vec<[f32; 3]> = vertices.iter().map(|p| self.local(p)).collect();
-                self.rec.log_static(
-                    "design",
-                    &rerun::Mesh3D::new(positions)
-                        .with_triangle_indices(triangles.iter().map(|t| (t[0], t[1], t[2])))
-                        .with_albedo_factor(rerun::Rgba32::from_unmultiplied_rgba(
-                            200, 200, 200, 90,
-                        )),
-                )?;
-            }
+            } => self.design(&vertices, &triangles)?,
             View::Station {
                 index,
                 name,
@@ -390,48 +450,13 @@ impl Painter {
                 index,
                 name,
                 report,
-            } => {
-                self.rec.set_time_sequence("station", index as i64);
-                let s = &report.stats;
-                for (series, v) in [
-                    ("mean_mm", s.mean),
-                    ("median_abs_mm", s.median_abs),
-                    ("p95_abs_mm", s.p95_abs),
-                ] {
-                    if v.is_finite() {
-                        self.rec
-                            .log(format!("stats/{series}"), &rerun::Scalars::new([v * 1e3]))?;
-                    }
-                }
-                let bins: Vec<f64> = report.histogram.bins.iter().map(|&b| b as f64).collect();
-                let chart = rerun::BarChart::new(bins.as_slice());
-                self.rec.log(format!("stations/{name}/histogram"), &chart)?;
-                // The one the side column shows: the station at the time cursor.
-                self.rec.log("histogram", &chart)?;
-            }
+            } => self.report(index, &name, &report)?,
             View::Samples {
                 path,
                 positions,
                 values,
                 significant,
-            } => {
-                let colours: Vec<rerun::Color> = values
-                    .iter()
-                    .zip(0..)
-                    .map(|(&d, i)| {
-                        let faint = significant.as_ref().is_some_and(|s| !s[i]);
-                        let [r, g, b] = colour(d, self.tolerance);
-                        rerun::Color::from_unmultiplied_rgba(r, g, b, if faint { 60 } else { 255 })
-                    })
-                    .collect();
-                let pts: Vec<[f32; 3]> = positions.iter().map(|p| self.local(p)).collect();
-                self.rec.log_static(
-                    path,
-                    &rerun::Points3D::new(pts)
-                        .with_colors(colours)
-                        .with_radii([rerun::Radius::new_ui_points(3.0)]),
-                )?;
-            }
+            } => self.samples(path, &positions, &values, significant.as_deref())?,
             View::Findings { index, findings } => self.findings(index, &findings)?,
             View::LayerValue {
                 series,

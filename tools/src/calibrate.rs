@@ -128,6 +128,148 @@ struct Pair {
     inliers: usize,
 }
 
+/// The spheres found in one station's scan and matched to targets, each paired with where the
+/// target is, in the frame being solved for.
+fn station_pairs(
+    st: &Station,
+    args: &CalibrateArgs,
+    params: &sphere::DetectParams,
+    known: &[Point3<f64>],
+) -> Result<Vec<Pair>> {
+    let mut pairs = Vec::new();
+    let file = ScanFile::open(&st.scan)?;
+    let mut pts = Vec::new();
+    file.stream(st.scan_index, DEFAULT_CHUNK, &mut |chunk| {
+        pts.extend(
+            chunk
+                .iter()
+                .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
+                .map(|p| Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64)),
+        );
+        Ok(())
+    })?;
+    let found = sphere::detect(&pts, params);
+    // Targets and spheres compare in one frame: the scanner's for the sphere centres, and
+    // the targets as they are (distances do not depend on the frame).
+    let centres: Vec<Point3<f64>> = found.iter().map(|f| f.centre).collect();
+    let labels = matching::by_distances(&centres, known, args.match_tolerance);
+    let matched = labels.iter().flatten().count();
+    eprintln!(
+        "station {}: {} points, {} sphere(s) of radius {} m found, {} matched to targets \
+         (pose from {})",
+        st.id,
+        pts.len(),
+        found.len(),
+        args.radius,
+        matched,
+        st.pose_source
+    );
+    for (f, label) in found.iter().zip(&labels) {
+        let Some(k) = *label else {
+            eprintln!(
+                "  sphere at {:.4}, {:.4}, {:.4} (scanner frame) matches no target",
+                f.centre.x, f.centre.y, f.centre.z
+            );
+            continue;
+        };
+        let pose = st.t_design_scanner;
+        let (measured, known_k) = match args.solve {
+            Solve::DesignBase => (pose * f.centre, known[k]),
+            Solve::FlangeScanner => (f.centre, pose.inverse() * known[k]),
+        };
+        pairs.push(Pair {
+            target: k,
+            station: st.id.clone(),
+            measured,
+            known: known_k,
+            sigma_mm: f.centre_sigma.norm() * 1e3,
+            inliers: f.inliers,
+        });
+    }
+    Ok(pairs)
+}
+
+/// Prints the residuals and the fit, and returns the `[calibration]` line to write.
+fn report_fit(args: &CalibrateArgs, targets: &[Target], pairs: &[Pair], fit: &RigidFit) -> String {
+    println!(
+        "{:<10} {:<14} {:>8} {:>12} {:>14}",
+        "target", "station", "points", "centre σ mm", "residual mm"
+    );
+    for (p, r) in pairs.iter().zip(&fit.residuals) {
+        println!(
+            "{:<10} {:<14} {:>8} {:>12.3} {:>14.3}",
+            targets[p.target].id,
+            p.station,
+            p.inliers,
+            p.sigma_mm,
+            r * 1e3
+        );
+    }
+    let t = fit.transform.translation.vector;
+    let q = fit.transform.rotation.quaternion().coords;
+    let s = fit.translation_sigma * 1e3;
+    println!(
+        "{}: translation {:.5}, {:.5}, {:.5} m (σ {:.2}, {:.2}, {:.2} mm), rotation {:.3}°; RMS \
+         {:.3} mm over {} spheres",
+        args.solve.key(),
+        t.x,
+        t.y,
+        t.z,
+        s.x,
+        s.y,
+        s.z,
+        fit.transform.rotation.angle().to_degrees(),
+        fit.rms * 1e3,
+        pairs.len()
+    );
+    format!(
+        "# Written by asbuilt calibrate from {} spheres of radius {} m ({}).\n\
+         # RMS residual {:.3} mm; translation σ {:.2}, {:.2}, {:.2} mm at the targets' centroid.\n\
+         # Copy the line below into the [calibration] table of agent.toml.\n\
+         [calibration]\n{} = {{ translation = [{}, {}, {}], rotation_xyzw = [{}, {}, {}, {}] }}\n",
+        pairs.len(),
+        args.radius,
+        if args.fixed_orientation {
+            "translation only"
+        } else {
+            "6 degrees of freedom"
+        },
+        fit.rms * 1e3,
+        s.x,
+        s.y,
+        s.z,
+        args.solve.key(),
+        t.x,
+        t.y,
+        t.z,
+        q.x,
+        q.y,
+        q.z,
+        q.w
+    )
+}
+
+/// Warns of every target that does not fit the others; true when there is one.
+fn warn_misfits(targets: &[Target], pairs: &[Pair], fit: &RigidFit) -> bool {
+    for &(k, r) in &fit.misfits {
+        let seen_from: Vec<&str> = pairs
+            .iter()
+            .filter(|p| p.target == k)
+            .map(|p| p.station.as_str())
+            .collect();
+        eprintln!(
+            "warning: target {} (stations {}) does not fit: {:.1} mm off the fit made without \
+             it. Check its coordinates and that the right sphere was scanned; leave it out \
+             with --exclude {}",
+            targets[k].id,
+            seen_from.join(", "),
+            r * 1e3,
+            targets[k].id
+        );
+    }
+    !fit.misfits.is_empty()
+}
+
 pub fn run(args: CalibrateArgs) -> Result<ExitCode> {
     if !(args.radius > 0.0 && args.radius.is_finite()) {
         bail!(
@@ -160,55 +302,7 @@ pub fn run(args: CalibrateArgs) -> Result<ExitCode> {
 
     let mut pairs: Vec<Pair> = Vec::new();
     for st in &stations {
-        let file = ScanFile::open(&st.scan)?;
-        let mut pts = Vec::new();
-        file.stream(st.scan_index, DEFAULT_CHUNK, &mut |chunk| {
-            pts.extend(
-                chunk
-                    .iter()
-                    .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
-                    .map(|p| Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64)),
-            );
-            Ok(())
-        })?;
-        let found = sphere::detect(&pts, &params);
-        // Targets and spheres compare in one frame: the scanner's for the sphere centres, and
-        // the targets as they are (distances do not depend on the frame).
-        let centres: Vec<Point3<f64>> = found.iter().map(|f| f.centre).collect();
-        let labels = matching::by_distances(&centres, &known, args.match_tolerance);
-        let matched = labels.iter().flatten().count();
-        eprintln!(
-            "station {}: {} points, {} sphere(s) of radius {} m found, {} matched to targets \
-             (pose from {})",
-            st.id,
-            pts.len(),
-            found.len(),
-            args.radius,
-            matched,
-            st.pose_source
-        );
-        for (f, label) in found.iter().zip(&labels) {
-            let Some(k) = *label else {
-                eprintln!(
-                    "  sphere at {:.4}, {:.4}, {:.4} (scanner frame) matches no target",
-                    f.centre.x, f.centre.y, f.centre.z
-                );
-                continue;
-            };
-            let pose = st.t_design_scanner;
-            let (measured, known_k) = match args.solve {
-                Solve::DesignBase => (pose * f.centre, known[k]),
-                Solve::FlangeScanner => (f.centre, pose.inverse() * known[k]),
-            };
-            pairs.push(Pair {
-                target: k,
-                station: st.id.clone(),
-                measured,
-                known: known_k,
-                sigma_mm: f.centre_sigma.norm() * 1e3,
-                inliers: f.inliers,
-            });
-        }
+        pairs.extend(station_pairs(st, &args, &params, &known)?);
     }
     let seen: std::collections::BTreeSet<usize> = pairs.iter().map(|p| p.target).collect();
     let missing: Vec<&str> = (0..targets.len())
@@ -234,82 +328,11 @@ pub fn run(args: CalibrateArgs) -> Result<ExitCode> {
         anyhow::anyhow!("cannot calibrate from targets {}: {e}", ids.join(", "))
     })?;
 
-    println!(
-        "{:<10} {:<14} {:>8} {:>12} {:>14}",
-        "target", "station", "points", "centre σ mm", "residual mm"
-    );
-    for (p, r) in pairs.iter().zip(&fit.residuals) {
-        println!(
-            "{:<10} {:<14} {:>8} {:>12.3} {:>14.3}",
-            targets[p.target].id,
-            p.station,
-            p.inliers,
-            p.sigma_mm,
-            r * 1e3
-        );
-    }
-    let t = fit.transform.translation.vector;
-    let q = fit.transform.rotation.quaternion().coords;
-    let s = fit.translation_sigma * 1e3;
-    println!(
-        "{}: translation {:.5}, {:.5}, {:.5} m (σ {:.2}, {:.2}, {:.2} mm), rotation {:.3}°; RMS \
-         {:.3} mm over {} spheres",
-        args.solve.key(),
-        t.x,
-        t.y,
-        t.z,
-        s.x,
-        s.y,
-        s.z,
-        fit.transform.rotation.angle().to_degrees(),
-        fit.rms * 1e3,
-        pairs.len()
-    );
-    let text = format!(
-        "# Written by asbuilt calibrate from {} spheres of radius {} m ({}).\n\
-         # RMS residual {:.3} mm; translation σ {:.2}, {:.2}, {:.2} mm at the targets' centroid.\n\
-         # Copy the line below into the [calibration] table of agent.toml.\n\
-         [calibration]\n{} = {{ translation = [{}, {}, {}], rotation_xyzw = [{}, {}, {}, {}] }}\n",
-        pairs.len(),
-        args.radius,
-        if args.fixed_orientation {
-            "translation only"
-        } else {
-            "6 degrees of freedom"
-        },
-        fit.rms * 1e3,
-        s.x,
-        s.y,
-        s.z,
-        args.solve.key(),
-        t.x,
-        t.y,
-        t.z,
-        q.x,
-        q.y,
-        q.z,
-        q.w
-    );
+    let text = report_fit(&args, &targets, &pairs, &fit);
     std::fs::write(&args.out, text)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     eprintln!("wrote {}", args.out.display());
-    if !fit.misfits.is_empty() {
-        for &(k, r) in &fit.misfits {
-            let seen_from: Vec<&str> = pairs
-                .iter()
-                .filter(|p| p.target == k)
-                .map(|p| p.station.as_str())
-                .collect();
-            eprintln!(
-                "warning: target {} (stations {}) does not fit: {:.1} mm off the fit made without \
-                 it. Check its coordinates and that the right sphere was scanned; leave it out \
-                 with --exclude {}",
-                targets[k].id,
-                seen_from.join(", "),
-                r * 1e3,
-                targets[k].id
-            );
-        }
+    if warn_misfits(&targets, &pairs, &fit) {
         return Ok(ExitCode::from(1));
     }
     Ok(ExitCode::SUCCESS)

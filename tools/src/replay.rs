@@ -46,24 +46,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     };
     let bytes = crate::recording_file::map(&args.recording)?;
     let bad = |e| crate::recording_file::unreadable(&args.recording, e);
-    // First pass: the stations to expect and the largest chunk, without keeping messages.
-    let mut stations = BTreeSet::new();
-    let mut max_points = 1usize;
-    let mut inputs = 0u64;
-    for m in recording::messages(&bytes).map_err(bad)? {
-        let (_, m) = m.map_err(bad)?;
-        match &m {
-            Recorded::Event(e) => {
-                stations.insert((e.job, e.station));
-            }
-            Recorded::Chunk(h, p) => {
-                stations.insert((h.job, h.station));
-                max_points = max_points.max(p.len());
-            }
-            _ => {}
-        }
-        inputs += Channel::INPUTS.contains(&m.channel()) as u64;
-    }
+    let (stations, max_points, inputs) = survey(&bytes).map_err(bad)?;
     if inputs == 0 {
         bail!("{} holds no input to replay", args.recording.display());
     }
@@ -123,15 +106,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
         stations.len()
     );
     if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        reports.sort_by_key(|r| (r.job, r.station));
-        let sections: Vec<Section> = reports
-            .iter()
-            .map(|r| Section::from_report(r, None, 0))
-            .collect();
-        let path = dir.join("replay.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&sections)?)
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        write_reports(dir, &mut reports)?;
     }
     if reports.len() < stations.len() {
         eprintln!(
@@ -150,4 +125,43 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
         return Ok(ExitCode::from(1));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// What a first pass over a recording finds: the stations to expect (job, station), the largest
+/// chunk's points and the number of inputs.
+type Survey = (BTreeSet<(u64, u32)>, usize, u64);
+
+/// First pass over a recording, keeping no message.
+fn survey(bytes: &[u8]) -> Result<Survey, recording::ReadError> {
+    let mut stations = BTreeSet::new();
+    let mut max_points = 1usize;
+    let mut inputs = 0u64;
+    for m in recording::messages(bytes)? {
+        let (_, m) = m?;
+        match &m {
+            Recorded::Event(e) => {
+                stations.insert((e.job, e.station));
+            }
+            Recorded::Chunk(h, p) => {
+                stations.insert((h.job, h.station));
+                max_points = max_points.max(p.len());
+            }
+            _ => {}
+        }
+        inputs += Channel::INPUTS.contains(&m.channel()) as u64;
+    }
+    Ok((stations, max_points, inputs))
+}
+
+/// The reports that came back, by job and station, as DIR/replay.json.
+fn write_reports(dir: &std::path::Path, reports: &mut [StationReport]) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    reports.sort_by_key(|r| (r.job, r.station));
+    let sections: Vec<Section> = reports
+        .iter()
+        .map(|r| Section::from_report(r, None, 0))
+        .collect();
+    let path = dir.join("replay.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&sections)?)
+        .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -66,6 +66,86 @@ pub fn load(path: &Path) -> Result<Vec<Station>> {
     resolve(file, base, &path.display().to_string())
 }
 
+/// A `[[station]]` entry checked: its scan file opened, its pose (if given) valid, and the
+/// scans of the file it names. `None` when a problem was recorded.
+struct Entry {
+    scan: PathBuf,
+    sigma: f64,
+    given: Option<([f64; 3], [f64; 4])>,
+    file: ScanFile,
+    indices: Vec<usize>,
+}
+
+fn check_entry(s: &StationEntry, base: &Path, problems: &mut Vec<String>) -> Option<Entry> {
+    let scan = if s.scan.is_absolute() {
+        s.scan.clone()
+    } else {
+        base.join(&s.scan)
+    };
+    let sigma = s.position_sigma.unwrap_or(DEFAULT_POSITION_SIGMA);
+    if !(sigma >= 0.0 && sigma.is_finite()) {
+        problems.push(format!(
+            "station {:?}: position_sigma must be >= 0 metres",
+            s.id
+        ));
+    }
+    let given = match (s.translation, s.rotation_xyzw) {
+        (Some(t), Some(r)) => Some((t, r)),
+        (None, None) => None,
+        _ => {
+            problems.push(format!(
+                "station {:?}: give both translation = [x, y, z] (metres) and \
+             rotation_xyzw = [x, y, z, w], or neither to use the file's pose",
+                s.id
+            ));
+            return None;
+        }
+    };
+    if let Some((t, r)) = given
+        && let Err(e) = asbuilt_core::frames::isometry(t, r)
+    {
+        problems.push(format!("station {:?}: {e}", s.id));
+    }
+    let file = match ScanFile::open(&scan) {
+        Ok(f) => f,
+        Err(e) => {
+            problems.push(format!("station {:?}: {e:#}", s.id));
+            return None;
+        }
+    };
+    let indices: Vec<usize> = match s.scan_index {
+        Some(i) if i < file.scans.len() => vec![i],
+        Some(i) => {
+            problems.push(format!(
+                "station {:?}: scan_index {i}, but {} holds {} scan(s) (0 to {})",
+                s.id,
+                scan.display(),
+                file.scans.len(),
+                file.scans.len() - 1
+            ));
+            return None;
+        }
+        None => (0..file.scans.len()).collect(),
+    };
+    if given.is_some() && indices.len() > 1 {
+        problems.push(format!(
+            "station {:?}: {} holds {} scans and one pose is given: add scan_index to say \
+         which scan the pose is for",
+            s.id,
+            scan.display(),
+            indices.len()
+        ));
+        return None;
+    }
+    Some(Entry {
+        scan,
+        sigma,
+        given,
+        file,
+        indices,
+    })
+}
+
 pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Station>> {
     let mut problems = Vec::new();
     let mut out = Vec::new();
@@ -77,66 +157,16 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
         if !seen.insert(s.id.clone()) {
             problems.push(format!("station {:?} is listed twice", s.id));
         }
-        let scan = if s.scan.is_absolute() {
-            s.scan.clone()
-        } else {
-            base.join(&s.scan)
-        };
-        let sigma = s.position_sigma.unwrap_or(DEFAULT_POSITION_SIGMA);
-        if !(sigma >= 0.0 && sigma.is_finite()) {
-            problems.push(format!(
-                "station {:?}: position_sigma must be >= 0 metres",
-                s.id
-            ));
-        }
-        let given = match (s.translation, s.rotation_xyzw) {
-            (Some(t), Some(r)) => Some((t, r)),
-            (None, None) => None,
-            _ => {
-                problems.push(format!(
-                    "station {:?}: give both translation = [x, y, z] (metres) and \
-                     rotation_xyzw = [x, y, z, w], or neither to use the file's pose",
-                    s.id
-                ));
-                continue;
-            }
-        };
-        if let Some((t, r)) = given
-            && let Err(e) = asbuilt_core::frames::isometry(t, r)
-        {
-            problems.push(format!("station {:?}: {e}", s.id));
-        }
-        let file = match ScanFile::open(&scan) {
-            Ok(f) => f,
-            Err(e) => {
-                problems.push(format!("station {:?}: {e:#}", s.id));
-                continue;
-            }
-        };
-        let indices: Vec<usize> = match s.scan_index {
-            Some(i) if i < file.scans.len() => vec![i],
-            Some(i) => {
-                problems.push(format!(
-                    "station {:?}: scan_index {i}, but {} holds {} scan(s) (0 to {})",
-                    s.id,
-                    scan.display(),
-                    file.scans.len(),
-                    file.scans.len() - 1
-                ));
-                continue;
-            }
-            None => (0..file.scans.len()).collect(),
-        };
-        if given.is_some() && indices.len() > 1 {
-            problems.push(format!(
-                "station {:?}: {} holds {} scans and one pose is given: add scan_index to say \
-                 which scan the pose is for",
-                s.id,
-                scan.display(),
-                indices.len()
-            ));
+        let Some(Entry {
+            scan,
+            sigma,
+            given,
+            file,
+            indices,
+        }) = check_entry(&s, base, &mut problems)
+        else {
             continue;
-        }
+        };
         for i in indices {
             let info = &file.scans[i];
             let id = if file.scans.len() > 1 && s.scan_index.is_none() {

@@ -555,94 +555,14 @@ impl Suite {
         let layer = self.scan_layer.as_ref();
         t.findings =
             layer.and_then(|l| l.findings(self.sigma_max, index).map(|f| (f, l.stations())));
-        let mut missing_bands: Option<LayerBands> = None;
-        if let Some(c) = layer.and_then(ScanLayer::coverage) {
-            eprintln!("coverage: classifying {} design samples", c.samples().len());
-            let outcomes = c.outcomes(index);
-            let summary = c.summary_of(&outcomes);
-            let mut section = CoverageSection::new(&summary, c.area_per_sample());
-            let mut rev =
-                DeviationAccumulator::new(StatsConfig::with_tolerance(self.config.tolerance));
-            let mut none = 0;
-            for o in &outcomes {
-                match o.reverse_distance {
-                    Some(d) => rev.push(d),
-                    None => none += 1,
-                }
-            }
-            section.reverse_c2c = Some(DistanceSection::new(&rev.finish(), none));
-            t.section.coverage = Some(section);
-            t.missing_view = outcomes
-                .iter()
-                .filter(|o| o.class == SampleClass::Missing)
-                .map(|o| {
-                    (
-                        o.position,
-                        o.reverse_distance.unwrap_or(f64::NAN) as f32,
-                        true,
-                    )
-                })
-                .collect();
-            write_missing(
-                &out.join("missing.ply"),
-                c.samples(),
-                &self.missing_by_station,
-                &outcomes,
-            )?;
-            if let Some(l) = &self.layers {
-                let mut b = l.c2m.clone_empty();
-                for o in outcomes.iter().filter(|o| o.class == SampleClass::Missing) {
-                    b.push(o.position.z, c.area_per_sample());
-                }
-                missing_bands = Some(b);
-            }
-        }
-        let mut m3c2_bands: Option<LayerBands> = None;
-        if let Some(m) = layer.and_then(ScanLayer::m3c2) {
-            let sigma = self.sigma_max;
-            t.section.m3c2 = Some(M3c2Section::new(&m.total(sigma), sigma));
-            let results = m.results(sigma);
-            t.m3c2_view = results
-                .iter()
-                .filter_map(|r| r.distance.map(|d| (r.position, d as f32, r.significant)))
-                .collect();
-            write_table(
-                &out.join("m3c2.ply"),
-                "asbuilt design-referenced M3C2: core points on the design (metres), distance \
-                 along the design normal (positive: outside), NaN where the cylinder is empty",
-                &with_position_and_normal(&[
-                    Property::new("distance", Scalar::F32),
-                    Property::new("lod95", Scalar::F32),
-                    Property::new("spread", Scalar::F32),
-                    Property::new("count", Scalar::F32),
-                    Property::new("significant", Scalar::F32),
-                ]),
-                results.iter().map(|r| {
-                    vec![
-                        r.position.x,
-                        r.position.y,
-                        r.position.z,
-                        r.normal.x,
-                        r.normal.y,
-                        r.normal.z,
-                        r.distance.unwrap_or(f64::NAN),
-                        r.lod95.unwrap_or(f64::NAN),
-                        r.spread.unwrap_or(f64::NAN),
-                        r.count as f64,
-                        r.significant as u8 as f64,
-                    ]
-                }),
-            )?;
-            if let Some(l) = &self.layers {
-                let mut b = l.c2m.clone_empty();
-                for r in &results {
-                    if let Some(d) = r.distance {
-                        b.push(r.position.z, d);
-                    }
-                }
-                m3c2_bands = Some(b);
-            }
-        }
+        let missing_bands = match layer.and_then(ScanLayer::coverage) {
+            Some(c) => self.finish_coverage(c, index, out, &mut t)?,
+            None => None,
+        };
+        let m3c2_bands = match layer.and_then(ScanLayer::m3c2) {
+            Some(m) => self.finish_m3c2(m, out, &mut t)?,
+            None => None,
+        };
         if let Some(l) = &self.layers {
             t.layers = Some(layer_table(
                 &l.c2m,
@@ -655,6 +575,110 @@ impl Suite {
             t.m3c2_two_cloud = Some(two_cloud(&self.config, reference, scan, out)?);
         }
         Ok(t)
+    }
+
+    /// Coverage's job-level section, the missing samples for the view and missing.ply; the
+    /// missing area per layer band with `--layer-height`.
+    fn finish_coverage(
+        &self,
+        c: &asbuilt_core::coverage::Coverage,
+        index: &C2mIndex,
+        out: &Path,
+        t: &mut SuiteTotals,
+    ) -> Result<Option<LayerBands>> {
+        eprintln!("coverage: classifying {} design samples", c.samples().len());
+        let outcomes = c.outcomes(index);
+        let summary = c.summary_of(&outcomes);
+        let mut section = CoverageSection::new(&summary, c.area_per_sample());
+        let mut rev = DeviationAccumulator::new(StatsConfig::with_tolerance(self.config.tolerance));
+        let mut none = 0;
+        for o in &outcomes {
+            match o.reverse_distance {
+                Some(d) => rev.push(d),
+                None => none += 1,
+            }
+        }
+        section.reverse_c2c = Some(DistanceSection::new(&rev.finish(), none));
+        t.section.coverage = Some(section);
+        t.missing_view = outcomes
+            .iter()
+            .filter(|o| o.class == SampleClass::Missing)
+            .map(|o| {
+                (
+                    o.position,
+                    o.reverse_distance.unwrap_or(f64::NAN) as f32,
+                    true,
+                )
+            })
+            .collect();
+        write_missing(
+            &out.join("missing.ply"),
+            c.samples(),
+            &self.missing_by_station,
+            &outcomes,
+        )?;
+        if let Some(l) = &self.layers {
+            let mut b = l.c2m.clone_empty();
+            for o in outcomes.iter().filter(|o| o.class == SampleClass::Missing) {
+                b.push(o.position.z, c.area_per_sample());
+            }
+            return Ok(Some(b));
+        }
+        Ok(None)
+    }
+
+    /// M3C2's job-level section, the core points for the view and m3c2.ply; the mean distance
+    /// per layer band with `--layer-height`.
+    fn finish_m3c2(
+        &self,
+        m: &asbuilt_core::m3c2::streaming::StreamingM3c2,
+        out: &Path,
+        t: &mut SuiteTotals,
+    ) -> Result<Option<LayerBands>> {
+        let sigma = self.sigma_max;
+        t.section.m3c2 = Some(M3c2Section::new(&m.total(sigma), sigma));
+        let results = m.results(sigma);
+        t.m3c2_view = results
+            .iter()
+            .filter_map(|r| r.distance.map(|d| (r.position, d as f32, r.significant)))
+            .collect();
+        write_table(
+            &out.join("m3c2.ply"),
+            "asbuilt design-referenced M3C2: core points on the design (metres), distance \
+             along the design normal (positive: outside), NaN where the cylinder is empty",
+            &with_position_and_normal(&[
+                Property::new("distance", Scalar::F32),
+                Property::new("lod95", Scalar::F32),
+                Property::new("spread", Scalar::F32),
+                Property::new("count", Scalar::F32),
+                Property::new("significant", Scalar::F32),
+            ]),
+            results.iter().map(|r| {
+                vec![
+                    r.position.x,
+                    r.position.y,
+                    r.position.z,
+                    r.normal.x,
+                    r.normal.y,
+                    r.normal.z,
+                    r.distance.unwrap_or(f64::NAN),
+                    r.lod95.unwrap_or(f64::NAN),
+                    r.spread.unwrap_or(f64::NAN),
+                    r.count as f64,
+                    r.significant as u8 as f64,
+                ]
+            }),
+        )?;
+        if let Some(l) = &self.layers {
+            let mut b = l.c2m.clone_empty();
+            for r in &results {
+                if let Some(d) = r.distance {
+                    b.push(r.position.z, d);
+                }
+            }
+            return Ok(Some(b));
+        }
+        Ok(None)
     }
 }
 

@@ -375,14 +375,8 @@ struct Failure {
     what: String,
 }
 
-/// Runs the regressions, then every target's budget; returns the number of failures.
-fn drive(args: &Args) -> Result<usize, String> {
-    let seeds = tempfile::tempdir().map_err(|e| e.to_string())?;
-    fuzz::write_seeds(seeds.path(), &asbuilt_tests::shared_data())
-        .map_err(|e| format!("cannot write the seed files: {e:#}"))?;
-    let me = std::env::current_exe().map_err(|e| e.to_string())?;
-    let mut failures = Vec::new();
-
+/// Replays every kept regression input of every target, each in a worker of its own.
+fn replay_regressions(args: &Args, me: &std::path::Path, failures: &mut Vec<Failure>) {
     for target in &args.targets {
         let dir = args.regressions.join(target.name);
         let Ok(entries) = std::fs::read_dir(&dir) else {
@@ -391,7 +385,7 @@ fn drive(args: &Args) -> Result<usize, String> {
         let mut files: Vec<PathBuf> = entries.flatten().map(|e| e.path()).collect();
         files.sort();
         for f in &files {
-            let mut cmd = Command::new(&me);
+            let mut cmd = Command::new(me);
             cmd.args(["--target", target.name, "--replay"]).arg(f);
             let mut kept = Vec::new();
             supervise(cmd, args.timeout, target, &mut |i, what| {
@@ -411,6 +405,17 @@ fn drive(args: &Args) -> Result<usize, String> {
             files.len()
         );
     }
+}
+
+/// Runs the regressions, then every target's budget; returns the number of failures.
+fn drive(args: &Args) -> Result<usize, String> {
+    let seeds = tempfile::tempdir().map_err(|e| e.to_string())?;
+    fuzz::write_seeds(seeds.path(), &asbuilt_tests::shared_data())
+        .map_err(|e| format!("cannot write the seed files: {e:#}"))?;
+    let me = std::env::current_exe().map_err(|e| e.to_string())?;
+    let mut failures = Vec::new();
+
+    replay_regressions(args, &me, &mut failures);
 
     let total_weight: f64 = args.targets.iter().map(|t| t.weight).sum();
     for target in &args.targets {

@@ -92,6 +92,62 @@ fn station(
     }
 }
 
+/// The agent, and the same agent with the recorder on, on their own prefixes.
+fn start_agents(
+    dir: &Path,
+    mesh: &Path,
+    prefix: &str,
+    rec_prefix: &str,
+) -> (AgentProcess, AgentProcess) {
+    let config = dir.join("agent.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+             max_distance = 0.005\n[services]\nprefix = \"{prefix}\"\n[status]\nperiod_s = 1.0\n",
+            mesh.display().to_string()
+        ),
+    )
+    .unwrap();
+    let agent = AgentProcess::start(&config, None);
+    // The same agent with the recorder on, on its own prefix.
+    let rec_config = dir.join("agent-rec.toml");
+    std::fs::write(
+        &rec_config,
+        std::fs::read_to_string(&config)
+            .unwrap()
+            .replace(prefix, rec_prefix)
+            + "[recorder]\ndir = \"recordings\"\n",
+    )
+    .unwrap();
+    let rec_agent = AgentProcess::start(&rec_config, Some(&dir.join("agent-rec.log")));
+    (agent, rec_agent)
+}
+
+/// The files a recording agent left in `dir`: how many, their bytes, and the scan and
+/// deviation chunks they hold.
+fn count_recorded(dir: &Path) -> (usize, u64, usize, usize) {
+    let files: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    let mut chunks = 0usize;
+    let mut deviations = 0usize;
+    let mut bytes = 0u64;
+    for f in &files {
+        let b = std::fs::read(f).unwrap();
+        bytes += b.len() as u64;
+        for m in asbuilt_protocol::recording::messages(&b).unwrap() {
+            match m.unwrap().1 {
+                asbuilt_protocol::recording::Recorded::Chunk(..) => chunks += 1,
+                asbuilt_protocol::recording::Recorded::Deviations(..) => deviations += 1,
+                _ => {}
+            }
+        }
+    }
+    (files.len(), bytes, chunks, deviations)
+}
+
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let rounds = if quick { 1 } else { 5 };
@@ -103,29 +159,8 @@ fn main() {
 
     let dir = tempfile::tempdir().unwrap();
     let prefix = format!("asbuilt-bench/{}", std::process::id());
-    let config = dir.path().join("agent.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-             max_distance = 0.005\n[services]\nprefix = \"{prefix}\"\n[status]\nperiod_s = 1.0\n",
-            mesh.display().to_string()
-        ),
-    )
-    .unwrap();
-    let _agent = AgentProcess::start(&config, None);
-    // The same agent with the recorder on, on its own prefix.
     let rec_prefix = format!("{prefix}-rec");
-    let rec_config = dir.path().join("agent-rec.toml");
-    std::fs::write(
-        &rec_config,
-        std::fs::read_to_string(&config)
-            .unwrap()
-            .replace(&prefix, &rec_prefix)
-            + "[recorder]\ndir = \"recordings\"\n",
-    )
-    .unwrap();
-    let rec_agent = AgentProcess::start(&rec_config, Some(&dir.path().join("agent-rec.log")));
+    let (_agent, rec_agent) = start_agents(dir.path(), &mesh, &prefix, &rec_prefix);
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
     let cell = CellPorts::open(
@@ -202,32 +237,20 @@ fn main() {
         .status();
     let mut rec_agent = rec_agent;
     let _ = rec_agent.0.wait();
-    let files: Vec<_> = std::fs::read_dir(dir.path().join("recordings"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    let mut chunks = 0usize;
-    let mut deviations = 0usize;
-    let mut bytes = 0u64;
-    for f in &files {
-        let b = std::fs::read(f).unwrap();
-        bytes += b.len() as u64;
-        for m in asbuilt_protocol::recording::messages(&b).unwrap() {
-            match m.unwrap().1 {
-                asbuilt_protocol::recording::Recorded::Chunk(..) => chunks += 1,
-                asbuilt_protocol::recording::Recorded::Deviations(..) => deviations += 1,
-                _ => {}
-            }
-        }
-    }
+    let (files, bytes, chunks, deviations) = count_recorded(&dir.path().join("recordings"));
     let sent = recorded_stations * points.len().div_ceil(CHUNK);
     println!(
         "recording: {} file(s), {:.0} MB, {chunks} of {sent} scan chunks and {deviations} \
          deviation chunks kept",
-        files.len(),
+        files,
         bytes as f64 / 1e6
     );
     // Nothing dropped anywhere: the last status counts every input and output loss.
+    print_last_status(&cell);
+}
+
+/// The agent's last status over three seconds, with what it dropped, if anything.
+fn print_last_status(cell: &CellPorts) {
     let deadline = Instant::now() + Duration::from_secs(3);
     let mut status = None;
     while Instant::now() < deadline {

@@ -242,134 +242,14 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     set_log_level_from_env_or(LogLevel::Error);
     let started = Instant::now();
 
-    let design = asbuilt_io::read_design(&config.design.path, config.design.units())?;
-    for w in design.report.warnings() {
-        warn!("design: {w}");
-    }
-    // The view needs the mesh once; the index has everything else.
-    let design_view = (config.viewer.rrd.is_some() || config.viewer.url.is_some())
-        .then(|| (design.vertices.clone(), design.triangles.clone()));
-    let designs = PrintedDesigns::new(
-        design,
-        C2mParams {
-            max_distance: config.inspect.max_distance(),
-            cell_size: config.inspect.cell_size,
-        },
-    )?;
-    let ix = designs.full().index.stats();
-    info!(
-        "design {} ({}): {} triangles, index {} cells of {:.2} mm, {:.0} MB, ready in {:.1} s",
-        config.design.path.display(),
-        config.design.units,
-        ix.triangles,
-        ix.cells,
-        ix.cell_size * 1e3,
-        ix.bytes as f64 / 1e6,
-        started.elapsed().as_secs_f64()
-    );
-
-    let node = NodeBuilder::new()
-        .name(&"asbuilt-agent".try_into().expect("valid node name"))
-        .create::<Ipc>()
-        .map_err(|e| IpcError(format!("cannot create the iceoryx2 node: {e:?}")))?;
-    let dead_nodes = node.try_cleanup_dead_nodes().cleanups;
-    if dead_nodes > 0 {
-        info!("removed the resources of {dead_nodes} dead iceoryx2 node(s) from an earlier run");
-    }
-    let names = ServiceNames::new(&config.services.prefix);
+    let (designs, design_view) = load_designs(config, started)?;
+    let (node, ports, dead_nodes) = open_ports(config)?;
     let limits = &config.limits;
-    let ports = AgentPorts::create(
-        &node,
-        &names,
-        QueueSizes {
-            max_points_per_chunk: limits.max_points_per_chunk,
-            chunk_queue: limits.chunk_queue,
-            pending_chunks: limits.pending_chunks,
-        },
-    )?;
-
-    let mut inspect = InspectParams::with_tolerance(config.inspect.tolerance);
-    inspect.max_range = config.inspect.max_range;
-    if config.findings.enabled {
-        // Findings keep M3C2 cylinders off sharp edges: find the whole design's at start-up,
-        // not on the event loop (a printed height's are found where it is prepared).
-        designs.full().sharp_edges();
-    }
-    let mut lifecycle: Lifecycle<ChunkSample> =
-        Lifecycle::new(designs, config.frames.clone(), inspect, limits.lifecycle());
-    if config.findings.enabled {
-        let f = &config.findings;
-        info!(
-            "findings: on, design samples every {:.1} mm, M3C2 cylinders {:.1} mm wide, {}",
-            f.spacing * 1e3,
-            f.projection_diameter() * 1e3,
-            f.layer_height
-                .map_or("no layer height (no per-layer rows)".to_string(), |h| {
-                    format!("layers of {:.1} mm", h * 1e3)
-                })
-        );
-        lifecycle = lifecycle.with_findings(FindingsStage::new(
-            f.clone(),
-            config.inspect.tolerance,
-            config.inspect.max_distance(),
-            limits.max_points_per_chunk,
-        ));
-    }
-    let recorder = match &config.recorder.dir {
-        Some(dir) => {
-            let r = Recorder::start(&config.recorder, job_metadata(config), &config.design.path)
-                .map_err(|source| AgentError::Recorder {
-                    dir: dir.clone(),
-                    source,
-                })?;
-            info!(
-                "recording every job to {} (files up to {} MB, every {} scan chunk(s))",
-                dir.display(),
-                config.recorder.max_file_mb,
-                config.recorder.scan_every
-            );
-            Some(r)
-        }
-        None => None,
-    };
-    let viewer = if config.viewer.rrd.is_some() || config.viewer.url.is_some() {
-        let v = Viewer::start(ViewerParams {
-            rrd: config.viewer.rrd.clone(),
-            url: config.viewer.url.clone(),
-            max_points_per_station: config.viewer.max_points_per_station,
-            queue: config.viewer.queue,
-            tolerance: config.inspect.tolerance,
-        })?;
-        if let Some((vertices, triangles)) = design_view {
-            v.show(View::Design {
-                vertices,
-                triangles,
-            });
-        }
-        info!(
-            "viewer: {}{}{} (up to {} points per station)",
-            config
-                .viewer
-                .rrd
-                .as_ref()
-                .map(|p| p.display().to_string())
-                .unwrap_or_default(),
-            if config.viewer.rrd.is_some() && config.viewer.url.is_some() {
-                " and "
-            } else {
-                ""
-            },
-            config.viewer.url.clone().unwrap_or_default(),
-            config.viewer.max_points_per_station
-        );
-        Some(v)
-    } else {
-        None
-    };
+    let mut lifecycle = make_lifecycle(config, designs);
     let mut out = IpcOutputs {
         ports: &ports,
-        recorder,
-        viewer,
+        recorder: start_recorder(config)?,
+        viewer: start_viewer(config, design_view)?,
         shown: Default::default(),
         frames: &config.frames,
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
@@ -391,7 +271,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     info!(
         "serving {}/… (chunks up to {} points, {} queued, {} held for a pose; station timeout \
          {:.0} s)",
-        names.prefix,
+        config.services.prefix,
         limits.max_points_per_chunk,
         limits.chunk_queue,
         limits.pending_chunks,
@@ -447,12 +327,180 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         }
     }
 
+    Ok(shut_down(lifecycle, out, held, &mut status, started))
+}
+
+/// The design's mesh, for a view.
+type DesignView = (Vec<nalgebra::Point3<f64>>, Vec<[u32; 3]>);
+
+/// The design read and indexed once, and its mesh for the view when there is one.
+fn load_designs(
+    config: &AgentConfig,
+    started: Instant,
+) -> Result<(PrintedDesigns, Option<DesignView>), AgentError> {
+    let design = asbuilt_io::read_design(&config.design.path, config.design.units())?;
+    for w in design.report.warnings() {
+        warn!("design: {w}");
+    }
+    // The view needs the mesh once; the index has everything else.
+    let design_view = (config.viewer.rrd.is_some() || config.viewer.url.is_some())
+        .then(|| (design.vertices.clone(), design.triangles.clone()));
+    let designs = PrintedDesigns::new(
+        design,
+        C2mParams {
+            max_distance: config.inspect.max_distance(),
+            cell_size: config.inspect.cell_size,
+        },
+    )?;
+    let ix = designs.full().index.stats();
+    info!(
+        "design {} ({}): {} triangles, index {} cells of {:.2} mm, {:.0} MB, ready in {:.1} s",
+        config.design.path.display(),
+        config.design.units,
+        ix.triangles,
+        ix.cells,
+        ix.cell_size * 1e3,
+        ix.bytes as f64 / 1e6,
+        started.elapsed().as_secs_f64()
+    );
+    Ok((designs, design_view))
+}
+
+/// The node and the agent's services; also how many dead nodes of an earlier run were cleaned.
+fn open_ports(config: &AgentConfig) -> Result<(Node<Ipc>, AgentPorts, u64), AgentError> {
+    let node = NodeBuilder::new()
+        .name(&"asbuilt-agent".try_into().expect("valid node name"))
+        .create::<Ipc>()
+        .map_err(|e| IpcError(format!("cannot create the iceoryx2 node: {e:?}")))?;
+    let dead_nodes = node.try_cleanup_dead_nodes().cleanups;
+    if dead_nodes > 0 {
+        info!("removed the resources of {dead_nodes} dead iceoryx2 node(s) from an earlier run");
+    }
+    let names = ServiceNames::new(&config.services.prefix);
+    let limits = &config.limits;
+    let ports = AgentPorts::create(
+        &node,
+        &names,
+        QueueSizes {
+            max_points_per_chunk: limits.max_points_per_chunk,
+            chunk_queue: limits.chunk_queue,
+            pending_chunks: limits.pending_chunks,
+        },
+    )?;
+    Ok((node, ports, dead_nodes))
+}
+
+/// The station lifecycle over `designs`, with the findings stage when `[findings]` is on.
+fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> Lifecycle<ChunkSample> {
+    let limits = &config.limits;
+    let mut inspect = InspectParams::with_tolerance(config.inspect.tolerance);
+    inspect.max_range = config.inspect.max_range;
+    if config.findings.enabled {
+        // Findings keep M3C2 cylinders off sharp edges: find the whole design's at start-up,
+        // not on the event loop (a printed height's are found where it is prepared).
+        designs.full().sharp_edges();
+    }
+    let mut lifecycle: Lifecycle<ChunkSample> =
+        Lifecycle::new(designs, config.frames.clone(), inspect, limits.lifecycle());
+    if config.findings.enabled {
+        let f = &config.findings;
+        info!(
+            "findings: on, design samples every {:.1} mm, M3C2 cylinders {:.1} mm wide, {}",
+            f.spacing * 1e3,
+            f.projection_diameter() * 1e3,
+            f.layer_height
+                .map_or("no layer height (no per-layer rows)".to_string(), |h| {
+                    format!("layers of {:.1} mm", h * 1e3)
+                })
+        );
+        lifecycle = lifecycle.with_findings(FindingsStage::new(
+            f.clone(),
+            config.inspect.tolerance,
+            config.inspect.max_distance(),
+            limits.max_points_per_chunk,
+        ));
+    }
+    lifecycle
+}
+
+fn start_recorder(config: &AgentConfig) -> Result<Option<Recorder>, AgentError> {
+    Ok(match &config.recorder.dir {
+        Some(dir) => {
+            let r = Recorder::start(&config.recorder, job_metadata(config), &config.design.path)
+                .map_err(|source| AgentError::Recorder {
+                    dir: dir.clone(),
+                    source,
+                })?;
+            info!(
+                "recording every job to {} (files up to {} MB, every {} scan chunk(s))",
+                dir.display(),
+                config.recorder.max_file_mb,
+                config.recorder.scan_every
+            );
+            Some(r)
+        }
+        None => None,
+    })
+}
+
+fn start_viewer(
+    config: &AgentConfig,
+    design_view: Option<DesignView>,
+) -> Result<Option<Viewer>, AgentError> {
+    Ok(
+        if config.viewer.rrd.is_some() || config.viewer.url.is_some() {
+            let v = Viewer::start(ViewerParams {
+                rrd: config.viewer.rrd.clone(),
+                url: config.viewer.url.clone(),
+                max_points_per_station: config.viewer.max_points_per_station,
+                queue: config.viewer.queue,
+                tolerance: config.inspect.tolerance,
+            })?;
+            if let Some((vertices, triangles)) = design_view {
+                v.show(View::Design {
+                    vertices,
+                    triangles,
+                });
+            }
+            info!(
+                "viewer: {}{}{} (up to {} points per station)",
+                config
+                    .viewer
+                    .rrd
+                    .as_ref()
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_default(),
+                if config.viewer.rrd.is_some() && config.viewer.url.is_some() {
+                    " and "
+                } else {
+                    ""
+                },
+                config.viewer.url.clone().unwrap_or_default(),
+                config.viewer.max_points_per_station
+            );
+            Some(v)
+        } else {
+            None
+        },
+    )
+}
+
+/// Closes every open station with a partial report, says so, and closes the view and the
+/// recorder, publishing the reports that waited for the disk.
+fn shut_down(
+    mut lifecycle: Lifecycle<ChunkSample>,
+    mut out: IpcOutputs<'_>,
+    mut held: HeldControl,
+    status: &mut StatusReporter,
+    started: Instant,
+) -> RunSummary {
+    let ports = out.ports;
     info!("stop requested: closing open stations with partial reports");
     if let Some(c) = held.chunk.take() {
         lifecycle.on_chunk(c, Instant::now(), &mut out);
     }
     lifecycle.shutdown(&mut out);
-    status.publish(&ports, &lifecycle, &out, AgentState::ShuttingDown);
+    status.publish(ports, &lifecycle, &out, AgentState::ShuttingDown);
     if let Some(mut v) = out.viewer.take() {
         v.finish();
         let dropped = v.dropped.load(std::sync::atomic::Ordering::Relaxed);
@@ -480,10 +528,10 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         c.stations_reported,
         c.points_processed
     );
-    Ok(RunSummary {
+    RunSummary {
         stations_reported: c.stations_reported,
         points_processed: c.points_processed,
-    })
+    }
 }
 
 /// A Begin or pose for a new station that arrived while every station slot was taken. It waits

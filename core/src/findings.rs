@@ -103,6 +103,7 @@ const SIDE_MAX_NZ: f64 = 0.5;
 const TOP_MIN_NZ: f64 = 0.9;
 
 /// `sharp_edges`: the design's, from [`crate::Design::sharp_edges`].
+#[allow(clippy::too_many_lines)] // numeric kernel: the findings' one pass over the samples, in the order of the method
 pub fn find(
     m3c2: &[CoreResult],
     coverage: &[SampleOutcome],

@@ -152,6 +152,7 @@ pub(crate) fn clip_below(
 }
 
 /// Closes the outlines formed by `segments` with triangles facing +z.
+#[allow(clippy::too_many_lines)] // numeric kernel: the cut, its outlines and the cap, one pass that reads as the algorithm
 pub(crate) fn cap(
     vertices: &mut Vec<Point3<f64>>,
     segments: &[(u32, u32)],

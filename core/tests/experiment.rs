@@ -164,6 +164,7 @@ fn region_medians(truth: &[Point3<f64>], d: &[Option<f64>]) -> [f64; 3] {
 }
 
 #[test]
+#[allow(clippy::too_many_lines)] // the source study's experiment end to end, into one table
 fn the_source_study_experiment() {
     let design = design();
     let index = C2mIndex::build(

@@ -78,6 +78,7 @@ struct Tri {
 }
 
 /// Scans `part` from `t_design_scanner` (the true pose). `seed` makes noise repeatable.
+#[allow(clippy::too_many_lines)] // numeric kernel: the scanner's rasterisation of every triangle into its angular grid
 pub fn scan(
     part: &AsBuilt,
     t_design_scanner: &Isometry3<f64>,

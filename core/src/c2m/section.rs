@@ -131,6 +131,7 @@ impl C2mIndex {
     /// Prepares queries against the design cut at `height` and closed by a cap, in time and
     /// memory proportional to the section. A height at or above the design's top leaves the
     /// design whole (an empty section).
+    #[allow(clippy::too_many_lines)] // numeric kernel: the clipping of the crossing triangles and the cap, one pass that reads as the algorithm
     pub fn section(&self, height: f64) -> Result<Section, CutError> {
         if !height.is_finite() {
             return Err(CutError::Height { height });

@@ -168,6 +168,23 @@ fn a_clean_bunny_job_reports_what_inspect_reports_bit_for_bit() {
     }
 }
 
+/// A second agent on the same services refuses to start and leaves the first alone.
+fn a_second_agent_is_refused(prefix: &str, config: &str, cell: &Cell) {
+    let mut second = Agent::start(AGENT, prefix, config);
+    let code = second.wait_exit(LONG);
+    assert_eq!(code.code(), Some(1));
+    assert!(
+        second
+            .log()
+            .contains("another asbuilt-agent is already serving"),
+        "{}",
+        second.log()
+    );
+    clean_station(cell, 1, 4, 1, &top_points(100));
+    let after = report_of(&cell.reports(1, LONG), 1, 4);
+    assert_eq!(after.status(), Some(StationStatus::Complete));
+}
+
 #[test]
 fn every_bad_input_is_counted_logged_and_survived() {
     let dir = tempfile::tempdir().unwrap();
@@ -254,20 +271,7 @@ fn every_bad_input_is_counted_logged_and_survived() {
     assert_eq!(good.status(), Some(StationStatus::Complete));
     assert_eq!(good.stats.count, 200);
 
-    // A second agent on the same services refuses to start and leaves the first alone.
-    let mut second = Agent::start(AGENT, &prefix, &config);
-    let code = second.wait_exit(LONG);
-    assert_eq!(code.code(), Some(1));
-    assert!(
-        second
-            .log()
-            .contains("another asbuilt-agent is already serving"),
-        "{}",
-        second.log()
-    );
-    clean_station(&cell, 1, 4, 1, &top_points(100));
-    let after = report_of(&cell.reports(1, LONG), 1, 4);
-    assert_eq!(after.status(), Some(StationStatus::Complete));
+    a_second_agent_is_refused(&prefix, &config, &cell);
 
     let log = agent.log();
     for line in [

@@ -106,6 +106,41 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// Inspect's findings for the box: the pit is one deficit region of -6 mm where it is (the
+/// raised top's +4 mm is within the 5 mm tolerance), and every layer band's walls are where
+/// the design has them.
+fn assert_findings_at_the_pit(r: &serde_json::Value, truth: f64) {
+    let findings = r["findings"].as_array().unwrap();
+    assert_eq!(findings.len(), 1, "{findings:?}");
+    let f = &findings[0];
+    assert_eq!(f["stations"], 1);
+    let regions = f["regions"].as_array().unwrap();
+    assert_eq!(regions.len(), 1, "{regions:?}");
+    let pit = &regions[0];
+    assert_eq!(pit["kind"], "Deficit");
+    assert!(
+        (pit["peak"].as_f64().unwrap() + PIT_BELOW_DESIGN).abs() < 1e-4,
+        "{pit}"
+    );
+    let c = &pit["centroid"];
+    assert!(
+        in_pit(c[0].as_f64().unwrap(), c[1].as_f64().unwrap()),
+        "{pit}"
+    );
+    let pit_area = pit["area_m2"].as_f64().unwrap();
+    assert!(
+        (pit_area - truth).abs() < 0.15 * truth,
+        "{pit_area} vs {truth}"
+    );
+    let rows = f["layers"].as_array().unwrap();
+    assert_eq!(rows.len(), 4, "{rows:?}");
+    assert!(
+        rows.iter()
+            .all(|l| l["width_deviation"].as_f64().unwrap().abs() < 1e-6),
+        "{rows:?}"
+    );
+}
+
 #[test]
 fn every_method_reports_the_raised_top_and_the_pit() {
     let dir = tempfile::tempdir().unwrap();
@@ -188,38 +223,7 @@ fn every_method_reports_the_raised_top_and_the_pit() {
     // +4 mm core points are there.
     assert_eq!(layers[3]["missing_area_m2"], cov["missing_area_m2"]);
     assert!(layers[3]["m3c2"]["mean"].as_f64().unwrap() > 0.001);
-    // Findings, drawn as the agent draws a scan layer's: the pit is one deficit region of
-    // -6 mm where it is (the raised top's +4 mm is within the 5 mm tolerance), and every
-    // layer band's walls are where the design has them.
-    let findings = r["findings"].as_array().unwrap();
-    assert_eq!(findings.len(), 1, "{findings:?}");
-    let f = &findings[0];
-    assert_eq!(f["stations"], 1);
-    let regions = f["regions"].as_array().unwrap();
-    assert_eq!(regions.len(), 1, "{regions:?}");
-    let pit = &regions[0];
-    assert_eq!(pit["kind"], "Deficit");
-    assert!(
-        (pit["peak"].as_f64().unwrap() + PIT_BELOW_DESIGN).abs() < 1e-4,
-        "{pit}"
-    );
-    let c = &pit["centroid"];
-    assert!(
-        in_pit(c[0].as_f64().unwrap(), c[1].as_f64().unwrap()),
-        "{pit}"
-    );
-    let pit_area = pit["area_m2"].as_f64().unwrap();
-    assert!(
-        (pit_area - truth).abs() < 0.15 * truth,
-        "{pit_area} vs {truth}"
-    );
-    let rows = f["layers"].as_array().unwrap();
-    assert_eq!(rows.len(), 4, "{rows:?}");
-    assert!(
-        rows.iter()
-            .all(|l| l["width_deviation"].as_f64().unwrap().abs() < 1e-6),
-        "{rows:?}"
-    );
+    assert_findings_at_the_pit(&r, truth);
     // missing.ply: the station's and the job's missing samples, all in the pit.
     let missing = ply_rows(&out.join("missing.ply"));
     assert_eq!(missing.len() as u64, 2 * cov["missing"].as_u64().unwrap());

@@ -13,12 +13,12 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Point3;
 
-use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
-use crate::suite::{self, Method, Methods, Suite, SuiteConfig};
 use asbuilt_agent::viewer::{self, View, Viewer, ViewerParams};
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
+use asbuilt_report::suite::{self, Method, Methods, Suite, SuiteConfig};
+use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
 const CHUNK: usize = 1 << 16;

@@ -3,18 +3,15 @@
 mod calibrate;
 mod convert;
 mod demo;
-mod html;
 mod inspect;
 mod pack;
 mod publish;
 mod recording_file;
 mod recover;
 mod replay;
-mod report;
 mod report_cmd;
 mod sim_cmd;
 mod stations;
-mod suite;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -14,7 +14,7 @@ use asbuilt_protocol::{StationReport, StationStatus};
 use clap::Args;
 
 use crate::publish::collect_reports;
-use crate::report::Section;
+use asbuilt_report::Section;
 
 #[derive(Args)]
 pub struct ReplayArgs {

@@ -21,7 +21,7 @@ use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationFindings, 
 use clap::Args;
 use std::time::{Duration, Instant};
 
-use crate::report::{DesignSection, Parameters, Report, Section, summary_table};
+use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 
 #[derive(Args)]
 pub struct ReportArgs {
@@ -380,7 +380,7 @@ fn write_outputs(
     let html = out.join("report.html");
     std::fs::write(
         &html,
-        crate::html::page(report, &recording.display().to_string()),
+        asbuilt_report::html::page(report, &recording.display().to_string()),
     )
     .with_context(|| format!("cannot write {}", html.display()))?;
     print!("{}", summary_table(report));

@@ -6,7 +6,7 @@
 
 use std::fmt::Write;
 
-use crate::report::{Report, Section};
+use crate::{Report, Section};
 
 fn esc(s: &str) -> String {
     s.replace('&', "&amp;")

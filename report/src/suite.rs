@@ -21,7 +21,7 @@ use asbuilt_protocol::{DeviationFlags, DeviationStats, PointDeviation};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
-use crate::report::finite;
+use crate::finite;
 use asbuilt_io::ply::{Property, Scalar, write_table};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

@@ -21,8 +21,8 @@ use crate::findings::FindingsStage;
 use crate::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::Recorder;
-use crate::viewer::{self, View, Viewer, ViewerParams};
 use crate::{error, info, warn};
+use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
 /// Station timeouts are checked this often at least.
 const MAX_TICK: Duration = Duration::from_millis(250);
@@ -44,7 +44,7 @@ pub enum AgentError {
         source: std::io::Error,
     },
     #[error(transparent)]
-    Viewer(#[from] crate::viewer::ViewerError),
+    Viewer(#[from] asbuilt_viewer::ViewerError),
     /// The cell's services: a node, a port or the wait set could not be made.
     #[error(transparent)]
     Ipc(#[from] crate::ipc::IpcError),
@@ -455,6 +455,7 @@ fn start_viewer(
                 max_points_per_station: config.viewer.max_points_per_station,
                 queue: config.viewer.queue,
                 tolerance: config.inspect.tolerance,
+                warn: |args| crate::log::line(crate::log::Level::Warn, args),
             })?;
             if let Some((vertices, triangles)) = design_view {
                 v.show(View::Design {

@@ -15,7 +15,6 @@ pub mod lifecycle;
 pub mod log;
 pub mod recorder;
 pub mod sequence;
-pub mod viewer;
 
 pub use config::AgentConfig;
 pub use sequence::{ChunkVerdict, SequenceTracker};

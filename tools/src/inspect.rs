@@ -14,11 +14,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Point3;
 
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
-use asbuilt_agent::viewer::{self, View, Viewer, ViewerParams};
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
 use asbuilt_report::suite::{self, Method, Methods, Suite, SuiteConfig};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
+use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
 /// Points per processing chunk: the only per-point buffer, reused for every chunk.
 const CHUNK: usize = 1 << 16;
@@ -616,6 +616,7 @@ fn start_viewer(args: &InspectArgs, design: &Design) -> Result<Option<Viewer>> {
         // Offline nothing waits on the view: a deep queue keeps every item.
         queue: 4096,
         tolerance: args.tolerance,
+        warn: |args| eprintln!("warning: {args}"),
     })?;
     v.show(View::Design {
         vertices: design.vertices.clone(),

@@ -23,8 +23,6 @@ use std::thread::JoinHandle;
 use asbuilt_protocol::StationReport;
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use crate::warn;
-
 /// Where the view goes, and how much of it.
 #[derive(Debug, Clone)]
 pub struct ViewerParams {
@@ -37,6 +35,8 @@ pub struct ViewerParams {
     /// Items waiting for the viewer thread beyond which new ones are dropped.
     pub queue: usize,
     pub tolerance: f64,
+    /// Where the viewer's warnings go (it never fails its caller): the agent's log, stderr.
+    pub warn: fn(std::fmt::Arguments<'_>),
 }
 
 /// One thing to show.
@@ -124,13 +124,13 @@ impl Viewer {
     pub fn with_stream(rec: rerun::RecordingStream, settings: ViewerParams) -> Self {
         // The layout a reviewer opens on, sent ahead of the data (a failure leaves rerun's own).
         if let Err(e) = blueprint().send(&rec, Default::default()) {
-            warn!("viewer: the layout was not sent: {e}");
+            (settings.warn)(format_args!("viewer: the layout was not sent: {e}"));
         }
         let (tx, rx) = sync_channel(settings.queue.max(1));
-        let tolerance = settings.tolerance;
+        let (tolerance, warn) = (settings.tolerance, settings.warn);
         let thread = std::thread::Builder::new()
             .name("viewer".into())
-            .spawn(move || Painter::new(rec, tolerance).run(rx))
+            .spawn(move || Painter::new(rec, tolerance, warn).run(rx))
             .expect("a thread can be started");
         Self {
             tx: Some(tx),
@@ -152,10 +152,10 @@ impl Viewer {
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
                 let n = self.dropped.fetch_add(1, Relaxed);
                 if n.is_power_of_two() {
-                    warn!(
+                    (self.settings.warn)(format_args!(
                         "viewer: {} item(s) dropped so far: the viewer is behind",
                         n + 1
-                    );
+                    ));
                 }
             }
         }
@@ -265,6 +265,7 @@ struct Painter {
     rec: rerun::RecordingStream,
     tolerance: f64,
     origin: Vector3<f64>,
+    warn: fn(std::fmt::Arguments<'_>),
 }
 
 /// Blue (−tolerance) through white (0) to red (+tolerance), saturated beyond; grey for NaN.
@@ -282,7 +283,7 @@ pub fn colour(d: f32, tolerance: f64) -> [u8; 3] {
 }
 
 impl Painter {
-    fn new(rec: rerun::RecordingStream, tolerance: f64) -> Self {
+    fn new(rec: rerun::RecordingStream, tolerance: f64, warn: fn(std::fmt::Arguments<'_>)) -> Self {
         let legend = format!(
             "# asbuilt deviation colours\n\nSigned distance to the design, saturated at the \
              tolerance (±{:.1} mm): **blue** −{:.1} mm and below (missing material), **white** \
@@ -300,6 +301,7 @@ impl Painter {
             rec,
             tolerance,
             origin: Vector3::zeros(),
+            warn,
         }
     }
 
@@ -311,7 +313,7 @@ impl Painter {
     fn run(mut self, rx: Receiver<View>) {
         while let Ok(v) = rx.recv() {
             if let Err(e) = self.paint(v) {
-                warn!("viewer: {e}");
+                (self.warn)(format_args!("viewer: {e}"));
             }
         }
         let _ = self.rec.flush_blocking();

@@ -12,10 +12,12 @@ use asbuilt_protocol::{
 };
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
-/// The agent configuration the seed recordings carry, and a seed of the agent.toml target.
+/// The agent configuration the seed recordings carry, and a seed of the agent.toml target. With
+/// findings on, `asbuilt report` runs the agent's findings stage over every mutated recording.
 pub const AGENT_TOML: &str = "[design]\npath = \"box.stl\"\nunits = \"m\"\n\
     [inspect]\ntolerance = 0.005\nmax_distance = 0.05\n\
     [limits]\nmax_points_per_chunk = 4096\npending_chunks = 4\n\
+    [findings]\nenabled = true\nspacing = 0.02\nlayer_height = 0.05\n\
     [calibration]\nt_design_base = { translation = [0.1, 0.0, 0.0], rotation_xyzw = [0.0, 0.0, 0.0, 1.0] }\n";
 
 /// Writes every target's seeds under `dir/<target>/`.

@@ -61,11 +61,13 @@ pub struct InspectArgs {
     #[arg(long, default_value = "c2m", value_parser = suite::parse_methods)]
     method: Methods,
     /// Design sampling for coverage, M3C2 core points and C2C without a reference, metres.
-    #[arg(long, default_value_t = 0.005)]
+    /// Default 0.01, as the agent's [findings].
+    #[arg(long, default_value_t = asbuilt_core::scan_layer::defaults::SPACING)]
     spacing: f64,
-    /// M3C2 cylinder diameter, metres.
-    #[arg(long, default_value_t = 0.01)]
-    projection_diameter: f64,
+    /// M3C2 cylinder diameter, metres. Default, as the agent's: twice the spacing, at most half
+    /// the layer height.
+    #[arg(long)]
+    projection_diameter: Option<f64>,
     /// M3C2 cylinder half-length: the largest deviation it can measure. Metres; default the
     /// maximum distance.
     #[arg(long)]
@@ -132,6 +134,7 @@ struct Plan {
     args: InspectArgs,
     methods: Vec<Method>,
     max_distance: f64,
+    projection_diameter: f64,
     coverage_threshold: f64,
     max_depth: f64,
     stations: Vec<Station>,
@@ -154,7 +157,7 @@ impl Plan {
             }
         };
         positive("--spacing", Some(args.spacing))?;
-        positive("--projection-diameter", Some(args.projection_diameter))?;
+        positive("--projection-diameter", args.projection_diameter)?;
         positive("--max-depth", args.max_depth)?;
         positive("--normal-diameter", args.normal_diameter)?;
         positive("--coverage-threshold", args.coverage_threshold)?;
@@ -181,8 +184,12 @@ impl Plan {
             .coverage_threshold
             .unwrap_or((3.0 * DEFAULT_POSITION_SIGMA).max(0.5 * args.tolerance))
             .min(max_distance);
+        let projection_diameter = args.projection_diameter.unwrap_or_else(|| {
+            asbuilt_core::scan_layer::defaults::projection_diameter(args.spacing, args.layer_height)
+        });
         Ok(Self {
             max_depth: args.max_depth.unwrap_or(max_distance),
+            projection_diameter,
             methods,
             max_distance,
             coverage_threshold,
@@ -197,9 +204,9 @@ impl Plan {
             methods: self.methods.clone(),
             tolerance: args.tolerance,
             spacing: args.spacing,
-            projection_diameter: args.projection_diameter,
+            projection_diameter: self.projection_diameter,
             max_depth: self.max_depth,
-            normal_diameter: args.normal_diameter.unwrap_or(args.projection_diameter),
+            normal_diameter: args.normal_diameter.unwrap_or(self.projection_diameter),
             coverage_threshold: self.coverage_threshold,
             coverage_spacing: coverage_spacing(args),
             reach: self.max_distance,
@@ -491,7 +498,7 @@ impl Job {
                 spacing_m: args.spacing,
                 coverage_threshold_m: plan.coverage_threshold,
                 coverage_spacing: describe_spacing(coverage_spacing(args)),
-                projection_diameter_m: args.projection_diameter,
+                projection_diameter_m: plan.projection_diameter,
                 max_depth_m: plan.max_depth,
                 printed_height_m: args.printed_height,
                 layer_height_m: args.layer_height,

@@ -109,6 +109,7 @@ impl FindingsConfig {
         use asbuilt_core::m3c2::streaming::StreamingParams;
         use asbuilt_core::scan_layer::{ScanLayerParams, defaults};
         let threshold = self.coverage_threshold(tolerance);
+        let projection_diameter = self.projection_diameter();
         // Coverage reaches twice the threshold: far enough to tell excess and deficit from
         // missing, near enough to stay cheap.
         let mut coverage = CoverageParams::with_threshold(threshold, 2.0 * threshold);
@@ -116,7 +117,7 @@ impl FindingsConfig {
         coverage.spacing = self.coverage_spacing();
         ScanLayerParams {
             m3c2: Some(StreamingParams {
-                projection_diameter: self.projection_diameter(),
+                projection_diameter,
                 max_depth,
                 min_points: defaults::MIN_POINTS,
             }),
@@ -126,7 +127,7 @@ impl FindingsConfig {
                 layer_height: self.layer_height,
                 printed_height,
                 spacing: self.spacing,
-                radius: 0.5 * self.projection_diameter(),
+                radius: 0.5 * projection_diameter,
                 min_region_samples: self.min_region_samples,
                 coverage_threshold: threshold,
                 min_missing_area_m2: self.min_missing_area_m2,

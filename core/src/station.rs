@@ -243,36 +243,40 @@ fn inspect_in_parallel<S: Surface + ?Sized>(
 }
 
 /// Whether consecutive points lie near each other, as a scanner writes them: the mean step
-/// between neighbours in the chunk, over an even sample, is under 1/64 of the chunk's extent.
-/// A shuffled cloud steps about half its extent.
+/// between neighbours, over an even sample of pairs, is under 1/64 of the sample's extent. A
+/// shuffled cloud steps about half its extent. Only the sample is read, so a chunk in scan
+/// order costs no pass of its own.
 fn in_spatial_order(points: &[ScanPoint]) -> bool {
     const PAIRS: usize = 256;
-    let finite = |p: &ScanPoint| p.xyz.iter().all(|v| v.is_finite());
-    let (lo, hi) = extent(points);
-    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
     let stride = (points.len() / PAIRS).max(1);
+    let pairs = || {
+        (1..points.len())
+            .step_by(stride)
+            .map(|i| (&points[i - 1], &points[i]))
+            .filter(|(a, b)| finite(a) && finite(b))
+    };
+    let (lo, hi) = extent(pairs().flat_map(|(a, b)| [a, b]));
+    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
     let (mut sum, mut n) = (0.0, 0usize);
-    for i in (1..points.len()).step_by(stride) {
-        let (a, b) = (&points[i - 1], &points[i]);
-        if finite(a) && finite(b) {
-            sum += (0..3)
-                .map(|k| (a.xyz[k] as f64 - b.xyz[k] as f64).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            n += 1;
-        }
+    for (a, b) in pairs() {
+        sum += (0..3)
+            .map(|k| (a.xyz[k] as f64 - b.xyz[k] as f64).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        n += 1;
     }
     n == 0 || diagonal.is_nan() || diagonal <= 0.0 || sum / (n as f64) < diagonal / 64.0
 }
 
-/// The box of a chunk's finite points, scanner frame.
-fn extent(points: &[ScanPoint]) -> ([f64; 3], [f64; 3]) {
+fn finite(p: &ScanPoint) -> bool {
+    p.xyz.iter().all(|v| v.is_finite())
+}
+
+/// The box of the finite points among `points`, scanner frame.
+fn extent<'a>(points: impl Iterator<Item = &'a ScanPoint>) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points
-        .iter()
-        .filter(|p| p.xyz.iter().all(|v| v.is_finite()))
-    {
+    for p in points.filter(|p| finite(p)) {
         for k in 0..3 {
             lo[k] = lo[k].min(p.xyz[k] as f64);
             hi[k] = hi[k].max(p.xyz[k] as f64);
@@ -284,7 +288,7 @@ fn extent(points: &[ScanPoint]) -> ([f64; 3], [f64; 3]) {
 /// The points' indices along a Morton (Z-order) curve of 10 bits an axis over their box;
 /// points that are not finite come first (they are only rejected).
 fn morton_order(points: &[ScanPoint]) -> Vec<u32> {
-    let (lo, hi) = extent(points);
+    let (lo, hi) = extent(points.iter());
     let scale: [f64; 3] = std::array::from_fn(|k| {
         let span = hi[k] - lo[k];
         if span > 0.0 { 1023.0 / span } else { 0.0 }
@@ -301,7 +305,7 @@ fn morton_order(points: &[ScanPoint]) -> Vec<u32> {
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let key = if p.xyz.iter().all(|v| v.is_finite()) {
+            let key = if finite(p) {
                 let q = |k: usize| ((p.xyz[k] as f64 - lo[k]) * scale[k]).clamp(0.0, 1023.0) as u64;
                 (spread(q(0)) | spread(q(1)) << 1 | spread(q(2)) << 2) as u32 + 1
             } else {

@@ -77,6 +77,8 @@ pub struct PlyWriter {
     body: Body,
     record: usize,
     rows: u64,
+    /// One row's bytes for [`PlyWriter::row`], reused.
+    scratch: Vec<u8>,
 }
 
 impl PlyWriter {
@@ -129,6 +131,7 @@ impl PlyWriter {
             body,
             record,
             rows: 0,
+            scratch: Vec::with_capacity(record),
         })
     }
 
@@ -146,7 +149,8 @@ impl PlyWriter {
     /// (`as`: floats round, integers saturate). For tables; a hot loop builds its bytes.
     pub fn row(&mut self, properties: &[Property], values: &[f64]) -> Result<(), IoError> {
         debug_assert_eq!(properties.len(), values.len());
-        let mut bytes = Vec::with_capacity(self.record);
+        let mut bytes = std::mem::take(&mut self.scratch);
+        bytes.clear();
         for (p, &v) in properties.iter().zip(values) {
             match p.scalar {
                 Scalar::F64 => bytes.extend_from_slice(&v.to_le_bytes()),
@@ -156,7 +160,9 @@ impl PlyWriter {
                 Scalar::U8 => bytes.push(v as u8),
             }
         }
-        self.record(&bytes)
+        let written = self.record(&bytes);
+        self.scratch = bytes;
+        written
     }
 
     /// Completes the file; returns the rows written. A count announced up front must be met.

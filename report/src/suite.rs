@@ -617,14 +617,13 @@ impl Suite {
             &self.missing_by_station,
             &outcomes,
         )?;
-        if let Some(l) = &self.layers {
+        Ok(self.layers.as_ref().map(|l| {
             let mut b = l.c2m.clone_empty();
             for o in outcomes.iter().filter(|o| o.class == SampleClass::Missing) {
                 b.push(o.position.z, c.area_per_sample());
             }
-            return Ok(Some(b));
-        }
-        Ok(None)
+            b
+        }))
     }
 
     /// M3C2's job-level section, the core points for the view and m3c2.ply; the mean distance
@@ -669,16 +668,15 @@ impl Suite {
                 ]
             }),
         )?;
-        if let Some(l) = &self.layers {
+        Ok(self.layers.as_ref().map(|l| {
             let mut b = l.c2m.clone_empty();
             for r in &results {
                 if let Some(d) = r.distance {
                     b.push(r.position.z, d);
                 }
             }
-            return Ok(Some(b));
-        }
-        Ok(None)
+            b
+        }))
     }
 }
 

@@ -182,7 +182,9 @@ impl Plan {
         };
         let coverage_threshold = args
             .coverage_threshold
-            .unwrap_or((3.0 * DEFAULT_POSITION_SIGMA).max(0.5 * args.tolerance))
+            .unwrap_or_else(|| {
+                asbuilt_core::scan_layer::defaults::coverage_threshold(args.tolerance)
+            })
             .min(max_distance);
         let projection_diameter = args.projection_diameter.unwrap_or_else(|| {
             asbuilt_core::scan_layer::defaults::projection_diameter(args.spacing, args.layer_height)

@@ -269,6 +269,11 @@ impl RecordedJob {
     }
 }
 
+/// A scan layer's key (job, printed height's bits): its latest findings cover all its stations.
+fn scan_layer_of(f: &StationFindings) -> (u64, u64) {
+    (f.job, f.printed_height.to_bits())
+}
+
 /// The stations as the agent's lifecycle gives them back from the recording.
 struct Replayed {
     stations: Vec<Section>,
@@ -319,7 +324,7 @@ fn replay_stations(
             Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
             // The latest findings of each scan layer cover all its stations so far.
             Recorded::Findings(f) => {
-                recorded.insert((f.job, f.printed_height.to_bits()), *f);
+                recorded.insert(scan_layer_of(&f), *f);
             }
             Recorded::Chunk(h, pts) => {
                 if lifecycle.awaits_design(&h) {

@@ -27,6 +27,7 @@ pub struct AgentConfig {
     pub recorder: RecorderConfig,
     pub viewer: ViewerConfig,
     pub findings: FindingsConfig,
+    pub tolerances: TolerancesConfig,
     /// The file as written, for the recording's metadata.
     pub text: String,
 }
@@ -364,6 +365,7 @@ const SECTIONS: &[&str] = &[
     "recorder",
     "viewer",
     "findings",
+    "tolerances",
 ];
 
 impl AgentConfig {
@@ -410,6 +412,11 @@ impl AgentConfig {
         let findings: FindingsConfig =
             section(&table, "findings", &mut problems, true).unwrap_or_default();
         check_findings(&findings, &mut problems);
+        let tolerances: TolerancesConfig =
+            section(&table, "tolerances", &mut problems, true).unwrap_or_default();
+        if let Err(e) = tolerances.limits(inspect.tolerance) {
+            problems.push(format!("tolerances: {e}"));
+        }
         check_outputs(&mut recorder, &mut viewer, base, &mut problems);
 
         let design = design.map(|mut d| {
@@ -449,6 +456,7 @@ impl AgentConfig {
                 recorder,
                 viewer,
                 findings,
+                tolerances,
                 text: text.to_string(),
             }),
             _ => Err(ConfigError {
@@ -507,6 +515,79 @@ pub fn recorded_findings(text: &str) -> Result<FindingsConfig, Vec<String>> {
         Ok(findings)
     } else {
         Err(problems)
+    }
+}
+
+/// The `[tolerances]` of a recorded configuration (the job's tolerance for every kind where it
+/// has none), so that a reader of the recording judges the findings by the crew's limits.
+pub fn recorded_tolerances(text: &str) -> Result<TolerancesConfig, Vec<String>> {
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
+    let mut problems = Vec::new();
+    let t: TolerancesConfig =
+        section(&table, "tolerances", &mut problems, true).unwrap_or_default();
+    if problems.is_empty() {
+        Ok(t)
+    } else {
+        Err(problems)
+    }
+}
+
+/// `[tolerances]`: the limits a crew holds the findings to, per kind and optionally per range
+/// of layers. Lengths in metres, the missing area in m²; a kind left out is held to
+/// `[inspect] tolerance`. The agent checks them at start; the report gives every finding, layer
+/// band and scan layer a verdict against them (pass, warn beyond `warn_fraction` of the limit,
+/// fail beyond it).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TolerancesConfig {
+    pub width: Option<f64>,
+    pub top_height: Option<f64>,
+    pub position: Option<f64>,
+    pub surface: Option<f64>,
+    pub missing_area_m2: Option<f64>,
+    pub creep: Option<f64>,
+    pub warn_fraction: Option<f64>,
+    /// Per range of layers, later entries winning: `"width=12mm@2-4"` (the `--limit` syntax).
+    pub layers: Vec<String>,
+}
+
+impl TolerancesConfig {
+    /// The limits for a job whose tolerance is `tolerance`, then `extra` (`--limit` on the
+    /// command line) over them.
+    pub fn limits_with(
+        &self,
+        tolerance: f64,
+        extra: &[asbuilt_core::verdict::LayerLimit],
+    ) -> Result<asbuilt_core::verdict::Limits, String> {
+        use asbuilt_core::verdict::Limits;
+        let mut l = Limits::from_tolerance(tolerance);
+        let given = [
+            (&mut l.width, self.width),
+            (&mut l.top_height, self.top_height),
+            (&mut l.position, self.position),
+            (&mut l.surface, self.surface),
+            (&mut l.missing_area_m2, self.missing_area_m2),
+            (&mut l.creep, self.creep),
+            (&mut l.warn_fraction, self.warn_fraction),
+        ];
+        for (slot, v) in given {
+            if let Some(v) = v {
+                *slot = v;
+            }
+        }
+        for text in &self.layers {
+            l.set(text.parse()?);
+        }
+        for x in extra {
+            l.set(*x);
+        }
+        l.check()?;
+        Ok(l)
+    }
+
+    pub fn limits(&self, tolerance: f64) -> Result<asbuilt_core::verdict::Limits, String> {
+        self.limits_with(tolerance, &[])
     }
 }
 

@@ -4,8 +4,13 @@
 //! table, and `report.html`, one page that opens without a network. `asbuilt inspect` and
 //! `asbuilt report` write it; the computations are asbuilt-core's.
 
+mod assessment;
 pub mod html;
 mod sections;
 pub mod suite;
 
+pub use assessment::{
+    Assessment, Item, LayerHistory, LayerScan, LayerVerdict, LimitsSection, ScanLayerVerdicts,
+    StationVerdict, VerdictCounts, assess,
+};
 pub use sections::*;

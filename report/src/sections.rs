@@ -23,6 +23,10 @@ pub struct Report {
     /// agent's own stage (`report`), or the job's (`inspect --method all`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub findings: Vec<asbuilt_protocol::StationFindings>,
+    /// Verdicts against the crew's limits, each finding followed across scan layers, the layer
+    /// history and the summary the page opens with; with findings.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub assessment: Option<crate::Assessment>,
     pub warnings: Vec<String>,
 }
 
@@ -102,6 +106,13 @@ pub struct HistogramSection {
     pub underflow: u64,
     pub overflow: u64,
     pub bins: Vec<u64>,
+}
+
+impl Report {
+    /// Gives the stations, findings and layer bands their verdicts against `limits`.
+    pub fn assess(&mut self, limits: &asbuilt_core::verdict::Limits) {
+        self.assessment = Some(crate::assess(&self.findings, &self.stations, limits));
+    }
 }
 
 pub(crate) fn finite(v: f64) -> Option<f64> {

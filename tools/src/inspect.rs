@@ -48,6 +48,11 @@ pub struct InspectArgs {
     /// Tolerance band, metres: |d| <= tolerance is within tolerance.
     #[arg(long, default_value_t = 0.005)]
     tolerance: f64,
+    /// A verdict limit, repeatable: KIND=VALUE or KIND=VALUE@FIRST-LAST (layers), KIND one of
+    /// width, top_height, position, surface, missing_area (m², or with cm2), creep; lengths in
+    /// metres or with mm. Kinds left out are held to --tolerance.
+    #[arg(long = "limit", value_name = "KIND=VALUE[@LAYERS]")]
+    limits: Vec<asbuilt_core::verdict::LayerLimit>,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]
@@ -132,6 +137,8 @@ pub fn run(args: InspectArgs) -> Result<ExitCode> {
 /// What the arguments ask for, checked, with the defaults that depend on each other resolved.
 struct Plan {
     args: InspectArgs,
+    /// The verdicts' limits: --tolerance for every kind, then each --limit.
+    limits: asbuilt_core::verdict::Limits,
     methods: Vec<Method>,
     max_distance: f64,
     projection_diameter: f64,
@@ -189,7 +196,15 @@ impl Plan {
         let projection_diameter = args.projection_diameter.unwrap_or_else(|| {
             asbuilt_core::scan_layer::defaults::projection_diameter(args.spacing, args.layer_height)
         });
+        let mut limits = asbuilt_core::verdict::Limits::from_tolerance(args.tolerance);
+        for l in &args.limits {
+            limits.set(*l);
+        }
+        limits
+            .check()
+            .map_err(|e| anyhow::anyhow!("--limit: {e}"))?;
         Ok(Self {
+            limits,
             max_depth: args.max_depth.unwrap_or(max_distance),
             projection_diameter,
             methods,
@@ -481,7 +496,7 @@ impl Job {
             ));
         }
         let ix = &self.facts.index;
-        let report = Report {
+        let mut report = Report {
             asbuilt_version: env!("CARGO_PKG_VERSION"),
             design: DesignSection {
                 path: args.design.display().to_string(),
@@ -512,8 +527,10 @@ impl Job {
             layers: totals.layers,
             m3c2_two_cloud: totals.m3c2_two_cloud,
             findings,
+            assessment: None,
             warnings,
         };
+        report.assess(&plan.limits);
         Ok((report, written, self.failed))
     }
 }

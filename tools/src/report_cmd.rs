@@ -36,14 +36,22 @@ pub struct ReportArgs {
     /// Maximum distance, metres; default the recording's configuration, else 10 × tolerance.
     #[arg(long)]
     max_distance: Option<f64>,
+    /// A verdict limit over the recording's [tolerances], repeatable: KIND=VALUE or
+    /// KIND=VALUE@FIRST-LAST (layers), KIND one of width, top_height, position, surface,
+    /// missing_area (m², or with cm2), creep; lengths in metres or with mm.
+    #[arg(long = "limit", value_name = "KIND=VALUE[@LAYERS]")]
+    limits: Vec<asbuilt_core::verdict::LayerLimit>,
 }
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     write(
         &args.recording,
         &args.out,
-        args.tolerance,
-        args.max_distance,
+        Overrides {
+            tolerance: args.tolerance,
+            max_distance: args.max_distance,
+            limits: args.limits,
+        },
     )
     .map_err(|e| {
         // Every refusal names the recording it is about.
@@ -103,15 +111,22 @@ impl Outputs for Collected {
     }
 }
 
+/// What the command line sets over the recording's configuration.
+#[derive(Default)]
+pub struct Overrides {
+    pub tolerance: Option<f64>,
+    pub max_distance: Option<f64>,
+    pub limits: Vec<asbuilt_core::verdict::LayerLimit>,
+}
+
 /// Writes `out/report.json` and `out/report.html` for `recording`.
 pub fn write(
     recording_path: &std::path::Path,
     out: &std::path::Path,
-    tolerance: Option<f64>,
-    max_distance: Option<f64>,
+    overrides: Overrides,
 ) -> Result<()> {
     let bytes = crate::recording_file::map(recording_path)?;
-    let (job, designs) = RecordedJob::read(recording_path, &bytes, tolerance, max_distance)?;
+    let (job, designs) = RecordedJob::read(recording_path, &bytes, overrides)?;
     let replayed = replay_stations(recording_path, &bytes, &job, designs)?;
     let report = job.report(replayed);
     write_outputs(recording_path, out, &report)
@@ -129,6 +144,8 @@ struct RecordedJob {
     limits: asbuilt_agent::config::Limits,
     /// The agent's `[findings]` when it drew findings: the report draws them again.
     findings: Option<asbuilt_agent::config::FindingsConfig>,
+    /// What the verdicts hold the findings to.
+    verdict_limits: asbuilt_core::verdict::Limits,
     tolerance: f64,
     max_distance: f64,
 }
@@ -137,8 +154,7 @@ impl RecordedJob {
     fn read(
         path: &std::path::Path,
         bytes: &[u8],
-        tolerance: Option<f64>,
-        max_distance: Option<f64>,
+        overrides: Overrides,
     ) -> Result<(Self, PrintedDesigns)> {
         let bad = |e| crate::recording_file::unreadable(path, e);
         let (meta, attachments) = recording::job(bytes).map_err(bad)?;
@@ -161,30 +177,33 @@ impl RecordedJob {
         // The design as it was, read from the recording's bytes; its name gives the format.
         let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
             .with_context(|| format!("the design recorded in {}", path.display()))?;
-        let (frames, settings, limits, findings) = if meta.writer == "asbuilt-agent" {
-            use asbuilt_agent::config::{recorded_findings, recorded_limits, recorded_settings};
+        let (frames, settings, limits, findings, tolerances) = if meta.writer == "asbuilt-agent" {
+            use asbuilt_agent::config::{
+                recorded_findings, recorded_limits, recorded_settings, recorded_tolerances,
+            };
             let problems =
                 |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
             let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
             let limits = recorded_limits(&meta.config).map_err(problems)?;
             let findings = recorded_findings(&meta.config).map_err(problems)?;
+            let tolerances = recorded_tolerances(&meta.config).map_err(problems)?;
             (
                 frames,
                 settings,
                 limits,
                 findings.enabled.then_some(findings),
+                tolerances,
             )
         } else {
-            (
-                FrameChain::default(),
-                Default::default(),
-                Default::default(),
-                None,
-            )
+            Default::default()
         };
-        let tolerance = tolerance.unwrap_or(settings.tolerance);
-        let max_distance =
-            max_distance.unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
+        let tolerance = overrides.tolerance.unwrap_or(settings.tolerance);
+        let max_distance = overrides
+            .max_distance
+            .unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
+        let verdict_limits = tolerances
+            .limits_with(tolerance, &overrides.limits)
+            .map_err(|e| anyhow::anyhow!("the verdicts' limits ([tolerances], --limit): {e}"))?;
         if !(tolerance > 0.0 && max_distance > 0.0) {
             bail!("--tolerance and --max-distance must be positive metres");
         }
@@ -206,6 +225,7 @@ impl RecordedJob {
             params,
             limits,
             findings,
+            verdict_limits,
             tolerance,
             max_distance,
         };
@@ -233,7 +253,7 @@ impl RecordedJob {
         }
         let mut findings: Vec<_> = replayed.findings.into_values().collect();
         findings.sort_by_key(|a| (a.job, a.layer));
-        Report {
+        let mut report = Report {
             asbuilt_version: env!("CARGO_PKG_VERSION"),
             design: DesignSection {
                 path: self.design_path,
@@ -264,8 +284,11 @@ impl RecordedJob {
             layers: None,
             m3c2_two_cloud: None,
             findings,
+            assessment: None,
             warnings,
-        }
+        };
+        report.assess(&self.verdict_limits);
+        report
     }
 }
 

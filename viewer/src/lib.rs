@@ -268,18 +268,10 @@ struct Painter {
     warn: fn(std::fmt::Arguments<'_>),
 }
 
-/// Blue (−tolerance) through white (0) to red (+tolerance), saturated beyond; grey for NaN.
+/// Blue (−tolerance) through white (0) to red (+tolerance), saturated beyond; grey for NaN:
+/// core's scale, the one the report's maps use.
 pub fn colour(d: f32, tolerance: f64) -> [u8; 3] {
-    if !d.is_finite() {
-        return [128, 128, 128];
-    }
-    let t = (d as f64 / tolerance).clamp(-1.0, 1.0);
-    let fade = |x: f64| (255.0 * (1.0 - x)).round() as u8;
-    if t >= 0.0 {
-        [255, fade(t), fade(t)]
-    } else {
-        [fade(-t), fade(-t), 255]
-    }
+    asbuilt_core::colour::deviation_colour(f64::from(d), tolerance)
 }
 
 impl Painter {

@@ -1,0 +1,395 @@
+//! Verdicts: pass, warn or fail, against the limits a crew sets per kind of deviation and,
+//! where the part asks for it, per range of layers.
+//!
+//! A value fails beyond its limit and warns beyond `warn_fraction` of it. Missing material is
+//! never a pass: a reported missing area warns, and fails beyond its area limit. Where ranges
+//! overlap, the last one given wins for the layers it covers; a finding that spans layers with
+//! different limits is held to the strictest of them.
+
+use std::fmt;
+use std::str::FromStr;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Verdict {
+    Pass,
+    Warn,
+    Fail,
+}
+
+impl Verdict {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Verdict::Pass => "pass",
+            Verdict::Warn => "warn",
+            Verdict::Fail => "fail",
+        }
+    }
+}
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// What a limit bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum LimitKind {
+    /// |width deviation| of a layer band, metres.
+    Width,
+    /// |top of the print − printed height|, metres.
+    TopHeight,
+    /// |shift| of a layer band in the plan, metres.
+    Position,
+    /// |peak deviation| of an area of the surface, metres.
+    Surface,
+    /// Area of missing material, m².
+    MissingArea,
+    /// |change of a layer band's width| since the first scan layer that saw it, metres
+    /// (creep, sag: printed concrete deforms under the layers above).
+    Creep,
+}
+
+impl LimitKind {
+    pub const ALL: [LimitKind; 6] = [
+        LimitKind::Width,
+        LimitKind::TopHeight,
+        LimitKind::Position,
+        LimitKind::Surface,
+        LimitKind::MissingArea,
+        LimitKind::Creep,
+    ];
+
+    /// The name in agent.toml's `[tolerances]` and in `--limit`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            LimitKind::Width => "width",
+            LimitKind::TopHeight => "top_height",
+            LimitKind::Position => "position",
+            LimitKind::Surface => "surface",
+            LimitKind::MissingArea => "missing_area",
+            LimitKind::Creep => "creep",
+        }
+    }
+
+    /// Whether the limit is an area (m²) rather than a length (m).
+    pub fn is_area(self) -> bool {
+        self == LimitKind::MissingArea
+    }
+}
+
+impl FromStr for LimitKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let s = s.trim().replace('-', "_");
+        LimitKind::ALL
+            .into_iter()
+            .find(|k| k.as_str() == s)
+            .ok_or_else(|| {
+                format!(
+                    "unknown kind {s:?}: use one of {}",
+                    LimitKind::ALL.map(LimitKind::as_str).join(", ")
+                )
+            })
+    }
+}
+
+/// One kind's limit over the layer bands `first..=last`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LayerLimit {
+    pub kind: LimitKind,
+    pub value: f64,
+    pub first: u32,
+    pub last: u32,
+}
+
+/// `KIND=VALUE` or `KIND=VALUE@A-B` (layers A to B, or `@A` for one layer). Lengths in metres or
+/// with `mm`/`cm`/`m`; the missing area in m² or with `cm2`/`m2`.
+impl FromStr for LayerLimit {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (kind, rest) = s
+            .split_once('=')
+            .ok_or_else(|| format!("{s:?}: expected KIND=VALUE or KIND=VALUE@FIRST-LAST"))?;
+        let kind: LimitKind = kind.parse()?;
+        let (value, layers) = match rest.split_once('@') {
+            Some((v, l)) => (v, Some(l)),
+            None => (rest, None),
+        };
+        let value =
+            parse_amount(value.trim(), kind.is_area()).map_err(|e| format!("{s:?}: {e}"))?;
+        let (first, last) = match layers {
+            None => (0, u32::MAX),
+            Some(l) => parse_layers(l).map_err(|e| format!("{s:?}: {e}"))?,
+        };
+        Ok(LayerLimit {
+            kind,
+            value,
+            first,
+            last,
+        })
+    }
+}
+
+fn parse_layers(l: &str) -> Result<(u32, u32), String> {
+    let number = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("layer {t:?} is not a layer number (0 is the first layer)"))
+    };
+    let (a, b) = match l.split_once('-') {
+        Some((a, b)) => (number(a)?, number(b)?),
+        None => (number(l)?, number(l)?),
+    };
+    if a > b {
+        return Err(format!("layers {a}-{b}: the first is above the last"));
+    }
+    Ok((a, b))
+}
+
+/// A positive amount with an optional unit.
+fn parse_amount(v: &str, area: bool) -> Result<f64, String> {
+    let units: &[(&str, f64)] = if area {
+        &[
+            ("cm2", 1e-4),
+            ("cm²", 1e-4),
+            ("mm2", 1e-6),
+            ("mm²", 1e-6),
+            ("m2", 1.0),
+            ("m²", 1.0),
+        ]
+    } else {
+        &[("mm", 1e-3), ("cm", 1e-2), ("m", 1.0)]
+    };
+    let (number, scale) = units
+        .iter()
+        .find_map(|(u, s)| v.strip_suffix(u).map(|n| (n, *s)))
+        .unwrap_or((v, 1.0));
+    let x: f64 = number.trim().parse().map_err(|_| {
+        format!(
+            "{v:?} is not {}",
+            if area {
+                "an area (m², or with cm2)"
+            } else {
+                "a length (metres, or with mm)"
+            }
+        )
+    })?;
+    let x = x * scale;
+    if x.is_finite() && x > 0.0 {
+        Ok(x)
+    } else {
+        Err(format!("{v:?} must be positive"))
+    }
+}
+
+/// The limits of a job.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Limits {
+    pub width: f64,
+    pub top_height: f64,
+    pub position: f64,
+    pub surface: f64,
+    pub missing_area_m2: f64,
+    pub creep: f64,
+    /// A value beyond this fraction of its limit warns.
+    pub warn_fraction: f64,
+    /// Per range of layers, in the order given: later ranges win.
+    pub ranges: Vec<LayerLimit>,
+}
+
+/// Missing areas larger than this fail unless the crew says otherwise, m² (20 cm², a hand's
+/// width of wall).
+pub const DEFAULT_MISSING_AREA_M2: f64 = 0.002;
+/// Values beyond this fraction of their limit warn unless the crew says otherwise.
+pub const DEFAULT_WARN_FRACTION: f64 = 0.75;
+
+impl Limits {
+    /// Every length limit at the job's tolerance.
+    pub fn from_tolerance(tolerance: f64) -> Self {
+        Self {
+            width: tolerance,
+            top_height: tolerance,
+            position: tolerance,
+            surface: tolerance,
+            missing_area_m2: DEFAULT_MISSING_AREA_M2,
+            creep: tolerance,
+            warn_fraction: DEFAULT_WARN_FRACTION,
+            ranges: Vec::new(),
+        }
+    }
+
+    /// Sets a kind's limit for the whole part, or adds a range.
+    pub fn set(&mut self, l: LayerLimit) {
+        if l.first == 0 && l.last == u32::MAX {
+            *self.whole_part_mut(l.kind) = l.value;
+        } else {
+            self.ranges.push(l);
+        }
+    }
+
+    fn whole_part_mut(&mut self, kind: LimitKind) -> &mut f64 {
+        match kind {
+            LimitKind::Width => &mut self.width,
+            LimitKind::TopHeight => &mut self.top_height,
+            LimitKind::Position => &mut self.position,
+            LimitKind::Surface => &mut self.surface,
+            LimitKind::MissingArea => &mut self.missing_area_m2,
+            LimitKind::Creep => &mut self.creep,
+        }
+    }
+
+    /// The limit for the whole part.
+    pub fn whole_part(&self, kind: LimitKind) -> f64 {
+        match kind {
+            LimitKind::Width => self.width,
+            LimitKind::TopHeight => self.top_height,
+            LimitKind::Position => self.position,
+            LimitKind::Surface => self.surface,
+            LimitKind::MissingArea => self.missing_area_m2,
+            LimitKind::Creep => self.creep,
+        }
+    }
+
+    /// The limit of `kind` at one layer band.
+    pub fn at_layer(&self, kind: LimitKind, layer: u32) -> f64 {
+        self.ranges
+            .iter()
+            .rev()
+            .find(|r| r.kind == kind && (r.first..=r.last).contains(&layer))
+            .map_or_else(|| self.whole_part(kind), |r| r.value)
+    }
+
+    /// The strictest limit of `kind` over the layer bands `layers` (inclusive); the whole
+    /// part's when they are unknown.
+    pub fn over(&self, kind: LimitKind, layers: Option<(u32, u32)>) -> f64 {
+        let Some((a, b)) = layers else {
+            return self.whole_part(kind);
+        };
+        let mut limit = self.at_layer(kind, a);
+        // Only where a range begins or ends inside a..=b can the limit change.
+        for r in self.ranges.iter().filter(|r| r.kind == kind) {
+            for l in [r.first, r.last] {
+                if (a..=b).contains(&l) {
+                    limit = limit.min(self.at_layer(kind, l));
+                }
+            }
+        }
+        limit
+    }
+
+    /// The verdict of `value` (a magnitude; its sign is ignored) against `limit`.
+    pub fn judge_value(&self, kind: LimitKind, value: f64, limit: f64) -> Verdict {
+        let v = value.abs();
+        if kind == LimitKind::MissingArea {
+            // A missing area was reported because material is missing: never a pass.
+            return if v > limit {
+                Verdict::Fail
+            } else {
+                Verdict::Warn
+            };
+        }
+        if !v.is_finite() {
+            Verdict::Pass
+        } else if v > limit {
+            Verdict::Fail
+        } else if v > self.warn_fraction * limit {
+            Verdict::Warn
+        } else {
+            Verdict::Pass
+        }
+    }
+
+    /// The verdict of `value` over `layers`, with the limit it was held to.
+    pub fn judge(&self, kind: LimitKind, value: f64, layers: Option<(u32, u32)>) -> (Verdict, f64) {
+        let limit = self.over(kind, layers);
+        (self.judge_value(kind, value, limit), limit)
+    }
+
+    /// Problems that make the limits meaningless.
+    pub fn check(&self) -> Result<(), String> {
+        for kind in LimitKind::ALL {
+            let v = self.whole_part(kind);
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!(
+                    "the {} limit must be positive, not {v}",
+                    kind.as_str()
+                ));
+            }
+        }
+        if !(self.warn_fraction > 0.0 && self.warn_fraction <= 1.0) {
+            return Err(format!(
+                "warn_fraction must be in (0, 1], not {}",
+                self.warn_fraction
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limits_parse_with_units_and_layer_ranges() {
+        let l: LayerLimit = "width=12mm@2-4".parse().unwrap();
+        assert_eq!(l.kind, LimitKind::Width);
+        assert!((l.value - 0.012).abs() < 1e-15);
+        assert_eq!((l.first, l.last), (2, 4));
+        let l: LayerLimit = "missing-area=30cm2".parse().unwrap();
+        assert_eq!(l.kind, LimitKind::MissingArea);
+        assert!((l.value - 0.003).abs() < 1e-15);
+        assert_eq!((l.first, l.last), (0, u32::MAX));
+        let l: LayerLimit = "top_height=0.004@7".parse().unwrap();
+        assert_eq!((l.first, l.last, l.value), (7, 7, 0.004));
+        for bad in [
+            "width",
+            "depth=5mm",
+            "width=-1mm",
+            "width=5mm@4-2",
+            "width=5 parsecs",
+            "width=NaN",
+        ] {
+            assert!(bad.parse::<LayerLimit>().is_err(), "{bad}");
+        }
+        let e = "depth=5mm".parse::<LayerLimit>().unwrap_err();
+        assert!(e.contains("width, top_height"), "{e}");
+    }
+
+    #[test]
+    fn later_ranges_win_and_a_span_is_held_to_its_strictest_layer() {
+        let mut l = Limits::from_tolerance(0.005);
+        l.set("width=12mm@2-4".parse().unwrap());
+        l.set("width=3mm@4-6".parse().unwrap());
+        assert_eq!(l.at_layer(LimitKind::Width, 1), 0.005);
+        assert_eq!(l.at_layer(LimitKind::Width, 3), 0.012);
+        assert_eq!(l.at_layer(LimitKind::Width, 4), 0.003);
+        assert_eq!(l.at_layer(LimitKind::Position, 3), 0.005);
+        assert_eq!(l.over(LimitKind::Width, Some((2, 3))), 0.012);
+        assert_eq!(l.over(LimitKind::Width, Some((0, 9))), 0.003);
+        assert_eq!(l.over(LimitKind::Width, Some((1, 2))), 0.005);
+        assert_eq!(l.over(LimitKind::Width, None), 0.005);
+        l.set("width=6mm".parse().unwrap());
+        assert_eq!(l.at_layer(LimitKind::Width, 1), 0.006);
+    }
+
+    #[test]
+    fn verdicts_warn_beyond_the_fraction_and_fail_beyond_the_limit() {
+        let l = Limits::from_tolerance(0.004);
+        let w = LimitKind::Width;
+        assert_eq!(l.judge_value(w, 0.0029, 0.004), Verdict::Pass);
+        assert_eq!(l.judge_value(w, -0.0031, 0.004), Verdict::Warn);
+        assert_eq!(l.judge_value(w, 0.004, 0.004), Verdict::Warn);
+        assert_eq!(l.judge_value(w, -0.0041, 0.004), Verdict::Fail);
+        assert_eq!(l.judge_value(w, f64::NAN, 0.004), Verdict::Pass);
+        let m = LimitKind::MissingArea;
+        assert_eq!(l.judge_value(m, 0.0001, 0.002), Verdict::Warn);
+        assert_eq!(l.judge_value(m, 0.0021, 0.002), Verdict::Fail);
+        assert!(Verdict::Fail > Verdict::Warn && Verdict::Warn > Verdict::Pass);
+        assert!(l.check().is_ok());
+        let mut bad = l.clone();
+        bad.warn_fraction = 1.5;
+        assert!(bad.check().is_err());
+    }
+}

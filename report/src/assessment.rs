@@ -1,0 +1,747 @@
+//! Verdicts over a job's findings: pass, warn or fail for every finding, layer band and scan
+//! layer against the crew's limits (core's `verdict`), each finding followed across scan layers
+//! (since when, grown or shrunk, resolved), every layer band's history (width, shift and top in
+//! each scan layer that saw it, and its creep), and the few lines a site manager reads first.
+//!
+//! Findings are matched across scan layers by what they are: a layer band's width, shift and
+//! creep by the band, the top by itself, an area by its kind and an overlapping extent.
+
+use std::collections::BTreeMap;
+
+use asbuilt_core::verdict::{LimitKind, Limits, Verdict};
+use asbuilt_protocol::{RegionFinding, RegionKind, StationFindings};
+use serde::Serialize;
+
+use crate::Section;
+
+/// Areas farther apart than this are different findings, metres.
+const AREA_MATCH_MARGIN: f64 = 0.05;
+/// More than this share of a station's points beyond the maximum distance is worth a warning.
+const NO_MATCH_WARN: f64 = 0.01;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Assessment {
+    pub limits: LimitsSection,
+    /// The worst verdict of each job's latest scan layer.
+    pub verdict: &'static str,
+    /// What the page opens with: what is out of tolerance, where, since when, what changed.
+    pub summary: Vec<String>,
+    pub scan_layers: Vec<ScanLayerVerdicts>,
+    /// Per layer band, lowest first: its measures in every scan layer that saw it.
+    pub layer_history: Vec<LayerHistory>,
+    pub stations: Vec<StationVerdict>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LimitsSection {
+    pub width_m: f64,
+    pub top_height_m: f64,
+    pub position_m: f64,
+    pub surface_m: f64,
+    pub missing_area_m2: f64,
+    pub creep_m: f64,
+    pub warn_fraction: f64,
+    /// `KIND=VALUE@FIRST-LAST`, in the order they apply.
+    pub ranges: Vec<String>,
+}
+
+impl From<&Limits> for LimitsSection {
+    fn from(l: &Limits) -> Self {
+        Self {
+            width_m: l.width,
+            top_height_m: l.top_height,
+            position_m: l.position,
+            surface_m: l.surface,
+            missing_area_m2: l.missing_area_m2,
+            creep_m: l.creep,
+            warn_fraction: l.warn_fraction,
+            ranges: l
+                .ranges
+                .iter()
+                .map(|r| format!("{}={}@{}-{}", r.kind.as_str(), r.value, r.first, r.last))
+                .collect(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq, Eq)]
+pub struct VerdictCounts {
+    pub pass: u32,
+    pub warn: u32,
+    pub fail: u32,
+}
+
+impl VerdictCounts {
+    fn add(&mut self, v: Verdict) {
+        match v {
+            Verdict::Pass => self.pass += 1,
+            Verdict::Warn => self.warn += 1,
+            Verdict::Fail => self.fail += 1,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanLayerVerdicts {
+    pub job: u64,
+    /// The scan layer: the last layer printed (from 0) when it was scanned.
+    pub layer: u32,
+    pub printed_height: Option<f64>,
+    pub stations: u32,
+    pub verdict: &'static str,
+    /// Over the findings below.
+    pub counts: VerdictCounts,
+    /// Warnings and failures, failures first; `label` marks them on the maps.
+    pub items: Vec<Item>,
+    /// Every layer band seen, with the worst verdict of what touches it.
+    pub layers: Vec<LayerVerdict>,
+    /// Findings of the previous scan layer that this one no longer shows.
+    pub resolved: Vec<String>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LayerVerdict {
+    pub layer: u32,
+    pub verdict: &'static str,
+}
+
+/// One finding with its verdict.
+#[derive(Debug, Clone, Serialize)]
+pub struct Item {
+    /// "1", "2", … within the scan layer, as drawn on its maps.
+    pub label: String,
+    /// width, position, top_height, creep, excess, deficit or missing.
+    pub kind: &'static str,
+    pub verdict: &'static str,
+    /// Signed metres (m² for missing material).
+    pub value: f64,
+    pub limit: f64,
+    /// First and last layer band, when known.
+    pub layers: Option<[u32; 2]>,
+    /// Heights it spans, metres.
+    pub z: [f64; 2],
+    /// Where it is (an area's centre); `None` for a whole layer band.
+    pub at: Option<[f64; 3]>,
+    /// An area's extent.
+    pub extent: Option<[[f64; 3]; 2]>,
+    /// The scan layer that first showed it (and every one since).
+    pub since: u32,
+    /// new, grown, shrunk or steady, against the previous scan layer.
+    pub change: &'static str,
+    pub previous: Option<f64>,
+    /// One line a person reads.
+    pub text: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LayerHistory {
+    pub job: u64,
+    pub layer: u32,
+    pub z_min: f64,
+    pub z_max: f64,
+    pub scans: Vec<LayerScan>,
+    /// Relative width (see [`LayerScan::width_relative`]) in the latest scan layer minus that in
+    /// the first, metres: creep or sag under the layers above.
+    pub width_change: Option<f64>,
+    pub creep_verdict: Option<&'static str>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LayerScan {
+    /// The scan layer.
+    pub scan_layer: u32,
+    pub printed_height: Option<f64>,
+    pub samples: u32,
+    /// Mean M3C2 distance on the band's sides, metres.
+    pub mean: Option<f64>,
+    pub width: Option<f64>,
+    /// Width minus the median width of the scan layer's bands: what is left when the stations'
+    /// pose errors, which widen or narrow every band of a scan layer alike, are taken out.
+    pub width_relative: Option<f64>,
+    pub shift: Option<[f64; 2]>,
+    /// Top of the print minus the printed height, when this band was the top.
+    pub top: Option<f64>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct StationVerdict {
+    pub id: String,
+    pub verdict: &'static str,
+    pub reason: String,
+}
+
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+/// The verdicts of a job's findings (the latest of each scan layer) and stations.
+pub fn assess(findings: &[StationFindings], stations: &[Section], limits: &Limits) -> Assessment {
+    let mut by_job: BTreeMap<u64, Vec<&StationFindings>> = BTreeMap::new();
+    for f in findings {
+        by_job.entry(f.job).or_default().push(f);
+    }
+    let mut scan_layers = Vec::new();
+    let mut layer_history = Vec::new();
+    for layers in by_job.values_mut() {
+        layers.sort_by_key(|f| f.layer);
+        let history = history(layers, limits);
+        let mut previous: Option<ScanLayerVerdicts> = None;
+        for f in layers.iter() {
+            let s = scan_layer(f, &history, previous.as_ref(), limits);
+            scan_layers.push(s.clone());
+            previous = Some(s);
+        }
+        layer_history.extend(history);
+    }
+    let stations: Vec<_> = stations.iter().map(|s| station(s, limits)).collect();
+    let latest: Vec<&ScanLayerVerdicts> = by_job
+        .keys()
+        .filter_map(|j| scan_layers.iter().rev().find(|s| s.job == *j))
+        .collect();
+    let verdict = latest
+        .iter()
+        .map(|s| verdict_of(s.verdict))
+        .max()
+        .unwrap_or(Verdict::Pass);
+    Assessment {
+        limits: limits.into(),
+        verdict: verdict.as_str(),
+        summary: summary(&latest, &scan_layers, &stations),
+        scan_layers,
+        layer_history,
+        stations,
+    }
+}
+
+fn verdict_of(s: &str) -> Verdict {
+    match s {
+        "fail" => Verdict::Fail,
+        "warn" => Verdict::Warn,
+        _ => Verdict::Pass,
+    }
+}
+
+/// Every band's measures across the scan layers, and its creep.
+fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
+    let mut bands: BTreeMap<u32, LayerHistory> = BTreeMap::new();
+    for f in layers {
+        let top_band = f.layers.iter().map(|r| r.layer).max();
+        let median = median(f.layers.iter().filter_map(|r| finite(r.width_deviation)));
+        for r in &f.layers {
+            let h = bands.entry(r.layer).or_insert_with(|| LayerHistory {
+                job: f.job,
+                layer: r.layer,
+                z_min: r.z_min,
+                z_max: r.z_max,
+                scans: Vec::new(),
+                width_change: None,
+                creep_verdict: None,
+            });
+            let width = finite(r.width_deviation);
+            h.scans.push(LayerScan {
+                scan_layer: f.layer,
+                printed_height: finite(f.printed_height),
+                samples: r.samples,
+                mean: finite(r.mean),
+                width,
+                width_relative: width.zip(median).map(|(w, m)| w - m),
+                shift: (r.shift[0].is_finite() && r.shift[1].is_finite()).then_some(r.shift),
+                top: (Some(r.layer) == top_band)
+                    .then(|| finite(f.top_height_deviation))
+                    .flatten(),
+            });
+        }
+    }
+    for h in bands.values_mut() {
+        if let Some(change) = creep_at(h, u32::MAX) {
+            h.width_change = Some(change);
+            let (v, _) = limits.judge(LimitKind::Creep, change, Some((h.layer, h.layer)));
+            h.creep_verdict = Some(v.as_str());
+        }
+    }
+    bands.into_values().collect()
+}
+
+fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = values.collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
+/// The change of a band's relative width from the first scan layer that measured it up to scan
+/// layer `at`; `None` until two have.
+fn creep_at(h: &LayerHistory, at: u32) -> Option<f64> {
+    let mut widths = h
+        .scans
+        .iter()
+        .filter(|s| s.scan_layer <= at)
+        .filter_map(|s| s.width_relative);
+    let first = widths.next()?;
+    let last = widths.next_back()?;
+    Some(last - first)
+}
+
+fn mm(v: f64) -> String {
+    format!("{:+.1} mm", v * 1e3)
+}
+
+fn xyz(p: [f64; 3]) -> String {
+    format!("({:.2}, {:.2}, {:.2}) m", p[0], p[1], p[2])
+}
+
+fn layers_text(l: Option<[u32; 2]>) -> String {
+    match l {
+        Some([a, b]) if a == b => format!("layer {a}"),
+        Some([a, b]) => format!("layers {a}–{b}"),
+        None => "layers unknown".into(),
+    }
+}
+
+/// A finding before it is compared with the previous scan layer.
+struct Raw {
+    kind: &'static str,
+    limit_kind: LimitKind,
+    value: f64,
+    layers: Option<[u32; 2]>,
+    z: [f64; 2],
+    at: Option<[f64; 3]>,
+    extent: Option<[[f64; 3]; 2]>,
+}
+
+fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
+    let mut out = Vec::new();
+    for r in &f.layers {
+        let band = Some([r.layer, r.layer]);
+        let z = [r.z_min, r.z_max];
+        let mut push = |kind, limit_kind, value: f64| {
+            if value.is_finite() {
+                out.push(Raw {
+                    kind,
+                    limit_kind,
+                    value,
+                    layers: band,
+                    z,
+                    at: None,
+                    extent: None,
+                });
+            }
+        };
+        push("width", LimitKind::Width, r.width_deviation);
+        push(
+            "position",
+            LimitKind::Position,
+            r.shift[0].hypot(r.shift[1]),
+        );
+        let band_history = history.iter().find(|h| h.layer == r.layer);
+        if let Some(c) = band_history.and_then(|h| creep_at(h, f.layer)) {
+            push("creep", LimitKind::Creep, c);
+        }
+    }
+    if f.top_height_deviation.is_finite() {
+        let h = f.printed_height;
+        out.push(Raw {
+            kind: "top_height",
+            limit_kind: LimitKind::TopHeight,
+            value: f.top_height_deviation,
+            layers: Some([f.layer, f.layer]),
+            z: [h, h + f.top_height_deviation],
+            at: None,
+            extent: None,
+        });
+    }
+    for g in f.regions.iter().chain(f.missing.iter()) {
+        out.push(area(g));
+    }
+    out
+}
+
+fn area(g: &RegionFinding) -> Raw {
+    let missing = g.kind == RegionKind::Missing;
+    Raw {
+        kind: g.kind.as_str(),
+        limit_kind: if missing {
+            LimitKind::MissingArea
+        } else {
+            LimitKind::Surface
+        },
+        value: if missing { g.area_m2 } else { g.peak },
+        layers: (g.layers[0] != u32::MAX).then_some(g.layers),
+        z: [g.min[2], g.max[2]],
+        at: Some(g.centroid),
+        extent: Some([g.min, g.max]),
+    }
+}
+
+fn same_finding(a: &Raw, b: &Item) -> bool {
+    if a.kind != b.kind {
+        return false;
+    }
+    match (a.extent, b.extent) {
+        (Some([lo, hi]), Some([blo, bhi])) => (0..3)
+            .all(|i| lo[i] <= bhi[i] + AREA_MATCH_MARGIN && blo[i] <= hi[i] + AREA_MATCH_MARGIN),
+        // Layer rows by their band, the top by itself.
+        _ => a.kind == "top_height" || a.layers == b.layers,
+    }
+}
+
+fn describe(kind: &str, value: f64, layers: Option<[u32; 2]>, at: Option<[f64; 3]>) -> String {
+    match kind {
+        "width" => format!("{} width {}", layers_text(layers), mm(value)),
+        "position" => format!("{} shifted {:.1} mm", layers_text(layers), value * 1e3),
+        "creep" => format!(
+            "{} width changed {} since first scanned (beyond the scan layer's common change)",
+            layers_text(layers),
+            mm(value)
+        ),
+        "top_height" => format!("top of the print {}", mm(value)),
+        "missing" => format!(
+            "missing material, {:.0} cm², {} at {}",
+            value * 1e4,
+            layers_text(layers),
+            at.map_or_else(String::new, xyz)
+        ),
+        _ => format!(
+            "{kind} {}, {} at {}",
+            mm(value),
+            layers_text(layers),
+            at.map_or_else(String::new, xyz)
+        ),
+    }
+}
+
+fn scan_layer(
+    f: &StationFindings,
+    history: &[LayerHistory],
+    previous: Option<&ScanLayerVerdicts>,
+    limits: &Limits,
+) -> ScanLayerVerdicts {
+    let mut counts = VerdictCounts::default();
+    let mut band_verdicts: BTreeMap<u32, Verdict> =
+        f.layers.iter().map(|r| (r.layer, Verdict::Pass)).collect();
+    let mut items = Vec::new();
+    let mut matched_previous = vec![false; previous.map_or(0, |p| p.items.len())];
+    for raw in raw_items(f, history) {
+        let layers = raw.layers.map(|[a, b]| (a, b));
+        let (verdict, limit) = limits.judge(raw.limit_kind, raw.value, layers);
+        counts.add(verdict);
+        if let Some([a, b]) = raw.layers {
+            for (_, v) in band_verdicts.range_mut(a..=b) {
+                *v = (*v).max(verdict);
+            }
+        }
+        if verdict == Verdict::Pass {
+            continue;
+        }
+        let before = previous.and_then(|p| {
+            let i = p.items.iter().position(|it| same_finding(&raw, it))?;
+            matched_previous[i] = true;
+            Some(&p.items[i])
+        });
+        let change = match before {
+            None => "new",
+            Some(b) => {
+                let d = raw.value.abs() - b.value.abs();
+                let step = (1.0 - limits.warn_fraction).max(0.1) * limit;
+                if d > step {
+                    "grown"
+                } else if d < -step {
+                    "shrunk"
+                } else {
+                    "steady"
+                }
+            }
+        };
+        items.push((
+            verdict,
+            Item {
+                label: String::new(),
+                kind: raw.kind,
+                verdict: verdict.as_str(),
+                value: raw.value,
+                limit,
+                layers: raw.layers,
+                z: raw.z,
+                at: raw.at,
+                extent: raw.extent,
+                since: before.map_or(f.layer, |b| b.since),
+                change,
+                previous: before.map(|b| b.value),
+                text: describe(raw.kind, raw.value, raw.layers, raw.at),
+            },
+        ));
+    }
+    // Failures first; within a verdict, in the order of the findings (largest areas first).
+    items.sort_by_key(|(v, _)| std::cmp::Reverse(*v));
+    let items: Vec<Item> = items
+        .into_iter()
+        .enumerate()
+        .map(|(i, (_, mut it))| {
+            it.label = (i + 1).to_string();
+            it
+        })
+        .collect();
+    let resolved = previous
+        .map(|p| {
+            p.items
+                .iter()
+                .zip(&matched_previous)
+                .filter(|(_, m)| !**m)
+                .map(|(it, _)| it.text.clone())
+                .collect()
+        })
+        .unwrap_or_default();
+    let verdict = items
+        .iter()
+        .map(|i| verdict_of(i.verdict))
+        .max()
+        .unwrap_or(Verdict::Pass);
+    ScanLayerVerdicts {
+        job: f.job,
+        layer: f.layer,
+        printed_height: finite(f.printed_height),
+        stations: f.stations,
+        verdict: verdict.as_str(),
+        counts,
+        items,
+        layers: band_verdicts
+            .into_iter()
+            .map(|(layer, v)| LayerVerdict {
+                layer,
+                verdict: v.as_str(),
+            })
+            .collect(),
+        resolved,
+    }
+}
+
+/// A station's verdict is about the measurement, not the part: the part's deviations are the
+/// findings'. A station whose typical point is off the design (a wrong pose, the wrong part)
+/// fails; one with local deviations beyond the surface limit, or many points that found no
+/// design, warns and points to the findings.
+fn station(s: &Section, limits: &Limits) -> StationVerdict {
+    let limit = limits.surface;
+    let (verdict, reason) = match (s.median_abs, s.p95_abs) {
+        _ if s.matched == 0 => (Verdict::Fail, "no point matched the design".to_string()),
+        (Some(m), _) if m > limit => (
+            Verdict::Fail,
+            format!(
+                "half its points are more than {:.1} mm off the design: check the pose and the part",
+                m * 1e3
+            ),
+        ),
+        (_, Some(p)) if p > limit => (
+            Verdict::Warn,
+            format!(
+                "5 % of its points are beyond {:.1} mm: local deviations, see the findings",
+                p * 1e3
+            ),
+        ),
+        _ if (s.no_match as f64) > NO_MATCH_WARN * s.points as f64 => (
+            Verdict::Warn,
+            format!(
+                "{:.1} % of its points found no design within the maximum distance",
+                100.0 * s.no_match as f64 / s.points.max(1) as f64
+            ),
+        ),
+        _ => (
+            Verdict::Pass,
+            format!(
+                "95 % of its points within {:.1} mm",
+                s.p95_abs.unwrap_or(0.0) * 1e3
+            ),
+        ),
+    };
+    StationVerdict {
+        id: s.id.clone(),
+        verdict: verdict.as_str(),
+        reason,
+    }
+}
+
+fn summary(
+    latest: &[&ScanLayerVerdicts],
+    all: &[ScanLayerVerdicts],
+    stations: &[StationVerdict],
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for s in latest {
+        let height = s
+            .printed_height
+            .map_or_else(String::new, |h| format!(" (printed {h:.3} m)"));
+        out.push(format!(
+            "After {} layers{}: {}: {} out of tolerance, {} to watch.",
+            s.layer + 1,
+            height,
+            s.verdict.to_uppercase(),
+            s.counts.fail,
+            s.counts.warn
+        ));
+        for it in s.items.iter().filter(|i| i.verdict == "fail") {
+            out.push(format!(
+                "[{}] {} (limit {}), since the scan after {} layers{}.",
+                it.label,
+                it.text,
+                limit_text(it),
+                it.since + 1,
+                match it.change {
+                    "new" => ", new".to_string(),
+                    "steady" => String::new(),
+                    c => format!(", {c} since the last scan"),
+                }
+            ));
+        }
+        let previous = all.iter().rfind(|p| p.job == s.job && p.layer < s.layer);
+        if let Some(p) = previous {
+            let new: Vec<&Item> = s.items.iter().filter(|i| i.change == "new").collect();
+            let grown = s.items.iter().filter(|i| i.change == "grown").count();
+            out.push(format!(
+                "Since the scan after {} layers: {} new, {} grown, {} resolved.",
+                p.layer + 1,
+                new.len(),
+                grown,
+                s.resolved.len()
+            ));
+        }
+    }
+    let failed: Vec<&str> = stations
+        .iter()
+        .filter(|s| s.verdict == "fail")
+        .map(|s| s.id.as_str())
+        .collect();
+    if !failed.is_empty() {
+        out.push(format!(
+            "Stations whose measurement is in doubt: {}.",
+            failed.join(", ")
+        ));
+    }
+    out
+}
+
+fn limit_text(it: &Item) -> String {
+    if it.kind == "missing" {
+        format!("{:.0} cm²", it.limit * 1e4)
+    } else {
+        format!("±{:.1} mm", it.limit * 1e3)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use asbuilt_protocol::LayerFinding;
+
+    const T: f64 = 0.005;
+
+    /// Scan layer `layer` with bands 0..=layer; `width(band)` their width deviations.
+    fn scan(layer: u32, width: impl Fn(u32) -> f64) -> StationFindings {
+        let mut f = StationFindings::new(1, 4);
+        f.layer = layer;
+        f.printed_height = 0.02 * f64::from(layer + 1);
+        f.tolerance = T;
+        f.stations = 4;
+        f.top_height_deviation = 0.0;
+        for band in 0..=layer {
+            let z = 0.02 * f64::from(band);
+            f.layers
+                .push(LayerFinding {
+                    layer: band,
+                    z_min: z,
+                    z_max: z + 0.02,
+                    samples: 100,
+                    mean: 0.0,
+                    width_deviation: width(band),
+                    shift: [0.0, 0.0],
+                })
+                .unwrap();
+        }
+        f
+    }
+
+    fn bulge(at_x: f64, peak: f64) -> RegionFinding {
+        RegionFinding {
+            kind: RegionKind::Excess,
+            samples: 20,
+            area_m2: 0.002,
+            centroid: [at_x, 0.1, 0.1],
+            min: [at_x - 0.05, 0.09, 0.05],
+            max: [at_x + 0.05, 0.1, 0.15],
+            peak,
+            peak_at: [at_x, 0.1, 0.1],
+            mean: peak / 2.0,
+            layers: [2, 7],
+        }
+    }
+
+    #[test]
+    fn a_band_that_widens_under_the_layers_above_is_creep_but_a_common_offset_is_not() {
+        // Scan 1 after 10 layers: all bands on design. Scan 2 after 20: every band 3 mm wider
+        // (a station's pose error), band 1 another 6 mm (creep under the load above).
+        let first = scan(9, |_| 0.0);
+        let second = scan(19, |b| 0.003 + if b == 1 { 0.006 } else { 0.0 });
+        let a = assess(&[first, second], &[], &Limits::from_tolerance(T));
+        let band1 = &a.layer_history[1];
+        assert!((band1.width_change.unwrap() - 0.006).abs() < 1e-12);
+        assert_eq!(band1.creep_verdict, Some("fail"));
+        for h in a.layer_history.iter().filter(|h| h.layer != 1 && h.layer < 10) {
+            assert!(h.width_change.unwrap().abs() < 1e-12, "{h:?}");
+            assert_eq!(h.creep_verdict, Some("pass"));
+        }
+        // Seen once: no change to tell.
+        assert_eq!(a.layer_history[15].width_change, None);
+        let s = &a.scan_layers[1];
+        let creep: Vec<_> = s.items.iter().filter(|i| i.kind == "creep").collect();
+        assert_eq!(creep.len(), 1);
+        assert_eq!(creep[0].layers, Some([1, 1]));
+        // Band 1 is 9 mm wide: the width fails too; the others at 3 mm pass (warn from 3.75).
+        let widths: Vec<_> = s.items.iter().filter(|i| i.kind == "width").collect();
+        assert_eq!(widths.len(), 1);
+        assert_eq!(s.layers[1].verdict, "fail");
+        assert_eq!(s.layers[2].verdict, "pass");
+        assert_eq!(a.verdict, "fail");
+    }
+
+    #[test]
+    fn an_area_is_followed_across_scan_layers_and_resolved_when_it_goes() {
+        let mut a1 = scan(9, |_| 0.0);
+        a1.regions.push(bulge(0.5, 0.008)).unwrap();
+        let mut a2 = scan(19, |_| 0.0);
+        // The same bulge, a little larger and moved by less than the match margin.
+        a2.regions.push(bulge(0.52, 0.012)).unwrap();
+        a2.regions.push(bulge(-0.5, 0.007)).unwrap();
+        let a3 = scan(29, |_| 0.0);
+        let a = assess(&[a1, a2, a3], &[], &Limits::from_tolerance(T));
+        let s2 = &a.scan_layers[1];
+        let old = s2.items.iter().find(|i| i.at.unwrap()[0] > 0.0).unwrap();
+        assert_eq!((old.since, old.change), (9, "grown"));
+        assert_eq!(old.previous, Some(0.008));
+        let new = s2.items.iter().find(|i| i.at.unwrap()[0] < 0.0).unwrap();
+        assert_eq!((new.since, new.change), (19, "new"));
+        let s3 = &a.scan_layers[2];
+        assert_eq!(s3.verdict, "pass");
+        assert_eq!(s3.resolved.len(), 2);
+        assert_eq!(a.verdict, "pass");
+        assert!(a.summary[0].starts_with("After 30 layers"), "{:?}", a.summary);
+        assert!(a.summary[1].contains("2 resolved"), "{:?}", a.summary);
+    }
+
+    #[test]
+    fn crew_limits_per_layer_range_turn_a_failure_into_a_pass() {
+        let f = scan(9, |b| if (2..=4).contains(&b) { 0.012 } else { 0.0 });
+        let mut limits = Limits::from_tolerance(T);
+        let strict = assess(std::slice::from_ref(&f), &[], &limits);
+        assert_eq!(strict.scan_layers[0].counts.fail, 3);
+        limits.set("width=20mm@2-4".parse().unwrap());
+        let lenient = assess(&[f], &[], &limits);
+        assert_eq!(lenient.scan_layers[0].counts.fail, 0);
+        assert_eq!(lenient.scan_layers[0].verdict, "pass");
+        assert_eq!(lenient.limits.ranges, vec!["width=0.02@2-4".to_string()]);
+    }
+}

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use asbuilt_core::printed::PrintedDesign;
 use asbuilt_core::sampling::DesignSamples;
-use asbuilt_core::scan_layer::{ScanLayer, defaults};
+use asbuilt_core::scan_layer::{SampleState, ScanLayer, defaults};
 use asbuilt_protocol::{DeviationFlags, PointDeviation, StationFindings, StationReport};
 use nalgebra::Point3;
 
@@ -42,6 +42,10 @@ pub struct FindingsStage {
     epochs: Vec<Epoch>,
     /// Design-frame points of the chunk being ingested, sized once for the largest chunk.
     scratch: Vec<Point3<f64>>,
+    /// Keep every design sample's state with the findings (a reader drawing maps); the live
+    /// agent does not.
+    keep_samples: bool,
+    samples: Vec<SampleState>,
 }
 
 /// Makes a scan layer's state: design samples of the printed design, streaming M3C2 and
@@ -111,7 +115,21 @@ impl FindingsStage {
             },
             epochs: Vec::with_capacity(EPOCHS),
             scratch: Vec::with_capacity(max_points_per_chunk),
+            keep_samples: false,
+            samples: Vec::new(),
         }
+    }
+
+    /// Keeps the design samples' states of the latest findings, for [`FindingsStage::samples`].
+    pub fn keeping_samples(mut self) -> Self {
+        self.keep_samples = true;
+        self
+    }
+
+    /// The design samples' states behind the latest findings `end` returned (empty unless
+    /// [`FindingsStage::keeping_samples`]).
+    pub fn samples(&self) -> &[SampleState] {
+        &self.samples
     }
 
     /// A station starts sending points compared with `design`. False when it is left out.
@@ -199,7 +217,8 @@ impl FindingsStage {
             0.0
         };
         e.layer.end_station(origin, sigma, &*e.design);
-        let f = e.layer.findings(sigma, &*e.design)?;
+        let (f, samples) = e.layer.measure(sigma, &*e.design, self.keep_samples)?;
+        self.samples = samples;
         Some(f.to_message(
             key,
             e.layer.stations(),

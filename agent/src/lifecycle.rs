@@ -59,6 +59,14 @@ pub trait Outputs {
     fn tally(&mut self, _tally: &Tally) {}
     /// Findings of a station's scan layer, after its report (when `[findings]` is on).
     fn findings(&mut self, _findings: &StationFindings) {}
+    /// The design samples' states behind `findings`, right after them, when the findings stage
+    /// keeps them (a reader of a recording drawing maps).
+    fn samples(
+        &mut self,
+        _findings: &StationFindings,
+        _samples: &[asbuilt_core::scan_layer::SampleState],
+    ) {
+    }
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -868,6 +876,9 @@ impl<C: ChunkSource> Lifecycle<C> {
                     f.missing.len()
                 );
                 out.findings(&f);
+                if !stage.samples().is_empty() {
+                    out.samples(&f, stage.samples());
+                }
             }
         }
         self.counters.stations_reported += 1;

@@ -4,10 +4,10 @@
 //! chunk by chunk, it ends at its scanner's origin), so offline and live give the same findings
 //! from the same code. Memory grows with the design and the spacing, never with the scan.
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
 use crate::Surface;
-use crate::coverage::{Coverage, CoverageError, CoverageParams, CoverageSummary};
+use crate::coverage::{Coverage, CoverageError, CoverageParams, CoverageSummary, SampleClass};
 use crate::findings::{self, FindingParams, Findings};
 use crate::m3c2::streaming::{StreamingError, StreamingM3c2, StreamingParams, StreamingSummary};
 use crate::sampling::DesignSamples;
@@ -59,6 +59,18 @@ pub enum ScanLayerError {
     M3c2(#[from] StreamingError),
     #[error("coverage: {0}")]
     Coverage(#[from] CoverageError),
+}
+
+/// One design sample as the findings saw it: what a map of the scan layer draws.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SampleState {
+    pub position: Point3<f64>,
+    /// Outward.
+    pub normal: Vector3<f64>,
+    /// M3C2 distance along the normal, metres; `None` with no point in the cylinder.
+    pub m3c2: Option<f64>,
+    pub significant: bool,
+    pub class: SampleClass,
 }
 
 /// What one station added, per method that runs.
@@ -175,13 +187,54 @@ impl ScanLayer {
     /// The findings of every station so far, with M3C2's significance at position σ `sigma`.
     /// `None` unless both M3C2 and coverage run.
     pub fn findings(&self, sigma: f64, surface: &dyn Surface) -> Option<Findings> {
+        self.measure(sigma, surface, false).map(|(f, _)| f)
+    }
+
+    /// The findings as [`ScanLayer::findings`] gives them and, with `samples`, every design
+    /// sample's state in sample order (for maps).
+    pub fn measure(
+        &self,
+        sigma: f64,
+        surface: &dyn Surface,
+        samples: bool,
+    ) -> Option<(Findings, Vec<SampleState>)> {
         let (m3c2, coverage) = (self.m3c2.as_ref()?, self.coverage.as_ref()?);
-        Some(findings::find(
-            &m3c2.results(sigma),
-            &coverage.outcomes(surface),
+        let results = m3c2.results(sigma);
+        let outcomes = coverage.outcomes(surface);
+        let f = findings::find(
+            &results,
+            &outcomes,
             &self.sharp_edges,
             self.area_per_sample,
             &self.findings,
-        ))
+        );
+        let states = if samples {
+            let mut states: Vec<SampleState> = outcomes
+                .iter()
+                .map(|o| SampleState {
+                    position: o.position,
+                    normal: o.normal,
+                    m3c2: None,
+                    significant: false,
+                    class: o.class,
+                })
+                .collect();
+            // Both were built from the same samples: their sample indices line them up.
+            let at: rustc_hash::FxHashMap<u32, usize> = outcomes
+                .iter()
+                .enumerate()
+                .map(|(i, o)| (o.sample, i))
+                .collect();
+            for r in &results {
+                if let Some(&i) = at.get(&r.sample) {
+                    states[i].m3c2 = r.distance;
+                    states[i].significant = r.significant;
+                }
+            }
+            states
+        } else {
+            Vec::new()
+        };
+        Some((f, states))
     }
 }

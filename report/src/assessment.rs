@@ -690,7 +690,11 @@ mod tests {
         let band1 = &a.layer_history[1];
         assert!((band1.width_change.unwrap() - 0.006).abs() < 1e-12);
         assert_eq!(band1.creep_verdict, Some("fail"));
-        for h in a.layer_history.iter().filter(|h| h.layer != 1 && h.layer < 10) {
+        for h in a
+            .layer_history
+            .iter()
+            .filter(|h| h.layer != 1 && h.layer < 10)
+        {
             assert!(h.width_change.unwrap().abs() < 1e-12, "{h:?}");
             assert_eq!(h.creep_verdict, Some("pass"));
         }
@@ -728,7 +732,11 @@ mod tests {
         assert_eq!(s3.verdict, "pass");
         assert_eq!(s3.resolved.len(), 2);
         assert_eq!(a.verdict, "pass");
-        assert!(a.summary[0].starts_with("After 30 layers"), "{:?}", a.summary);
+        assert!(
+            a.summary[0].starts_with("After 30 layers"),
+            "{:?}",
+            a.summary
+        );
         assert!(a.summary[1].contains("2 resolved"), "{:?}", a.summary);
     }
 

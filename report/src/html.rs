@@ -1,14 +1,14 @@
-//! The HTML report: one self-contained page (inline CSS and SVG, no script, no network) with a
-//! table of stations, pass or fail against the tolerance, and a histogram per station.
-//!
-//! A station passes when the 95th percentile of |d| is within the tolerance and every point
-//! found the design (no no-match points).
+//! The HTML report: one self-contained page (inline CSS and SVG, no script, no network). It
+//! opens with the summary a site manager reads (what is out of tolerance, where, since when,
+//! what changed), then each scan layer's verdicts and deviation maps, the layer history, and
+//! the stations with their histograms.
 
 use std::fmt::Write;
 
-use crate::{Report, Section};
+use crate::maps::{MapKind, ScanLayerMaps, Side};
+use crate::{Assessment, Item, Report, ScanLayerVerdicts, Section};
 
-fn esc(s: &str) -> String {
+pub(crate) fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
@@ -18,15 +18,6 @@ fn esc(s: &str) -> String {
 fn mm(v: Option<f64>) -> String {
     v.map(|v| format!("{:.3}", v * 1e3))
         .unwrap_or_else(|| "–".into())
-}
-
-/// Millimetres of a value that may be NaN (not measured).
-fn mmf(v: f64) -> String {
-    mm(Some(v).filter(|v| v.is_finite()))
-}
-
-pub fn passes(s: &Section, tolerance: f64) -> bool {
-    s.matched > 0 && s.no_match == 0 && s.p95_abs.is_some_and(|p| p <= tolerance)
 }
 
 /// A bar per histogram bin, tolerance lines at ±tolerance.
@@ -82,17 +73,249 @@ fn histogram(s: &Section, tolerance: f64) -> String {
     svg
 }
 
+const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:2em;color:#222;max-width:1400px}\
+table{border-collapse:collapse;margin:.5em 0}td,th{padding:.25em .6em;border-bottom:1px solid #ddd;\
+text-align:right}td:first-child,th:first-child{text-align:left}td.text{text-align:left}\
+.fail{color:#c00;font-weight:bold}.warn{color:#b60;font-weight:bold}.pass{color:#282}\
+.verdict{display:inline-block;padding:.1em .6em;border-radius:.3em;color:#fff;font-weight:bold}\
+.verdict.fail{background:#c00;color:#fff}.verdict.warn{background:#d80;color:#fff}\
+.verdict.pass{background:#282;color:#fff}section.summary{border:2px solid #888;padding:.5em 1em;\
+margin:1em 0}section.summary li{margin:.2em 0}figure{display:inline-block;margin:.3em .8em .3em 0;\
+vertical-align:top}figcaption{font-size:.85em;color:#444}.maps{margin:.5em 0 1.5em}";
+
+/// The whole page: the summary first, then each scan layer (latest first) with its verdicts
+/// and maps, the layer history, the stations, the warnings.
 pub fn page(r: &Report, source: &str) -> String {
     let tol = r.parameters.tolerance_m;
+    let mut body = String::new();
+    let _ = write!(
+        body,
+        "<h1>asbuilt inspection report</h1><p>{source}. Design {design} ({units}, {tri} \
+         triangles). Tolerance ±{tolmm:.1} mm, maximum distance {maxmm:.1} mm. asbuilt {ver}.</p>",
+        source = esc(source),
+        design = esc(&r.design.path),
+        units = esc(&r.design.units),
+        tri = r.design.triangles,
+        tolmm = tol * 1e3,
+        maxmm = r.parameters.max_distance_m * 1e3,
+        ver = r.asbuilt_version,
+    );
+    if let Some(a) = &r.assessment {
+        body.push_str(&summary(a));
+    }
+    body.push_str(&legend(tol));
+    if let Some(a) = &r.assessment {
+        for s in a.scan_layers.iter().rev() {
+            let maps = r.maps.iter().find(|m| {
+                m.job == s.job
+                    && match s.printed_height {
+                        Some(h) => m.printed_height.to_bits() == h.to_bits(),
+                        None => !m.printed_height.is_finite(),
+                    }
+            });
+            body.push_str(&scan_layer(s, maps));
+        }
+        body.push_str(&crate::history::charts(a));
+    }
+    // Maps of scan layers without findings (C2M only).
+    if r.assessment
+        .as_ref()
+        .is_none_or(|a| a.scan_layers.is_empty())
+    {
+        for m in &r.maps {
+            body.push_str(&maps_html(m, &[]));
+        }
+    }
+    body.push_str(&stations(r));
+    let warnings: String = r
+        .warnings
+        .iter()
+        .map(|w| format!("<li>{}</li>", esc(w)))
+        .collect();
+    format!(
+        "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"/>\
+         <title>asbuilt report</title><style>{STYLE}</style></head><body>{body}\
+         <h2>Warnings</h2><ul>{warnings}</ul></body></html>\n"
+    )
+}
+
+fn badge(verdict: &str) -> String {
+    format!(
+        "<span class=\"verdict {verdict}\">{}</span>",
+        verdict.to_uppercase()
+    )
+}
+
+fn summary(a: &Assessment) -> String {
+    let lines: String = a
+        .summary
+        .iter()
+        .map(|l| format!("<li>{}</li>", esc(l)))
+        .collect();
+    format!(
+        "<section class=\"summary\" id=\"summary\"><h2>Summary {}</h2><ul>{lines}</ul>\
+         <p>Limits: width ±{:.1} mm, top height ±{:.1} mm, position {:.1} mm, surface ±{:.1} mm, \
+         missing area {:.0} cm², creep ±{:.1} mm; warn beyond {:.0} % of a limit{}.</p></section>",
+        badge(a.verdict),
+        a.limits.width_m * 1e3,
+        a.limits.top_height_m * 1e3,
+        a.limits.position_m * 1e3,
+        a.limits.surface_m * 1e3,
+        a.limits.missing_area_m2 * 1e4,
+        a.limits.creep_m * 1e3,
+        a.limits.warn_fraction * 100.0,
+        if a.limits.ranges.is_empty() {
+            String::new()
+        } else {
+            format!("; per layers: {}", esc(&a.limits.ranges.join(", ")))
+        }
+    )
+}
+
+/// The colour scale, once for every map.
+fn legend(tolerance: f64) -> String {
+    let t = tolerance * 1e3;
+    let stops: String = (0..=10)
+        .map(|i| {
+            let d = tolerance * (f64::from(i) / 5.0 - 1.0);
+            let [r, g, b] = asbuilt_core::colour::deviation_colour(d, tolerance);
+            format!(
+                "<stop offset=\"{}%\" stop-color=\"rgb({r},{g},{b})\"/>",
+                i * 10
+            )
+        })
+        .collect();
+    format!(
+        "<p><svg class=\"legend\" width=\"560\" height=\"34\" viewBox=\"0 0 560 34\" role=\"img\" \
+         aria-label=\"colour scale\"><defs><linearGradient id=\"scale\">{stops}</linearGradient>\
+         </defs><rect x=\"0\" y=\"0\" width=\"240\" height=\"14\" fill=\"url(#scale)\" \
+         stroke=\"#888\"/><text x=\"0\" y=\"27\" font-size=\"10\">−{t:.1} mm missing</text>\
+         <text x=\"120\" y=\"27\" font-size=\"10\" text-anchor=\"middle\">on design</text>\
+         <text x=\"240\" y=\"27\" font-size=\"10\" text-anchor=\"end\">+{t:.1} mm excess</text>\
+         <rect x=\"270\" y=\"0\" width=\"14\" height=\"14\" fill=\"rgb(0,0,255)\"/>\
+         <text x=\"288\" y=\"11\" font-size=\"10\">missing material (coverage)</text>\
+         <rect x=\"430\" y=\"0\" width=\"14\" height=\"14\" fill=\"rgb(222,222,222)\" \
+         stroke=\"#888\"/><text x=\"448\" y=\"11\" font-size=\"10\">design not seen</text></svg>\
+         </p><p>Maps: the part from each side and from above, coloured by signed deviation, \
+         saturated at the tolerance; the dashed line is the printed height. Numbered call-outs \
+         are the findings of the table above each map; a bar beside a map marks a layer band.</p>"
+    )
+}
+
+fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
+    let mut out = format!(
+        "<section class=\"scan-layer\" data-layer=\"{}\"><h2>After {} layers{} {}</h2>\
+         <p>{} station(s). {} finding(s) fail, {} warn, {} pass.</p>",
+        s.layer,
+        s.layer + 1,
+        s.printed_height
+            .map_or_else(String::new, |h| format!(" (printed {h:.3} m)")),
+        badge(s.verdict),
+        s.stations,
+        s.counts.fail,
+        s.counts.warn,
+        s.counts.pass
+    );
+    if !s.items.is_empty() {
+        let rows: String = s
+            .items
+            .iter()
+            .map(|it| {
+                format!(
+                    "<tr class=\"item\" data-label=\"{l}\"><td>{l}</td><td class=\"text\">{}</td>\
+                     <td class=\"{v}\">{V}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                    esc(&it.text),
+                    limit_text(it),
+                    it.since + 1,
+                    it.change,
+                    l = it.label,
+                    v = it.verdict,
+                    V = it.verdict.to_uppercase()
+                )
+            })
+            .collect();
+        let _ = write!(
+            out,
+            "<table class=\"items\"><tr><th>#</th><th>finding</th><th>verdict</th><th>limit</th>\
+             <th>since (layers)</th><th>since last scan</th></tr>{rows}</table>"
+        );
+    }
+    if !s.resolved.is_empty() {
+        let list: String = s
+            .resolved
+            .iter()
+            .map(|t| format!("<li>{}</li>", esc(t)))
+            .collect();
+        let _ = write!(
+            out,
+            "<details><summary>{} resolved since the last scan</summary><ul>{list}</ul></details>",
+            s.resolved.len()
+        );
+    }
+    if let Some(m) = maps {
+        out.push_str(&maps_html(m, &s.items));
+    }
+    out.push_str("</section>");
+    out
+}
+
+fn limit_text(it: &Item) -> String {
+    if it.kind == "missing" {
+        format!("{:.0} cm²", it.limit * 1e4)
+    } else {
+        format!("±{:.1} mm", it.limit * 1e3)
+    }
+}
+
+/// A scan layer's maps: the points' C2M, then the samples' M3C2, each from every side.
+fn maps_html(m: &ScanLayerMaps, items: &[Item]) -> String {
+    let mut out = String::new();
+    for (kind, title) in [
+        (MapKind::Points, "C2M of the points"),
+        (
+            MapKind::Samples,
+            "M3C2 of the design samples, with missing material",
+        ),
+    ] {
+        let figures: String = Side::ALL
+            .into_iter()
+            .filter_map(|side| {
+                let svg = m.svg(kind, side, items)?;
+                Some(format!(
+                    "<figure><figcaption>{}</figcaption>{svg}</figure>",
+                    side.title()
+                ))
+            })
+            .collect();
+        if !figures.is_empty() {
+            let _ = write!(
+                out,
+                "<div class=\"maps\" data-kind=\"{}\"><h3>{title}</h3>{figures}</div>",
+                kind.name()
+            );
+        }
+    }
+    out
+}
+
+/// The stations: each one's verdict on its measurement, its numbers and its histogram.
+fn stations(r: &Report) -> String {
+    let tol = r.parameters.tolerance_m;
+    let verdicts = r.assessment.as_ref().map(|a| &a.stations);
     let mut rows = String::new();
     let mut cards = String::new();
-    for s in r.stations.iter().chain(std::iter::once(&r.overall)) {
-        let ok = passes(s, tol);
+    for (i, s) in r
+        .stations
+        .iter()
+        .chain(std::iter::once(&r.overall))
+        .enumerate()
+    {
+        let v = verdicts.and_then(|v| v.get(i));
         let _ = write!(
             rows,
-            "<tr class=\"{}\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
-             <td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-            if ok { "pass" } else { "fail" },
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
+             <td>{}</td><td>{}</td><td>{}</td><td class=\"{}\">{}</td><td class=\"text\">{}</td>\
+             </tr>",
             esc(&s.id),
             s.points,
             s.rejected,
@@ -103,132 +326,26 @@ pub fn page(r: &Report, source: &str) -> String {
             mm(s.p95_abs),
             s.in_tolerance_percent()
                 .map_or("–".into(), |p| format!("{p:.1}")),
-            if ok { "pass" } else { "FAIL" }
+            v.map_or("", |v| v.verdict),
+            v.map_or_else(String::new, |v| v.verdict.to_uppercase()),
+            v.map_or_else(String::new, |v| esc(&v.reason)),
         );
         let _ = write!(
             cards,
-            "<figure><figcaption>{}: {}</figcaption>{}</figure>",
+            "<figure><figcaption>{}</figcaption>{}</figure>",
             esc(&s.id),
-            if ok { "pass" } else { "fail" },
             histogram(s, tol)
         );
     }
-    let findings = findings_html(&r.findings);
-    let warnings: String = r
-        .warnings
-        .iter()
-        .map(|w| format!("<li>{}</li>", esc(w)))
-        .collect();
     format!(
-        "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">\
-         <title>asbuilt report</title><style>\
-         body{{font-family:system-ui,sans-serif;margin:2em;color:#222}}\
-         table{{border-collapse:collapse}}td,th{{padding:.3em .7em;border-bottom:1px solid #ddd;\
-         text-align:right}}td:first-child,th:first-child{{text-align:left}}\
-         tr.fail td:last-child{{color:#c22;font-weight:bold}}tr.pass td:last-child{{color:#282}}\
-         figure{{display:inline-block;margin:.5em 1em .5em 0}}figcaption{{font-size:.9em}}\
-         </style></head><body>\
-         <h1>asbuilt inspection report</h1>\
-         <p>Recording {source}. Design {design} ({units}, {tri} triangles). Tolerance ±{tolmm:.1} mm, \
-         maximum distance {maxmm:.1} mm. asbuilt {ver}.</p>\
-         <p>A station passes when 95 % of its points are within the tolerance and none is farther \
-         than the maximum distance. Distances in millimetres; positive is excess material.</p>\
-         <table><tr><th>station</th><th>points</th><th>rejected</th><th>no match</th><th>mean</th>\
-         <th>std</th><th>|d| median</th><th>|d| 95 %</th><th>in tolerance %</th><th>verdict</th>\
-         </tr>{rows}</table><h2>Histograms</h2><p>Signed deviation, green within the tolerance \
-         (dashed lines), red excess, blue missing material.</p>{cards}{findings}\
-         <h2>Warnings</h2><ul>{warnings}</ul></body></html>\n",
-        source = esc(source),
-        design = esc(&r.design.path),
-        units = esc(&r.design.units),
-        tri = r.design.triangles,
-        tolmm = tol * 1e3,
-        maxmm = r.parameters.max_distance_m * 1e3,
-        ver = r.asbuilt_version,
+        "<h2>Stations</h2><p>A station's verdict is about its measurement: it fails when its \
+         typical point is off the design (a wrong pose, the wrong part), and warns when local \
+         deviations or points far from the design call for the findings. Distances in \
+         millimetres; positive is excess material.</p>\
+         <table class=\"stations\"><tr><th>station</th><th>points</th><th>rejected</th>\
+         <th>no match</th><th>mean</th><th>std</th><th>|d| median</th><th>|d| 95 %</th>\
+         <th>in tolerance %</th><th>verdict</th><th>why</th></tr>{rows}</table>\
+         <h3>Histograms</h3><p>Signed deviation, green within the tolerance (dashed lines), red \
+         excess, blue missing material.</p>{cards}"
     )
-}
-
-/// The agent's findings per scan layer: what a crew should look at, with positions.
-fn findings_html(all: &[asbuilt_protocol::StationFindings]) -> String {
-    if all.is_empty() {
-        return String::new();
-    }
-    let mut out = String::from(
-        "<h2>Findings</h2><p>Per scan layer, over all its stations: design-referenced M3C2 and \
-         coverage. Positions in the design frame, metres; deviations in millimetres.</p>",
-    );
-    let f3 = |p: [f64; 3]| format!("{:.3}, {:.3}, {:.3}", p[0], p[1], p[2]);
-    for f in all {
-        let t = f.tolerance;
-        let _ = write!(
-            out,
-            "<h3>After {} layers (printed {:.3} m, {} station(s))</h3><p>Top height deviation: \
-             {}. Layers below are numbered from 0 at the bed.</p>",
-            f.layer + 1,
-            f.printed_height,
-            f.stations,
-            if f.top_height_deviation.is_finite() {
-                format!(
-                    "{:+.1} mm{}",
-                    f.top_height_deviation * 1e3,
-                    if f.top_height_deviation.abs() > t {
-                        " (out of tolerance)"
-                    } else {
-                        ""
-                    }
-                )
-            } else {
-                "top not seen".into()
-            }
-        );
-        let rows: String = f
-            .layers_out_of_tolerance()
-            .map(|l| {
-                format!(
-                    "<tr class=\"fail\"><td>{}</td><td>{:.3}–{:.3}</td><td>{}</td><td>{}, {}</td>\
-                     <td>FAIL</td></tr>",
-                    l.layer,
-                    l.z_min,
-                    l.z_max,
-                    mmf(l.width_deviation),
-                    mmf(l.shift[0]),
-                    mmf(l.shift[1])
-                )
-            })
-            .collect();
-        if !rows.is_empty() {
-            let _ = write!(
-                out,
-                "<table><tr><th>layer</th><th>z (m)</th><th>width</th><th>shift x, y</th>\
-                 <th>verdict</th></tr>{rows}</table>"
-            );
-        }
-        let regions: String = f
-            .regions
-            .iter()
-            .chain(f.missing.iter())
-            .map(|g| {
-                format!(
-                    "<tr class=\"fail\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.0}</td>\
-                     <td>{}</td><td>FAIL</td></tr>",
-                    g.kind.as_str(),
-                    f3(g.centroid),
-                    f3(g.min),
-                    f3(g.max),
-                    g.area_m2 * 1e4,
-                    mmf(g.peak)
-                )
-            })
-            .collect();
-        if regions.is_empty() && f.count() == 0 {
-            out.push_str("<p>No findings beyond the tolerance.</p>");
-        } else if !regions.is_empty() {
-            let _ = write!(
-                out,
-                "<table><tr><th>kind</th><th>centre</th><th>from</th><th>to</th><th>area cm²</th>\
-                 <th>peak</th><th>verdict</th></tr>{regions}</table>"
-            );
-        }
-    }
-    out
 }

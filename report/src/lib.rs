@@ -5,7 +5,9 @@
 //! `asbuilt report` write it; the computations are asbuilt-core's.
 
 mod assessment;
+mod history;
 pub mod html;
+pub mod maps;
 mod sections;
 pub mod suite;
 

@@ -28,6 +28,9 @@ pub struct Report {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub assessment: Option<crate::Assessment>,
     pub warnings: Vec<String>,
+    /// Each scan layer's deviation maps, for report.html.
+    #[serde(skip)]
+    pub maps: Vec<crate::maps::ScanLayerMaps>,
 }
 
 #[derive(Debug, Serialize)]

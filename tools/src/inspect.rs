@@ -529,6 +529,7 @@ impl Job {
             findings,
             assessment: None,
             warnings,
+            maps: Vec::new(),
         };
         report.assess(&plan.limits);
         Ok((report, written, self.failed))

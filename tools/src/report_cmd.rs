@@ -21,6 +21,8 @@ use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationFindings, 
 use clap::Args;
 use std::time::{Duration, Instant};
 
+use asbuilt_core::scan_layer::SampleState;
+use asbuilt_report::maps::{MapCollector, ScanLayerMaps};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 
 #[derive(Args)]
@@ -73,15 +75,17 @@ struct Collected {
     buffer: Vec<PointDeviation>,
     /// The latest findings of each scan layer (by job and printed height).
     findings: BTreeMap<(u64, u64), StationFindings>,
+    maps: MapCollector,
 }
 
 impl Collected {
-    fn new(stats: asbuilt_core::stats::StatsConfig) -> Self {
+    fn new(stats: asbuilt_core::stats::StatsConfig, maps: MapCollector) -> Self {
         Self {
             done: Vec::new(),
             total: Tally::new(stats),
             buffer: Vec::new(),
             findings: BTreeMap::new(),
+            maps,
         }
     }
 }
@@ -93,7 +97,8 @@ impl Outputs for Collected {
         fill: &mut dyn FnMut(&mut [PointDeviation]) -> asbuilt_protocol::DeviationHeader,
     ) {
         self.buffer.resize(n, PointDeviation::default());
-        fill(&mut self.buffer);
+        let h = fill(&mut self.buffer);
+        self.maps.points((h.job, h.station), &self.buffer);
     }
 
     fn tally(&mut self, tally: &Tally) {
@@ -101,6 +106,7 @@ impl Outputs for Collected {
     }
 
     fn report(&mut self, r: &StationReport) {
+        self.maps.station_done((r.job, r.station), r.printed_height);
         self.done
             .push(((r.job, r.station), Section::from_report(r, None, 0)));
     }
@@ -108,6 +114,10 @@ impl Outputs for Collected {
     fn findings(&mut self, f: &StationFindings) {
         self.findings
             .insert((f.job, f.printed_height.to_bits()), f.clone());
+    }
+
+    fn samples(&mut self, f: &StationFindings, samples: &[SampleState]) {
+        self.maps.samples(f.job, f.printed_height, samples);
     }
 }
 
@@ -286,6 +296,7 @@ impl RecordedJob {
             findings,
             assessment: None,
             warnings,
+            maps: replayed.maps,
         };
         report.assess(&self.verdict_limits);
         report
@@ -306,6 +317,7 @@ struct Replayed {
     /// The findings drawn again differ from those the agent recorded.
     findings_differ: bool,
     unfinished: usize,
+    maps: Vec<ScanLayerMaps>,
 }
 
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
@@ -326,14 +338,22 @@ fn replay_stations(
     // The agent's findings stage, as the agent ran it: the findings are drawn again from the
     // recorded chunks, not copied from the recording.
     if let Some(f) = &job.findings {
-        lifecycle = lifecycle.with_findings(FindingsStage::new(
-            f.clone(),
-            job.tolerance,
-            job.max_distance,
-            job.limits.max_points_per_chunk,
-        ));
+        lifecycle = lifecycle.with_findings(
+            FindingsStage::new(
+                f.clone(),
+                job.tolerance,
+                job.max_distance,
+                job.limits.max_points_per_chunk,
+            )
+            .keeping_samples(),
+        );
     }
-    let mut out = Collected::new(job.params.stats);
+    let spacing = job
+        .findings
+        .as_ref()
+        .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
+    let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
+    let mut out = Collected::new(job.params.stats, maps);
     let mut recorded = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
@@ -371,6 +391,7 @@ fn replay_stations(
         mut done,
         total,
         findings: drawn,
+        maps,
         ..
     } = out;
     done.sort_by_key(|(k, _)| *k);
@@ -388,6 +409,7 @@ fn replay_stations(
         (recorded, false)
     };
     Ok(Replayed {
+        maps: maps.finish(),
         stations: done.into_iter().map(|(_, s)| s).collect(),
         total,
         findings,

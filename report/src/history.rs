@@ -1,0 +1,247 @@
+//! The layer history's charts: how each layer band's width and shift moved from one scan layer
+//! to the next, and the top's height at every scan layer. A band that widens as the layers
+//! above load it (creep, sag) shows as lines that part where the others stay together.
+
+use std::fmt::Write;
+
+use crate::Assessment;
+use crate::html::esc;
+
+/// One line of a chart.
+struct Series {
+    name: String,
+    colour: String,
+    points: Vec<(f64, f64)>,
+}
+
+const W: f64 = 620.0;
+const H: f64 = 220.0;
+const L: f64 = 50.0;
+const B: f64 = 34.0;
+const T: f64 = 10.0;
+const R: f64 = 150.0;
+
+/// A line chart with dashed limits at ±`limit` (mm), `class` naming what it shows.
+fn chart(class: &str, series: &[Series], x_label: &str, y_label: &str, limit: f64) -> String {
+    let all = series.iter().flat_map(|s| s.points.iter());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, -limit, limit);
+    for &(x, y) in all {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if !x0.is_finite() {
+        return String::new();
+    }
+    if x1 <= x0 {
+        x1 = x0 + 1.0;
+    }
+    let pad = 0.08 * (y1 - y0).max(1e-9);
+    let (y0, y1) = (y0 - pad, y1 + pad);
+    let sx = |x: f64| L + (x - x0) / (x1 - x0) * (W - L - R);
+    let sy = |y: f64| T + (y1 - y) / (y1 - y0) * (H - T - B);
+    let mut svg = format!(
+        "<svg class=\"chart {class}\" width=\"{W}\" height=\"{H}\" viewBox=\"0 0 {W} {H}\" \
+         role=\"img\" aria-label=\"{}\"><rect x=\"{L}\" y=\"{T}\" width=\"{}\" height=\"{}\" \
+         fill=\"none\" stroke=\"#bbb\"/>",
+        esc(y_label),
+        W - L - R,
+        H - T - B
+    );
+    for y in [-limit, 0.0, limit] {
+        let _ = write!(
+            svg,
+            "<line x1=\"{L}\" y1=\"{v:.1}\" x2=\"{:.1}\" y2=\"{v:.1}\" stroke=\"{}\" \
+             stroke-dasharray=\"{}\"/><text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" \
+             text-anchor=\"end\">{y:+.1}</text>",
+            W - R,
+            if y == 0.0 { "#999" } else { "#c00" },
+            if y == 0.0 { "1,0" } else { "4,3" },
+            L - 4.0,
+            sy(y) + 3.5,
+            v = sy(y)
+        );
+    }
+    for x in ticks(x0, x1) {
+        let _ = write!(
+            svg,
+            "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{x}</text>",
+            sx(x),
+            H - B + 14.0
+        );
+    }
+    let _ = write!(
+        svg,
+        "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{}</text>\
+         <text x=\"4\" y=\"{:.1}\" font-size=\"10\">{}</text>",
+        0.5 * (L + W - R),
+        H - 4.0,
+        esc(x_label),
+        T + 8.0,
+        esc(y_label)
+    );
+    for (k, s) in series.iter().enumerate() {
+        let pts: Vec<String> = s
+            .points
+            .iter()
+            .map(|&(x, y)| format!("{:.1},{:.1}", sx(x), sy(y)))
+            .collect();
+        let _ = write!(
+            svg,
+            "<polyline class=\"series\" data-name=\"{n}\" points=\"{}\" fill=\"none\" \
+             stroke=\"{c}\" stroke-width=\"1.5\"/>",
+            pts.join(" "),
+            n = esc(&s.name),
+            c = s.colour
+        );
+        for &(x, y) in &s.points {
+            let _ = write!(
+                svg,
+                "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2\" fill=\"{}\"/>",
+                sx(x),
+                sy(y),
+                s.colour
+            );
+        }
+        let ly = T + 12.0 * k as f64 + 8.0;
+        let _ = write!(
+            svg,
+            "<line x1=\"{:.1}\" y1=\"{ly:.1}\" x2=\"{:.1}\" y2=\"{ly:.1}\" stroke=\"{c}\" \
+             stroke-width=\"2\"/><text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\">{}</text>",
+            W - R + 10.0,
+            W - R + 26.0,
+            W - R + 30.0,
+            ly + 3.5,
+            esc(&s.name),
+            c = s.colour
+        );
+    }
+    svg.push_str("</svg>");
+    svg
+}
+
+/// About five whole-number ticks over `a..=b`.
+fn ticks(a: f64, b: f64) -> Vec<f64> {
+    let span = b - a;
+    let step = [1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0]
+        .into_iter()
+        .find(|s| span / s <= 8.0)
+        .unwrap_or(200.0);
+    let mut t = (a / step).ceil() * step;
+    let mut out = Vec::new();
+    while t <= b + 1e-9 {
+        out.push(t);
+        t += step;
+    }
+    out
+}
+
+/// Older scan layers lighter, the latest darkest.
+fn shade(k: usize, n: usize) -> String {
+    let f = if n <= 1 {
+        1.0
+    } else {
+        k as f64 / (n - 1) as f64
+    };
+    let c = |light: f64, dark: f64| (light + (dark - light) * f).round() as u8;
+    format!(
+        "rgb({},{},{})",
+        c(170.0, 20.0),
+        c(200.0, 60.0),
+        c(235.0, 140.0)
+    )
+}
+
+/// The charts of the layer history, in millimetres.
+pub fn charts(a: &Assessment) -> String {
+    if a.layer_history.is_empty() {
+        return String::new();
+    }
+    let mut scans: Vec<u32> = a
+        .layer_history
+        .iter()
+        .flat_map(|h| h.scans.iter().map(|s| s.scan_layer))
+        .collect();
+    scans.sort_unstable();
+    scans.dedup();
+    let per_scan = |value: &dyn Fn(&crate::LayerScan) -> Option<f64>| -> Vec<Series> {
+        scans
+            .iter()
+            .enumerate()
+            .map(|(k, &scan)| Series {
+                name: format!("after {} layers", scan + 1),
+                colour: shade(k, scans.len()),
+                points: a
+                    .layer_history
+                    .iter()
+                    .filter_map(|h| {
+                        let s = h.scans.iter().find(|s| s.scan_layer == scan)?;
+                        Some((f64::from(h.layer), value(s)? * 1e3))
+                    })
+                    .collect(),
+            })
+            .filter(|s| !s.points.is_empty())
+            .collect()
+    };
+    let width = per_scan(&|s| s.width);
+    let relative = per_scan(&|s| s.width_relative);
+    let shift = per_scan(&|s| s.shift.map(|[x, y]| x.hypot(y)));
+    let top = vec![Series {
+        name: "top".into(),
+        colour: "#333".into(),
+        points: a
+            .layer_history
+            .iter()
+            .flat_map(|h| h.scans.iter())
+            .filter_map(|s| Some((f64::from(s.scan_layer + 1), s.top? * 1e3)))
+            .collect(),
+    }];
+    let l = &a.limits;
+    let changed: String = a
+        .layer_history
+        .iter()
+        .filter(|h| h.creep_verdict.is_some_and(|v| v != "pass"))
+        .map(|h| {
+            let v = h.creep_verdict.unwrap_or("pass");
+            format!(
+                "<tr><td>{}</td><td>{:.3}–{:.3}</td><td>{}</td><td class=\"{v}\">{}</td></tr>",
+                h.layer,
+                h.z_min,
+                h.z_max,
+                h.width_change
+                    .map_or("–".into(), |c| format!("{:+.1}", c * 1e3)),
+                v.to_uppercase()
+            )
+        })
+        .collect();
+    let changed = if changed.is_empty() {
+        "<p>No layer band's width changed beyond the creep limit's warning.</p>".to_string()
+    } else {
+        format!(
+            "<table class=\"creep\"><tr><th>layer</th><th>z (m)</th><th>width change mm</th>\
+             <th>verdict</th></tr>{changed}</table>"
+        )
+    };
+    format!(
+        "<section class=\"history\"><h2>Layer history</h2><p>Every layer band in every scan \
+         layer that saw it, from 0 at the bed. The relative width takes out what the stations' \
+         pose errors do to every band of a scan layer alike; a band whose relative width grows \
+         from one scan layer to the next is creeping or sagging under the layers above.</p>\
+         <figure><figcaption>Width deviation per layer band (mm)</figcaption>{}</figure>\
+         <figure><figcaption>Relative width per layer band (mm)</figcaption>{}</figure>\
+         <figure><figcaption>Shift per layer band (mm)</figcaption>{}</figure>\
+         <figure><figcaption>Top of the print minus the printed height (mm)</figcaption>{}\
+         </figure>{changed}</section>",
+        chart("width", &width, "layer band", "mm", l.width_m * 1e3),
+        chart(
+            "relative-width",
+            &relative,
+            "layer band",
+            "mm",
+            l.creep_m * 1e3
+        ),
+        chart("shift", &shift, "layer band", "mm", l.position_m * 1e3),
+        chart("top", &top, "layers printed", "mm", l.top_height_m * 1e3),
+    )
+}

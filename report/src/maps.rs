@@ -1,0 +1,762 @@
+//! Deviation maps: each scan layer's part seen from its four sides and from above, coloured by
+//! deviation on the scale the rerun view uses (core's `colour`), with the design's outline and
+//! every finding drawn and labelled where it is.
+//!
+//! Two maps per side: the points' C2M, each point drawn on the side its design triangle faces,
+//! and the design samples' M3C2 with coverage's missing material. Both are rasters of a fixed
+//! size per design (a pixel keeps the mean of the nearest surface that falls in it; deeper
+//! surfaces are hidden as in a drawing), so memory follows the design, never the scan. The
+//! raster goes into the SVG as a PNG; the outline's scale, the axes and the call-outs are SVG.
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use asbuilt_core::Design;
+use asbuilt_core::colour::deviation_colour;
+use asbuilt_core::coverage::SampleClass;
+use asbuilt_core::scan_layer::SampleState;
+use asbuilt_protocol::{DeviationFlags, PointDeviation};
+use base64::Engine;
+use rustc_hash::FxHashMap;
+
+use crate::Item;
+
+/// Pixels along the design's longest side.
+const LONGEST_SIDE_PX: f64 = 320.0;
+/// Screen pixels per raster pixel.
+const ZOOM: f64 = 2.0;
+/// A surface within this many pixels of the nearest one in a pixel is the same surface.
+const SLAB_PX: f64 = 2.0;
+/// Room around the raster for axes and labels, screen pixels.
+const LEFT: f64 = 56.0;
+const BOTTOM: f64 = 30.0;
+const TOP: f64 = 12.0;
+const RIGHT: f64 = 12.0;
+
+/// Where a map looks from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Side {
+    /// From −y: x to the right, z up.
+    Front,
+    /// From +x: y to the right.
+    Right,
+    /// From +y: −x to the right.
+    Back,
+    /// From −x: −y to the right.
+    Left,
+    /// From above: x to the right, y up.
+    Top,
+}
+
+impl Side {
+    pub const ALL: [Side; 5] = [Side::Front, Side::Right, Side::Back, Side::Left, Side::Top];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Front => "front",
+            Side::Right => "right",
+            Side::Back => "back",
+            Side::Left => "left",
+            Side::Top => "top",
+        }
+    }
+
+    /// What a person calls the view.
+    pub fn title(self) -> &'static str {
+        match self {
+            Side::Front => "front (from −y)",
+            Side::Right => "right (from +x)",
+            Side::Back => "back (from +y)",
+            Side::Left => "left (from −x)",
+            Side::Top => "top (from above)",
+        }
+    }
+
+    /// Towards the viewer.
+    fn toward(self) -> [f64; 3] {
+        match self {
+            Side::Front => [0.0, -1.0, 0.0],
+            Side::Right => [1.0, 0.0, 0.0],
+            Side::Back => [0.0, 1.0, 0.0],
+            Side::Left => [-1.0, 0.0, 0.0],
+            Side::Top => [0.0, 0.0, 1.0],
+        }
+    }
+
+    /// (right, up, nearness): the screen's axes and how near the viewer a point is.
+    pub fn project(self, p: [f64; 3]) -> [f64; 3] {
+        let [x, y, z] = p;
+        match self {
+            Side::Front => [x, z, -y],
+            Side::Right => [y, z, x],
+            Side::Back => [-x, z, y],
+            Side::Left => [-y, z, -x],
+            Side::Top => [x, y, z],
+        }
+    }
+
+    /// The design-frame axis along the screen's right, and its sign.
+    fn right_axis(self) -> (&'static str, f64) {
+        match self {
+            Side::Front | Side::Top => ("x", 1.0),
+            Side::Right => ("y", 1.0),
+            Side::Back => ("x", -1.0),
+            Side::Left => ("y", -1.0),
+        }
+    }
+
+    fn up_axis(self) -> &'static str {
+        if self == Side::Top { "y" } else { "z" }
+    }
+
+    /// The side a surface with outward normal `n` faces; `None` for faces turned down.
+    fn facing(n: [f64; 3]) -> Option<Side> {
+        Side::ALL
+            .into_iter()
+            .map(|s| {
+                let t = s.toward();
+                (s, n[0] * t[0] + n[1] * t[1] + n[2] * t[2])
+            })
+            .filter(|(_, d)| *d > 0.3)
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(s, _)| s)
+    }
+}
+
+/// What a pixel holds: the nearest surface's values.
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    near: f32,
+    sum: f32,
+    values: u32,
+    missing: u32,
+    unseen: u32,
+}
+
+const EMPTY: Cell = Cell {
+    near: f32::NEG_INFINITY,
+    sum: 0.0,
+    values: 0,
+    missing: 0,
+    unseen: 0,
+};
+
+/// What a mark says about its spot of the surface.
+#[derive(Debug, Clone, Copy)]
+enum Mark {
+    Value(f64),
+    Missing,
+    Unseen,
+}
+
+/// One side's raster.
+#[derive(Debug, Clone)]
+struct Raster {
+    side: Side,
+    /// The screen axes' lowest values, metres.
+    u0: f64,
+    v0: f64,
+    w: usize,
+    h: usize,
+    cells: Vec<Cell>,
+}
+
+impl Raster {
+    fn new(side: Side, lo: [f64; 3], hi: [f64; 3], pixel: f64) -> Self {
+        let mut min = [f64::INFINITY; 3];
+        let mut max = [f64::NEG_INFINITY; 3];
+        for i in 0..8 {
+            let c = [
+                if i & 1 == 0 { lo[0] } else { hi[0] },
+                if i & 2 == 0 { lo[1] } else { hi[1] },
+                if i & 4 == 0 { lo[2] } else { hi[2] },
+            ];
+            let p = side.project(c);
+            for k in 0..3 {
+                min[k] = min[k].min(p[k]);
+                max[k] = max[k].max(p[k]);
+            }
+        }
+        let w = (((max[0] - min[0]) / pixel).ceil() as usize).max(1);
+        let h = (((max[1] - min[1]) / pixel).ceil() as usize).max(1);
+        Self {
+            side,
+            u0: min[0],
+            v0: min[1],
+            w,
+            h,
+            cells: vec![EMPTY; w * h],
+        }
+    }
+
+    /// Marks the pixels within `radius` pixels of `p`.
+    fn mark(&mut self, p: [f64; 3], mark: Mark, pixel: f64, radius: i64) {
+        let [u, v, near] = self.side.project(p);
+        let i = ((u - self.u0) / pixel).floor() as i64;
+        // Row 0 is the top of the picture.
+        let j = self.h as i64 - 1 - ((v - self.v0) / pixel).floor() as i64;
+        let slab = (SLAB_PX * pixel) as f32;
+        let near = near as f32;
+        for jj in j - radius..=j + radius {
+            for ii in i - radius..=i + radius {
+                if ii < 0 || jj < 0 || ii >= self.w as i64 || jj >= self.h as i64 {
+                    continue;
+                }
+                let c = &mut self.cells[jj as usize * self.w + ii as usize];
+                if near > c.near + slab {
+                    // A nearer surface hides what the pixel held.
+                    *c = Cell { near, ..EMPTY };
+                } else if near < c.near - slab {
+                    continue;
+                }
+                c.near = c.near.max(near);
+                match mark {
+                    Mark::Value(d) => {
+                        c.sum += d as f32;
+                        c.values += 1;
+                    }
+                    Mark::Missing => c.missing += 1,
+                    Mark::Unseen => c.unseen += 1,
+                }
+            }
+        }
+    }
+
+    /// Another raster of the same side and frame drawn over this one: where both hold a
+    /// surface, the nearer hides the other unless they are the same.
+    fn merge(&mut self, other: &Raster, pixel: f64) {
+        let slab = (SLAB_PX * pixel) as f32;
+        for (c, o) in self.cells.iter_mut().zip(&other.cells) {
+            if o.near == f32::NEG_INFINITY || o.near < c.near - slab {
+                continue;
+            }
+            if c.near == f32::NEG_INFINITY || o.near > c.near + slab {
+                *c = *o;
+                continue;
+            }
+            c.near = c.near.max(o.near);
+            c.sum += o.sum;
+            c.values += o.values;
+            c.missing += o.missing;
+            c.unseen += o.unseen;
+        }
+    }
+
+    fn occupied(&self, k: usize) -> bool {
+        self.cells[k].near != f32::NEG_INFINITY
+    }
+
+    /// The nearness of the surface at `p`'s pixel, if any.
+    fn surface_at(&self, p: [f64; 3], pixel: f64) -> Option<f32> {
+        let [u, v, _] = self.side.project(p);
+        let i = ((u - self.u0) / pixel).floor();
+        let j = self.h as f64 - 1.0 - ((v - self.v0) / pixel).floor();
+        if i < 0.0 || j < 0.0 || i >= self.w as f64 || j >= self.h as f64 {
+            return None;
+        }
+        let k = j as usize * self.w + i as usize;
+        self.occupied(k).then(|| self.cells[k].near)
+    }
+}
+
+/// The five sides' rasters of one kind of map.
+#[derive(Debug, Clone)]
+pub struct Sides {
+    rasters: Vec<Raster>,
+}
+
+impl Sides {
+    fn new(frame: &MapFrame) -> Self {
+        Self {
+            rasters: Side::ALL
+                .into_iter()
+                .map(|s| Raster::new(s, frame.lo, frame.hi, frame.pixel))
+                .collect(),
+        }
+    }
+
+    fn side(&self, s: Side) -> &Raster {
+        &self.rasters[Side::ALL.iter().position(|x| *x == s).unwrap_or(0)]
+    }
+
+    fn mark(&mut self, side: Side, p: [f64; 3], mark: Mark, pixel: f64, radius: i64) {
+        let i = Side::ALL.iter().position(|x| *x == side).unwrap_or(0);
+        self.rasters[i].mark(p, mark, pixel, radius);
+    }
+
+    fn merge(&mut self, other: &Sides, pixel: f64) {
+        for (a, b) in self.rasters.iter_mut().zip(&other.rasters) {
+            a.merge(b, pixel);
+        }
+    }
+
+    /// Whether any side holds anything.
+    pub fn is_empty(&self) -> bool {
+        self.rasters
+            .iter()
+            .all(|r| r.cells.iter().all(|c| c.near == f32::NEG_INFINITY))
+    }
+}
+
+/// The extent every map of a design shares.
+#[derive(Debug, Clone, Copy)]
+pub struct MapFrame {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    /// Metres per raster pixel.
+    pixel: f64,
+}
+
+impl MapFrame {
+    /// The design's box, grown by `margin` metres.
+    pub fn of(design: &Design, margin: f64) -> Self {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for v in &design.vertices {
+            for k in 0..3 {
+                lo[k] = lo[k].min(v[k]);
+                hi[k] = hi[k].max(v[k]);
+            }
+        }
+        if !lo[0].is_finite() {
+            lo = [0.0; 3];
+            hi = [1.0; 3];
+        }
+        for k in 0..3 {
+            lo[k] -= margin;
+            hi[k] += margin;
+        }
+        let longest = (0..3).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
+        Self {
+            lo,
+            hi,
+            pixel: (longest / LONGEST_SIDE_PX).max(1e-6),
+        }
+    }
+}
+
+/// One scan layer's maps.
+#[derive(Debug, Clone)]
+pub struct ScanLayerMaps {
+    pub job: u64,
+    /// NaN when not printing.
+    pub printed_height: f64,
+    /// The points' C2M.
+    pub points: Sides,
+    /// The design samples' M3C2 and missing material, with findings.
+    pub samples: Option<Sides>,
+    frame: MapFrame,
+    tolerance: f64,
+}
+
+/// A scan layer: its job and its printed height's bits.
+type LayerKey = (u64, u64);
+
+/// Collects the maps of a job while its stations stream: each station's points into a raster of
+/// its own, merged into its scan layer's when it reports; the design samples' states with each
+/// scan layer's latest findings.
+pub struct MapCollector {
+    frame: MapFrame,
+    tolerance: f64,
+    /// The side each design triangle faces, for the points matched to it.
+    facing: Vec<Option<Side>>,
+    /// Design sample spacing, metres.
+    spacing: f64,
+    stations: FxHashMap<(u64, u32), Sides>,
+    layers: BTreeMap<LayerKey, ScanLayerMaps>,
+}
+
+impl MapCollector {
+    /// Maps of `design` at `tolerance`, with design samples `spacing` apart.
+    pub fn new(design: &Design, tolerance: f64, spacing: f64) -> Self {
+        let frame = MapFrame::of(design, 2.0 * tolerance);
+        let facing = design
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| design.vertices[i as usize]);
+                let n = (b - a).cross(&(c - a));
+                let l = n.norm();
+                (l > 0.0)
+                    .then(|| Side::facing([n.x / l, n.y / l, n.z / l]))
+                    .flatten()
+            })
+            .collect();
+        Self {
+            frame,
+            tolerance,
+            facing,
+            spacing,
+            stations: FxHashMap::default(),
+            layers: BTreeMap::new(),
+        }
+    }
+
+    /// A chunk of `station`'s deviations.
+    pub fn points(&mut self, station: (u64, u32), devs: &[PointDeviation]) {
+        let frame = self.frame;
+        let sides = self
+            .stations
+            .entry(station)
+            .or_insert_with(|| Sides::new(&frame));
+        for d in devs {
+            if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
+                continue;
+            }
+            // Past the design's triangles come the cap's, which close a printed height.
+            let side = match self.facing.get(d.triangle as usize) {
+                Some(f) => *f,
+                None if d.triangle != u32::MAX => Some(Side::Top),
+                None => None,
+            };
+            let Some(side) = side else {
+                continue;
+            };
+            sides.mark(side, d.position, Mark::Value(d.distance), frame.pixel, 0);
+        }
+    }
+
+    fn layer(&mut self, job: u64, printed_height: f64) -> &mut ScanLayerMaps {
+        let frame = self.frame;
+        let tolerance = self.tolerance;
+        self.layers
+            .entry((job, printed_height.to_bits()))
+            .or_insert_with(|| ScanLayerMaps {
+                job,
+                printed_height,
+                points: Sides::new(&frame),
+                samples: None,
+                frame,
+                tolerance,
+            })
+    }
+
+    /// `station` reported, at `printed_height`: its points join its scan layer's.
+    pub fn station_done(&mut self, station: (u64, u32), printed_height: f64) {
+        let Some(sides) = self.stations.remove(&station) else {
+            return;
+        };
+        let pixel = self.frame.pixel;
+        self.layer(station.0, printed_height)
+            .points
+            .merge(&sides, pixel);
+    }
+
+    /// The design samples' states of a scan layer's latest findings.
+    pub fn samples(&mut self, job: u64, printed_height: f64, samples: &[SampleState]) {
+        let frame = self.frame;
+        // A sample stands for about a square `spacing` wide; the samples are scattered, not on a
+        // grid, so the squares overlap a little to leave no holes.
+        let radius = ((0.75 * self.spacing / frame.pixel).ceil() as i64).clamp(0, 8);
+        let mut sides = Sides::new(&frame);
+        for s in samples {
+            let n = [s.normal.x, s.normal.y, s.normal.z];
+            let Some(side) = Side::facing(n) else {
+                continue;
+            };
+            let mark = match (s.class, s.m3c2) {
+                (SampleClass::Missing, _) => Mark::Missing,
+                (SampleClass::Observed, Some(d)) => Mark::Value(d),
+                _ => Mark::Unseen,
+            };
+            sides.mark(side, s.position.into(), mark, frame.pixel, radius);
+        }
+        self.layer(job, printed_height).samples = Some(sides);
+    }
+
+    /// The scan layers' maps, by job and printed height.
+    pub fn finish(mut self) -> Vec<ScanLayerMaps> {
+        // Stations that never reported (cut short) are left out: their scan layer is unknown.
+        self.stations.clear();
+        let mut out: Vec<_> = self.layers.into_values().collect();
+        out.sort_by(|a, b| {
+            (a.job, a.printed_height)
+                .partial_cmp(&(b.job, b.printed_height))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        out
+    }
+}
+
+/// Which map of a scan layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MapKind {
+    /// The points' C2M.
+    Points,
+    /// The design samples' M3C2 and missing material.
+    Samples,
+}
+
+impl MapKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            MapKind::Points => "c2m",
+            MapKind::Samples => "m3c2",
+        }
+    }
+}
+
+const UNSEEN: [u8; 3] = [222, 222, 222];
+const OUTLINE: [u8; 3] = [70, 70, 70];
+const MISSING: [u8; 3] = [0, 0, 255];
+
+impl ScanLayerMaps {
+    fn sides(&self, kind: MapKind) -> Option<&Sides> {
+        match kind {
+            MapKind::Points => Some(&self.points),
+            MapKind::Samples => self.samples.as_ref(),
+        }
+    }
+
+    /// The side on which a point of the design shows: the nearest surface there is at it.
+    fn shows_on(&self, p: [f64; 3]) -> Vec<Side> {
+        let sides = self.samples.as_ref().unwrap_or(&self.points);
+        let pixel = self.frame.pixel;
+        Side::ALL
+            .into_iter()
+            .filter(|&s| {
+                sides
+                    .side(s)
+                    .surface_at(p, pixel)
+                    .is_some_and(|near| (s.project(p)[2] as f32 - near).abs() <= 0.05)
+            })
+            .collect()
+    }
+
+    /// The PNG of one side: the design's footprint (from the samples when there are any) in
+    /// light grey with its outline, the map's colours over it.
+    fn png(&self, kind: MapKind, side: Side) -> Option<Vec<u8>> {
+        let map = self.sides(kind)?.side(side);
+        let footprint = self.samples.as_ref().unwrap_or(&self.points).side(side);
+        let (w, h) = (map.w, map.h);
+        let mut rgba = vec![0u8; w * h * 4];
+        for k in 0..w * h {
+            let inside = |kk: usize| footprint.occupied(kk) || map.occupied(kk);
+            if !inside(k) {
+                continue;
+            }
+            let (i, j) = (k % w, k / w);
+            let edge = i == 0
+                || j == 0
+                || i + 1 == w
+                || j + 1 == h
+                || !inside(k - 1)
+                || !inside(k + 1)
+                || !inside(k - w)
+                || !inside(k + w);
+            let c = map.cells[k];
+            let colour = if edge {
+                OUTLINE
+            } else if c.values > 0 {
+                deviation_colour(f64::from(c.sum / c.values as f32), self.tolerance)
+            } else if c.missing > 0 {
+                MISSING
+            } else {
+                UNSEEN
+            };
+            rgba[4 * k..4 * k + 3].copy_from_slice(&colour);
+            rgba[4 * k + 3] = 255;
+        }
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, w as u32, h as u32);
+            enc.set_color(png::ColorType::Rgba);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut writer = enc.write_header().ok()?;
+            writer.write_image_data(&rgba).ok()?;
+        }
+        Some(out)
+    }
+
+    /// Screen position of design point `p` on `side`'s map.
+    pub fn screen(&self, side: Side, p: [f64; 3]) -> (f64, f64) {
+        let r = self.points.side(side);
+        let scale = ZOOM / self.frame.pixel;
+        let [u, v, _] = side.project(p);
+        let top_v = r.v0 + r.h as f64 * self.frame.pixel;
+        (LEFT + (u - r.u0) * scale, TOP + (top_v - v) * scale)
+    }
+
+    /// The SVG of one side's map with `items`' call-outs; `None` when that map was not made.
+    pub fn svg(&self, kind: MapKind, side: Side, items: &[Item]) -> Option<String> {
+        let png = self.png(kind, side)?;
+        let r = self.points.side(side);
+        let (iw, ih) = (r.w as f64 * ZOOM, r.h as f64 * ZOOM);
+        let (w, h) = (LEFT + iw + RIGHT, TOP + ih + BOTTOM);
+        let scale = ZOOM / self.frame.pixel;
+        let mut svg = format!(
+            "<svg class=\"map\" width=\"{w:.0}\" \
+             height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" data-kind=\"{}\" data-side=\"{}\" \
+             data-u0=\"{}\" data-v0=\"{}\" data-px-per-m=\"{}\" data-left=\"{LEFT}\" \
+             data-top=\"{TOP}\" data-height-px=\"{ih}\" role=\"img\" aria-label=\"{} map, {}\">",
+            kind.name(),
+            side.name(),
+            r.u0,
+            r.v0,
+            scale,
+            kind.name(),
+            side.title()
+        );
+        let _ = write!(
+            svg,
+            "<image x=\"{LEFT}\" y=\"{TOP}\" width=\"{iw}\" height=\"{ih}\" \
+             preserveAspectRatio=\"none\" style=\"image-rendering:pixelated\" \
+             href=\"data:image/png;base64,{}\"/>",
+            base64::engine::general_purpose::STANDARD.encode(png)
+        );
+        self.axes(&mut svg, side);
+        if side != Side::Top && self.printed_height.is_finite() {
+            let (_, y) = self.screen(side, [0.0, 0.0, self.printed_height]);
+            let (x0, _) = (LEFT, 0.0);
+            let _ = write!(
+                svg,
+                "<line class=\"printed-height\" x1=\"{x0}\" y1=\"{y:.1}\" x2=\"{:.1}\" \
+                 y2=\"{y:.1}\" stroke=\"#555\" stroke-dasharray=\"4,3\"/>",
+                LEFT + iw
+            );
+        }
+        for it in items {
+            self.callout(&mut svg, side, it);
+        }
+        svg.push_str("</svg>");
+        Some(svg)
+    }
+
+    fn axes(&self, svg: &mut String, side: Side) {
+        let r = self.points.side(side);
+        let px = self.frame.pixel;
+        let (iw, ih) = (r.w as f64 * ZOOM, r.h as f64 * ZOOM);
+        let _ = write!(
+            svg,
+            "<rect x=\"{LEFT}\" y=\"{TOP}\" width=\"{iw}\" height=\"{ih}\" fill=\"none\" \
+             stroke=\"#bbb\"/>"
+        );
+        let (right_name, sign) = side.right_axis();
+        let span_u = r.w as f64 * px;
+        let step = tick_step(span_u, iw);
+        let mut t = (r.u0 / step).ceil() * step;
+        while t <= r.u0 + span_u + 1e-9 {
+            let x = LEFT + (t - r.u0) * ZOOM / px;
+            let _ = write!(
+                svg,
+                "<line x1=\"{x:.1}\" y1=\"{:.1}\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#888\"/>\
+                 <text x=\"{x:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{}</text>",
+                TOP + ih,
+                TOP + ih + 4.0,
+                TOP + ih + 15.0,
+                tick_text(sign * t)
+            );
+            t += step;
+        }
+        let span_v = r.h as f64 * px;
+        let step = tick_step(span_v, ih.max(90.0));
+        let mut t = (r.v0 / step).ceil() * step;
+        while t <= r.v0 + span_v + 1e-9 {
+            let y = TOP + ih - (t - r.v0) * ZOOM / px;
+            let _ = write!(
+                svg,
+                "<line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{LEFT}\" y2=\"{y:.1}\" stroke=\"#888\"/>\
+                 <text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"end\">{}</text>",
+                LEFT - 4.0,
+                LEFT - 6.0,
+                y + 3.5,
+                tick_text(t)
+            );
+            t += step;
+        }
+        let _ = write!(
+            svg,
+            "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"end\" fill=\"#555\">\
+             {right_name} m</text><text x=\"4\" y=\"{:.1}\" font-size=\"10\" fill=\"#555\">{} m\
+             </text>",
+            LEFT + iw,
+            TOP + ih + 27.0,
+            TOP + 8.0,
+            side.up_axis()
+        );
+    }
+
+    /// An area's box and numbered circle where it shows; a layer band's bracket at the left.
+    fn callout(&self, svg: &mut String, side: Side, it: &Item) {
+        let colour = if it.verdict == "fail" { "#c00" } else { "#d80" };
+        match (it.at, it.extent) {
+            (Some(at), Some([lo, hi])) => {
+                let shows = self.shows_on(at);
+                // An area that goes round the part (its centre inside it) is marked on every
+                // elevation its extent reaches, at the middle of its box.
+                let around = shows.is_empty() && side != Side::Top;
+                if !(shows.contains(&side) || around) {
+                    return;
+                }
+                let (x0, y0) = self.screen(side, lo);
+                let (x1, y1) = self.screen(side, hi);
+                let (cx, cy) = if around {
+                    (0.5 * (x0 + x1), 0.5 * (y0 + y1))
+                } else {
+                    self.screen(side, at)
+                };
+                let _ = write!(
+                    svg,
+                    "<g class=\"finding\" data-label=\"{l}\" data-kind=\"{k}\" \
+                     data-verdict=\"{v}\"><rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" \
+                     height=\"{:.1}\" fill=\"none\" stroke=\"{colour}\" stroke-width=\"1.5\"/>\
+                     <circle cx=\"{cx:.1}\" cy=\"{cy:.1}\" r=\"8\" fill=\"#fff\" \
+                     stroke=\"{colour}\" stroke-width=\"2\"/><text class=\"label\" x=\"{cx:.1}\" \
+                     y=\"{:.1}\" font-size=\"10\" font-weight=\"bold\" text-anchor=\"middle\" \
+                     fill=\"{colour}\">{l}</text><title>{}</title></g>",
+                    x0.min(x1) - 2.0,
+                    y0.min(y1) - 2.0,
+                    (x1 - x0).abs() + 4.0,
+                    (y1 - y0).abs() + 4.0,
+                    cy + 3.5,
+                    crate::html::esc(&it.text),
+                    l = it.label,
+                    k = it.kind,
+                    v = it.verdict,
+                );
+            }
+            _ if side != Side::Top => {
+                // A layer band or the top: a bracket over its heights beside the picture.
+                let (_, ya) = self.screen(side, [0.0, 0.0, it.z[0]]);
+                let (_, yb) = self.screen(side, [0.0, 0.0, it.z[1]]);
+                let x = LEFT - 1.0;
+                let ym = 0.5 * (ya + yb);
+                let _ = write!(
+                    svg,
+                    "<g class=\"finding\" data-label=\"{l}\" data-kind=\"{k}\" \
+                     data-verdict=\"{v}\"><line x1=\"{x}\" y1=\"{:.1}\" x2=\"{x}\" y2=\"{:.1}\" \
+                     stroke=\"{colour}\" stroke-width=\"3\"/><text class=\"label\" x=\"{:.1}\" \
+                     y=\"{:.1}\" font-size=\"9\" font-weight=\"bold\" text-anchor=\"start\" \
+                     fill=\"{colour}\">{l}</text><title>{}</title></g>",
+                    ya.max(yb),
+                    ya.min(yb).min(ya.max(yb) - 1.0),
+                    x + 3.0,
+                    ym + 3.0,
+                    crate::html::esc(&it.text),
+                    l = it.label,
+                    k = it.kind,
+                    v = it.verdict,
+                );
+            }
+            _ => {}
+        }
+    }
+}
+
+/// A round step for about five ticks over `span` metres drawn `screen` pixels long, at least
+/// 45 pixels apart so that their numbers do not run into each other.
+fn tick_step(span: f64, screen: f64) -> f64 {
+    let raw = (span / 5.0).max(span * 45.0 / screen.max(1.0));
+    let p = 10f64.powf(raw.log10().floor());
+    [1.0, 2.0, 5.0, 10.0]
+        .into_iter()
+        .map(|m| m * p)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * p)
+}
+
+fn tick_text(v: f64) -> String {
+    let v = if v.abs() < 1e-9 { 0.0 } else { v };
+    let s = format!("{v:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}

@@ -30,6 +30,8 @@ pub struct Assessment {
     /// Per layer band, lowest first: its measures in every scan layer that saw it.
     pub layer_history: Vec<LayerHistory>,
     pub stations: Vec<StationVerdict>,
+    /// All stations' points together, judged as one station's.
+    pub overall: Option<StationVerdict>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -69,6 +71,17 @@ pub struct VerdictCounts {
     pub pass: u32,
     pub warn: u32,
     pub fail: u32,
+}
+
+impl ScanLayerVerdicts {
+    /// "After 24 layers (printed 0.480 m)", or "All stations" for a job not scanned while
+    /// printing.
+    pub fn title(&self) -> String {
+        match self.printed_height {
+            Some(h) => format!("After {} layers (printed {h:.3} m)", self.layer + 1),
+            None => "All stations".to_string(),
+        }
+    }
 }
 
 impl VerdictCounts {
@@ -174,8 +187,14 @@ fn finite(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
 }
 
-/// The verdicts of a job's findings (the latest of each scan layer) and stations.
-pub fn assess(findings: &[StationFindings], stations: &[Section], limits: &Limits) -> Assessment {
+/// The verdicts of a job's findings (the latest of each scan layer), stations and all stations
+/// together.
+pub fn assess(
+    findings: &[StationFindings],
+    stations: &[Section],
+    overall: Option<&Section>,
+    limits: &Limits,
+) -> Assessment {
     let mut by_job: BTreeMap<u64, Vec<&StationFindings>> = BTreeMap::new();
     for f in findings {
         by_job.entry(f.job).or_default().push(f);
@@ -210,6 +229,7 @@ pub fn assess(findings: &[StationFindings], stations: &[Section], limits: &Limit
         scan_layers,
         layer_history,
         stations,
+        overall: overall.map(|s| station(s, limits)),
     }
 }
 
@@ -573,29 +593,33 @@ fn summary(
 ) -> Vec<String> {
     let mut out = Vec::new();
     for s in latest {
-        let height = s
-            .printed_height
-            .map_or_else(String::new, |h| format!(" (printed {h:.3} m)"));
         out.push(format!(
-            "After {} layers{}: {}: {} out of tolerance, {} to watch.",
-            s.layer + 1,
-            height,
+            "{}: {}: {} out of tolerance, {} to watch.",
+            s.title(),
             s.verdict.to_uppercase(),
             s.counts.fail,
             s.counts.warn
         ));
         for it in s.items.iter().filter(|i| i.verdict == "fail") {
+            // Offline, without a printed height, there is one scan layer and no "since".
+            let since = match (s.printed_height, it.change) {
+                (None, _) => String::new(),
+                (Some(_), "new") => ", new".to_string(),
+                (Some(_), c) => format!(
+                    ", since the scan after {} layers{}",
+                    it.since + 1,
+                    if c == "steady" {
+                        String::new()
+                    } else {
+                        format!(", {c} since the last scan")
+                    }
+                ),
+            };
             out.push(format!(
-                "[{}] {} (limit {}), since the scan after {} layers{}.",
+                "[{}] {} (limit {}){since}.",
                 it.label,
                 it.text,
                 limit_text(it),
-                it.since + 1,
-                match it.change {
-                    "new" => ", new".to_string(),
-                    "steady" => String::new(),
-                    c => format!(", {c} since the last scan"),
-                }
             ));
         }
         let previous = all.iter().rfind(|p| p.job == s.job && p.layer < s.layer);
@@ -686,7 +710,7 @@ mod tests {
         // (a station's pose error), band 1 another 6 mm (creep under the load above).
         let first = scan(9, |_| 0.0);
         let second = scan(19, |b| 0.003 + if b == 1 { 0.006 } else { 0.0 });
-        let a = assess(&[first, second], &[], &Limits::from_tolerance(T));
+        let a = assess(&[first, second], &[], None, &Limits::from_tolerance(T));
         let band1 = &a.layer_history[1];
         assert!((band1.width_change.unwrap() - 0.006).abs() < 1e-12);
         assert_eq!(band1.creep_verdict, Some("fail"));
@@ -721,7 +745,7 @@ mod tests {
         a2.regions.push(bulge(0.52, 0.012)).unwrap();
         a2.regions.push(bulge(-0.5, 0.007)).unwrap();
         let a3 = scan(29, |_| 0.0);
-        let a = assess(&[a1, a2, a3], &[], &Limits::from_tolerance(T));
+        let a = assess(&[a1, a2, a3], &[], None, &Limits::from_tolerance(T));
         let s2 = &a.scan_layers[1];
         let old = s2.items.iter().find(|i| i.at.unwrap()[0] > 0.0).unwrap();
         assert_eq!((old.since, old.change), (9, "grown"));
@@ -744,10 +768,10 @@ mod tests {
     fn crew_limits_per_layer_range_turn_a_failure_into_a_pass() {
         let f = scan(9, |b| if (2..=4).contains(&b) { 0.012 } else { 0.0 });
         let mut limits = Limits::from_tolerance(T);
-        let strict = assess(std::slice::from_ref(&f), &[], &limits);
+        let strict = assess(std::slice::from_ref(&f), &[], None, &limits);
         assert_eq!(strict.scan_layers[0].counts.fail, 3);
         limits.set("width=20mm@2-4".parse().unwrap());
-        let lenient = assess(&[f], &[], &limits);
+        let lenient = assess(&[f], &[], None, &limits);
         assert_eq!(lenient.scan_layers[0].counts.fail, 0);
         assert_eq!(lenient.scan_layers[0].verdict, "pass");
         assert_eq!(lenient.limits.ranges, vec!["width=0.02@2-4".to_string()]);

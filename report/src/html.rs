@@ -204,12 +204,10 @@ fn legend(tolerance: f64) -> String {
 
 fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
     let mut out = format!(
-        "<section class=\"scan-layer\" data-layer=\"{}\"><h2>After {} layers{} {}</h2>\
+        "<section class=\"scan-layer\" data-layer=\"{}\"><h2>{} {}</h2>\
          <p>{} station(s). {} finding(s) fail, {} warn, {} pass.</p>",
         s.layer,
-        s.layer + 1,
-        s.printed_height
-            .map_or_else(String::new, |h| format!(" (printed {h:.3} m)")),
+        s.title(),
         badge(s.verdict),
         s.stations,
         s.counts.fail,
@@ -301,7 +299,14 @@ fn maps_html(m: &ScanLayerMaps, items: &[Item]) -> String {
 /// The stations: each one's verdict on its measurement, its numbers and its histogram.
 fn stations(r: &Report) -> String {
     let tol = r.parameters.tolerance_m;
-    let verdicts = r.assessment.as_ref().map(|a| &a.stations);
+    let verdict_of = |i: usize| {
+        let a = r.assessment.as_ref()?;
+        a.stations.get(i).or(if i == r.stations.len() {
+            a.overall.as_ref()
+        } else {
+            None
+        })
+    };
     let mut rows = String::new();
     let mut cards = String::new();
     for (i, s) in r
@@ -310,7 +315,7 @@ fn stations(r: &Report) -> String {
         .chain(std::iter::once(&r.overall))
         .enumerate()
     {
-        let v = verdicts.and_then(|v| v.get(i));
+        let v = verdict_of(i);
         let _ = write!(
             rows,
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\

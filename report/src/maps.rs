@@ -523,36 +523,32 @@ impl ScanLayerMaps {
             .collect()
     }
 
-    /// The PNG of one side: the design's footprint (from the samples when there are any) in
-    /// light grey with its outline, the map's colours over it.
+    /// The PNG of one side: the map's colours over the design's footprint in light grey, and
+    /// (from the design samples, when there are any) its outline just outside it.
     fn png(&self, kind: MapKind, side: Side) -> Option<Vec<u8>> {
         let map = self.sides(kind)?.side(side);
-        let footprint = self.samples.as_ref().unwrap_or(&self.points).side(side);
+        let footprint = self.samples.as_ref().map(|s| s.side(side));
         let (w, h) = (map.w, map.h);
+        let inside = |k: usize| footprint.is_some_and(|f| f.occupied(k));
         let mut rgba = vec![0u8; w * h * 4];
         for k in 0..w * h {
-            let inside = |kk: usize| footprint.occupied(kk) || map.occupied(kk);
-            if !inside(k) {
-                continue;
-            }
-            let (i, j) = (k % w, k / w);
-            let edge = i == 0
-                || j == 0
-                || i + 1 == w
-                || j + 1 == h
-                || !inside(k - 1)
-                || !inside(k + 1)
-                || !inside(k - w)
-                || !inside(k + w);
             let c = map.cells[k];
-            let colour = if edge {
-                OUTLINE
-            } else if c.values > 0 {
+            let colour = if c.values > 0 {
                 deviation_colour(f64::from(c.sum / c.values as f32), self.tolerance)
             } else if c.missing > 0 {
                 MISSING
-            } else {
+            } else if c.unseen > 0 || inside(k) {
                 UNSEEN
+            } else {
+                let (i, j) = (k % w, k / w);
+                let next_to_design = (i > 0 && inside(k - 1))
+                    || (i + 1 < w && inside(k + 1))
+                    || (j > 0 && inside(k - w))
+                    || (j + 1 < h && inside(k + w));
+                if !next_to_design {
+                    continue;
+                }
+                OUTLINE
             };
             rgba[4 * k..4 * k + 3].copy_from_slice(&colour);
             rgba[4 * k + 3] = 255;
@@ -759,4 +755,109 @@ fn tick_text(v: f64) -> String {
     let v = if v.abs() < 1e-9 { 0.0 } else { v };
     let s = format!("{v:.3}");
     s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use asbuilt_core::design::shapes::cuboid;
+    use nalgebra::Point3;
+
+    /// The point at `p` on the cuboid's face `triangle`, `d` off the design.
+    fn dev(p: [f64; 3], d: f64, triangle: u32) -> PointDeviation {
+        PointDeviation {
+            position: p,
+            distance: d,
+            triangle,
+            ..Default::default()
+        }
+    }
+
+    fn face_of(design: &Design, toward: [f64; 3]) -> u32 {
+        (0..design.triangles.len() as u32)
+            .find(|&t| {
+                let [a, b, c] = design.triangles[t as usize].map(|i| design.vertices[i as usize]);
+                let n = (b - a).cross(&(c - a)).normalize();
+                (n.x * toward[0] + n.y * toward[1] + n.z * toward[2]) > 0.99
+            })
+            .unwrap()
+    }
+
+    fn pixels(png: &[u8]) -> (u32, u32, Vec<u8>) {
+        let mut reader = png::Decoder::new(std::io::Cursor::new(png))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        (info.width, info.height, buf)
+    }
+
+    #[test]
+    fn points_colour_the_side_their_triangle_faces_and_the_nearer_surface_hides_the_farther() {
+        // A 1 × 0.2 × 0.5 m block; the front (−y) face 4 mm out, the back (+y) 4 mm in.
+        let design = cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.2, 0.5));
+        let (front, back) = (
+            face_of(&design, [0.0, -1.0, 0.0]),
+            face_of(&design, [0.0, 1.0, 0.0]),
+        );
+        let mut maps = MapCollector::new(&design, 0.004, 0.01);
+        let mut devs = Vec::new();
+        for i in 1..400 {
+            for k in 1..200 {
+                let (x, z) = (f64::from(i) * 0.0025, f64::from(k) * 0.0025);
+                devs.push(dev([x, -0.004, z], 0.004, front));
+                devs.push(dev([x, 0.204, z], -0.004, back));
+            }
+        }
+        maps.points((1, 0), &devs);
+        maps.station_done((1, 0), f64::NAN);
+        let layers = maps.finish();
+        assert_eq!(layers.len(), 1);
+        let m = &layers[0];
+        let middle = |side| {
+            let (w, h, px) = pixels(&m.png(MapKind::Points, side).unwrap());
+            let k = ((h / 2) * w + w / 2) as usize * 4;
+            [px[k], px[k + 1], px[k + 2], px[k + 3]]
+        };
+        // Saturated red from the front, blue from the back: each face on its own side, the
+        // far face hidden.
+        assert_eq!(middle(Side::Front), [255, 0, 0, 255]);
+        assert_eq!(middle(Side::Back), [0, 0, 255, 255]);
+        // Nothing faces the ends or the top.
+        let (_, _, px) = pixels(&m.png(MapKind::Points, Side::Top).unwrap());
+        assert!(px.iter().all(|&b| b == 0));
+        // Twice the raster's pixels on screen, the design's longest side 320 of them.
+        let svg = m.svg(MapKind::Points, Side::Front, &[]).unwrap();
+        let doc = roxmltree::Document::parse(&svg).unwrap();
+        let image = doc.descendants().find(|n| n.has_tag_name("image")).unwrap();
+        let w: f64 = image.attribute("width").unwrap().parse().unwrap();
+        // The front's width is the block's length, its longest side.
+        assert_eq!(w, ZOOM * LONGEST_SIDE_PX);
+        // A point's screen position: x grows along the part, z upwards.
+        let (x0, y0) = m.screen(Side::Front, [0.0, 0.0, 0.0]);
+        let (x1, y1) = m.screen(Side::Front, [1.0, 0.0, 0.5]);
+        let px_per_m = ZOOM * LONGEST_SIDE_PX / (1.0 + 4.0 * 0.004);
+        assert!((x1 - x0 - px_per_m).abs() < 1e-9, "{x0} {x1}");
+        assert!((y0 - y1 - 0.5 * px_per_m).abs() < 1e-9, "{y0} {y1}");
+        // The margin (twice the tolerance) to the picture's left edge.
+        assert!((x0 - LEFT - 0.008 * px_per_m).abs() < 1e-9, "{x0}");
+    }
+
+    #[test]
+    fn sides_project_as_a_viewer_standing_there_sees() {
+        // Seen from each side, the right of the screen and the nearness follow the view.
+        let p = [1.0, 2.0, 3.0];
+        assert_eq!(Side::Front.project(p), [1.0, 3.0, -2.0]);
+        assert_eq!(Side::Back.project(p), [-1.0, 3.0, 2.0]);
+        assert_eq!(Side::Left.project(p), [-2.0, 3.0, -1.0]);
+        assert_eq!(Side::Right.project(p), [2.0, 3.0, 1.0]);
+        assert_eq!(Side::Top.project(p), [1.0, 2.0, 3.0]);
+        for s in Side::ALL {
+            assert_eq!(Side::facing(s.toward()), Some(s));
+            // What faces the viewer is nearer than what faces away.
+            let t = s.toward();
+            assert!(s.project(t)[2] > s.project(t.map(|v| -v))[2]);
+        }
+        assert_eq!(Side::facing([0.0, 0.0, -1.0]), None);
+    }
 }

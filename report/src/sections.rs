@@ -114,7 +114,12 @@ pub struct HistogramSection {
 impl Report {
     /// Gives the stations, findings and layer bands their verdicts against `limits`.
     pub fn assess(&mut self, limits: &asbuilt_core::verdict::Limits) {
-        self.assessment = Some(crate::assess(&self.findings, &self.stations, limits));
+        self.assessment = Some(crate::assess(
+            &self.findings,
+            &self.stations,
+            Some(&self.overall),
+            limits,
+        ));
     }
 }
 

@@ -277,6 +277,9 @@ pub struct SuiteTotals {
     /// and the stations they come from.
     #[serde(skip)]
     pub findings: Option<(Findings, u32)>,
+    /// With the findings: every design sample's state behind them, for the maps.
+    #[serde(skip)]
+    pub samples: Vec<asbuilt_core::scan_layer::SampleState>,
 }
 
 struct C2cRun {
@@ -553,8 +556,10 @@ impl Suite {
             t.section.c2c = Some(DistanceSection::new(&c.total.finish(), c.total_no_match));
         }
         let layer = self.scan_layer.as_ref();
-        t.findings =
-            layer.and_then(|l| l.findings(self.sigma_max, index).map(|f| (f, l.stations())));
+        if let Some((f, samples)) = layer.and_then(|l| l.measure(self.sigma_max, index, true)) {
+            t.findings = Some((f, layer.map_or(0, ScanLayer::stations)));
+            t.samples = samples;
+        }
         let missing_bands = match layer.and_then(ScanLayer::coverage) {
             Some(c) => self.finish_coverage(c, index, out, &mut t)?,
             None => None,

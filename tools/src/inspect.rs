@@ -16,6 +16,7 @@ use nalgebra::Point3;
 use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
+use asbuilt_report::maps::MapCollector;
 use asbuilt_report::suite::{self, Method, Methods, Suite, SuiteConfig};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
@@ -306,6 +307,10 @@ struct Job {
     total_malformed: u64,
     failed: Vec<String>,
     buffer: Vec<PointDeviation>,
+    /// The deviation maps of report.html (one scan layer: the job's printed height).
+    maps: MapCollector,
+    /// --printed-height; NaN without.
+    printed_height: f64,
 }
 
 impl Job {
@@ -320,6 +325,7 @@ impl Job {
         let viewer = start_viewer(args, &design)?;
         // The design's counts are all the report needs of it from here: the index takes it over.
         let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
+        let maps = MapCollector::new(&design, args.tolerance, args.spacing);
         let index = C2mIndex::from_design(
             design,
             C2mParams {
@@ -357,6 +363,8 @@ impl Job {
             total_malformed: 0,
             failed: Vec::new(),
             buffer: vec![PointDeviation::default(); CHUNK],
+            maps,
+            printed_height: args.printed_height.unwrap_or(f64::NAN),
         })
     }
 
@@ -395,6 +403,7 @@ impl Job {
                 buffer: &mut self.buffer,
                 ply: &mut self.ply,
                 suite: &mut self.suite,
+                maps: &mut self.maps,
                 viewer: self.viewer.as_ref(),
             },
         );
@@ -443,6 +452,7 @@ impl Job {
             });
         }
         self.total_malformed += malformed;
+        self.maps.station_done((0, n as u32), self.printed_height);
         let mut section =
             Section::from_report(&report, Some(station.scan.display().to_string()), malformed);
         section.suite = self.suite.end_station(
@@ -481,6 +491,10 @@ impl Job {
             .collect();
         if let Some(v) = self.viewer {
             finish_viewer(v, &totals, args);
+        }
+        let mut maps = self.maps;
+        if !totals.samples.is_empty() {
+            maps.samples(0, self.printed_height, &totals.samples);
         }
         let mut overall = Section::from_report(
             &self.total.report(0, u32::MAX, "overall"),
@@ -529,7 +543,7 @@ impl Job {
             findings,
             assessment: None,
             warnings,
-            maps: Vec::new(),
+            maps: maps.finish(),
         };
         report.assess(&plan.limits);
         Ok((report, written, self.failed))
@@ -544,6 +558,7 @@ struct StationOutputs<'a> {
     buffer: &'a mut [PointDeviation],
     ply: &'a mut DeviationsPly,
     suite: &'a mut Suite,
+    maps: &'a mut MapCollector,
     viewer: Option<&'a Viewer>,
 }
 
@@ -568,6 +583,7 @@ fn stream_station(
         buffer,
         ply,
         suite,
+        maps,
         viewer,
     } = out;
     let read = file.stream(station.scan_index, CHUNK, &mut |chunk| {
@@ -582,6 +598,7 @@ fn stream_station(
         }
         ply.write(n as u16, devs)?;
         suite.chunk(devs);
+        maps.points((0, n as u32), devs);
         if let Some(v) = viewer {
             let (positions, distances) = viewer::decimate(devs, view_step);
             v.show(View::Points {
@@ -733,11 +750,16 @@ fn write_report(
     let json_path = args.out.join("report.json");
     std::fs::write(&json_path, serde_json::to_string_pretty(report)?)
         .with_context(|| format!("cannot write {}", json_path.display()))?;
+    let html_path = args.out.join("report.html");
+    let source = format!("Inspection of {} station(s)", report.stations.len());
+    std::fs::write(&html_path, asbuilt_report::html::page(report, &source))
+        .with_context(|| format!("cannot write {}", html_path.display()))?;
 
     print!("{}", summary_table(report));
     eprintln!(
-        "wrote {} and {} ({} points) in {:.1} s",
+        "wrote {}, {} and {} ({} points) in {:.1} s",
         json_path.display(),
+        html_path.display(),
         args.out.join("deviations.ply").display(),
         written,
         started.elapsed().as_secs_f64()

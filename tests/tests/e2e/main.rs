@@ -9,6 +9,7 @@ mod calibrate;
 mod fuzz;
 mod inspect_methods;
 mod recording;
+mod report_html;
 mod scan_files;
 mod sim;
 mod viewer;

@@ -414,7 +414,9 @@ impl AgentConfig {
         check_findings(&findings, &mut problems);
         let tolerances: TolerancesConfig =
             section(&table, "tolerances", &mut problems, true).unwrap_or_default();
-        if let Err(e) = tolerances.limits(inspect.tolerance) {
+        // Kinds left out take inspect.tolerance, whose own problem is reported there.
+        let tolerance_ok = inspect.tolerance > 0.0 && inspect.tolerance.is_finite();
+        if let (true, Err(e)) = (tolerance_ok, tolerances.limits(inspect.tolerance)) {
             problems.push(format!("tolerances: {e}"));
         }
         check_outputs(&mut recorder, &mut viewer, base, &mut problems);
@@ -863,6 +865,36 @@ mod tests {
         .unwrap_err();
         assert!(err.problems[0].starts_with("[limits]"), "{err}");
         assert!(err.problems[1].starts_with("inspect.tolerance"), "{err}");
+    }
+
+    #[test]
+    fn tolerances_default_to_the_inspection_tolerance_and_bad_ones_are_named() {
+        let base = "[design]\npath = \"wall.stl\"\nunits = \"m\"\n[inspect]\ntolerance = 0.004\n";
+        let c = parse(base).unwrap();
+        let l = c.tolerances.limits(c.inspect.tolerance).unwrap();
+        assert_eq!((l.width, l.surface, l.creep), (0.004, 0.004, 0.004));
+        let c = parse(&format!(
+            "{base}[tolerances]\nwidth = 0.008\nlayers = [\"width=12mm@2-4\"]\n"
+        ))
+        .unwrap();
+        let l = c.tolerances.limits(c.inspect.tolerance).unwrap();
+        assert_eq!(
+            l.at_layer(asbuilt_core::verdict::LimitKind::Width, 3),
+            0.012
+        );
+        assert_eq!(
+            l.at_layer(asbuilt_core::verdict::LimitKind::Width, 5),
+            0.008
+        );
+        for (bad, says) in [
+            ("layers = [\"depth=1mm\"]", "unknown kind"),
+            ("width = -0.001", "width limit must be positive"),
+            ("warn_fraction = 2.0", "warn_fraction"),
+            ("widht = 0.003", "widht"),
+        ] {
+            let err = parse(&format!("{base}[tolerances]\n{bad}\n")).unwrap_err();
+            assert!(format!("{err}").contains(says), "{bad}: {err}");
+        }
     }
 
     #[test]

@@ -181,6 +181,21 @@ fn mm(v: Option<f64>) -> String {
         .unwrap_or_else(|| "-".into())
 }
 
+/// The verdict and the summary the page opens with, as lines for a terminal; empty without an
+/// assessment.
+pub fn verdict_text(report: &Report) -> String {
+    let Some(a) = &report.assessment else {
+        return String::new();
+    };
+    let mut out = format!("verdict: {}\n", a.verdict.to_uppercase());
+    for line in &a.summary {
+        out.push_str("  ");
+        out.push_str(line);
+        out.push('\n');
+    }
+    out
+}
+
 /// A table a person reads at the end of a run. Distances in millimetres.
 pub fn summary_table(report: &Report) -> String {
     let mut out = format!(

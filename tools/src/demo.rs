@@ -119,7 +119,10 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
          [status]\nperiod_s = 5.0\n\n\
          [recorder]\ndir = \"recording\"\n\n\
          [viewer]\nrrd = \"demo.rrd\"\n{url}\n\
-         [findings]\nenabled = true\nlayer_height = {h}\n",
+         [findings]\nenabled = true\nlayer_height = {h}\n\n\
+         [tolerances]\n# The report's verdicts: each kind's limit (metres, m² for missing material).\n\
+         width = {tol}\ntop_height = {tol}\nposition = {tol}\nsurface = {tol}\n\
+         missing_area_m2 = 0.002\ncreep = {tol}\n",
         tol = args.tolerance,
         chunk = job.chunk_points,
         h = job.part.layer_height,

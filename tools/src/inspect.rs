@@ -756,6 +756,7 @@ fn write_report(
         .with_context(|| format!("cannot write {}", html_path.display()))?;
 
     print!("{}", summary_table(report));
+    print!("{}", asbuilt_report::verdict_text(report));
     eprintln!(
         "wrote {}, {} and {} ({} points) in {:.1} s",
         json_path.display(),

@@ -434,6 +434,7 @@ fn write_outputs(
     )
     .with_context(|| format!("cannot write {}", html.display()))?;
     print!("{}", summary_table(report));
+    print!("{}", asbuilt_report::verdict_text(report));
     eprintln!("wrote {} and {}", json.display(), html.display());
     Ok(())
 }

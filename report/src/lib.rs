@@ -5,6 +5,7 @@
 //! `asbuilt report` write it; the computations are asbuilt-core's.
 
 mod assessment;
+pub mod export;
 mod history;
 pub mod html;
 pub mod maps;

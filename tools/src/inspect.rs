@@ -54,6 +54,9 @@ pub struct InspectArgs {
     /// metres or with mm. Kinds left out are held to --tolerance.
     #[arg(long = "limit", value_name = "KIND=VALUE[@LAYERS]")]
     limits: Vec<asbuilt_core::verdict::LayerLimit>,
+    /// Also write every map of report.html as a PNG file into OUT/maps.
+    #[arg(long)]
+    png: bool,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]
@@ -757,6 +760,9 @@ fn write_report(
 
     print!("{}", summary_table(report));
     print!("{}", asbuilt_report::verdict_text(report));
+    if args.png {
+        crate::maps_png::write(report, &args.out)?;
+    }
     eprintln!(
         "wrote {}, {} and {} ({} points) in {:.1} s",
         json_path.display(),

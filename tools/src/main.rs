@@ -4,6 +4,7 @@ mod calibrate;
 mod convert;
 mod demo;
 mod inspect;
+mod maps_png;
 mod pack;
 mod publish;
 mod recording_file;

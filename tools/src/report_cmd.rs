@@ -43,6 +43,10 @@ pub struct ReportArgs {
     /// missing_area (m², or with cm2), creep; lengths in metres or with mm.
     #[arg(long = "limit", value_name = "KIND=VALUE[@LAYERS]")]
     limits: Vec<asbuilt_core::verdict::LayerLimit>,
+    /// Also write every map of report.html as a PNG file into OUT/maps (for a site diary or a
+    /// printed page).
+    #[arg(long)]
+    png: bool,
 }
 
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
@@ -53,6 +57,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
             tolerance: args.tolerance,
             max_distance: args.max_distance,
             limits: args.limits,
+            png: args.png,
         },
     )
     .map_err(|e| {
@@ -127,6 +132,8 @@ pub struct Overrides {
     pub tolerance: Option<f64>,
     pub max_distance: Option<f64>,
     pub limits: Vec<asbuilt_core::verdict::LayerLimit>,
+    /// Write the maps as PNG files too.
+    pub png: bool,
 }
 
 /// Writes `out/report.json` and `out/report.html` for `recording`.
@@ -136,10 +143,15 @@ pub fn write(
     overrides: Overrides,
 ) -> Result<()> {
     let bytes = crate::recording_file::map(recording_path)?;
+    let png = overrides.png;
     let (job, designs) = RecordedJob::read(recording_path, &bytes, overrides)?;
     let replayed = replay_stations(recording_path, &bytes, &job, designs)?;
     let report = job.report(replayed);
-    write_outputs(recording_path, out, &report)
+    write_outputs(recording_path, out, &report)?;
+    if png {
+        crate::maps_png::write(&report, out)?;
+    }
+    Ok(())
 }
 
 /// What a recording says of its job: the design as attached, the agent's settings and limits

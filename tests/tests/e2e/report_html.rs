@@ -94,6 +94,121 @@ fn the_demo_report_shows_each_scan_layer_on_maps_with_its_findings_history_and_v
     check_summary(root, a);
     check_scan_layers(root, a);
     check_history(root, a);
+    check_png_maps(out.path(), &html);
+}
+
+/// `report --png` writes each map of the page as a PNG, drawn at twice the page's size.
+fn check_png_maps(dir: &std::path::Path, html: &Html) {
+    let recording = std::fs::read_dir(dir.join("recording"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let again = dir.join("again");
+    let o = std::process::Command::new(ASBUILT)
+        .arg("report")
+        .arg(&recording)
+        .arg("--out")
+        .arg(&again)
+        .arg("--png")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut files: Vec<_> = std::fs::read_dir(again.join("maps"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    let (mut maps, mut compared) = (0, 0);
+    for section in select(html.root_element(), "section.scan-layer") {
+        let layer: u32 = section.value().attr("data-layer").unwrap().parse().unwrap();
+        for svg in select(section, "svg.map") {
+            maps += 1;
+            let v = svg.value();
+            let file = again.join("maps").join(format!(
+                "after-{:03}-layers-{}-{}.png",
+                layer + 1,
+                v.attr("data-kind").unwrap(),
+                v.attr("data-side").unwrap()
+            ));
+            assert!(files.contains(&file), "{file:?} not in {files:?}");
+            compared += same_colours(&svg.html(), &file);
+        }
+    }
+    assert_eq!(files.len(), maps);
+    assert!(compared > 200, "{compared} pixels compared");
+}
+
+/// A map's PNG file shows what its SVG shows: where the page's raster is uniform around a
+/// pixel, the file (drawn at twice the page's size, under a 22-pixel title) has its colour.
+/// Returns how many pixels were compared.
+fn same_colours(svg_text: &str, file: &std::path::Path) -> usize {
+    let doc = roxmltree::Document::parse(svg_text).unwrap();
+    let svg = doc.root_element();
+    let (w, h, raster) = raster(&svg);
+    let mut reader = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(file).unwrap()))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let width: f64 = svg.attribute("width").unwrap().parse().unwrap();
+    assert_eq!(f64::from(info.width), 2.0 * width, "{file:?}");
+    let a = |k: &str| -> f64 { svg.attribute(k).unwrap().parse().unwrap() };
+    let at = |i: usize, j: usize| &raster[4 * (j * w + i)..4 * (j * w + i) + 4];
+    let (mut agree, mut differ) = (0, 0);
+    for j in (1..h - 1).step_by(3) {
+        for i in (1..w - 1).step_by(3) {
+            let c = at(i, j);
+            let uniform = c[3] == 255 && (0..9).all(|k| at(i + k % 3 - 1, j + k / 3 - 1) == c);
+            if !uniform {
+                continue;
+            }
+            let (sx, sy) = (
+                a("data-left") + 2.0 * (i as f64 + 0.5),
+                a("data-top") + 2.0 * (j as f64 + 0.5),
+            );
+            if drawn_over(&svg, sx, sy) {
+                continue;
+            }
+            let (x, y) = ((2.0 * sx) as usize, (2.0 * (22.0 + sy)) as usize);
+            let k = 4 * (y * info.width as usize + x);
+            if (0..3).all(|n| buf[k + n].abs_diff(c[n]) <= 24) {
+                agree += 1;
+            } else {
+                differ += 1;
+            }
+        }
+    }
+    assert_eq!(differ, 0, "{file:?}: {agree} agree");
+    agree
+}
+
+/// Whether the call-outs or the printed-height line cover screen point (x, y) of a map.
+fn drawn_over(svg: &roxmltree::Node, x: f64, y: f64) -> bool {
+    let n = |node: &roxmltree::Node, k: &str| -> f64 {
+        node.attribute(k).map_or(0.0, |v| v.parse().unwrap())
+    };
+    svg.descendants().any(|e| match e.tag_name().name() {
+        "circle" => (x - n(&e, "cx")).hypot(y - n(&e, "cy")) <= n(&e, "r") + 4.0,
+        "rect"
+            if e.parent()
+                .is_some_and(|p| p.attribute("class") == Some("finding")) =>
+        {
+            let (x0, y0) = (n(&e, "x"), n(&e, "y"));
+            let (x1, y1) = (x0 + n(&e, "width"), y0 + n(&e, "height"));
+            let near = |v: f64, a: f64, b: f64| v >= a - 4.0 && v <= b + 4.0;
+            // Its outline only: inside, the map shows through.
+            near(x, x0, x1)
+                && near(y, y0, y1)
+                && ((x - x0).abs() <= 4.0
+                    || (x - x1).abs() <= 4.0
+                    || (y - y0).abs() <= 4.0
+                    || (y - y1).abs() <= 4.0)
+        }
+        "line" => e.attribute("class") == Some("printed-height") && (y - n(&e, "y1")).abs() <= 4.0,
+        _ => false,
+    })
 }
 
 /// The summary opens the page with the verdict and the injected defects with their layers.

@@ -619,7 +619,7 @@ fn summary(
                 "[{}] {} (limit {}){since}.",
                 it.label,
                 it.text,
-                limit_text(it),
+                it.limit_text(),
             ));
         }
         let previous = all.iter().rfind(|p| p.job == s.job && p.layer < s.layer);
@@ -649,11 +649,14 @@ fn summary(
     out
 }
 
-fn limit_text(it: &Item) -> String {
-    if it.kind == "missing" {
-        format!("{:.0} cm²", it.limit * 1e4)
-    } else {
-        format!("±{:.1} mm", it.limit * 1e3)
+impl Item {
+    /// "±5.0 mm", or "20 cm²" for missing material.
+    pub fn limit_text(&self) -> String {
+        if self.kind == "missing" {
+            format!("{:.0} cm²", self.limit * 1e4)
+        } else {
+            format!("±{:.1} mm", self.limit * 1e3)
+        }
     }
 }
 

@@ -223,7 +223,7 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
                     "<tr class=\"item\" data-label=\"{l}\"><td>{l}</td><td class=\"text\">{}</td>\
                      <td class=\"{v}\">{V}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                     esc(&it.text),
-                    limit_text(it),
+                    it.limit_text(),
                     it.since + 1,
                     it.change,
                     l = it.label,
@@ -255,14 +255,6 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
     }
     out.push_str("</section>");
     out
-}
-
-fn limit_text(it: &Item) -> String {
-    if it.kind == "missing" {
-        format!("{:.0} cm²", it.limit * 1e4)
-    } else {
-        format!("±{:.1} mm", it.limit * 1e3)
-    }
 }
 
 /// A scan layer's maps: the points' C2M, then the samples' M3C2, each from every side.

@@ -214,6 +214,7 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
         s.counts.warn,
         s.counts.pass
     );
+    out.push_str(&layer_strip(s));
     if !s.items.is_empty() {
         let rows: String = s
             .items
@@ -255,6 +256,48 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
     }
     out.push_str("</section>");
     out
+}
+
+/// Every layer band seen, bed first, coloured by its verdict: where the part stands at a glance.
+fn layer_strip(s: &ScanLayerVerdicts) -> String {
+    if s.layers.is_empty() {
+        return String::new();
+    }
+    let cell = (900.0 / s.layers.len() as f64).clamp(4.0, 24.0);
+    let w = cell * s.layers.len() as f64;
+    let mut svg = format!(
+        "<p>Layer bands, from the bed (0) up:</p><svg class=\"layer-strip\" width=\"{w:.0}\" \
+         height=\"30\" viewBox=\"0 0 {w:.0} 30\" role=\"img\" aria-label=\"verdict per layer band\">"
+    );
+    for (k, l) in s.layers.iter().enumerate() {
+        let fill = match l.verdict {
+            "fail" => "#c00",
+            "warn" => "#d80",
+            _ => "#4a8",
+        };
+        let _ = write!(
+            svg,
+            "<rect x=\"{:.1}\" y=\"0\" width=\"{:.1}\" height=\"16\" fill=\"{fill}\" \
+             stroke=\"#fff\" data-layer=\"{}\" data-verdict=\"{}\"><title>layer {}: {}</title>\
+             </rect>",
+            k as f64 * cell,
+            cell,
+            l.layer,
+            l.verdict,
+            l.layer,
+            l.verdict
+        );
+        if l.layer % 5 == 0 {
+            let _ = write!(
+                svg,
+                "<text x=\"{:.1}\" y=\"28\" font-size=\"9\">{}</text>",
+                k as f64 * cell,
+                l.layer
+            );
+        }
+    }
+    svg.push_str("</svg>");
+    svg
 }
 
 /// A scan layer's maps: the points' C2M, then the samples' M3C2, each from every side.

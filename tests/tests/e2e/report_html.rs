@@ -261,6 +261,30 @@ fn check_scan_layers(root: ElementRef, a: &Value) {
             .iter()
             .find(|e| e.value().attr("data-layer") == Some(&s["layer"].to_string()))
             .unwrap_or_else(|| panic!("no section for {}", s["layer"]));
+        // A cell per layer band with its verdict.
+        let bands: Vec<(String, String)> = select(*section, "svg.layer-strip rect")
+            .iter()
+            .map(|r| {
+                let v = r.value();
+                (
+                    v.attr("data-layer").unwrap().to_string(),
+                    v.attr("data-verdict").unwrap().to_string(),
+                )
+            })
+            .collect();
+        let expected: Vec<(String, String)> = s["layers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| {
+                (
+                    l["layer"].to_string(),
+                    l["verdict"].as_str().unwrap().to_string(),
+                )
+            })
+            .collect();
+        assert_eq!(bands, expected);
+        assert!(bands.contains(&("2".into(), "fail".into())), "{bands:?}");
         let items = s["items"].as_array().unwrap();
         assert_eq!(select(*section, "tr.item").len(), items.len());
         let svgs: Vec<String> = select(*section, "svg.map")

@@ -22,7 +22,7 @@ use rustc_hash::FxHashMap;
 use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
 use crate::m3c2::streaming::CoreResult;
-use asbuilt_protocol::{LayerFinding, RegionFinding, StationFindings};
+use asbuilt_protocol::{RegionFinding, StationFindings};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FindingParams {
@@ -45,20 +45,9 @@ pub struct FindingParams {
     pub min_missing_area_m2: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LayerRow {
-    pub layer: u32,
-    pub z_min: f64,
-    pub z_max: f64,
-    /// Side samples with an M3C2 distance.
-    pub samples: u32,
-    /// Mean M3C2 distance of those samples, metres.
-    pub mean: f64,
-    /// As built minus design, metres; `None` where the sides seen cannot separate width and
-    /// shift.
-    pub width_deviation: Option<f64>,
-    pub shift: Option<[f64; 2]>,
-}
+/// One layer band's side faces: the row the agent publishes, one definition for both (NaN
+/// where the sides seen cannot separate width and shift; read it with `width()`, `shift_xy()`).
+pub use asbuilt_protocol::LayerFinding as LayerRow;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TopRow {
@@ -159,8 +148,8 @@ pub fn find(
                 z_max: (layer + 1) as f64 * h,
                 samples: idx.len() as u32,
                 mean,
-                width_deviation: fit.map(|f| 2.0 * f.0),
-                shift: fit.map(|f| [f.1, f.2]),
+                width_deviation: fit.map_or(f64::NAN, |f| 2.0 * f.0),
+                shift: fit.map_or([f64::NAN; 2], |f| [f.1, f.2]),
             });
         }
     }
@@ -422,16 +411,7 @@ impl Findings {
             m.top_height_deviation = t.height_deviation;
             m.top_samples = t.samples;
         }
-        for r in &self.layers {
-            let row = LayerFinding {
-                layer: r.layer,
-                z_min: r.z_min,
-                z_max: r.z_max,
-                samples: r.samples,
-                mean: r.mean,
-                width_deviation: r.width_deviation.unwrap_or(f64::NAN),
-                shift: r.shift.unwrap_or([f64::NAN; 2]),
-            };
+        for &row in &self.layers {
             if m.layers.push(row).is_err() {
                 m.truncated += 1;
             }
@@ -512,10 +492,10 @@ mod tests {
         let r = wall_results(|p, n| if p.z < 0.1 { 0.004 } else { 0.006 * n.y });
         let f = find(&r, &[], &[], 1e-4, &params());
         let row = |l: u32| f.layers.iter().find(|r| r.layer == l).unwrap();
-        assert!((row(2).width_deviation.unwrap() - 0.008).abs() < 1e-9);
-        assert!(row(2).shift.unwrap()[1].abs() < 1e-9);
-        assert!(row(7).width_deviation.unwrap().abs() < 1e-9);
-        assert!((row(7).shift.unwrap()[1] - 0.006).abs() < 1e-6);
+        assert!((row(2).width().unwrap() - 0.008).abs() < 1e-9);
+        assert!(row(2).shift_xy().unwrap()[1].abs() < 1e-9);
+        assert!(row(7).width().unwrap().abs() < 1e-9);
+        assert!((row(7).shift_xy().unwrap()[1] - 0.006).abs() < 1e-6);
     }
 
     #[test]
@@ -525,7 +505,7 @@ mod tests {
             .filter(|c| c.normal.y > 0.0)
             .collect();
         let f = find(&r, &[], &[], 1e-4, &params());
-        assert!(f.layers.iter().all(|l| l.width_deviation.is_none()));
+        assert!(f.layers.iter().all(|l| l.width().is_none()));
     }
 
     #[test]
@@ -553,7 +533,7 @@ mod tests {
         );
         // The fit of that band ignores the bump.
         let row = f.layers.iter().find(|r| r.layer == 5).unwrap();
-        assert!(row.width_deviation.unwrap().abs() < 1e-9, "{row:?}");
+        assert!(row.width().unwrap().abs() < 1e-9, "{row:?}");
     }
 
     #[test]

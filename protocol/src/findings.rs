@@ -58,6 +58,23 @@ pub struct LayerFinding {
     pub shift: [f64; 2],
 }
 
+impl LayerFinding {
+    /// The width deviation, when the sides seen could tell it from a shift.
+    pub fn width(&self) -> Option<f64> {
+        self.width_deviation
+            .is_finite()
+            .then_some(self.width_deviation)
+    }
+
+    /// The shift in x and y, when the sides seen could tell it from a width.
+    pub fn shift_xy(&self) -> Option<[f64; 2]> {
+        self.shift
+            .iter()
+            .all(|v| v.is_finite())
+            .then_some(self.shift)
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum RegionKind {
     /// Material outside the design.

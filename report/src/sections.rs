@@ -3,7 +3,7 @@
 use asbuilt_protocol::{Histogram, RejectCounts, StationReport};
 use serde::Serialize;
 
-use crate::suite::{LayerRow, SuiteSection, TwoCloudSection};
+use crate::suite::{BandMethods, SuiteSection, TwoCloudSection};
 
 #[derive(Debug, Serialize)]
 pub struct Report {
@@ -16,7 +16,7 @@ pub struct Report {
     pub overall: Section,
     /// Per layer band, lowest first, with `--layer-height`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub layers: Option<Vec<LayerRow>>,
+    pub layers: Option<Vec<BandMethods>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
     /// Findings, the latest of each scan layer: drawn again from a recording's chunks with the

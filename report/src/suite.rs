@@ -227,9 +227,10 @@ impl From<&BandRow> for BandStats {
     }
 }
 
-/// One row of the per-layer table.
+/// One layer band in `inspect --layer-height`'s table: what each method measured there
+/// (not the findings' width and shift rows, which are `core::findings::LayerRow`).
 #[derive(Debug, Serialize)]
-pub struct LayerRow {
+pub struct BandMethods {
     pub layer: u32,
     pub z_min: f64,
     pub z_max: f64,
@@ -264,7 +265,7 @@ pub struct SuiteTotals {
     #[serde(flatten)]
     pub section: SuiteSection,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub layers: Option<Vec<LayerRow>>,
+    pub layers: Option<Vec<BandMethods>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
     /// For the rerun view: missing samples with their reverse distance, and M3C2 core points
@@ -690,7 +691,7 @@ fn layer_table(
     c2c: Option<&LayerBands>,
     m3c2: Option<&LayerBands>,
     missing: Option<&LayerBands>,
-) -> Vec<LayerRow> {
+) -> Vec<BandMethods> {
     let rows = |b: Option<&LayerBands>| -> std::collections::BTreeMap<u32, BandRow> {
         b.map(|b| b.rows().into_iter().map(|r| (r.layer, r)).collect())
             .unwrap_or_default()
@@ -708,7 +709,7 @@ fn layer_table(
     let (z0, h) = c2m.geometry();
     layers
         .into_iter()
-        .map(|k| LayerRow {
+        .map(|k| BandMethods {
             layer: k,
             z_min: z0 + k as f64 * h,
             z_max: z0 + (k + 1) as f64 * h,

@@ -221,6 +221,11 @@ pub fn blueprint() -> rerun::blueprint::Blueprint {
         TimeSeriesView::new("width per layer band (mm), by scan layer")
             .with_origin("/history/width_mm")
             .into(),
+        TimeSeriesView::new(
+            "relative width per layer band (mm): less the scan layer's median; a rising line is creep",
+        )
+        .with_origin("/history/relative_width_mm")
+        .into(),
         TimeSeriesView::new("shift per layer band (mm), by scan layer")
             .with_origin("/history/shift_mm")
             .into(),
@@ -520,13 +525,28 @@ impl Painter {
                 &rerun::Scalars::new([f.top_height_deviation * 1e3]),
             )?;
         }
+        // The scan layer's median band width: what its stations' pose errors do to every band
+        // alike. A band's width less it is the relative width the report's creep follows.
+        let mut widths: Vec<f64> = f.layers.iter().filter_map(|r| r.width()).collect();
+        widths.sort_by(f64::total_cmp);
+        let median = match widths.len() {
+            0 => None,
+            n if n % 2 == 1 => Some(widths[n / 2]),
+            n => Some(0.5 * (widths[n / 2 - 1] + widths[n / 2])),
+        };
         for row in &f.layers {
             let band = format!("band_{:03}", row.layer);
-            if row.width_deviation.is_finite() {
+            if let Some(w) = row.width() {
                 self.rec.log(
                     format!("history/width_mm/{band}"),
-                    &rerun::Scalars::new([row.width_deviation * 1e3]),
+                    &rerun::Scalars::new([w * 1e3]),
                 )?;
+                if let Some(m) = median {
+                    self.rec.log(
+                        format!("history/relative_width_mm/{band}"),
+                        &rerun::Scalars::new([(w - m) * 1e3]),
+                    )?;
+                }
             }
             if row.shift.iter().all(|v| v.is_finite()) {
                 let shift = row.shift[0].hypot(row.shift[1]);

@@ -217,6 +217,11 @@ fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
         .filter(|p| p.starts_with("/history/width_mm/band_"))
         .collect();
     assert!(bands.len() >= 6, "{paths:?}");
+    // And its relative width (less the scan layer's median), the creep the report follows.
+    for b in &bands {
+        let relative = b.replace("/width_mm/", "/relative_width_mm/");
+        assert!(paths.contains(&relative), "{relative} missing: {paths:?}");
+    }
     assert!(paths.contains("/findings/summary"), "{paths:?}");
     // Each scan layer's findings under their own entity, to switch on and off.
     let layers = paths

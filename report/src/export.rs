@@ -107,7 +107,11 @@ fn titled(map: &str, caption: &str) -> String {
             .and_then(|v| v.parse().ok())
             .unwrap_or(0.0)
     };
-    let (w, h) = (size("width"), size("height"));
+    // A narrow map (a wall seen end on) still gets its whole title: about 7 pixels a character.
+    let (w, h) = (
+        size("width").max(7.0 * caption.chars().count() as f64 + 12.0),
+        size("height"),
+    );
     let inner = map.replacen("<svg ", &format!("<svg y=\"{TITLE_PX}\" "), 1);
     format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{}\" \

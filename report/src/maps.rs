@@ -611,8 +611,9 @@ impl ScanLayerMaps {
                 LEFT + iw
             );
         }
-        for it in items {
-            self.callout(&mut svg, side, it);
+        let band_label_y = self.band_label_positions(side, items);
+        for (k, it) in items.iter().enumerate() {
+            self.callout(&mut svg, side, it, band_label_y[k]);
         }
         svg.push_str("</svg>");
         Some(svg)
@@ -672,8 +673,39 @@ impl ScanLayerMaps {
         );
     }
 
-    /// An area's box and numbered circle where it shows; a layer band's bracket at the left.
-    fn callout(&self, svg: &mut String, side: Side, it: &Item) {
+    /// Where each layer band's number goes beside its bar: at the bar's middle, moved up just
+    /// enough that numbers of neighbouring bands do not overprint each other (with a leader
+    /// line back to the bar). `None` for items that are not bars.
+    fn band_label_positions(&self, side: Side, items: &[Item]) -> Vec<Option<f64>> {
+        const GAP: f64 = 10.0;
+        let mut out = vec![None; items.len()];
+        if side == Side::Top {
+            return out;
+        }
+        let mut bars: Vec<(usize, f64)> = items
+            .iter()
+            .enumerate()
+            .filter(|(_, it)| it.at.is_none() || it.extent.is_none())
+            .map(|(k, it)| {
+                let (_, ya) = self.screen(side, [0.0, 0.0, it.z[0]]);
+                let (_, yb) = self.screen(side, [0.0, 0.0, it.z[1]]);
+                (k, 0.5 * (ya + yb))
+            })
+            .collect();
+        // From the bottom of the picture up (screen y grows downwards).
+        bars.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let mut above = f64::INFINITY;
+        for (k, y) in bars {
+            let y = y.min(above - GAP);
+            out[k] = Some(y);
+            above = y;
+        }
+        out
+    }
+
+    /// An area's box and numbered circle where it shows; a layer band's bar at the left, its
+    /// number at `label_y`.
+    fn callout(&self, svg: &mut String, side: Side, it: &Item, label_y: Option<f64>) {
         let colour = if it.verdict == "fail" { "#c00" } else { "#d80" };
         match (it.at, it.extent) {
             (Some(at), Some([lo, hi])) => {
@@ -717,17 +749,21 @@ impl ScanLayerMaps {
                 let (_, yb) = self.screen(side, [0.0, 0.0, it.z[1]]);
                 let x = LEFT - 1.0;
                 let ym = 0.5 * (ya + yb);
+                let yl = label_y.unwrap_or(ym);
                 let _ = write!(
                     svg,
                     "<g class=\"finding\" data-label=\"{l}\" data-kind=\"{k}\" \
                      data-verdict=\"{v}\"><line x1=\"{x}\" y1=\"{:.1}\" x2=\"{x}\" y2=\"{:.1}\" \
-                     stroke=\"{colour}\" stroke-width=\"3\"/><text class=\"label\" x=\"{:.1}\" \
-                     y=\"{:.1}\" font-size=\"9\" font-weight=\"bold\" text-anchor=\"start\" \
+                     stroke=\"{colour}\" stroke-width=\"3\"/><line class=\"leader\" x1=\"{x}\" \
+                     y1=\"{ym:.1}\" x2=\"{:.1}\" y2=\"{yl:.1}\" stroke=\"{colour}\" \
+                     stroke-width=\"0.6\"/><text class=\"label\" x=\"{:.1}\" y=\"{:.1}\" \
+                     font-size=\"9\" font-weight=\"bold\" text-anchor=\"start\" \
                      fill=\"{colour}\">{l}</text><title>{}</title></g>",
                     ya.max(yb),
                     ya.min(yb).min(ya.max(yb) - 1.0),
                     x + 3.0,
-                    ym + 3.0,
+                    x + 4.0,
+                    yl + 3.0,
                     crate::html::esc(&it.text),
                     l = it.label,
                     k = it.kind,
@@ -841,6 +877,49 @@ mod tests {
         assert!((y0 - y1 - 0.5 * px_per_m).abs() < 1e-9, "{y0} {y1}");
         // The margin (twice the tolerance) to the picture's left edge.
         assert!((x0 - LEFT - 0.008 * px_per_m).abs() < 1e-9, "{x0}");
+    }
+
+    #[test]
+    fn numbers_of_neighbouring_layer_bands_do_not_overprint() {
+        let design = cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(2.0, 0.2, 1.0));
+        let mut layers = MapCollector::new(&design, 0.005, 0.01);
+        layers.points((1, 0), &[dev([1.0, 0.0, 0.5], 0.0, 0)]);
+        layers.station_done((1, 0), f64::NAN);
+        let m = &layers.finish()[0];
+        let band = |k: u32| Item {
+            label: (k + 1).to_string(),
+            kind: "width",
+            verdict: "fail",
+            value: 0.01,
+            limit: 0.005,
+            layers: Some([k, k]),
+            z: [0.02 * f64::from(k), 0.02 * f64::from(k + 1)],
+            at: None,
+            extent: None,
+            since: 0,
+            change: "new",
+            previous: None,
+            text: String::new(),
+        };
+        let items: Vec<Item> = (2..6).map(band).collect();
+        let ys: Vec<f64> = m
+            .band_label_positions(Side::Front, &items)
+            .into_iter()
+            .map(Option::unwrap)
+            .collect();
+        // Bands 2 cm high are about 6 screen pixels apart; their numbers are 10 apart.
+        for w in ys.windows(2) {
+            assert!(w[0] - w[1] >= 10.0 - 1e-9, "{ys:?}");
+        }
+        // The lowest band's number stays at its bar.
+        let (_, ya) = m.screen(Side::Front, [0.0, 0.0, 0.04]);
+        let (_, yb) = m.screen(Side::Front, [0.0, 0.0, 0.06]);
+        assert!((ys[0] - 0.5 * (ya + yb)).abs() < 1e-9);
+        assert!(
+            m.band_label_positions(Side::Top, &items)
+                .iter()
+                .all(Option::is_none)
+        );
     }
 
     #[test]

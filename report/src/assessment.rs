@@ -217,19 +217,38 @@ pub fn assess(
         .keys()
         .filter_map(|j| scan_layers.iter().rev().find(|s| s.job == *j))
         .collect();
-    let verdict = latest
-        .iter()
-        .map(|s| verdict_of(s.verdict))
-        .max()
-        .unwrap_or(Verdict::Pass);
+    let overall = overall.map(|s| station(s, limits));
+    let mut summary = summary(&latest, &scan_layers, &stations);
+    // Without findings (C2M alone) the points are all there is to judge the job by.
+    let verdict = if latest.is_empty() {
+        if let Some(o) = &overall {
+            summary.insert(
+                0,
+                format!(
+                    "No findings (they need coverage and M3C2): judged by all points together,                      {}: {}.",
+                    o.verdict.to_uppercase(),
+                    o.reason
+                ),
+            );
+        }
+        overall
+            .as_ref()
+            .map_or(Verdict::Pass, |o| verdict_of(o.verdict))
+    } else {
+        latest
+            .iter()
+            .map(|s| verdict_of(s.verdict))
+            .max()
+            .unwrap_or(Verdict::Pass)
+    };
     Assessment {
         limits: limits.into(),
         verdict: verdict.as_str(),
-        summary: summary(&latest, &scan_layers, &stations),
+        summary,
         scan_layers,
         layer_history,
         stations,
-        overall: overall.map(|s| station(s, limits)),
+        overall,
     }
 }
 

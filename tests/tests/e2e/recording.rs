@@ -339,6 +339,10 @@ fn a_recording_reports_what_inspect_reports() {
         assert_eq!(v["verdict"], "pass", "{v}");
     }
     assert_eq!(html.matches("<td class=\"pass\">PASS</td>").count(), 11);
+    // Without findings the job is judged by all its points together.
+    assert_eq!(a["assessment"]["verdict"], "pass");
+    let first = a["assessment"]["summary"][0].as_str().unwrap();
+    assert!(first.starts_with("No findings"), "{first}");
 }
 
 /// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their

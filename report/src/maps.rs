@@ -192,13 +192,16 @@ impl Raster {
     /// Marks the pixels within `radius` pixels of `p`.
     fn mark(&mut self, p: [f64; 3], mark: Mark, pixel: f64, radius: i64) {
         let [u, v, near] = self.side.project(p);
+        if !(u.is_finite() && v.is_finite() && near.is_finite()) {
+            return;
+        }
         let i = ((u - self.u0) / pixel).floor() as i64;
         // Row 0 is the top of the picture.
-        let j = self.h as i64 - 1 - ((v - self.v0) / pixel).floor() as i64;
+        let j = (self.h as i64 - 1).saturating_sub(((v - self.v0) / pixel).floor() as i64);
         let slab = (SLAB_PX * pixel) as f32;
         let near = near as f32;
-        for jj in j - radius..=j + radius {
-            for ii in i - radius..=i + radius {
+        for jj in j.saturating_sub(radius)..=j.saturating_add(radius) {
+            for ii in i.saturating_sub(radius)..=i.saturating_add(radius) {
                 if ii < 0 || jj < 0 || ii >= self.w as i64 || jj >= self.h as i64 {
                     continue;
                 }
@@ -920,6 +923,25 @@ mod tests {
                 .iter()
                 .all(Option::is_none)
         );
+    }
+
+    #[test]
+    fn points_far_outside_or_not_finite_are_left_off_the_map() {
+        let design = cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.2, 0.5));
+        let top = face_of(&design, [0.0, 0.0, 1.0]);
+        let mut maps = MapCollector::new(&design, 0.004, 0.01);
+        let far = [
+            [1e300, -1e300, 1e300],
+            [-1e300, 1e300, -1e300],
+            [f64::INFINITY, 0.0, 0.5],
+            [f64::NAN, 0.1, 0.5],
+        ];
+        let devs: Vec<_> = far.iter().map(|&p| dev(p, 0.001, top)).collect();
+        maps.points((1, 0), &devs);
+        maps.station_done((1, 0), f64::NAN);
+        let m = &maps.finish()[0];
+        assert!(m.points.is_empty());
+        assert!(m.svg(MapKind::Points, Side::Top, &[]).is_some());
     }
 
     #[test]

@@ -220,15 +220,16 @@ impl ScanLayer {
                 })
                 .collect();
             // Both were built from the same samples: their sample indices line them up.
-            let at: rustc_hash::FxHashMap<u32, usize> = outcomes
-                .iter()
-                .enumerate()
-                .map(|(i, o)| (o.sample, i))
-                .collect();
+            let mut at = vec![usize::MAX; self.samples];
+            for (i, o) in outcomes.iter().enumerate() {
+                if let Some(a) = at.get_mut(o.sample as usize) {
+                    *a = i;
+                }
+            }
             for r in &results {
-                if let Some(&i) = at.get(&r.sample) {
-                    states[i].m3c2 = r.distance;
-                    states[i].significant = r.significant;
+                if let Some(s) = at.get(r.sample as usize).and_then(|&i| states.get_mut(i)) {
+                    s.m3c2 = r.distance;
+                    s.significant = r.significant;
                 }
             }
             states

@@ -79,7 +79,11 @@ pub fn write_map_pngs(report: &Report, dir: &Path) -> Result<Exported, ExportErr
                     },
                     side.title()
                 );
-                let png = render(&titled(&svg, &caption), &options, &name)?;
+                let png = render(
+                    &titled(&svg, maps.svg_size(side), &caption),
+                    &options,
+                    &name,
+                )?;
                 let path = dir.join(&name);
                 std::fs::write(&path, png).map_err(|source| ExportError::Write {
                     path: path.clone(),
@@ -98,20 +102,10 @@ fn height(m: &ScanLayerMaps) -> Option<u64> {
         .then(|| m.printed_height.to_bits())
 }
 
-/// The map under a title line, as a standalone SVG document.
-fn titled(map: &str, caption: &str) -> String {
-    let size = |attr: &str| -> f64 {
-        map.split(&format!(" {attr}=\""))
-            .nth(1)
-            .and_then(|r| r.split('"').next())
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0.0)
-    };
+/// The map (`size` wide and high) under a title line, as a standalone SVG document.
+fn titled(map: &str, (w, h): (f64, f64), caption: &str) -> String {
     // A narrow map (a wall seen end on) still gets its whole title: about 7 pixels a character.
-    let (w, h) = (
-        size("width").max(7.0 * caption.chars().count() as f64 + 12.0),
-        size("height"),
-    );
+    let w = w.max(7.0 * caption.chars().count() as f64 + 12.0);
     let inner = map.replacen("<svg ", &format!("<svg y=\"{TITLE_PX}\" "), 1);
     format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{}\" \

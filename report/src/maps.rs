@@ -49,6 +49,7 @@ pub enum Side {
 }
 
 impl Side {
+    /// In declaration order: `side as usize` indexes it.
     pub const ALL: [Side; 5] = [Side::Front, Side::Right, Side::Back, Side::Left, Side::Top];
 
     pub fn name(self) -> &'static str {
@@ -195,9 +196,7 @@ impl Raster {
         if !(u.is_finite() && v.is_finite() && near.is_finite()) {
             return;
         }
-        let i = ((u - self.u0) / pixel).floor() as i64;
-        // Row 0 is the top of the picture.
-        let j = (self.h as i64 - 1).saturating_sub(((v - self.v0) / pixel).floor() as i64);
+        let (i, j) = self.cell_of(u, v, pixel);
         let slab = (SLAB_PX * pixel) as f32;
         let near = near as f32;
         for jj in j.saturating_sub(radius)..=j.saturating_add(radius) {
@@ -252,13 +251,20 @@ impl Raster {
     /// The nearness of the surface at `p`'s pixel, if any.
     fn surface_at(&self, p: [f64; 3], pixel: f64) -> Option<f32> {
         let [u, v, _] = self.side.project(p);
-        let i = ((u - self.u0) / pixel).floor();
-        let j = self.h as f64 - 1.0 - ((v - self.v0) / pixel).floor();
-        if i < 0.0 || j < 0.0 || i >= self.w as f64 || j >= self.h as f64 {
+        let (i, j) = self.cell_of(u, v, pixel);
+        if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
             return None;
         }
         let k = j as usize * self.w + i as usize;
         self.occupied(k).then(|| self.cells[k].near)
+    }
+
+    /// The column and row of screen coordinates (u, v), row 0 at the top of the picture;
+    /// outside the raster for points beyond it (saturating, never wrapping).
+    fn cell_of(&self, u: f64, v: f64, pixel: f64) -> (i64, i64) {
+        let i = ((u - self.u0) / pixel).floor() as i64;
+        let j = (self.h as i64 - 1).saturating_sub(((v - self.v0) / pixel).floor() as i64);
+        (i, j)
     }
 }
 
@@ -279,12 +285,11 @@ impl Sides {
     }
 
     fn side(&self, s: Side) -> &Raster {
-        &self.rasters[Side::ALL.iter().position(|x| *x == s).unwrap_or(0)]
+        &self.rasters[s as usize]
     }
 
     fn mark(&mut self, side: Side, p: [f64; 3], mark: Mark, pixel: f64, radius: i64) {
-        let i = Side::ALL.iter().position(|x| *x == side).unwrap_or(0);
-        self.rasters[i].mark(p, mark, pixel, radius);
+        self.rasters[side as usize].mark(p, mark, pixel, radius);
     }
 
     fn merge(&mut self, other: &Sides, pixel: f64) {
@@ -577,11 +582,20 @@ impl ScanLayerMaps {
     }
 
     /// The SVG of one side's map with `items`' call-outs; `None` when that map was not made.
+    /// Width and height of `side`'s SVG, screen pixels.
+    pub fn svg_size(&self, side: Side) -> (f64, f64) {
+        let r = self.points.side(side);
+        (
+            LEFT + r.w as f64 * ZOOM + RIGHT,
+            TOP + r.h as f64 * ZOOM + BOTTOM,
+        )
+    }
+
     pub fn svg(&self, kind: MapKind, side: Side, items: &[Item]) -> Option<String> {
         let png = self.png(kind, side)?;
         let r = self.points.side(side);
         let (iw, ih) = (r.w as f64 * ZOOM, r.h as f64 * ZOOM);
-        let (w, h) = (LEFT + iw + RIGHT, TOP + ih + BOTTOM);
+        let (w, h) = self.svg_size(side);
         let scale = ZOOM / self.frame.pixel;
         let mut svg = format!(
             "<svg class=\"map\" width=\"{w:.0}\" \

@@ -225,7 +225,8 @@ pub fn assess(
             summary.insert(
                 0,
                 format!(
-                    "No findings (they need coverage and M3C2): judged by all points together,                      {}: {}.",
+                    "No findings (they need coverage and M3C2): judged by all points together, \
+                     {}: {}.",
                     o.verdict.to_uppercase(),
                     o.reason
                 ),

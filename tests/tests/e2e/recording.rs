@@ -343,6 +343,10 @@ fn a_recording_reports_what_inspect_reports() {
     assert_eq!(a["assessment"]["verdict"], "pass");
     let first = a["assessment"]["summary"][0].as_str().unwrap();
     assert!(first.starts_with("No findings"), "{first}");
+    assert!(
+        first.contains("together, PASS: "),
+        "one sentence, evenly spaced: {first}"
+    );
 }
 
 /// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their

@@ -172,7 +172,9 @@ fn ms(d: Duration) -> f64 {
 /// its cut mesh and its scan layer's findings state took.
 struct Prepared {
     design: Arc<PrintedDesign>,
+    /// The section, and with findings the cut mesh and its sharp edges beside it.
     section: Duration,
+    /// The findings' design samples, M3C2 and coverage over them.
     mesh: Option<Duration>,
     epoch: Option<crate::findings::Epoch>,
 }
@@ -326,13 +328,19 @@ impl<C: ChunkSource> Lifecycle<C> {
                     if let (Some(e), Some(stage)) = (prepared.epoch, self.findings.as_mut()) {
                         stage.adopt(e);
                     }
-                    let mesh = prepared
-                        .mesh
-                        .map(|m| format!(", the findings' mesh and samples {:.1} ms", ms(m)))
-                        .unwrap_or_default();
+                    let (cut, samples) = match prepared.mesh {
+                        Some(m) => (
+                            " and the cut mesh with its edges",
+                            format!(
+                                ", then the findings' samples, M3C2 and coverage {:.1} ms",
+                                ms(m)
+                            ),
+                        ),
+                        None => ("", String::new()),
+                    };
                     info!(
                         "design at printed height {} m ready in {:.1} ms (section of {} \
-                         triangles {:.1} ms{mesh})",
+                         triangles{cut} {:.1} ms{samples})",
                         p.height,
                         ms(now.saturating_duration_since(p.since)),
                         d.section().map_or(0, |s| s.triangles()),
@@ -579,7 +587,8 @@ impl<C: ChunkSource> Lifecycle<C> {
             .name("design-height".into())
             .spawn(move || {
                 let started = Instant::now();
-                let prepared = preparer.prepare(height, false).map(|design| {
+                // With findings, the cut mesh they sample is made beside the section.
+                let prepared = preparer.prepare(height, maker.is_some()).map(|design| {
                     let section = started.elapsed();
                     let design = Arc::new(design);
                     let epoch = maker.as_ref().and_then(|m| m.make(job, &design));

@@ -43,53 +43,89 @@ impl PrintedDesign {
     pub fn design(&self) -> &Design {
         match &self.section {
             None => &self.full,
-            Some(s) => self.mesh.get_or_init(|| cut_mesh(&self.full, s)),
+            Some(s) => self
+                .mesh
+                .get_or_init(|| BelowCut::of(&self.full, s.height()).with_section(s)),
         }
     }
 }
 
-/// The design cut at the section's height, from the design and the section alone.
-fn cut_mesh(full: &Design, section: &Section) -> Design {
-    let h = section.height();
-    let local = section.local_mesh();
-    let mut vertices = full.vertices.clone();
-    // Local vertex → vertex of the cut mesh: the design's own, or a cut point added.
-    let ids: Vec<u32> = local
-        .design_vertex
-        .iter()
-        .zip(local.vertices)
-        .map(|(&g, p)| {
-            if g != u32::MAX {
-                g
-            } else {
-                vertices.push(*p);
-                (vertices.len() - 1) as u32
-            }
-        })
-        .collect();
-    let pieces = &local.triangles[local.ring..];
-    let reported: Vec<u32> = section.pieces().map(|(_, r)| r).collect();
-    let below = |i: u32| full.vertices[i as usize].z < h;
-    let mut triangles = Vec::with_capacity(full.triangles.len());
-    let mut k = 0;
-    for (t, f) in full.triangles.iter().enumerate() {
-        match f.iter().filter(|&&i| below(i)).count() {
-            3 => triangles.push(*f),
-            0 => {}
-            _ => {
-                while k < pieces.len() && reported[k] == t as u32 {
-                    triangles.push(pieces[k].map(|i| ids[i as usize]));
-                    k += 1;
-                }
+/// What a cut mesh takes from the design: its vertices and the triangles wholly below the
+/// height, in design order, with the place of each crossing triangle (whose pieces the section
+/// makes). Found without the section, so that it can be found beside it.
+struct BelowCut {
+    vertices: Vec<Point3<f64>>,
+    triangles: Vec<[u32; 3]>,
+    /// (position in `triangles`, design triangle) of each crossing triangle, in design order.
+    crossing: Vec<(usize, u32)>,
+}
+
+impl BelowCut {
+    fn of(full: &Design, h: f64) -> Self {
+        use rayon::prelude::*;
+        let below = |i: u32| full.vertices[i as usize].z < h;
+        // The vertices' heights are read in parallel; the triangles are then kept in order.
+        let below_count: Vec<u8> = full
+            .triangles
+            .par_iter()
+            .map(|f| f.iter().filter(|&&i| below(i)).count() as u8)
+            .collect();
+        let mut triangles = Vec::with_capacity(full.triangles.len());
+        let mut crossing = Vec::new();
+        for (t, (f, &n)) in full.triangles.iter().zip(&below_count).enumerate() {
+            match n {
+                3 => triangles.push(*f),
+                0 => {}
+                _ => crossing.push((triangles.len(), t as u32)),
             }
         }
+        Self {
+            vertices: full.vertices.clone(),
+            triangles,
+            crossing,
+        }
     }
-    // The cap.
-    triangles.extend(pieces[k..].iter().map(|p| p.map(|i| ids[i as usize])));
-    Design {
-        vertices,
-        triangles,
-        report: Default::default(),
+
+    /// The design cut at the section's height, equal to `crate::layers::cut_at`'s triangle for
+    /// triangle: the triangles below with each crossing triangle's pieces in its place, then
+    /// the cap.
+    fn with_section(self, section: &Section) -> Design {
+        let local = section.local_mesh();
+        let mut vertices = self.vertices;
+        // Local vertex → vertex of the cut mesh: the design's own, or a cut point added.
+        let ids: Vec<u32> = local
+            .design_vertex
+            .iter()
+            .zip(local.vertices)
+            .map(|(&g, p)| {
+                if g != u32::MAX {
+                    g
+                } else {
+                    vertices.push(*p);
+                    (vertices.len() - 1) as u32
+                }
+            })
+            .collect();
+        let pieces = &local.triangles[local.ring..];
+        let reported: Vec<u32> = section.pieces().map(|(_, r)| r).collect();
+        let mut triangles = Vec::with_capacity(self.triangles.len() + pieces.len());
+        let (mut k, mut from) = (0, 0);
+        for &(at, t) in &self.crossing {
+            triangles.extend_from_slice(&self.triangles[from..at]);
+            from = at;
+            while k < pieces.len() && reported[k] == t {
+                triangles.push(pieces[k].map(|i| ids[i as usize]));
+                k += 1;
+            }
+        }
+        triangles.extend_from_slice(&self.triangles[from..]);
+        // The cap.
+        triangles.extend(pieces[k..].iter().map(|p| p.map(|i| ids[i as usize])));
+        Design {
+            vertices,
+            triangles,
+            report: Default::default(),
+        }
     }
 }
 
@@ -195,10 +231,18 @@ impl Preparer {
     /// finite or not below the top. With `mesh`, the cut mesh and its sharp edges are made too
     /// (for sampling).
     pub fn prepare(&self, height: f64, mesh: bool) -> Result<PrintedDesign, CutError> {
-        let section = if height.is_finite() && height >= self.top {
-            None
-        } else {
-            Some(self.index.section(height)?)
+        let whole = height.is_finite() && height >= self.top;
+        // The section is the index's, the rest of the cut mesh the design's: made side by side.
+        let (section, below) = match (whole, mesh) {
+            (true, _) => (None, None),
+            (false, false) => (Some(self.index.section(height)?), None),
+            (false, true) => {
+                let (section, below) = rayon::join(
+                    || self.index.section(height),
+                    || BelowCut::of(&self.full, height),
+                );
+                (Some(section?), Some(below))
+            }
         };
         let d = PrintedDesign {
             height: if section.is_some() { height } else { f64::NAN },
@@ -210,8 +254,17 @@ impl Preparer {
             full_sharp: self.full_sharp.clone(),
         };
         if mesh {
-            d.design();
-            d.sharp_edges();
+            rayon::join(
+                || {
+                    if let (Some(b), Some(s)) = (below, &d.section) {
+                        let _ = d.mesh.set(b.with_section(s));
+                    }
+                    d.design();
+                },
+                || {
+                    d.sharp_edges();
+                },
+            );
         }
         Ok(d)
     }
@@ -346,6 +399,10 @@ mod tests {
                         .collect()
                 };
                 assert_eq!(tris(d.design()), tris(&cut), "height {h}");
+                // Made ahead, beside the section, as the agent prepares a height.
+                let ahead = p.preparer().prepare(h, true).unwrap();
+                assert_eq!(tris(ahead.design()), tris(&cut), "height {h}, ahead");
+                assert_eq!(ahead.sharp_edges(), d.sharp_edges(), "height {h}, ahead");
                 let norm = |e: &[[Point3<f64>; 2]]| -> Vec<[[u64; 3]; 2]> {
                     let mut v: Vec<[[u64; 3]; 2]> = e
                         .iter()

@@ -19,12 +19,12 @@ t = lambda line: datetime.strptime(line[:23], "%Y-%m-%dT%H:%M:%S.%f")
 lines = open(sys.argv[1]).read().splitlines()
 health = [t(l) for l in lines if " health: " in l]
 ready = [float(m.group(1)) for l in lines if (m := re.search(r"ready in ([0-9.]+) ms", l))]
-section = [float(m.group(1)) for l in lines if (m := re.search(r"triangles ([0-9.]+) ms", l))]
-mesh = [float(m.group(1)) for l in lines if (m := re.search(r"mesh and samples ([0-9.]+) ms", l))]
+section = [float(m.group(1)) for l in lines if (m := re.search(r"triangles(?: and the cut mesh with its edges)? ([0-9.]+) ms", l))]
+mesh = [float(m.group(1)) for l in lines if (m := re.search(r"samples, M3C2 and coverage ([0-9.]+) ms", l))]
 design = [l for l in lines if "index" in l and "triangles" in l][:1]
 print("\n".join(design))
 print(f"printed heights prepared: {len(ready)}, in ms (chunks held that long): {ready}")
-print(f"  of which the section (C2M, lines of sight): {section} ms; the findings' mesh, samples, M3C2 and coverage set-up: {mesh} ms")
+print(f"  of which the section (C2M, lines of sight) with, beside it, the cut mesh and its edges: {section} ms; then the findings' samples, M3C2 and coverage set-up: {mesh} ms")
 gaps = [(b - a).total_seconds() for a, b in zip(health, health[1:])]
 print(f"health lines: {len(health)}, longest gap {max(gaps, default=0):.2f} s")
 PY

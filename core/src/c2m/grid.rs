@@ -168,6 +168,21 @@ impl Grid {
         }
     }
 
+    /// No cells: every key finds no cell and the band is empty, so every query goes to the BVH.
+    pub fn empty() -> Self {
+        Self {
+            origin: Point3::origin(),
+            z0: 0.0,
+            z_step: f64::MIN_POSITIVE,
+            h: 0.0,
+            inv_h: 0.0,
+            step: 0.0,
+            cells: FxHashMap::default(),
+            cand: Vec::new(),
+            dist: Vec::new(),
+        }
+    }
+
     pub fn stats(&self) -> GridStats {
         GridStats {
             cell_size: self.h,
@@ -178,10 +193,6 @@ impl Grid {
             bytes: self.cells.capacity() * (size_of::<u64>() + size_of::<Cell>() + 1)
                 + self.cand.len() * (size_of::<u32>() + size_of::<u8>()),
         }
-    }
-
-    pub fn cell_size(&self) -> f64 {
-        self.h
     }
 
     /// The highest vertex of a cell's candidates, or above it.

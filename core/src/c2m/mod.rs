@@ -118,6 +118,13 @@ pub struct C2mIndex {
     highest: f64,
 }
 
+/// Whether an index keeps a grid of candidate lists or answers every point from its BVH.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum GridUse {
+    Cells,
+    BvhOnly,
+}
+
 /// Cells of this many times the triangles' mean size: lists of a few candidates.
 const CELL_PER_TRIANGLE: f64 = 1.5;
 /// At most this many cells on the surface per triangle, whatever the triangles look like
@@ -134,6 +141,7 @@ impl C2mIndex {
             Cow::Borrowed(&design.triangles),
             NormalSource::Own,
             params,
+            GridUse::Cells,
         )
     }
 
@@ -146,6 +154,7 @@ impl C2mIndex {
             Cow::Owned(design.triangles),
             NormalSource::Own,
             params,
+            GridUse::Cells,
         )
     }
 
@@ -154,6 +163,7 @@ impl C2mIndex {
         triangles: Cow<'_, [[u32; 3]]>,
         normals: NormalSource,
         params: C2mParams,
+        grid_use: GridUse,
     ) -> Result<Self, C2mError> {
         if !(params.max_distance > 0.0 && params.max_distance.is_finite()) {
             return Err(C2mError::MaxDistance(params.max_distance));
@@ -171,14 +181,19 @@ impl C2mIndex {
         if !extent.is_finite() || extent > 1e7 {
             return Err(C2mError::Extent { extent });
         }
-        let h = cell_size(&mesh, params.cell_size, extent);
-        let budget = if params.cell_size.is_some() {
-            usize::MAX
-        } else {
-            (SURFACE_CELLS_PER_TRIANGLE * mesh.len() as f64) as usize + 4096
+        let grid = match grid_use {
+            GridUse::Cells => {
+                let h = cell_size(&mesh, params.cell_size, extent);
+                let budget = if params.cell_size.is_some() {
+                    usize::MAX
+                } else {
+                    (SURFACE_CELLS_PER_TRIANGLE * mesh.len() as f64) as usize + 4096
+                };
+                let candidates = (CANDIDATES_PER_TRIANGLE * mesh.len() as f64) as usize + 65_536;
+                Grid::build(&mesh, &bvh, h, lo, hi, budget, candidates)
+            }
+            GridUse::BvhOnly => Grid::empty(),
         };
-        let candidates = (CANDIDATES_PER_TRIANGLE * mesh.len() as f64) as usize + 65_536;
-        let grid = Grid::build(&mesh, &bvh, h, lo, hi, budget, candidates);
         Ok(Self {
             mesh,
             bvh,

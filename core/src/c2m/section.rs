@@ -14,11 +14,8 @@ use nalgebra::Point3;
 use super::bvh::All;
 use super::mesh::NormalSource;
 use super::normals::PseudoNormals;
-use super::{C2mIndex, C2mParams, CellCache, Closest, Cursor};
+use super::{C2mIndex, C2mParams, CellCache, Closest, Cursor, GridUse};
 use crate::layers::{ClipVertex, CutError, CutReport, CutVertex, cap, clip_below};
-
-/// A section's cells, in cells of the design's grid.
-const SECTION_CELLS: f64 = 8.0;
 
 /// The mesh a section was made in: the triangles around the crossing ones (the first `ring`),
 /// then the section's; each vertex's design vertex (`u32::MAX` for a point the cut adds).
@@ -263,12 +260,13 @@ impl C2mIndex {
                 edge,
                 vertex: normals.vertex,
             };
-            // Coarse cells: a section is a thin ring of pieces and a wide cap of long ear-cut
-            // triangles; eight of the design's cells build in a third of the time and answer
-            // as fast (the lists are sorted, the scan stops early).
+            // No grid: a section is a thin ring of pieces and a cap of long ear-cut triangles,
+            // which put hundreds of candidates in any cell. Its BVH alone builds in half the
+            // time of a grid of eight design cells and answers faster (1.9 against 1.5 M
+            // points/s a thread on the bunny cut at mid height, the same on a twisted column).
             let params = C2mParams {
                 max_distance: self.max_distance,
-                cell_size: Some(SECTION_CELLS * self.grid.cell_size()),
+                cell_size: None,
             };
             Some(
                 C2mIndex::build_mesh(
@@ -276,6 +274,7 @@ impl C2mIndex {
                     section_tris.into(),
                     NormalSource::Given(given),
                     params,
+                    GridUse::BvhOnly,
                 )
                 .expect("the design's own parameters were valid"),
             )

@@ -17,6 +17,7 @@ pub mod coverage;
 pub mod findings;
 pub mod layers;
 pub mod m3c2;
+mod order;
 pub mod printed;
 pub mod probes;
 pub mod sampling;

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use crate::c2m::triangle::Region;
 use crate::c2m::{Cursor, Surface};
+use crate::order;
 use crate::stats::{DeviationAccumulator, StatsConfig};
 
 /// Scanner-frame coordinates beyond this are not measurements (the longest-range TLS reach
@@ -242,80 +243,20 @@ fn inspect_in_parallel<S: Surface + ?Sized>(
         })
 }
 
-/// Whether consecutive points lie near each other, as a scanner writes them: the mean step
-/// between neighbours, over an even sample of pairs, is under 1/64 of the sample's extent. A
-/// shuffled cloud steps about half its extent. Only the sample is read, so a chunk in scan
-/// order costs no pass of its own.
-fn in_spatial_order(points: &[ScanPoint]) -> bool {
-    const PAIRS: usize = 256;
-    let stride = (points.len() / PAIRS).max(1);
-    let pairs = || {
-        (1..points.len())
-            .step_by(stride)
-            .map(|i| (&points[i - 1], &points[i]))
-            .filter(|(a, b)| finite(a) && finite(b))
-    };
-    let (lo, hi) = extent(pairs().flat_map(|(a, b)| [a, b]));
-    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (a, b) in pairs() {
-        sum += (0..3)
-            .map(|k| (a.xyz[k] as f64 - b.xyz[k] as f64).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        n += 1;
-    }
-    n == 0 || diagonal.is_nan() || diagonal <= 0.0 || sum / (n as f64) < diagonal / 64.0
-}
-
-fn finite(p: &ScanPoint) -> bool {
-    p.xyz.iter().all(|v| v.is_finite())
-}
-
-/// The box of the finite points among `points`, scanner frame.
-fn extent<'a>(points: impl Iterator<Item = &'a ScanPoint>) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points.filter(|p| finite(p)) {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p.xyz[k] as f64);
-            hi[k] = hi[k].max(p.xyz[k] as f64);
-        }
-    }
-    (lo, hi)
-}
-
-/// The points' indices along a Morton (Z-order) curve of 10 bits an axis over their box;
-/// points that are not finite come first (they are only rejected).
-fn morton_order(points: &[ScanPoint]) -> Vec<u32> {
-    let (lo, hi) = extent(points.iter());
-    let scale: [f64; 3] = std::array::from_fn(|k| {
-        let span = hi[k] - lo[k];
-        if span > 0.0 { 1023.0 / span } else { 0.0 }
-    });
-    let spread = |v: u64| -> u64 {
-        // Bits 0..10 of v moved to every third bit.
-        let mut x = v & 0x3ff;
-        x = (x | (x << 16)) & 0x0300_00ff;
-        x = (x | (x << 8)) & 0x0300_f00f;
-        x = (x | (x << 4)) & 0x030c_30c3;
-        (x | (x << 2)) & 0x0924_9249
-    };
-    let mut keyed: Vec<(u32, u32)> = points
+/// A scan point's position (scanner frame) for the order of a chunk; `None` when not finite.
+fn scan_position(p: &ScanPoint) -> Option<[f64; 3]> {
+    p.xyz
         .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let key = if finite(p) {
-                let q = |k: usize| ((p.xyz[k] as f64 - lo[k]) * scale[k]).clamp(0.0, 1023.0) as u64;
-                (spread(q(0)) | spread(q(1)) << 1 | spread(q(2)) << 2) as u32 + 1
-            } else {
-                0
-            };
-            (key, i as u32)
-        })
-        .collect();
-    keyed.par_sort_unstable();
-    keyed.into_iter().map(|(_, i)| i).collect()
+        .all(|v| v.is_finite())
+        .then(|| p.xyz.map(f64::from))
+}
+
+fn in_spatial_order(points: &[ScanPoint]) -> bool {
+    order::in_spatial_order(points, scan_position)
+}
+
+fn morton_order(points: &[ScanPoint]) -> Vec<u32> {
+    order::morton_order(points, scan_position)
 }
 
 fn inspect_task<S: Surface + ?Sized>(

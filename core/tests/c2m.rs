@@ -272,6 +272,32 @@ fn equals_brute_force_on_the_bunny() {
     }
 }
 
+/// A batch in no spatial order is answered block by block along a Morton curve; every answer
+/// is the one its point gets in scan order.
+#[test]
+fn a_shuffled_batch_answers_as_in_scan_order() {
+    let d = asbuilt_core::design::shapes::twisted_column(0.15, 0.1, 1.2, 90.0, 64, 30);
+    let idx = index(&d, 0.01);
+    // Scan-like: ring after ring up the column, as a scanner turning about it would write
+    // them; then shuffled with a fixed stride.
+    let mut scan = probe_points(&d, 300_000, 0.002, 5);
+    let ring = |p: &Point3<f64>| ((p.z / 0.005).floor() as i64, p.y.atan2(p.x));
+    scan.sort_by(|a, b| {
+        let (ra, rb) = (ring(a), ring(b));
+        ra.0.cmp(&rb.0).then(ra.1.total_cmp(&rb.1))
+    });
+    let n = scan.len();
+    let perm: Vec<usize> = (0..n).map(|k| k * 7919 % n).collect();
+    let shuffled: Vec<Point3<f64>> = perm.iter().map(|&i| scan[i]).collect();
+    let (mut a, mut b) = (vec![None; n], vec![None; n]);
+    idx.query_batch(&scan, &mut a);
+    idx.query_batch(&shuffled, &mut b);
+    for (k, &i) in perm.iter().enumerate() {
+        assert_eq!(b[k], a[i], "point {i}");
+    }
+    assert!(a.iter().filter(|c| c.is_some()).count() > n / 2);
+}
+
 #[test]
 fn signs_agree_with_parry_on_the_bunny() {
     use parry3d_f64::math::Vector as PV;

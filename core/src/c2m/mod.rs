@@ -26,6 +26,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::design::Design;
+use crate::order;
 use bvh::{All, Below, Bvh};
 use grid::{AXIS_MAX, Cell, Grid};
 use mesh::{Mesh, NormalSource};
@@ -124,6 +125,12 @@ enum GridUse {
     Cells,
     BvhOnly,
 }
+
+/// Batches smaller than this are queried as they come; larger ones in no spatial order are
+/// sorted in blocks of `SORT_BLOCK` points (256 k: 4.1 M points/s on a shuffled bunny where 64 k
+/// blocks give 3.8 M, about 20 MB held beside the batch).
+const SORT_MIN: usize = 1 << 15;
+const SORT_BLOCK: usize = 1 << 18;
 
 /// Cells of this many times the triangles' mean size: lists of a few candidates.
 const CELL_PER_TRIANGLE: f64 = 1.5;
@@ -415,9 +422,35 @@ impl C2mIndex {
         (d2 <= self.max_distance * self.max_distance).then(|| self.signed(p, t))
     }
 
-    /// Queries a batch in parallel; `out[i]` answers `points[i]`.
+    /// Queries a batch in parallel; `out[i]` answers `points[i]`. A batch in no spatial order
+    /// (a merged or shuffled cloud) is queried block by block along a Morton curve, with the
+    /// same results.
     pub fn query_batch(&self, points: &[Point3<f64>], out: &mut [Option<Closest>]) {
         assert_eq!(points.len(), out.len(), "one output per point");
+        let position = |p: &Point3<f64>| {
+            (p.x.is_finite() && p.y.is_finite() && p.z.is_finite()).then_some([p.x, p.y, p.z])
+        };
+        if points.len() < SORT_MIN || order::in_spatial_order(points, position) {
+            return self.query_in_order(points, out);
+        }
+        let block = points.len().min(SORT_BLOCK);
+        let mut sorted = Vec::with_capacity(block);
+        let mut results = Vec::with_capacity(block);
+        for (ps, os) in points.chunks(SORT_BLOCK).zip(out.chunks_mut(SORT_BLOCK)) {
+            let order = order::morton_order(ps, position);
+            sorted.clear();
+            sorted.par_extend(order.par_iter().map(|&i| ps[i as usize]));
+            results.clear();
+            results.resize(ps.len(), None);
+            self.query_in_order(&sorted, &mut results);
+            let place = order::places(&order);
+            os.par_iter_mut()
+                .zip(place.par_iter())
+                .for_each(|(o, &j)| *o = results[j as usize]);
+        }
+    }
+
+    fn query_in_order(&self, points: &[Point3<f64>], out: &mut [Option<Closest>]) {
         const TASK: usize = 4096;
         points
             .par_chunks(TASK)

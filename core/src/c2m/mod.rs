@@ -413,7 +413,7 @@ impl C2mIndex {
         }
         let mut best: Option<(u32, f64)> = None;
         for t in 0..self.mesh.len() {
-            let d2 = (p - self.mesh.triangle(t).closest_point(p).0).norm_squared();
+            let d2 = self.mesh.triangle(t).dist2(p);
             if better_internal(&self.mesh, t as u32, d2, best) {
                 best = Some((t as u32, d2));
             }

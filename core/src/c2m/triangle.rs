@@ -104,12 +104,119 @@ impl Triangle {
         (a + ab * v + ac * w, Region::Face)
     }
 
+    /// Squared distance from `p` to the triangle, as every search compares triangles (the
+    /// grid's lists, the BVH, brute force): [`Lanes::dist2`] for one lane, so the bits are the
+    /// same whichever path measured it.
+    #[inline(always)]
+    pub fn dist2(&self, p: &Point3<f64>) -> f64 {
+        let mut one = Lanes::<1>::default();
+        one.set(0, self);
+        one.dist2(p)[0]
+    }
+
     /// The triangle's axis-aligned bounding box.
     #[inline]
     pub fn aabb(&self) -> (Point3<f64>, Point3<f64>) {
         let b = self.b();
         let c = self.c();
         (self.a.inf(&b).inf(&c), self.a.sup(&b).sup(&c))
+    }
+}
+
+/// Whether this CPU has AVX2: the searches then measure their lanes in 256-bit registers.
+/// (The check is cached by the standard library.)
+#[inline]
+pub(crate) fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// `N` triangles side by side, coordinate by coordinate, so that their distances to a point are
+/// measured together (the compiler turns the lanes into vector instructions).
+#[derive(Debug, Clone, Copy)]
+pub struct Lanes<const N: usize> {
+    a: [[f64; N]; 3],
+    ab: [[f64; N]; 3],
+    ac: [[f64; N]; 3],
+}
+
+impl<const N: usize> Default for Lanes<N> {
+    fn default() -> Self {
+        Self {
+            a: [[0.0; N]; 3],
+            ab: [[0.0; N]; 3],
+            ac: [[0.0; N]; 3],
+        }
+    }
+}
+
+impl<const N: usize> Lanes<N> {
+    #[inline(always)]
+    pub fn set(&mut self, lane: usize, t: &Triangle) {
+        for k in 0..3 {
+            self.a[k][lane] = t.a[k];
+            self.ab[k][lane] = t.ab[k];
+            self.ac[k][lane] = t.ac[k];
+        }
+    }
+
+    /// Squared distance from `p` to each lane's triangle. The closest point is
+    /// `a + s·ab + t·ac`, with `(s, t)` of the Voronoi region [`Triangle::closest_point`]
+    /// picks, by the same tests in the same order; every region's `(s, t)` is computed and the
+    /// first region that holds is kept, without branches.
+    #[inline(always)]
+    pub fn dist2(&self, p: &Point3<f64>) -> [f64; N] {
+        let mut out = [0.0; N];
+        for (l, o) in out.iter_mut().enumerate() {
+            let [bx, by, bz] = [self.ab[0][l], self.ab[1][l], self.ab[2][l]];
+            let [cx, cy, cz] = [self.ac[0][l], self.ac[1][l], self.ac[2][l]];
+            // p − a, p − b and p − c.
+            let [px, py, pz] = [p.x - self.a[0][l], p.y - self.a[1][l], p.z - self.a[2][l]];
+            let [qx, qy, qz] = [px - bx, py - by, pz - bz];
+            let [rx, ry, rz] = [px - cx, py - cy, pz - cz];
+            let d1 = bx * px + by * py + bz * pz;
+            let d2 = cx * px + cy * py + cz * pz;
+            let d3 = bx * qx + by * qy + bz * qz;
+            let d4 = cx * qx + cy * qy + cz * qz;
+            let d5 = bx * rx + by * ry + bz * rz;
+            let d6 = cx * rx + cy * ry + cz * rz;
+            let vc = d1 * d4 - d3 * d2;
+            let vb = d5 * d2 - d1 * d6;
+            let va = d3 * d6 - d5 * d4;
+            // From the last region tested to the first, so that the first that holds wins.
+            let denom = 1.0 / (va + vb + vc);
+            let (mut s, mut t) = (vb * denom, vc * denom);
+            let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+            if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+                (s, t) = (1.0 - w, w);
+            }
+            let w = d2 / (d2 - d6);
+            if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+                (s, t) = (0.0, w);
+            }
+            if d6 >= 0.0 && d5 <= d6 {
+                (s, t) = (0.0, 1.0);
+            }
+            let v = d1 / (d1 - d3);
+            if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+                (s, t) = (v, 0.0);
+            }
+            if d3 >= 0.0 && d4 <= d3 {
+                (s, t) = (1.0, 0.0);
+            }
+            if d1 <= 0.0 && d2 <= 0.0 {
+                (s, t) = (0.0, 0.0);
+            }
+            let [dx, dy, dz] = [
+                px - s * bx - t * cx,
+                py - s * by - t * cy,
+                pz - s * bz - t * cz,
+            ];
+            *o = dx * dx + dy * dy + dz * dz;
+        }
+        out
     }
 }
 
@@ -123,6 +230,53 @@ mod tests {
             Point3::new(1.0, 0.0, 0.0),
             Point3::new(0.0, 1.0, 0.0),
         )
+    }
+
+    /// The branch-free distance agrees with the closest point's, lane by lane, in every region
+    /// and for triangles without area.
+    #[test]
+    fn lanes_measure_as_the_closest_point_does() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut r = |s: f64| {
+            Point3::new(
+                rng.random_range(-s..s),
+                rng.random_range(-s..s),
+                rng.random_range(-s..s),
+            )
+        };
+        for k in 0..20_000 {
+            let (a, b) = (r(1.0), r(1.0));
+            // Every fifth triangle without area: a repeated vertex or three in a row.
+            let c = match k % 5 {
+                0 => b,
+                1 => a + (b - a) * 0.3,
+                _ => r(1.0),
+            };
+            let tris = [
+                Triangle::new(a, b, c),
+                Triangle::new(c, a, b),
+                Triangle::new(b, c, a),
+                tri(),
+            ];
+            let mut lanes = Lanes::<4>::default();
+            for (l, t) in tris.iter().enumerate() {
+                lanes.set(l, t);
+            }
+            let p = r(3.0);
+            let four = lanes.dist2(&p);
+            for (l, t) in tris.iter().enumerate() {
+                assert_eq!(four[l].to_bits(), t.dist2(&p).to_bits(), "lane {l}");
+                let exact = (p - t.closest_point(&p).0).norm_squared();
+                if exact.is_finite() {
+                    assert!(
+                        (four[l] - exact).abs() <= 1e-12 * (1.0 + exact),
+                        "{} vs {exact}",
+                        four[l]
+                    );
+                }
+            }
+        }
     }
 
     #[test]

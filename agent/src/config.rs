@@ -192,6 +192,10 @@ pub struct RecorderConfig {
     pub deviations: bool,
     /// LZ4-compress the file's chunks: about half the disk, for CPU the inspection also needs.
     pub compress: bool,
+    /// Also write channels in Foxglove's schemas (the design, the stations' frames, the
+    /// deviation-coloured points, reports and findings as JSON), so Foxglove opens the file as
+    /// it is. Deviation chunks are then taken to the writer even without `deviations`.
+    pub foxglove: bool,
 }
 
 impl Default for RecorderConfig {
@@ -204,6 +208,7 @@ impl Default for RecorderConfig {
             queue_mb: 256.0,
             deviations: false,
             compress: false,
+            foxglove: false,
         }
     }
 }

@@ -426,11 +426,16 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> Lifecycle<Ch
 fn start_recorder(config: &AgentConfig) -> Result<Option<Recorder>, AgentError> {
     Ok(match &config.recorder.dir {
         Some(dir) => {
-            let r = Recorder::start(&config.recorder, job_metadata(config), &config.design.path)
-                .map_err(|source| AgentError::Recorder {
-                    dir: dir.clone(),
-                    source,
-                })?;
+            let r = Recorder::start(
+                &config.recorder,
+                job_metadata(config),
+                &config.design.path,
+                config.inspect.tolerance,
+            )
+            .map_err(|source| AgentError::Recorder {
+                dir: dir.clone(),
+                source,
+            })?;
             info!(
                 "recording every job to {} (files up to {} MB, every {} scan chunk(s))",
                 dir.display(),

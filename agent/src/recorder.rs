@@ -21,6 +21,9 @@ use asbuilt_protocol::{
     StationEvent, StationFindings, StationReport, unix_time_ns,
 };
 
+use asbuilt_core::Units;
+use asbuilt_core::colour::deviation_colour;
+
 use crate::config::RecorderConfig;
 use crate::{info, warn};
 
@@ -29,6 +32,8 @@ const QUEUE: usize = 16_384;
 
 enum Item {
     Message(u64, Recorded),
+    /// A message for Foxglove's channels only (a deviation chunk the asbuilt channel skips).
+    FoxgloveOnly(u64, Recorded),
     Flush,
 }
 
@@ -53,6 +58,7 @@ pub struct Recorder {
     scan_every: u64,
     seen_chunks: u64,
     deviations: bool,
+    foxglove: bool,
     /// Set by the writer when free disk space is below the guard.
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     /// Flushes asked for so far.
@@ -62,11 +68,13 @@ pub struct Recorder {
 
 impl Recorder {
     /// Starts the writer thread. `design` is attached to every file with `meta`.
-    /// `meta`'s design hash is filled from the bytes attached, read once here.
+    /// `meta`'s design hash is filled from the bytes attached, read once here. `tolerance`
+    /// sets the colour scale of the Foxglove points.
     pub fn start(
         cfg: &RecorderConfig,
         mut meta: JobMetadata,
         design: &Path,
+        tolerance: f64,
     ) -> std::io::Result<Self> {
         use sha2::{Digest, Sha256};
         let dir = cfg.dir.clone().expect("started only when recording is on");
@@ -93,6 +101,10 @@ impl Recorder {
             counters: counters.clone(),
             disk_low: disk_low.clone(),
             file: None,
+            foxglove: cfg.foxglove.then_some(Foxglove {
+                tolerance,
+                mesh: None,
+            }),
         };
         // Before the first chunk can be offered: a disk that is already full must keep it out.
         writer.check_disk();
@@ -107,6 +119,7 @@ impl Recorder {
             scan_every: cfg.scan_every as u64,
             seen_chunks: 0,
             deviations: cfg.deviations,
+            foxglove: cfg.foxglove,
             disk_low,
             flushes_asked: AtomicU64::new(0),
             counters,
@@ -223,7 +236,7 @@ impl Recorder {
     pub fn deviations(&mut self, h: &DeviationHeader, points: &[PointDeviation]) {
         let bytes = std::mem::size_of_val(points);
         // Decimation counts scan chunks only; a deviation chunk is kept when its scan chunk was.
-        if !self.deviations
+        if !(self.deviations || self.foxglove)
             || self.scan_every == 0
             || self.disk_low.load(Relaxed)
             || self.queued.load(Relaxed).saturating_add(bytes) > self.budget
@@ -231,7 +244,12 @@ impl Recorder {
             return;
         }
         let msg = Recorded::Deviations(*h, points.to_vec());
-        self.send(Item::Message(unix_time_ns(), msg), bytes);
+        let item = if self.deviations {
+            Item::Message(unix_time_ns(), msg)
+        } else {
+            Item::FoxgloveOnly(unix_time_ns(), msg)
+        };
+        self.send(item, bytes);
     }
 
     /// Writes what is queued and closes the file with its summary.
@@ -299,7 +317,18 @@ struct Writer {
     counters: Arc<RecorderCounters>,
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     file: Option<OpenFile>,
+    foxglove: Option<Foxglove>,
 }
+
+/// What the Foxglove channels need besides the messages: the colour scale and the design as a
+/// mesh, read from the attached bytes by the writer (off the event loop) when it starts.
+struct Foxglove {
+    tolerance: f64,
+    mesh: Option<DesignMesh>,
+}
+
+/// Vertices (metres, design frame) and triangles.
+type DesignMesh = (Vec<[f64; 3]>, Vec<[u32; 3]>);
 
 fn job_of(m: &Recorded) -> Option<u64> {
     match m {
@@ -316,16 +345,18 @@ fn job_of(m: &Recorded) -> Option<u64> {
 impl Writer {
     fn run(mut self, rx: Receiver<Item>) {
         self.check_disk();
+        self.read_design_for_foxglove();
         let mut since_check = 0u32;
         while let Ok(item) = rx.recv() {
+            let asbuilt = matches!(item, Item::Message(..));
             match item {
-                Item::Message(t, m) => {
+                Item::Message(t, m) | Item::FoxgloveOnly(t, m) => {
                     let bytes = match &m {
                         Recorded::Chunk(_, p) => std::mem::size_of_val(p.as_slice()),
                         Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
                         _ => 256,
                     };
-                    if let Err(e) = self.write(t, &m) {
+                    if let Err(e) = self.write(t, &m, asbuilt) {
                         warn!("recorder: cannot write: {e}; this message is lost");
                     }
                     self.queued.fetch_sub(bytes, Relaxed);
@@ -373,7 +404,8 @@ impl Writer {
         }
     }
 
-    fn write(&mut self, t: u64, m: &Recorded) -> Result<(), String> {
+    /// Writes a message (with `asbuilt: false`, only its Foxglove twin).
+    fn write(&mut self, t: u64, m: &Recorded, asbuilt: bool) -> Result<(), String> {
         if let Some(job) = job_of(m) {
             let rotate = match &self.file {
                 None => true,
@@ -392,8 +424,36 @@ impl Writer {
             // Status before the first job: nothing to attach it to.
             return Ok(());
         };
-        f.writer.write(t, m).map_err(|e| e.to_string())?;
-        Ok(())
+        if asbuilt {
+            f.writer.write(t, m)
+        } else {
+            f.writer.write_foxglove(t, m)
+        }
+        .map_err(|e| e.to_string())
+    }
+
+    /// The design as a mesh for Foxglove, from the attached bytes; without it (a file that does
+    /// not read) the Foxglove channels carry everything but the design.
+    fn read_design_for_foxglove(&mut self) {
+        let Some(f) = &mut self.foxglove else {
+            return;
+        };
+        let read = self
+            .meta
+            .design_units
+            .parse::<Units>()
+            .map_err(|e| e.to_string())
+            .and_then(|units| {
+                asbuilt_io::read_design_bytes(&self.design, &self.design_name, units)
+                    .map_err(|e| e.to_string())
+            });
+        match read {
+            Ok(d) => {
+                let vertices = d.vertices.iter().map(|v| [v.x, v.y, v.z]).collect();
+                f.mesh = Some((vertices, d.triangles));
+            }
+            Err(e) => warn!("recorder: the design cannot be shown in Foxglove: {e}"),
+        }
     }
 
     fn open(&mut self, job: u64, part: u32) -> Result<(), String> {
@@ -414,10 +474,22 @@ impl Writer {
             self.compress,
         )
         .map_err(|e| e.to_string())?;
+        if let Some(f) = &self.foxglove {
+            let tolerance = f.tolerance;
+            writer = writer
+                .with_foxglove(Box::new(move |d| deviation_colour(d, tolerance)))
+                .map_err(|e| e.to_string())?;
+        }
         writer.metadata(&self.meta).map_err(|e| e.to_string())?;
+        let now = unix_time_ns();
         writer
-            .attach_design(&self.design_name, &self.design, unix_time_ns())
+            .attach_design(&self.design_name, &self.design, now)
             .map_err(|e| e.to_string())?;
+        if let Some((vertices, triangles)) = self.foxglove.as_ref().and_then(|f| f.mesh.as_ref()) {
+            writer
+                .foxglove_design(now, vertices, triangles)
+                .map_err(|e| e.to_string())?;
+        }
         writer.flush().map_err(|e| e.to_string())?;
         info!("recorder: job {job} → {}", path.display());
         self.counters.files.fetch_add(1, Relaxed);

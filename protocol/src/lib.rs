@@ -12,6 +12,7 @@
 pub mod codec;
 mod deviation;
 mod findings;
+pub mod foxglove;
 mod mcap_records;
 mod pose;
 pub mod recording;

@@ -17,6 +17,7 @@ use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
 use crate::codec::{self, DecodeError, Message};
+use crate::foxglove::{Colour, FoxgloveChannels};
 use crate::mcap_records::{Chunks, Damaged, RecordError, Records};
 use crate::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
@@ -245,6 +246,8 @@ pub struct RecordingWriter<W: Write + Seek> {
     mcap: mcap::Writer<W>,
     channels: BTreeMap<Channel, u16>,
     sequence: u32,
+    /// Foxglove's channels, when asked for ([`RecordingWriter::with_foxglove`]).
+    foxglove: Option<FoxgloveChannels>,
 }
 
 /// Messages are collected into chunks of about this many bytes (LZ4); a station's end always
@@ -276,7 +279,49 @@ impl<W: Write + Seek> RecordingWriter<W> {
             mcap,
             channels,
             sequence: 0,
+            foxglove: None,
         })
+    }
+
+    /// Also writes Foxglove's channels ([`crate::foxglove`]): each pose, deviation chunk,
+    /// report and findings again in a schema Foxglove shows, deviations coloured by `colour`.
+    pub fn with_foxglove(mut self, colour: Colour) -> Result<Self, mcap::McapError> {
+        self.foxglove = Some(FoxgloveChannels::add(&mut self.mcap, colour)?);
+        Ok(self)
+    }
+
+    /// The design for Foxglove (metres, design frame); nothing without Foxglove's channels.
+    pub fn foxglove_design(
+        &mut self,
+        time: u64,
+        vertices: &[[f64; 3]],
+        triangles: &[[u32; 3]],
+    ) -> Result<(), mcap::McapError> {
+        let Some(f) = &self.foxglove else {
+            return Ok(());
+        };
+        let channel = f.design_channel();
+        let bytes = crate::foxglove::design_scene(time, vertices, triangles);
+        self.write_to(channel, time, time, &bytes)
+    }
+
+    fn write_to(
+        &mut self,
+        channel_id: u16,
+        log_time: u64,
+        publish_time: u64,
+        bytes: &[u8],
+    ) -> Result<(), mcap::McapError> {
+        self.sequence = self.sequence.wrapping_add(1);
+        self.mcap.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id,
+                sequence: self.sequence,
+                log_time,
+                publish_time,
+            },
+            bytes,
+        )
     }
 
     /// Writes already-encoded message bytes.
@@ -287,25 +332,33 @@ impl<W: Write + Seek> RecordingWriter<W> {
         publish_time: u64,
         bytes: &[u8],
     ) -> Result<(), mcap::McapError> {
-        self.sequence = self.sequence.wrapping_add(1);
-        self.mcap.write_to_known_channel(
-            &mcap::records::MessageHeader {
-                channel_id: self.channels[&channel],
-                sequence: self.sequence,
-                log_time,
-                publish_time,
-            },
-            bytes,
-        )
+        self.write_to(self.channels[&channel], log_time, publish_time, bytes)
     }
 
+    /// Writes a message, and its Foxglove twin when Foxglove's channels are on.
     pub fn write(&mut self, log_time: u64, message: &Recorded) -> Result<(), mcap::McapError> {
         self.write_raw(
             message.channel(),
             log_time,
             message.timestamp_ns(),
             &message.encode(),
-        )
+        )?;
+        self.write_foxglove(log_time, message)
+    }
+
+    /// Writes only the Foxglove twin of a message (a deviation chunk the asbuilt channel leaves
+    /// out, say); nothing without Foxglove's channels.
+    pub fn write_foxglove(
+        &mut self,
+        log_time: u64,
+        message: &Recorded,
+    ) -> Result<(), mcap::McapError> {
+        match self.foxglove.as_ref().and_then(|f| f.message(message)) {
+            Some((channel, bytes)) => {
+                self.write_to(channel, log_time, message.timestamp_ns(), &bytes)
+            }
+            None => Ok(()),
+        }
     }
 
     pub fn metadata(&mut self, meta: &JobMetadata) -> Result<(), mcap::McapError> {

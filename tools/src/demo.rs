@@ -117,7 +117,7 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
          [services]\nprefix = \"{prefix}\"\n\n\
          [limits]\nmax_points_per_chunk = {chunk}\n\n\
          [status]\nperiod_s = 5.0\n\n\
-         [recorder]\ndir = \"recording\"\n\n\
+         [recorder]\ndir = \"recording\"\nfoxglove = true\n\n\
          [viewer]\nrrd = \"demo.rrd\"\n{url}\n\
          [findings]\nenabled = true\nlayer_height = {h}\n\n\
          [tolerances]\n# The report's verdicts: each kind's limit (metres, m² for missing material).\n\

@@ -382,6 +382,115 @@ fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
     (agent, msgs, log)
 }
 
+/// With `foxglove = true` the recording also carries Foxglove's schemas: the design as one
+/// scene of every triangle, a frame per pose, every matched point in the design frame coloured
+/// by its deviation (without the asbuilt deviations channel), and each report and findings as
+/// JSON.
+#[test]
+fn a_recording_with_foxglove_channels_shows_the_design_stations_and_points() {
+    use asbuilt_protocol::foxglove as fx;
+    use foxglove::Decode;
+    use foxglove::messages::{FrameTransform, PointCloud, SceneUpdate};
+
+    let (agent, msgs, log) = record_bunny("foxglove = true");
+    assert!(log.contains("recorder: job"), "{log}");
+    let file = std::fs::read_dir(agent.dir.path().join("rec"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .next()
+        .unwrap();
+    let bytes = std::fs::read(&file).unwrap();
+    let mut by_topic: BTreeMap<String, Vec<Vec<u8>>> = BTreeMap::new();
+    let mut schemas: BTreeMap<String, (String, String)> = BTreeMap::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if let Some(s) = &m.channel.schema {
+            schemas.insert(
+                m.channel.topic.clone(),
+                (s.name.clone(), s.encoding.clone()),
+            );
+        }
+        by_topic
+            .entry(m.channel.topic.clone())
+            .or_default()
+            .push(m.data.into_owned());
+    }
+    assert_eq!(schemas[fx::TOPIC_DESIGN].0, "foxglove.SceneUpdate");
+    assert_eq!(schemas[fx::TOPIC_STATIONS].0, "foxglove.FrameTransform");
+    assert_eq!(
+        schemas[fx::TOPIC_DEVIATIONS],
+        ("foxglove.PointCloud".into(), "protobuf".into())
+    );
+
+    // The design: one scene of the bunny's 69,451 triangles.
+    let scenes = &by_topic[fx::TOPIC_DESIGN];
+    assert_eq!(scenes.len(), 1);
+    let scene = SceneUpdate::decode(&scenes[0][..]).unwrap();
+    assert_eq!(scene.entities[0].frame_id, fx::DESIGN_FRAME);
+    assert_eq!(scene.entities[0].triangles[0].indices.len(), 3 * 69_451);
+
+    // A frame per pose, named for its station.
+    let poses: Vec<_> = msgs[0]
+        .iter()
+        .filter_map(|(_, m)| match m {
+            Recorded::Pose(p) => Some(*p),
+            _ => None,
+        })
+        .collect();
+    let frames: Vec<FrameTransform> = by_topic[fx::TOPIC_STATIONS]
+        .iter()
+        .map(|b| FrameTransform::decode(&b[..]).unwrap())
+        .collect();
+    assert_eq!(frames.len(), poses.len());
+    for (f, p) in frames.iter().zip(&poses) {
+        assert_eq!(f.parent_frame_id, fx::DESIGN_FRAME);
+        assert_eq!(f.child_frame_id, fx::station_frame(p.job, p.station));
+        assert_eq!(f.translation.unwrap().x, p.translation[0]);
+    }
+
+    // Every matched point, though the asbuilt deviations channel is off.
+    assert!(
+        !msgs[0]
+            .iter()
+            .any(|(_, m)| matches!(m, Recorded::Deviations(..)))
+    );
+    let reports: Vec<StationReport> = msgs[0]
+        .iter()
+        .filter_map(|(_, m)| match m {
+            Recorded::Report(r) => Some(**r),
+            _ => None,
+        })
+        .collect();
+    let matched: u64 = reports
+        .iter()
+        .map(|r| r.points_received - r.rejected.total() - r.no_match)
+        .sum();
+    let mut points = 0u64;
+    for b in &by_topic[fx::TOPIC_DEVIATIONS] {
+        let c = PointCloud::decode(&b[..]).unwrap();
+        assert_eq!(c.frame_id, fx::DESIGN_FRAME);
+        assert_eq!(c.point_stride, fx::POINT_STRIDE);
+        assert_eq!(c.data.len() % fx::POINT_STRIDE as usize, 0);
+        points += (c.data.len() / fx::POINT_STRIDE as usize) as u64;
+        // A point on the design is white; one 5 mm out is red.
+        for p in c.data.chunks(fx::POINT_STRIDE as usize).take(50) {
+            let d = f32::from_le_bytes(p[12..16].try_into().unwrap()) as f64 * 1e-3;
+            let rgb = [p[16], p[17], p[18]];
+            assert_eq!(rgb, asbuilt_core::colour::deviation_colour(d, 0.005), "{d}");
+            assert_eq!(p[19], 255);
+        }
+    }
+    assert_eq!(points, matched);
+
+    // Reports and findings as JSON a panel reads.
+    let json: Vec<Value> = by_topic[fx::TOPIC_REPORTS]
+        .iter()
+        .map(|b| serde_json::from_slice(b).unwrap())
+        .collect();
+    assert_eq!(json.len(), reports.len());
+    assert_eq!(json[0]["points_received"], reports[0].points_received);
+}
+
 #[test]
 fn a_long_job_rotates_into_parts_that_each_read_on_their_own() {
     let (_agent, files, log) = record_bunny("max_file_mb = 2");

@@ -1,0 +1,218 @@
+//! Foxglove's well-known schemas beside a recording's own channels, so that Foxglove opens an
+//! asbuilt recording as it is and shows the part, the stations and the deviation-coloured
+//! points. These channels repeat what the asbuilt channels say; nothing reads them back.
+//!
+//! | topic | schema | from |
+//! | --- | --- | --- |
+//! | [`TOPIC_DESIGN`] | `foxglove.SceneUpdate` | the design, once per file |
+//! | [`TOPIC_STATIONS`] | `foxglove.FrameTransform` | each pose: [`DESIGN_FRAME`] → `station_<job>_<n>` |
+//! | [`TOPIC_DEVIATIONS`] | `foxglove.PointCloud` | each deviation chunk: design frame, `x y z distance_mm` (f32) and `red green blue alpha` (u8) |
+//! | [`TOPIC_REPORTS`], [`TOPIC_FINDINGS`] | JSON | each station report and findings |
+
+use std::collections::BTreeMap;
+use std::io::{Seek, Write};
+
+use foxglove::Encode;
+use foxglove::messages::{
+    Color, FrameTransform, PackedElementField, PointCloud, Pose, Quaternion, SceneEntity,
+    SceneUpdate, Timestamp, TriangleListPrimitive, Vector3, packed_element_field::NumericType,
+};
+
+use crate::recording::Recorded;
+use crate::{DeviationFlags, PointDeviation, PoseSnapshot};
+
+pub const TOPIC_DESIGN: &str = "/foxglove/design";
+pub const TOPIC_STATIONS: &str = "/foxglove/stations";
+pub const TOPIC_DEVIATIONS: &str = "/foxglove/deviations";
+pub const TOPIC_REPORTS: &str = "/foxglove/reports";
+pub const TOPIC_FINDINGS: &str = "/foxglove/findings";
+/// The frame every point and the design are in; stations hang from it.
+pub const DESIGN_FRAME: &str = "design";
+/// Bytes of one point in a [`TOPIC_DEVIATIONS`] cloud.
+pub const POINT_STRIDE: u32 = 20;
+
+/// A deviation's colour, metres to RGB (the viewer's scale lives with the geometry).
+pub type Colour = Box<dyn Fn(f64) -> [u8; 3] + Send>;
+
+/// The Foxglove channels of one file.
+pub(crate) struct FoxgloveChannels {
+    design: u16,
+    stations: u16,
+    deviations: u16,
+    reports: u16,
+    findings: u16,
+    colour: Colour,
+}
+
+fn add<W: Write + Seek, E: Encode>(
+    mcap: &mut mcap::Writer<W>,
+    topic: &str,
+) -> Result<u16, mcap::McapError> {
+    let s = E::get_schema().expect("Foxglove's schemas are known");
+    let schema = mcap.add_schema(&s.name, &s.encoding, &s.data)?;
+    mcap.add_channel(schema, topic, &E::get_message_encoding(), &BTreeMap::new())
+}
+
+fn add_json<W: Write + Seek>(
+    mcap: &mut mcap::Writer<W>,
+    topic: &str,
+    name: &str,
+) -> Result<u16, mcap::McapError> {
+    let schema = mcap.add_schema(name, "jsonschema", br#"{"type":"object"}"#)?;
+    mcap.add_channel(schema, topic, "json", &BTreeMap::new())
+}
+
+impl FoxgloveChannels {
+    pub(crate) fn add<W: Write + Seek>(
+        mcap: &mut mcap::Writer<W>,
+        colour: Colour,
+    ) -> Result<Self, mcap::McapError> {
+        Ok(Self {
+            design: add::<_, SceneUpdate>(mcap, TOPIC_DESIGN)?,
+            stations: add::<_, FrameTransform>(mcap, TOPIC_STATIONS)?,
+            deviations: add::<_, PointCloud>(mcap, TOPIC_DEVIATIONS)?,
+            reports: add_json(mcap, TOPIC_REPORTS, "asbuilt.StationReport")?,
+            findings: add_json(mcap, TOPIC_FINDINGS, "asbuilt.StationFindings")?,
+            colour,
+        })
+    }
+
+    pub(crate) fn design_channel(&self) -> u16 {
+        self.design
+    }
+
+    /// The Foxglove message a recorded message also makes, with its channel; `None` for the
+    /// messages Foxglove is not shown (scan chunks, events, status).
+    pub(crate) fn message(&self, m: &Recorded) -> Option<(u16, Vec<u8>)> {
+        match m {
+            Recorded::Pose(p) => Some((self.stations, encode(&transform(p)))),
+            Recorded::Deviations(h, points) => Some((
+                self.deviations,
+                encode(&cloud(h.timestamp_ns, points, &self.colour)),
+            )),
+            Recorded::Report(r) => Some((self.reports, serde_json::to_vec(r).ok()?)),
+            Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
+            Recorded::Chunk(..) | Recorded::Event(_) | Recorded::Status(_) => None,
+        }
+    }
+}
+
+fn encode<E: Encode>(m: &E) -> Vec<u8> {
+    let mut buf = Vec::with_capacity(m.encoded_len().unwrap_or(256));
+    m.encode(&mut buf)
+        .expect("a growable buffer has room for any message");
+    buf
+}
+
+fn timestamp(ns: u64) -> Timestamp {
+    Timestamp::new(
+        (ns / 1_000_000_000).min(u32::MAX as u64) as u32,
+        (ns % 1_000_000_000) as u32,
+    )
+}
+
+/// The frame of a station's scanner.
+pub fn station_frame(job: u64, station: u32) -> String {
+    format!("station_{job}_{station}")
+}
+
+fn transform(p: &PoseSnapshot) -> FrameTransform {
+    let [x, y, z] = p.translation;
+    let [qx, qy, qz, qw] = p.rotation_xyzw;
+    FrameTransform {
+        timestamp: Some(timestamp(p.timestamp_ns)),
+        parent_frame_id: DESIGN_FRAME.into(),
+        child_frame_id: station_frame(p.job, p.station),
+        translation: Some(Vector3 { x, y, z }),
+        rotation: Some(Quaternion {
+            x: qx,
+            y: qy,
+            z: qz,
+            w: qw,
+        }),
+    }
+}
+
+/// A chunk's matched points in the design frame, coloured by their deviation; points without a
+/// match or rejected are left out.
+fn cloud(time_ns: u64, points: &[PointDeviation], colour: &Colour) -> PointCloud {
+    let field = |name: &str, offset: u32, t: NumericType| PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: t as i32,
+    };
+    let mut data = Vec::with_capacity(points.len() * POINT_STRIDE as usize);
+    for d in points {
+        if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
+            continue;
+        }
+        for v in d.position {
+            data.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+        data.extend_from_slice(&((d.distance * 1e3) as f32).to_le_bytes());
+        data.extend_from_slice(&colour(d.distance));
+        data.push(255);
+    }
+    PointCloud {
+        timestamp: Some(timestamp(time_ns)),
+        frame_id: DESIGN_FRAME.into(),
+        pose: Some(identity()),
+        point_stride: POINT_STRIDE,
+        fields: vec![
+            field("x", 0, NumericType::Float32),
+            field("y", 4, NumericType::Float32),
+            field("z", 8, NumericType::Float32),
+            field("distance_mm", 12, NumericType::Float32),
+            field("red", 16, NumericType::Uint8),
+            field("green", 17, NumericType::Uint8),
+            field("blue", 18, NumericType::Uint8),
+            field("alpha", 19, NumericType::Uint8),
+        ],
+        data: data.into(),
+    }
+}
+
+fn identity() -> Pose {
+    Pose {
+        position: Some(Vector3 {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+        }),
+        orientation: Some(Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            w: 1.0,
+        }),
+    }
+}
+
+/// The design as a grey triangle list in the design frame, metres.
+pub(crate) fn design_scene(time_ns: u64, vertices: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<u8> {
+    let entity = SceneEntity {
+        timestamp: Some(timestamp(time_ns)),
+        frame_id: DESIGN_FRAME.into(),
+        id: "design".into(),
+        triangles: vec![TriangleListPrimitive {
+            pose: Some(identity()),
+            points: vertices
+                .iter()
+                .map(|&[x, y, z]| foxglove::messages::Point3 { x, y, z })
+                .collect(),
+            color: Some(Color {
+                r: 0.75,
+                g: 0.75,
+                b: 0.75,
+                a: 0.6,
+            }),
+            colors: Vec::new(),
+            indices: triangles.iter().flatten().copied().collect(),
+        }],
+        ..Default::default()
+    };
+    encode(&SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![entity],
+    })
+}

@@ -13,6 +13,8 @@
 //!   alternating round by round with the first, so machine noise hits both; the ratio of their
 //!   medians is the recorder's cost. Afterwards its recording is read back and its scan chunks
 //!   counted against those sent.
+//! - Foxglove channels: a third agent records with `foxglove = true` too (the design, frames,
+//!   deviation-coloured points, JSON reports), in the same alternating rounds.
 //!
 //! Points: the bunny surface in scan-like order, plus Gaussian noise of σ 0.5 mm per axis, 65,536 per
 //! chunk, 4 M per station. Every round checks that the report is complete and nothing was dropped.
@@ -92,13 +94,15 @@ fn station(
     }
 }
 
-/// The agent, and the same agent with the recorder on, on their own prefixes.
+/// The agent, the same agent with the recorder on, and with Foxglove's channels too, on their
+/// own prefixes.
 fn start_agents(
     dir: &Path,
     mesh: &Path,
     prefix: &str,
     rec_prefix: &str,
-) -> (AgentProcess, AgentProcess) {
+    fox_prefix: &str,
+) -> (AgentProcess, AgentProcess, AgentProcess) {
     let config = dir.join("agent.toml");
     std::fs::write(
         &config,
@@ -121,7 +125,17 @@ fn start_agents(
     )
     .unwrap();
     let rec_agent = AgentProcess::start(&rec_config, Some(&dir.join("agent-rec.log")));
-    (agent, rec_agent)
+    let fox_config = dir.join("agent-fox.toml");
+    std::fs::write(
+        &fox_config,
+        std::fs::read_to_string(&config)
+            .unwrap()
+            .replace(prefix, fox_prefix)
+            + "[recorder]\ndir = \"recordings-fox\"\nfoxglove = true\n",
+    )
+    .unwrap();
+    let fox_agent = AgentProcess::start(&fox_config, Some(&dir.join("agent-fox.log")));
+    (agent, rec_agent, fox_agent)
 }
 
 /// The files a recording agent left in `dir`: how many, their bytes, and the scan and
@@ -160,7 +174,9 @@ fn main() {
     let dir = tempfile::tempdir().unwrap();
     let prefix = format!("asbuilt-bench/{}", std::process::id());
     let rec_prefix = format!("{prefix}-rec");
-    let (_agent, rec_agent) = start_agents(dir.path(), &mesh, &prefix, &rec_prefix);
+    let fox_prefix = format!("{prefix}-fox");
+    let (_agent, rec_agent, fox_agent) =
+        start_agents(dir.path(), &mesh, &prefix, &rec_prefix, &fox_prefix);
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
     let cell = CellPorts::open(
@@ -174,6 +190,13 @@ fn main() {
     let rec_cell = CellPorts::open(
         &node,
         &ServiceNames::new(&rec_prefix),
+        CHUNK,
+        Duration::from_secs(60),
+    )
+    .unwrap();
+    let fox_cell = CellPorts::open(
+        &node,
+        &ServiceNames::new(&fox_prefix),
         CHUNK,
         Duration::from_secs(60),
     )
@@ -214,37 +237,44 @@ fn main() {
             delay_max
         );
     }
-    run_on(&rec_cell, None); // warm-up of the recording agent
-    let mut off = Vec::new();
-    let mut on = Vec::new();
+    // Warm-up of the recording agents.
+    run_on(&rec_cell, None);
+    run_on(&fox_cell, None);
+    let (mut off, mut on, mut fox) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..rounds {
         off.push(run_on(&cell, None).0);
         on.push(run_on(&rec_cell, None).0);
+        fox.push(run_on(&fox_cell, None).0);
     }
-    let (off, on) = (median(off), median(on));
+    let (off, on, fox) = (median(off), median(on), median(fox));
     println!(
-        "recorder off {:.2} M points/s, on {:.2} M points/s (medians, alternating rounds): the \
-         recorder costs {:.1} %",
+        "recorder off {:.2} M points/s, on {:.2} M points/s, with Foxglove's channels {:.2} M \
+         points/s (medians, alternating rounds): the recorder costs {:.1} %, with Foxglove's \
+         channels {:.1} %",
         off / 1e6,
         on / 1e6,
-        100.0 * (1.0 - on / off)
+        fox / 1e6,
+        100.0 * (1.0 - on / off),
+        100.0 * (1.0 - fox / off)
     );
     let recorded_stations = rounds + 1;
-    // Stop the recording agent so it closes its file, then count what it kept.
-    let _ = Command::new("kill")
-        .arg("-TERM")
-        .arg(rec_agent.0.id().to_string())
-        .status();
-    let mut rec_agent = rec_agent;
-    let _ = rec_agent.0.wait();
-    let (files, bytes, chunks, deviations) = count_recorded(&dir.path().join("recordings"));
-    let sent = recorded_stations * points.len().div_ceil(CHUNK);
-    println!(
-        "recording: {} file(s), {:.0} MB, {chunks} of {sent} scan chunks and {deviations} \
-         deviation chunks kept",
-        files,
-        bytes as f64 / 1e6
-    );
+    // Stop the recording agents so they close their files, then count what they kept.
+    for (agent, sub) in [(rec_agent, "recordings"), (fox_agent, "recordings-fox")] {
+        let _ = Command::new("kill")
+            .arg("-TERM")
+            .arg(agent.0.id().to_string())
+            .status();
+        let mut agent = agent;
+        let _ = agent.0.wait();
+        let (files, bytes, chunks, deviations) = count_recorded(&dir.path().join(sub));
+        let sent = recorded_stations * points.len().div_ceil(CHUNK);
+        println!(
+            "{sub}: {} file(s), {:.0} MB, {chunks} of {sent} scan chunks and {deviations} \
+             deviation chunks kept",
+            files,
+            bytes as f64 / 1e6
+        );
+    }
     // Nothing dropped anywhere: the last status counts every input and output loss.
     print_last_status(&cell);
 }

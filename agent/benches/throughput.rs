@@ -237,14 +237,36 @@ fn main() {
             delay_max
         );
     }
+    recorder_cost(
+        &mut run_on,
+        [&cell, &rec_cell, &fox_cell],
+        [rec_agent, fox_agent],
+        dir.path(),
+        points.len(),
+        rounds,
+    );
+    // Nothing dropped anywhere: the last status counts every input and output loss.
+    print_last_status(&cell);
+}
+
+/// The same max-rate stations through the agent without a recorder, with one, and with
+/// Foxglove's channels too, in alternating rounds; then what each recording kept.
+fn recorder_cost(
+    run_on: &mut impl FnMut(&CellPorts, Option<f64>) -> (f64, f64),
+    [cell, rec_cell, fox_cell]: [&CellPorts; 3],
+    [rec_agent, fox_agent]: [AgentProcess; 2],
+    dir: &Path,
+    station_points: usize,
+    rounds: usize,
+) {
     // Warm-up of the recording agents.
-    run_on(&rec_cell, None);
-    run_on(&fox_cell, None);
+    run_on(rec_cell, None);
+    run_on(fox_cell, None);
     let (mut off, mut on, mut fox) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..rounds {
-        off.push(run_on(&cell, None).0);
-        on.push(run_on(&rec_cell, None).0);
-        fox.push(run_on(&fox_cell, None).0);
+        off.push(run_on(cell, None).0);
+        on.push(run_on(rec_cell, None).0);
+        fox.push(run_on(fox_cell, None).0);
     }
     let (off, on, fox) = (median(off), median(on), median(fox));
     println!(
@@ -266,8 +288,8 @@ fn main() {
             .status();
         let mut agent = agent;
         let _ = agent.0.wait();
-        let (files, bytes, chunks, deviations) = count_recorded(&dir.path().join(sub));
-        let sent = recorded_stations * points.len().div_ceil(CHUNK);
+        let (files, bytes, chunks, deviations) = count_recorded(&dir.join(sub));
+        let sent = recorded_stations * station_points.div_ceil(CHUNK);
         println!(
             "{sub}: {} file(s), {:.0} MB, {chunks} of {sent} scan chunks and {deviations} \
              deviation chunks kept",
@@ -275,8 +297,6 @@ fn main() {
             bytes as f64 / 1e6
         );
     }
-    // Nothing dropped anywhere: the last status counts every input and output loss.
-    print_last_status(&cell);
 }
 
 /// The agent's last status over three seconds, with what it dropped, if anything.

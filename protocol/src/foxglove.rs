@@ -8,6 +8,7 @@
 //! | [`TOPIC_STATIONS`] | `foxglove.FrameTransform` | each pose: [`DESIGN_FRAME`] → `station_<job>_<n>` |
 //! | [`TOPIC_DEVIATIONS`] | `foxglove.PointCloud` | each deviation chunk: design frame, `x y z distance_mm` (f32) and `red green blue alpha` (u8) |
 //! | [`TOPIC_REPORTS`], [`TOPIC_FINDINGS`] | JSON | each station report and findings |
+//! | [`TOPIC_SCANS`] (when asked for: `pack`) | `foxglove.PointCloud` | each scan chunk in its station's frame, `x y z intensity` (f32) |
 
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
@@ -26,6 +27,7 @@ pub const TOPIC_STATIONS: &str = "/foxglove/stations";
 pub const TOPIC_DEVIATIONS: &str = "/foxglove/deviations";
 pub const TOPIC_REPORTS: &str = "/foxglove/reports";
 pub const TOPIC_FINDINGS: &str = "/foxglove/findings";
+pub const TOPIC_SCANS: &str = "/foxglove/scans";
 /// The frame every point and the design are in; stations hang from it.
 pub const DESIGN_FRAME: &str = "design";
 /// Bytes of one point in a [`TOPIC_DEVIATIONS`] cloud.
@@ -41,6 +43,8 @@ pub(crate) struct FoxgloveChannels {
     deviations: u16,
     reports: u16,
     findings: u16,
+    /// Scan chunks too (a packed file has no deviations to show).
+    scans: Option<u16>,
     colour: Colour,
 }
 
@@ -73,8 +77,17 @@ impl FoxgloveChannels {
             deviations: add::<_, PointCloud>(mcap, TOPIC_DEVIATIONS)?,
             reports: add_json(mcap, TOPIC_REPORTS, "asbuilt.StationReport")?,
             findings: add_json(mcap, TOPIC_FINDINGS, "asbuilt.StationFindings")?,
+            scans: None,
             colour,
         })
+    }
+
+    pub(crate) fn add_scans<W: Write + Seek>(
+        &mut self,
+        mcap: &mut mcap::Writer<W>,
+    ) -> Result<(), mcap::McapError> {
+        self.scans = Some(add::<_, PointCloud>(mcap, TOPIC_SCANS)?);
+        Ok(())
     }
 
     pub(crate) fn design_channel(&self) -> u16 {
@@ -92,7 +105,11 @@ impl FoxgloveChannels {
             )),
             Recorded::Report(r) => Some((self.reports, serde_json::to_vec(r).ok()?)),
             Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
-            Recorded::Chunk(..) | Recorded::Event(_) | Recorded::Status(_) => None,
+            Recorded::Chunk(h, points) => Some((
+                self.scans?,
+                encode(&scan_cloud(h.timestamp_ns, h.job, h.station, points)),
+            )),
+            Recorded::Event(_) | Recorded::Status(_) => None,
         }
     }
 }
@@ -136,11 +153,6 @@ fn transform(p: &PoseSnapshot) -> FrameTransform {
 /// A chunk's matched points in the design frame, coloured by their deviation; points without a
 /// match or rejected are left out.
 fn cloud(time_ns: u64, points: &[PointDeviation], colour: &Colour) -> PointCloud {
-    let field = |name: &str, offset: u32, t: NumericType| PackedElementField {
-        name: name.into(),
-        offset,
-        r#type: t as i32,
-    };
     let mut data = Vec::with_capacity(points.len() * POINT_STRIDE as usize);
     for d in points {
         if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
@@ -167,6 +179,40 @@ fn cloud(time_ns: u64, points: &[PointDeviation], colour: &Colour) -> PointCloud
             field("green", 17, NumericType::Uint8),
             field("blue", 18, NumericType::Uint8),
             field("alpha", 19, NumericType::Uint8),
+        ],
+        data: data.into(),
+    }
+}
+
+fn field(name: &str, offset: u32, t: NumericType) -> PackedElementField {
+    PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: t as i32,
+    }
+}
+
+/// A scan chunk's valid points in its station's frame (the scanner's), with their intensity.
+fn scan_cloud(time_ns: u64, job: u64, station: u32, points: &[crate::ScanPoint]) -> PointCloud {
+    let mut data = Vec::with_capacity(points.len() * 16);
+    for p in points {
+        if p.flags.is_invalid() || !p.xyz.iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        for v in p.xyz.iter().chain([&p.intensity]) {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    PointCloud {
+        timestamp: Some(timestamp(time_ns)),
+        frame_id: station_frame(job, station),
+        pose: Some(identity()),
+        point_stride: 16,
+        fields: vec![
+            field("x", 0, NumericType::Float32),
+            field("y", 4, NumericType::Float32),
+            field("z", 8, NumericType::Float32),
+            field("intensity", 12, NumericType::Float32),
         ],
         data: data.into(),
     }

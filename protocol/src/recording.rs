@@ -290,6 +290,14 @@ impl<W: Write + Seek> RecordingWriter<W> {
         Ok(self)
     }
 
+    /// With Foxglove's channels, scan chunks too, each in its station's frame.
+    pub fn with_foxglove_scans(mut self) -> Result<Self, mcap::McapError> {
+        if let Some(f) = &mut self.foxglove {
+            f.add_scans(&mut self.mcap)?;
+        }
+        Ok(self)
+    }
+
     /// The design for Foxglove (metres, design frame); nothing without Foxglove's channels.
     pub fn foxglove_design(
         &mut self,

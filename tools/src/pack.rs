@@ -43,6 +43,10 @@ pub struct PackArgs {
     /// follows.
     #[arg(long, default_value_t = 1_000_000.0)]
     rate: f64,
+    /// Also write channels Foxglove shows: the design, each station's frame and its scan
+    /// points in that frame (see the README's Recordings section).
+    #[arg(long)]
+    foxglove: bool,
 }
 
 pub fn run(args: PackArgs) -> Result<ExitCode> {
@@ -56,10 +60,16 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
     let design = std::fs::read(&args.design)
         .with_context(|| format!("cannot read design {}", args.design.display()))?;
     // Refuse a design the agent could not load, before writing anything.
-    asbuilt_io::read_design(&args.design, args.units)?;
+    let mesh = asbuilt_io::read_design(&args.design, args.units)?;
     let file =
         File::create(&args.out).with_context(|| format!("cannot write {}", args.out.display()))?;
     let mut w = RecordingWriter::new(BufWriter::with_capacity(1 << 20, file))?;
+    if args.foxglove {
+        // A packed file has scans, not deviations: the colour scale is never used.
+        w = w
+            .with_foxglove(Box::new(|_| [255, 255, 255]))?
+            .with_foxglove_scans()?;
+    }
     let t0 = unix_time_ns();
     w.metadata(&JobMetadata {
         writer: "asbuilt pack".into(),
@@ -80,6 +90,11 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     w.attach_design(&name, &design, t0)?;
+    if args.foxglove {
+        let vertices: Vec<[f64; 3]> = mesh.vertices.iter().map(|v| [v.x, v.y, v.z]).collect();
+        w.foxglove_design(t0, &vertices, &mesh.triangles)?;
+    }
+    drop(mesh);
 
     let mut sent = 0u64;
     for (n, st) in stations.iter().enumerate() {

@@ -31,9 +31,13 @@ fn run(args: &[&str]) -> std::process::Output {
 }
 
 fn pack_bunny(out: &Path) {
+    pack_bunny_with(out, &[]);
+}
+
+fn pack_bunny_with(out: &Path, extra: &[&str]) {
     let design = shared_data().join("stanford-bunny/bun_zipper.ply");
     let stations = repo().join("examples/bunny/stations.toml");
-    run(&[
+    let mut args = vec![
         "pack",
         "--stations",
         stations.to_str().unwrap(),
@@ -45,7 +49,78 @@ fn pack_bunny(out: &Path) {
         "10000",
         "-o",
         out.to_str().unwrap(),
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    run(&args);
+}
+
+/// Each topic's messages, and each topic's schema name.
+type Topics = (BTreeMap<String, Vec<Vec<u8>>>, BTreeMap<String, String>);
+
+/// Messages of an MCAP file by topic, with each topic's schema name.
+fn by_topic(bytes: &[u8]) -> Topics {
+    let mut by_topic: BTreeMap<String, Vec<Vec<u8>>> = BTreeMap::new();
+    let mut schemas = BTreeMap::new();
+    for m in mcap::MessageStream::new(bytes).unwrap() {
+        let m = m.unwrap();
+        if let Some(s) = &m.channel.schema {
+            schemas.insert(m.channel.topic.clone(), s.name.clone());
+        }
+        by_topic
+            .entry(m.channel.topic.clone())
+            .or_default()
+            .push(m.data.into_owned());
+    }
+    (by_topic, schemas)
+}
+
+/// `pack --foxglove`: the design, a frame per station and every valid scan point in its
+/// station's frame, for Foxglove.
+#[test]
+fn a_packed_recording_with_foxglove_channels_shows_the_scans_in_their_frames() {
+    use asbuilt_protocol::foxglove as fx;
+    use foxglove::Decode;
+    use foxglove::messages::{FrameTransform, PointCloud};
+
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("bunny.mcap");
+    pack_bunny_with(&rec, &["--foxglove"]);
+    let bytes = std::fs::read(&rec).unwrap();
+    let (topics, schemas) = by_topic(&bytes);
+    assert_eq!(schemas[fx::TOPIC_SCANS], "foxglove.PointCloud");
+    assert_eq!(topics[fx::TOPIC_DESIGN].len(), 1);
+    let frames: Vec<String> = topics[fx::TOPIC_STATIONS]
+        .iter()
+        .map(|b| FrameTransform::decode(&b[..]).unwrap().child_frame_id)
+        .collect();
+    assert_eq!(frames.len(), 10);
+    let mut points = BTreeMap::<String, usize>::new();
+    for b in &topics[fx::TOPIC_SCANS] {
+        let c = PointCloud::decode(&b[..]).unwrap();
+        assert!(frames.contains(&c.frame_id), "{}", c.frame_id);
+        *points.entry(c.frame_id).or_default() += c.data.len() / c.point_stride as usize;
+    }
+    // Every valid point of the recorded chunks, in its own station's frame.
+    let mut valid = BTreeMap::<String, usize>::new();
+    for (_, m) in recording::messages(&bytes).unwrap().map(Result::unwrap) {
+        if let Recorded::Chunk(h, ps) = m {
+            *valid
+                .entry(fx::station_frame(h.job, h.station))
+                .or_default() += ps
+                .iter()
+                .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
+                .count();
+        }
+    }
+    assert_eq!(points, valid);
+    // Without the flag, none of it.
+    let plain = dir.path().join("plain.mcap");
+    pack_bunny(&plain);
+    let (topics, _) = by_topic(&std::fs::read(&plain).unwrap());
+    assert!(
+        topics.keys().all(|t| !t.starts_with("/foxglove")),
+        "{topics:?}"
+    );
 }
 
 /// `asbuilt inspect` on the bunny stations into `out`; its report.json.
@@ -399,27 +474,13 @@ fn a_recording_with_foxglove_channels_shows_the_design_stations_and_points() {
         .map(|e| e.unwrap().path())
         .next()
         .unwrap();
-    let bytes = std::fs::read(&file).unwrap();
-    let mut by_topic: BTreeMap<String, Vec<Vec<u8>>> = BTreeMap::new();
-    let mut schemas: BTreeMap<String, (String, String)> = BTreeMap::new();
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        if let Some(s) = &m.channel.schema {
-            schemas.insert(
-                m.channel.topic.clone(),
-                (s.name.clone(), s.encoding.clone()),
-            );
-        }
-        by_topic
-            .entry(m.channel.topic.clone())
-            .or_default()
-            .push(m.data.into_owned());
-    }
-    assert_eq!(schemas[fx::TOPIC_DESIGN].0, "foxglove.SceneUpdate");
-    assert_eq!(schemas[fx::TOPIC_STATIONS].0, "foxglove.FrameTransform");
-    assert_eq!(
-        schemas[fx::TOPIC_DEVIATIONS],
-        ("foxglove.PointCloud".into(), "protobuf".into())
+    let (by_topic, schemas) = by_topic(&std::fs::read(&file).unwrap());
+    assert_eq!(schemas[fx::TOPIC_DESIGN], "foxglove.SceneUpdate");
+    assert_eq!(schemas[fx::TOPIC_STATIONS], "foxglove.FrameTransform");
+    assert_eq!(schemas[fx::TOPIC_DEVIATIONS], "foxglove.PointCloud");
+    assert!(
+        !by_topic.contains_key(fx::TOPIC_SCANS),
+        "the agent shows deviations, not scans"
     );
 
     // The design: one scene of the bunny's 69,451 triangles.

@@ -373,6 +373,8 @@ pub struct MapCollector {
     spacing: f64,
     stations: FxHashMap<(u64, u32), Sides>,
     layers: BTreeMap<LayerKey, ScanLayerMaps>,
+    /// A chunk's points (design frame) and distances, side by side, reused chunk after chunk.
+    by_side: [Vec<([f64; 3], f64)>; 5],
 }
 
 impl MapCollector {
@@ -398,6 +400,7 @@ impl MapCollector {
             spacing,
             stations: FxHashMap::default(),
             layers: BTreeMap::new(),
+            by_side: Default::default(),
         }
     }
 
@@ -409,15 +412,26 @@ impl MapCollector {
             .stations
             .entry(station)
             .or_insert_with(|| Sides::new(&frame));
-        // One task per side: the rasters are apart, and the marks of a chunk in no spatial order
+        // The points are sorted by side in one pass, then each side's raster is marked by a
+        // task of its own: the rasters are apart, and the marks of a chunk in no spatial order
         // scatter over megabytes, so the cores share both the work and the cache.
-        sides.rasters.par_iter_mut().for_each(|raster| {
-            for d in devs {
-                if side_of(facing, d) == Some(raster.side) {
-                    raster.mark(d.position, Mark::Value(d.distance), frame.pixel, 0);
-                }
+        for b in &mut self.by_side {
+            b.clear();
+        }
+        for d in devs {
+            if let Some(side) = side_of(facing, d) {
+                self.by_side[side as usize].push((d.position, d.distance));
             }
-        });
+        }
+        sides
+            .rasters
+            .par_iter_mut()
+            .zip(self.by_side.par_iter())
+            .for_each(|(raster, points)| {
+                for &(p, d) in points {
+                    raster.mark(p, Mark::Value(d), frame.pixel, 0);
+                }
+            });
     }
 
     fn layer(&mut self, job: u64, printed_height: f64) -> &mut ScanLayerMaps {

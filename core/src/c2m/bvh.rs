@@ -262,13 +262,47 @@ impl Bvh {
 
     /// Every triangle whose distance to `p` is at most `radius`, with that distance.
     pub fn within(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            return unsafe { self.within_avx2(mesh, p, radius, out) };
+        }
+        self.within_in_lanes(mesh, p, radius, out)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn within_avx2(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
+        self.within_in_lanes(mesh, p, radius, out)
+    }
+
+    /// A leaf's triangles measured four at a time.
+    #[inline(always)]
+    fn within_in_lanes(
+        &self,
+        mesh: &Mesh,
+        p: &Point3<f64>,
+        radius: f64,
+        out: &mut Vec<(u32, f64)>,
+    ) {
+        const L: usize = 4;
         let r2 = radius * radius;
-        self.visit(
+        let mut lanes = Lanes::<L>::default();
+        self.visit_leaves(
             |n| box_dist2(n, p) <= r2,
-            |t| {
-                let d = (p - mesh.triangle(t as usize).closest_point(p).0).norm();
-                if d <= radius {
-                    out.push((t, d));
+            |leaf| {
+                for first in leaf.clone().step_by(L) {
+                    let m = (leaf.end - first).min(L);
+                    for l in 0..m {
+                        lanes.set(l, &mesh.triangle(first + l));
+                    }
+                    let d2 = lanes.dist2(p);
+                    for (l, &d2) in d2[..m].iter().enumerate() {
+                        let d = d2.sqrt();
+                        if d <= radius {
+                            out.push(((first + l) as u32, d));
+                        }
+                    }
                 }
                 false
             },
@@ -300,6 +334,16 @@ impl Bvh {
     /// Hands every triangle of every leaf reached through nodes that `enter` accepts to `leaf`,
     /// until `leaf` says it is done; returns whether it did.
     fn visit(&self, enter: impl Fn(&Node) -> bool, mut leaf: impl FnMut(u32) -> bool) -> bool {
+        self.visit_leaves(enter, |r| r.map(|t| t as u32).any(&mut leaf))
+    }
+
+    /// [`Bvh::visit`] a leaf (its range of internal triangles) at a time.
+    #[inline(always)]
+    fn visit_leaves(
+        &self,
+        enter: impl Fn(&Node) -> bool,
+        mut leaf: impl FnMut(std::ops::Range<usize>) -> bool,
+    ) -> bool {
         let mut stack = [0u32; 64];
         let mut top = 1usize;
         while top > 0 {
@@ -310,7 +354,8 @@ impl Bvh {
                 continue;
             }
             if node.count > 0 {
-                if (node.start..node.start + node.count).any(&mut leaf) {
+                let s = node.start as usize;
+                if leaf(s..s + node.count as usize) {
                     return true;
                 }
             } else {

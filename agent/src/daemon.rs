@@ -2,11 +2,12 @@
 //! queues into the station lifecycle, and on a fixed tick close silent stations, clean up after
 //! dead publishers and publish the agent's status.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use asbuilt_core::C2mParams;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
+use asbuilt_core::{C2mParams, Design};
 use asbuilt_protocol::{
     AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
     PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
@@ -245,10 +246,11 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let (designs, design_view) = load_designs(config, started)?;
     let (node, ports, dead_nodes) = open_ports(config)?;
     let limits = &config.limits;
+    let design = designs.whole_design().clone();
     let mut lifecycle = make_lifecycle(config, designs);
     let mut out = IpcOutputs {
         ports: &ports,
-        recorder: start_recorder(config)?,
+        recorder: start_recorder(config, design)?,
         viewer: start_viewer(config, design_view)?,
         shown: Default::default(),
         frames: &config.frames,
@@ -423,13 +425,17 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> Lifecycle<Ch
     lifecycle
 }
 
-fn start_recorder(config: &AgentConfig) -> Result<Option<Recorder>, AgentError> {
+fn start_recorder(
+    config: &AgentConfig,
+    design: Arc<Design>,
+) -> Result<Option<Recorder>, AgentError> {
     Ok(match &config.recorder.dir {
         Some(dir) => {
             let r = Recorder::start(
                 &config.recorder,
                 job_metadata(config),
                 &config.design.path,
+                design,
                 config.inspect.tolerance,
             )
             .map_err(|source| AgentError::Recorder {

@@ -21,7 +21,7 @@ use asbuilt_protocol::{
     StationEvent, StationFindings, StationReport, unix_time_ns,
 };
 
-use asbuilt_core::Units;
+use asbuilt_core::Design;
 use asbuilt_core::colour::deviation_colour;
 
 use crate::config::RecorderConfig;
@@ -68,12 +68,14 @@ pub struct Recorder {
 
 impl Recorder {
     /// Starts the writer thread. `design` is attached to every file with `meta`.
-    /// `meta`'s design hash is filled from the bytes attached, read once here. `tolerance`
-    /// sets the colour scale of the Foxglove points.
+    /// `meta`'s design hash is filled from the bytes attached, read once here. With Foxglove's
+    /// channels, `mesh` (the design as the agent read it) is shown and `tolerance` sets the
+    /// points' colour scale.
     pub fn start(
         cfg: &RecorderConfig,
         mut meta: JobMetadata,
         design: &Path,
+        mesh: Arc<Design>,
         tolerance: f64,
     ) -> std::io::Result<Self> {
         use sha2::{Digest, Sha256};
@@ -101,10 +103,7 @@ impl Recorder {
             counters: counters.clone(),
             disk_low: disk_low.clone(),
             file: None,
-            foxglove: cfg.foxglove.then_some(Foxglove {
-                tolerance,
-                mesh: None,
-            }),
+            foxglove: cfg.foxglove.then_some(Foxglove { tolerance, mesh }),
         };
         // Before the first chunk can be offered: a disk that is already full must keep it out.
         writer.check_disk();
@@ -320,15 +319,11 @@ struct Writer {
     foxglove: Option<Foxglove>,
 }
 
-/// What the Foxglove channels need besides the messages: the colour scale and the design as a
-/// mesh, read from the attached bytes by the writer (off the event loop) when it starts.
+/// What the Foxglove channels need besides the messages: the colour scale and the design.
 struct Foxglove {
     tolerance: f64,
-    mesh: Option<DesignMesh>,
+    mesh: Arc<Design>,
 }
-
-/// Vertices (metres, design frame) and triangles.
-type DesignMesh = (Vec<[f64; 3]>, Vec<[u32; 3]>);
 
 fn job_of(m: &Recorded) -> Option<u64> {
     match m {
@@ -345,7 +340,6 @@ fn job_of(m: &Recorded) -> Option<u64> {
 impl Writer {
     fn run(mut self, rx: Receiver<Item>) {
         self.check_disk();
-        self.read_design_for_foxglove();
         let mut since_check = 0u32;
         while let Ok(item) = rx.recv() {
             let asbuilt = matches!(item, Item::Message(..));
@@ -432,30 +426,6 @@ impl Writer {
         .map_err(|e| e.to_string())
     }
 
-    /// The design as a mesh for Foxglove, from the attached bytes; without it (a file that does
-    /// not read) the Foxglove channels carry everything but the design.
-    fn read_design_for_foxglove(&mut self) {
-        let Some(f) = &mut self.foxglove else {
-            return;
-        };
-        let read = self
-            .meta
-            .design_units
-            .parse::<Units>()
-            .map_err(|e| e.to_string())
-            .and_then(|units| {
-                asbuilt_io::read_design_bytes(&self.design, &self.design_name, units)
-                    .map_err(|e| e.to_string())
-            });
-        match read {
-            Ok(d) => {
-                let vertices = d.vertices.iter().map(|v| [v.x, v.y, v.z]).collect();
-                f.mesh = Some((vertices, d.triangles));
-            }
-            Err(e) => warn!("recorder: the design cannot be shown in Foxglove: {e}"),
-        }
-    }
-
     fn open(&mut self, job: u64, part: u32) -> Result<(), String> {
         let stamp = unix_time_ns() / 1_000_000_000;
         let name = if part == 1 {
@@ -485,9 +455,10 @@ impl Writer {
         writer
             .attach_design(&self.design_name, &self.design, now)
             .map_err(|e| e.to_string())?;
-        if let Some((vertices, triangles)) = self.foxglove.as_ref().and_then(|f| f.mesh.as_ref()) {
+        if let Some(f) = &self.foxglove {
+            let vertices = f.mesh.vertices.iter().map(|v| [v.x, v.y, v.z]);
             writer
-                .foxglove_design(now, vertices, triangles)
+                .foxglove_design(now, vertices, &f.mesh.triangles)
                 .map_err(|e| e.to_string())?;
         }
         writer.flush().map_err(|e| e.to_string())?;

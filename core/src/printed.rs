@@ -259,7 +259,6 @@ impl Preparer {
                     if let (Some(b), Some(s)) = (below, &d.section) {
                         let _ = d.mesh.set(b.with_section(s));
                     }
-                    d.design();
                 },
                 || {
                     d.sharp_edges();
@@ -309,6 +308,11 @@ impl PrintedDesigns {
 
     pub fn full(&self) -> &Arc<PrintedDesign> {
         &self.full
+    }
+
+    /// The whole design as read, shared (for those who show it).
+    pub fn whole_design(&self) -> &Arc<Design> {
+        &self.preparer.full
     }
 
     pub fn preparer(&self) -> Preparer {

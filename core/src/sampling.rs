@@ -48,14 +48,11 @@ impl DesignSamples {
             return Err(SamplingError::Spacing(spacing));
         }
         // The triangles' areas in parallel; the draws below are one seeded sequence and stay in
-        // order. Same operations as `Design::surface_area`, summed in the same order: same bits.
+        // order. Summed in order, as `Design::surface_area` sums them: same bits.
         let areas: Vec<f64> = design
             .triangles
             .par_iter()
-            .map(|tri| {
-                let [a, b, c] = tri.map(|i| design.vertices[i as usize]);
-                0.5 * (b - a).cross(&(c - a)).norm()
-            })
+            .map(|t| design.triangle_area(t))
             .collect();
         let area: f64 = areas.iter().sum();
         let expected = area / (spacing * spacing);

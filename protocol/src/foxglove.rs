@@ -235,7 +235,11 @@ fn identity() -> Pose {
 }
 
 /// The design as a grey triangle list in the design frame, metres.
-pub(crate) fn design_scene(time_ns: u64, vertices: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<u8> {
+pub(crate) fn design_scene(
+    time_ns: u64,
+    vertices: impl IntoIterator<Item = [f64; 3]>,
+    triangles: &[[u32; 3]],
+) -> Vec<u8> {
     let entity = SceneEntity {
         timestamp: Some(timestamp(time_ns)),
         frame_id: DESIGN_FRAME.into(),
@@ -243,8 +247,8 @@ pub(crate) fn design_scene(time_ns: u64, vertices: &[[f64; 3]], triangles: &[[u3
         triangles: vec![TriangleListPrimitive {
             pose: Some(identity()),
             points: vertices
-                .iter()
-                .map(|&[x, y, z]| foxglove::messages::Point3 { x, y, z })
+                .into_iter()
+                .map(|[x, y, z]| foxglove::messages::Point3 { x, y, z })
                 .collect(),
             color: Some(Color {
                 r: 0.75,

@@ -302,7 +302,7 @@ impl<W: Write + Seek> RecordingWriter<W> {
     pub fn foxglove_design(
         &mut self,
         time: u64,
-        vertices: &[[f64; 3]],
+        vertices: impl IntoIterator<Item = [f64; 3]>,
         triangles: &[[u32; 3]],
     ) -> Result<(), mcap::McapError> {
         let Some(f) = &self.foxglove else {

@@ -90,10 +90,8 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     w.attach_design(&name, &design, t0)?;
-    if args.foxglove {
-        let vertices: Vec<[f64; 3]> = mesh.vertices.iter().map(|v| [v.x, v.y, v.z]).collect();
-        w.foxglove_design(t0, &vertices, &mesh.triangles)?;
-    }
+    let vertices = mesh.vertices.iter().map(|v| [v.x, v.y, v.z]);
+    w.foxglove_design(t0, vertices, &mesh.triangles)?;
     drop(mesh);
 
     let mut sent = 0u64;

@@ -9,7 +9,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::mesh::Mesh;
-use super::triangle::{Lanes, has_avx2};
+use super::triangle::{Lanes, with_avx2};
 
 const LEAF_SIZE: usize = 8;
 /// Below this many triangles a subtree is built on one thread.
@@ -147,26 +147,7 @@ impl Bvh {
         hint: Option<u32>,
         filter: &F,
     ) -> Option<(u32, f64)> {
-        #[cfg(target_arch = "x86_64")]
-        if has_avx2() {
-            // SAFETY: the CPU has AVX2.
-            return unsafe { self.closest_avx2(mesh, p, limit2, hint, filter) };
-        }
-        self.closest_in_lanes(mesh, p, limit2, hint, filter)
-    }
-
-    /// [`Bvh::closest`] with a leaf's lanes in 256-bit registers (no FMA: the same bits).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn closest_avx2<F: Filter>(
-        &self,
-        mesh: &Mesh,
-        p: &Point3<f64>,
-        limit2: f64,
-        hint: Option<u32>,
-        filter: &F,
-    ) -> Option<(u32, f64)> {
-        self.closest_in_lanes(mesh, p, limit2, hint, filter)
+        with_avx2(|| self.closest_in_lanes(mesh, p, limit2, hint, filter))
     }
 
     /// The descent, a leaf's triangles measured four at a time.
@@ -262,18 +243,7 @@ impl Bvh {
 
     /// Every triangle whose distance to `p` is at most `radius`, with that distance.
     pub fn within(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
-        #[cfg(target_arch = "x86_64")]
-        if has_avx2() {
-            // SAFETY: the CPU has AVX2.
-            return unsafe { self.within_avx2(mesh, p, radius, out) };
-        }
-        self.within_in_lanes(mesh, p, radius, out)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn within_avx2(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
-        self.within_in_lanes(mesh, p, radius, out)
+        with_avx2(|| self.within_in_lanes(mesh, p, radius, out))
     }
 
     /// A leaf's triangles measured four at a time.

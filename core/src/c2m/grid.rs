@@ -21,7 +21,7 @@ use rustc_hash::FxHashMap;
 
 use super::bvh::Bvh;
 use super::mesh::Mesh;
-use super::triangle::{Lanes, has_avx2};
+use super::triangle::{Lanes, with_avx2};
 
 /// Cells per axis are addressed with 21 bits each, packed into one u64 key.
 const AXIS_BITS: u32 = 21;
@@ -241,26 +241,7 @@ impl Grid {
         c: &Point3<f64>,
         p: &Point3<f64>,
     ) -> (u32, f64) {
-        #[cfg(target_arch = "x86_64")]
-        if has_avx2() {
-            // SAFETY: the CPU has AVX2.
-            return unsafe { self.closest_avx2(mesh, cell, c, p) };
-        }
-        self.closest_in_lanes(mesh, cell, c, p)
-    }
-
-    /// [`Grid::closest`] with the lanes in 256-bit registers. No FMA: the bits are those of
-    /// the scalar path.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn closest_avx2(
-        &self,
-        mesh: &Mesh,
-        cell: &Cell,
-        c: &Point3<f64>,
-        p: &Point3<f64>,
-    ) -> (u32, f64) {
-        self.closest_in_lanes(mesh, cell, c, p)
+        with_avx2(|| self.closest_in_lanes(mesh, cell, c, p))
     }
 
     /// Candidates four at a time, nearest to the cell's centre first, until the next four
@@ -281,10 +262,10 @@ impl Grid {
         let mut best: Option<(u32, f64)> = None;
         // A margin of rounding keeps a triangle that ties from being cut off.
         let mut stop = f64::INFINITY;
+        let mut lanes = Lanes::<L>::default();
         let mut i = 0;
         while i < n && dist[i] as f64 * self.step - dc <= stop {
             let m = (n - i).min(L);
-            let mut lanes = Lanes::<L>::default();
             for (l, &t) in cand[i..i + m].iter().enumerate() {
                 lanes.set(l, &mesh.triangle(t as usize));
             }

@@ -133,6 +133,23 @@ pub(crate) fn has_avx2() -> bool {
     false
 }
 
+/// Runs `f` compiled for AVX2 where the CPU has it, so that the lanes fill 256-bit registers,
+/// and as it is elsewhere. `f` is inlined into the AVX2 body, and with it what it calls with
+/// `#[inline(always)]`. No FMA is enabled: both give the same bits.
+#[inline(always)]
+pub(crate) fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        #[target_feature(enable = "avx2")]
+        fn run<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        // SAFETY: the CPU has AVX2.
+        return unsafe { run(f) };
+    }
+    f()
+}
+
 /// `N` triangles side by side, coordinate by coordinate, so that their distances to a point are
 /// measured together (the compiler turns the lanes into vector instructions).
 #[derive(Debug, Clone, Copy)]

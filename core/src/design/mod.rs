@@ -192,13 +192,14 @@ impl Design {
     }
 
     pub fn surface_area(&self) -> f64 {
-        self.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| self.vertices[i as usize]);
-                0.5 * (b - a).cross(&(c - a)).norm()
-            })
-            .sum()
+        self.triangles.iter().map(|t| self.triangle_area(t)).sum()
+    }
+
+    /// Area of triangle `t` (vertex ids of this design), m².
+    #[inline]
+    pub fn triangle_area(&self, t: &[u32; 3]) -> f64 {
+        let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+        0.5 * (b - a).cross(&(c - a)).norm()
     }
 
     /// Edges where the surface turns by more than `min_angle_deg` (the faces' normals), and

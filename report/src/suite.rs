@@ -104,6 +104,103 @@ impl SuiteConfig {
     }
 }
 
+/// The suite's parameters as a user gives them, `None` for the default: `asbuilt inspect`'s
+/// flags and the Python package's keywords both resolve here, so they mean the same when left
+/// out.
+#[derive(Debug, Clone, Default)]
+pub struct SuiteOptions {
+    /// C2M runs whatever is listed.
+    pub methods: Vec<Method>,
+    pub tolerance: f64,
+    /// Default 10 × tolerance.
+    pub max_distance: Option<f64>,
+    pub spacing: f64,
+    /// Default twice the spacing, at most half the layer height.
+    pub projection_diameter: Option<f64>,
+    /// Default the maximum distance.
+    pub max_depth: Option<f64>,
+    /// Default the projection diameter.
+    pub normal_diameter: Option<f64>,
+    /// Default max(3 mm, tolerance / 2), at most the maximum distance; given, used as it is.
+    pub coverage_threshold: Option<f64>,
+    /// The scanner's angular step, milliradians; without it the spacing is measured.
+    pub scanner_step_mrad: Option<f64>,
+    pub layer_height: Option<f64>,
+    pub printed_height: Option<f64>,
+    pub reference: Option<PathBuf>,
+    pub local_plane: Option<usize>,
+}
+
+impl SuiteOptions {
+    /// The options checked and their defaults resolved.
+    pub fn resolve(&self) -> Result<SuiteConfig> {
+        if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
+            bail!(
+                "the tolerance must be a positive number of metres, got {}",
+                self.tolerance
+            );
+        }
+        for (name, v) in [
+            ("max distance", self.max_distance),
+            ("spacing", Some(self.spacing)),
+            ("projection diameter", self.projection_diameter),
+            ("max depth", self.max_depth),
+            ("normal diameter", self.normal_diameter),
+            ("coverage threshold", self.coverage_threshold),
+            ("scanner step", self.scanner_step_mrad),
+            ("layer height", self.layer_height),
+        ] {
+            if let Some(v) = v
+                && !(v > 0.0 && v.is_finite())
+            {
+                bail!("the {name} must be a positive number, got {v}");
+            }
+        }
+        let mut methods = self.methods.clone();
+        methods.push(Method::C2m);
+        methods.sort();
+        methods.dedup();
+        if self.reference.is_some()
+            && !methods
+                .iter()
+                .any(|m| matches!(m, Method::C2c | Method::M3c2))
+        {
+            bail!(
+                "a reference cloud is for C2C and two-cloud M3C2: add c2c or m3c2 to the methods"
+            );
+        }
+        let max_distance = self.max_distance.unwrap_or(10.0 * self.tolerance);
+        let coverage_threshold = self
+            .coverage_threshold
+            .unwrap_or_else(|| defaults::coverage_threshold(self.tolerance))
+            .min(max_distance);
+        let projection_diameter = self
+            .projection_diameter
+            .unwrap_or_else(|| defaults::projection_diameter(self.spacing, self.layer_height));
+        let coverage_spacing = match (self.scanner_step_mrad, self.coverage_threshold) {
+            (Some(step), _) => ScanSpacing::AngularStep(step * 1e-3),
+            (None, Some(_)) => ScanSpacing::Fixed,
+            (None, None) => ScanSpacing::Measured,
+        };
+        Ok(SuiteConfig {
+            methods,
+            tolerance: self.tolerance,
+            spacing: self.spacing,
+            projection_diameter,
+            max_depth: self.max_depth.unwrap_or(max_distance),
+            normal_diameter: self.normal_diameter.unwrap_or(projection_diameter),
+            coverage_threshold,
+            coverage_spacing,
+            reach: max_distance,
+            layer_height: self.layer_height,
+            printed_height: self.printed_height,
+            reference: self.reference.clone(),
+            local_plane: self.local_plane,
+            seed: defaults::SAMPLE_SEED,
+        })
+    }
+}
+
 /// Unsigned or signed distance statistics of one method. Metres.
 #[derive(Debug, Serialize)]
 pub struct DistanceSection {

@@ -17,7 +17,7 @@ use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
 use asbuilt_report::maps::MapCollector;
-use asbuilt_report::suite::{self, Method, Methods, Suite, SuiteConfig};
+use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
@@ -143,63 +143,35 @@ struct Plan {
     args: InspectArgs,
     /// The verdicts' limits: --tolerance for every kind, then each --limit.
     limits: asbuilt_core::verdict::Limits,
-    methods: Vec<Method>,
-    max_distance: f64,
-    projection_diameter: f64,
-    coverage_threshold: f64,
-    max_depth: f64,
+    /// The methods and their parameters, defaults resolved as the Python package resolves them.
+    suite: SuiteConfig,
     stations: Vec<Station>,
 }
 
 impl Plan {
     fn check(args: InspectArgs) -> Result<Self> {
-        if !(args.tolerance > 0.0 && args.tolerance.is_finite()) {
-            bail!(
-                "--tolerance must be a positive number of metres, got {}",
-                args.tolerance
-            );
+        let suite = SuiteOptions {
+            methods: args.method.0.clone(),
+            tolerance: args.tolerance,
+            max_distance: args.max_distance,
+            spacing: args.spacing,
+            projection_diameter: args.projection_diameter,
+            max_depth: args.max_depth,
+            normal_diameter: args.normal_diameter,
+            coverage_threshold: args.coverage_threshold,
+            scanner_step_mrad: args.scanner_step_mrad,
+            layer_height: args.layer_height,
+            printed_height: args.printed_height,
+            reference: args.reference.clone(),
+            local_plane: args.local_plane,
         }
-        let positive = |name: &str, v: Option<f64>| -> Result<()> {
-            match v {
-                Some(v) if !(v > 0.0 && v.is_finite()) => {
-                    bail!("{name} must be a positive number of metres, got {v}")
-                }
-                _ => Ok(()),
-            }
-        };
-        positive("--spacing", Some(args.spacing))?;
-        positive("--projection-diameter", args.projection_diameter)?;
-        positive("--max-depth", args.max_depth)?;
-        positive("--normal-diameter", args.normal_diameter)?;
-        positive("--coverage-threshold", args.coverage_threshold)?;
-        positive("--scanner-step-mrad", args.scanner_step_mrad)?;
-        positive("--layer-height", args.layer_height)?;
-        let mut methods: Vec<Method> = args.method.0.clone();
-        methods.push(Method::C2m);
-        methods.sort();
-        methods.dedup();
-        if args.reference.is_some()
-            && !methods
-                .iter()
-                .any(|m| matches!(m, Method::C2c | Method::M3c2))
-        {
-            bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
-        }
-        let max_distance = args.max_distance.unwrap_or(10.0 * args.tolerance);
+        .resolve()
+        .context("check the command's flags (--tolerance, --spacing, --method, ...)")?;
         let stations = match (&args.stations, &args.scan) {
             (Some(path), _) => stations::load(path)?,
             (None, Some(scan)) => single_station(&args, scan)?,
             (None, None) => bail!("give --stations FILE or --scan FILE"),
         };
-        let coverage_threshold = args
-            .coverage_threshold
-            .unwrap_or_else(|| {
-                asbuilt_core::scan_layer::defaults::coverage_threshold(args.tolerance)
-            })
-            .min(max_distance);
-        let projection_diameter = args.projection_diameter.unwrap_or_else(|| {
-            asbuilt_core::scan_layer::defaults::projection_diameter(args.spacing, args.layer_height)
-        });
         let mut limits = asbuilt_core::verdict::Limits::from_tolerance(args.tolerance);
         for l in &args.limits {
             limits.set(*l);
@@ -209,34 +181,10 @@ impl Plan {
             .map_err(|e| anyhow::anyhow!("--limit: {e}"))?;
         Ok(Self {
             limits,
-            max_depth: args.max_depth.unwrap_or(max_distance),
-            projection_diameter,
-            methods,
-            max_distance,
-            coverage_threshold,
+            suite,
             stations,
             args,
         })
-    }
-
-    fn suite_config(&self) -> SuiteConfig {
-        let args = &self.args;
-        SuiteConfig {
-            methods: self.methods.clone(),
-            tolerance: args.tolerance,
-            spacing: args.spacing,
-            projection_diameter: self.projection_diameter,
-            max_depth: self.max_depth,
-            normal_diameter: args.normal_diameter.unwrap_or(self.projection_diameter),
-            coverage_threshold: self.coverage_threshold,
-            coverage_spacing: coverage_spacing(args),
-            reach: self.max_distance,
-            layer_height: args.layer_height,
-            printed_height: args.printed_height,
-            reference: args.reference.clone(),
-            local_plane: args.local_plane,
-            seed: 1,
-        }
     }
 }
 
@@ -324,7 +272,7 @@ impl Job {
             .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
         let ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
         let (lo, hi) = design.bounds();
-        let suite = Suite::new(&design, plan.suite_config())?;
+        let suite = Suite::new(&design, plan.suite.clone())?;
         let viewer = start_viewer(args, &design)?;
         // The design's counts are all the report needs of it from here: the index takes it over.
         let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
@@ -332,7 +280,7 @@ impl Job {
         let index = C2mIndex::from_design(
             design,
             C2mParams {
-                max_distance: plan.max_distance,
+                max_distance: plan.suite.reach,
                 cell_size: None,
             },
         )?;
@@ -509,7 +457,7 @@ impl Job {
             warnings.push(format!(
                 "no point matched the design within {} m: check the poses, --units and \
                  --max-distance",
-                plan.max_distance
+                plan.suite.reach
             ));
         }
         let ix = &self.facts.index;
@@ -527,18 +475,18 @@ impl Job {
             },
             parameters: Parameters {
                 tolerance_m: args.tolerance,
-                max_distance_m: plan.max_distance,
+                max_distance_m: plan.suite.reach,
                 histogram_range_m: self.params.stats.histogram_range,
                 spacing_m: args.spacing,
-                coverage_threshold_m: plan.coverage_threshold,
-                coverage_spacing: describe_spacing(coverage_spacing(args)),
-                projection_diameter_m: plan.projection_diameter,
-                max_depth_m: plan.max_depth,
+                coverage_threshold_m: plan.suite.coverage_threshold,
+                coverage_spacing: describe_spacing(plan.suite.coverage_spacing),
+                projection_diameter_m: plan.suite.projection_diameter,
+                max_depth_m: plan.suite.max_depth,
                 printed_height_m: args.printed_height,
                 layer_height_m: args.layer_height,
                 reference: args.reference.as_ref().map(|p| p.display().to_string()),
             },
-            methods: plan.methods.iter().map(|m| m.name()).collect(),
+            methods: plan.suite.methods.iter().map(|m| m.name()).collect(),
             stations: self.sections,
             overall,
             layers: totals.layers,
@@ -834,14 +782,6 @@ fn format_ratio(r: f64) -> String {
 /// One line per station for the methods beside C2M, in millimetres and square centimetres.
 /// A threshold given by hand is used as it is; else it is raised to the scan's spacing, from
 /// the scanner's step when given, measured per station otherwise.
-fn coverage_spacing(args: &InspectArgs) -> ScanSpacing {
-    match (args.scanner_step_mrad, args.coverage_threshold) {
-        (Some(step), _) => ScanSpacing::AngularStep(step * 1e-3),
-        (None, Some(_)) => ScanSpacing::Fixed,
-        (None, None) => ScanSpacing::Measured,
-    }
-}
-
 fn describe_spacing(s: ScanSpacing) -> String {
     match s {
         ScanSpacing::Fixed => "fixed".into(),

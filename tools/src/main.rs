@@ -1,126 +1,16 @@
-//! `asbuilt`: the command line. Thin: every computation lives in asbuilt-core.
+//! `asbuilt`: the command line. Thin: the commands are `asbuilt-tools`' library, every
+//! computation lives in asbuilt-core.
 
-mod calibrate;
-mod convert;
-mod demo;
-mod inspect;
-mod maps_png;
-mod pack;
-mod publish;
-mod recording_file;
-mod recover;
-mod replay;
-mod report_cmd;
-mod sim_cmd;
-mod stations;
-
-use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
-
-#[derive(Parser)]
-#[command(
-    name = "asbuilt",
-    version,
-    about = "Geometric inspection for construction 3D printing"
-)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Subcommand)]
-enum Command {
-    /// The whole system on a simulated print cell: an agent, a printing robot with a scanner,
-    /// the recording, the rerun view and the report, in out/demo/.
-    Demo(Box<demo::DemoArgs>),
-    /// Publish a simulated print job (a part printed with defects, scanned by a robot-mounted
-    /// scanner) to a running agent.
-    Sim(Box<sim_cmd::SimArgs>),
-    /// Run the agent in this process, as `asbuilt-agent --config FILE` does.
-    Agent {
-        /// The agent configuration (TOML); see agent/agent.example.toml.
-        #[arg(long, short)]
-        config: PathBuf,
-    },
-    /// Compare scans with the design: signed distances per point, statistics per station.
-    Inspect(Box<inspect::InspectArgs>),
-    /// Estimate t_design_base or t_flange_scanner from sphere targets with known centres.
-    Calibrate(calibrate::CalibrateArgs),
-    /// Convert scan files (E57, LAS/LAZ, PTX, PLY, XYZ) into one file of another format.
-    Convert(convert::ConvertArgs),
-    /// Stream scans with known poses into a running asbuilt-agent, station by station.
-    Publish(publish::PublishArgs),
-    /// Turn scan files with poses into a recording that replay and report accept.
-    Pack(pack::PackArgs),
-    /// Play a recording's inputs to a running agent, with the recorded timing or at full speed.
-    Replay(replay::ReplayArgs),
-    /// Save every complete message of a recording whose writer died.
-    Recover(recover::RecoverArgs),
-    /// Inspect a recording again: report.json as inspect writes it, and an HTML report.
-    Report(report_cmd::ReportArgs),
-    /// Convert a Stanford/Scanalyze `.conf` (bmesh lines) into a stations.toml.
-    ImportConf {
-        /// The .conf file.
-        conf: PathBuf,
-        /// Where to write stations.toml; scan paths are made relative to its folder.
-        #[arg(short, long)]
-        out: PathBuf,
-    },
-}
+use clap::Parser;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Demo(args) => demo::run(*args),
-        Command::Sim(args) => sim_cmd::run(*args),
-        Command::Agent { config } => run_agent(&config),
-        Command::Inspect(args) => inspect::run(*args),
-        Command::Publish(args) => publish::run(args),
-        Command::Calibrate(args) => calibrate::run(args),
-        Command::Convert(args) => convert::run(args),
-        Command::Pack(args) => pack::run(args),
-        Command::Replay(args) => replay::run(args),
-        Command::Recover(args) => recover::run(args),
-        Command::Report(args) => report_cmd::run(args),
-        Command::ImportConf { conf, out } => import_conf(&conf, &out).map(|_| ExitCode::SUCCESS),
-    };
-    match result {
+    match asbuilt_tools::run(asbuilt_tools::Cli::parse()) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::from(2)
         }
     }
-}
-
-fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
-    let dir = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(std::path::Path::new("."));
-    std::fs::create_dir_all(dir)?;
-    let file = stations::from_conf(conf, dir)?;
-    let text = format!(
-        "# Stations converted from {} by `asbuilt import-conf`.\n\
-         # p_design = R(rotation_xyzw) * p_scan + translation (metres); scan paths are relative \
-         to this file.\n\n{}",
-        conf.display(),
-        toml::to_string(&file)?
-    );
-    std::fs::write(out, text)?;
-    eprintln!("wrote {} stations to {}", file.station.len(), out.display());
-    Ok(())
-}
-
-fn run_agent(config: &std::path::Path) -> anyhow::Result<ExitCode> {
-    let config = asbuilt_agent::AgentConfig::load(config)?;
-    let summary = asbuilt_agent::daemon::run(&config)?;
-    asbuilt_agent::info!(
-        "exit: {} stations, {} points",
-        summary.stations_reported,
-        summary.points_processed
-    );
-    Ok(ExitCode::SUCCESS)
 }

@@ -45,7 +45,7 @@ pub struct PublishArgs {
 
 /// The cell's side of a running agent's services, waiting up to `wait` for it to come up. The
 /// node must outlive the ports.
-pub(crate) fn connect(
+pub fn connect(
     names: &ServiceNames,
     max_points_per_chunk: usize,
     wait: Duration,

@@ -17,7 +17,10 @@ use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::{InspectParams, Tally};
 use asbuilt_core::{C2mParams, Units};
 use asbuilt_protocol::recording::{self, Recorded};
-use asbuilt_protocol::{ChunkHeader, PointDeviation, ScanPoint, StationFindings, StationReport};
+use asbuilt_protocol::{
+    ChunkHeader, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
+    StationFindings, StationReport,
+};
 use clap::Args;
 use std::time::{Duration, Instant};
 
@@ -75,6 +78,8 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
 /// What the station lifecycle hands out while a recording is read back: each station's
 /// section, and every station's statistics merged.
 struct Collected {
+    /// Every station's inputs and outputs, for [`read_back`]; `None` for the command.
+    kept: Option<BTreeMap<(u64, u32), Kept>>,
     done: Vec<((u64, u32), Section)>,
     total: Tally,
     buffer: Vec<PointDeviation>,
@@ -86,11 +91,30 @@ struct Collected {
 impl Collected {
     fn new(stats: asbuilt_core::stats::StatsConfig, maps: MapCollector) -> Self {
         Self {
+            kept: None,
             done: Vec::new(),
             total: Tally::new(stats),
             buffer: Vec::new(),
             findings: BTreeMap::new(),
             maps,
+        }
+    }
+}
+
+impl Collected {
+    /// With [`read_back`], a station's recorded inputs: its Begin, pose and scan chunks.
+    fn keep_input(&mut self, m: &Recorded) {
+        let Some(k) = &mut self.kept else { return };
+        match m {
+            Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                k.entry((e.job, e.station)).or_default().begin = Some(*e);
+            }
+            Recorded::Pose(p) => k.entry((p.job, p.station)).or_default().pose = Some(*p),
+            Recorded::Chunk(h, pts) => {
+                let s = k.entry((h.job, h.station)).or_default();
+                s.chunks.insert(h.sequence, pts.clone());
+            }
+            _ => {}
         }
     }
 }
@@ -104,6 +128,10 @@ impl Outputs for Collected {
         self.buffer.resize(n, PointDeviation::default());
         let h = fill(&mut self.buffer);
         self.maps.points((h.job, h.station), &self.buffer);
+        if let Some(k) = &mut self.kept {
+            let s = k.entry((h.job, h.station)).or_default();
+            s.deviations.insert(h.sequence, self.buffer.clone());
+        }
     }
 
     fn tally(&mut self, tally: &Tally) {
@@ -111,12 +139,18 @@ impl Outputs for Collected {
     }
 
     fn report(&mut self, r: &StationReport) {
+        if let Some(k) = &mut self.kept {
+            k.entry((r.job, r.station)).or_default().report = Some(*r);
+        }
         self.maps.station_done((r.job, r.station), r.printed_height);
         self.done
             .push(((r.job, r.station), Section::from_report(r, None, 0)));
     }
 
     fn findings(&mut self, f: &StationFindings) {
+        if let Some(k) = &mut self.kept {
+            k.entry((f.job, f.station)).or_default().findings = Some(f.clone());
+        }
         self.findings
             .insert((f.job, f.printed_height.to_bits()), f.clone());
     }
@@ -142,16 +176,63 @@ pub fn write(
     out: &std::path::Path,
     overrides: Overrides,
 ) -> Result<()> {
-    let bytes = crate::recording_file::map(recording_path)?;
     let png = overrides.png;
-    let (job, designs) = RecordedJob::read(recording_path, &bytes, overrides)?;
-    let replayed = replay_stations(recording_path, &bytes, &job, designs)?;
-    let report = job.report(replayed);
+    let (report, _) = read(recording_path, overrides, false)?;
     write_outputs(recording_path, out, &report)?;
     if png {
         crate::maps_png::write(&report, out)?;
     }
     Ok(())
+}
+
+/// One station of a recording as the report reads it back: what came in and what the agent's
+/// lifecycle made of it.
+#[derive(Default)]
+pub struct StationReadBack {
+    pub job: u64,
+    pub station: u32,
+    /// The station's Begin as recorded (name, layer, printed height).
+    pub begin: Option<StationEvent>,
+    /// The pose the station's points were placed with (the last recorded).
+    pub pose: Option<PoseSnapshot>,
+    /// The recorded scan chunks, scanner frame, by sequence number.
+    pub chunks: BTreeMap<u64, Vec<ScanPoint>>,
+    /// The deviations of each inspected chunk, by sequence number: entry i is chunk point i's.
+    pub deviations: BTreeMap<u64, Vec<PointDeviation>>,
+    pub report: Option<StationReport>,
+    /// The findings of the station's scan layer drawn after this station.
+    pub findings: Option<StationFindings>,
+}
+
+type Kept = StationReadBack;
+
+/// A recording read back as `asbuilt report` reads it: report.json's content and every station's
+/// inputs and outputs, in (job, station) order.
+pub fn read_back(
+    recording_path: &std::path::Path,
+    overrides: Overrides,
+) -> Result<(Report, Vec<StationReadBack>)> {
+    read(recording_path, overrides, true)
+}
+
+fn read(
+    path: &std::path::Path,
+    overrides: Overrides,
+    keep: bool,
+) -> Result<(Report, Vec<StationReadBack>)> {
+    let bytes = crate::recording_file::map(path)?;
+    let (job, designs) = RecordedJob::read(path, &bytes, overrides)?;
+    let mut replayed = replay_stations(path, &bytes, &job, designs, keep)?;
+    let kept = std::mem::take(&mut replayed.kept);
+    let stations = kept
+        .into_iter()
+        .map(|((job, station), mut s)| {
+            s.job = job;
+            s.station = station;
+            s
+        })
+        .collect();
+    Ok((job.report(replayed), stations))
 }
 
 /// What a recording says of its job: the design as attached, the agent's settings and limits
@@ -330,6 +411,7 @@ struct Replayed {
     findings_differ: bool,
     unfinished: usize,
     maps: Vec<ScanLayerMaps>,
+    kept: BTreeMap<(u64, u32), Kept>,
 }
 
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
@@ -339,6 +421,7 @@ fn replay_stations(
     bytes: &[u8],
     job: &RecordedJob,
     designs: PrintedDesigns,
+    keep: bool,
 ) -> Result<Replayed> {
     let bad = |e| crate::recording_file::unreadable(path, e);
     let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
@@ -366,6 +449,9 @@ fn replay_stations(
         .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
+    if keep {
+        out.kept = Some(BTreeMap::new());
+    }
     let mut recorded = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
@@ -374,6 +460,7 @@ fn replay_stations(
         // The recording's clock, so that a chunk's wait for its pose is measured as it was.
         let t0 = *first_time.get_or_insert(log_time);
         let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
+        out.keep_input(&m);
         match m {
             Recorded::Event(e) => lifecycle.on_event(&e, now, &mut out),
             Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
@@ -404,6 +491,7 @@ fn replay_stations(
         total,
         findings: drawn,
         maps,
+        kept,
         ..
     } = out;
     done.sort_by_key(|(k, _)| *k);
@@ -427,6 +515,7 @@ fn replay_stations(
         findings,
         findings_differ,
         unfinished,
+        kept: kept.unwrap_or_default(),
     })
 }
 

@@ -1,0 +1,165 @@
+"""asbuilt from Python: geometric inspection for construction 3D printing.
+
+Designs and signed cloud-to-mesh distances (C2M), the deviation suite (coverage, M3C2 along the
+design's normals, the findings a crew acts on), recordings read back as `asbuilt report` reads
+them, the command line's commands, and the cell's side of a running agent. Everything is
+metres, in the design frame unless a name says otherwise; arrays are NumPy arrays.
+
+    import asbuilt
+    design = asbuilt.Design.load("part.stl", units="mm")
+    result = design.c2m(points, max_distance=0.05)
+    result["distance"]  # signed metres, NaN beyond max_distance
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional
+
+from ._asbuilt import Cell, Design, SimulatedJob as _SimulatedJob, __version__
+from ._asbuilt import read_recording_parts as _read_recording_parts
+from ._asbuilt import run as _run
+from ._asbuilt import suite
+from .agent import Agent
+
+__all__ = [
+    "Agent",
+    "Cell",
+    "Design",
+    "Recording",
+    "Station",
+    "SimulatedJob",
+    "argv",
+    "inspect",
+    "read_recording",
+    "run",
+    "suite",
+    "__version__",
+]
+
+#: Deviation flags (the `flags` array of `Design.c2m` and of a station's deviations).
+NO_MATCH = 1
+REJECTED = 2
+OUT_OF_TOLERANCE = 4
+
+
+def argv(**options: Any) -> List[str]:
+    """Command-line flags from keywords: `max_distance=0.01` -> `--max-distance 0.01`,
+    `png=True` -> `--png`, a list -> the flag repeated (or joined with commas where the command
+    takes a list, as `method` and `scan_after` do); None and False are left out. Values are
+    attached with `=` so that negative numbers stay values."""
+    out: List[str] = []
+    comma = {"method", "scan_after", "translation", "rotation_xyzw"}
+    for key, value in options.items():
+        if value is None or value is False:
+            continue
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            out.append(flag)
+        elif isinstance(value, (list, tuple)):
+            if key in comma:
+                out.append(flag + "=" + ",".join(str(v) for v in value))
+            else:
+                out += [f"{flag}={v}" for v in value]
+        else:
+            out.append(f"{flag}={os.fspath(value) if hasattr(value, '__fspath__') else value}")
+    return out
+
+
+def run(*args: str) -> int:
+    """Runs an `asbuilt` command in this process, as on the command line:
+    `asbuilt.run("report", "job.mcap", "--out", "out/report")`. Returns its exit code."""
+    return _run([os.fspath(a) if hasattr(a, "__fspath__") else str(a) for a in args])
+
+
+def inspect(design, units: str, *, out=None, **options: Any) -> Dict[str, Any]:
+    """`asbuilt inspect` in this process; returns report.json as a dict.
+
+    Keywords are the command's flags (`stations=`, `scan=`, `translation=`, `rotation_xyzw=`,
+    `tolerance=`, `max_distance=`, `method=["c2m", "coverage", "m3c2"]`, `layer_height=`,
+    `printed_height=`, ...). Outputs (deviations.ply, report.json, ...) go to `out`, a temporary
+    folder when not given. The exit code (1 when out of tolerance) is the report's
+    `assessment`; a refused argument raises ValueError, a failure RuntimeError.
+    """
+    with tempfile.TemporaryDirectory(prefix="asbuilt-inspect-") as scratch:
+        folder = os.fspath(out) if out is not None else scratch
+        _run(["inspect", "--design", os.fspath(design), "--units", units, "--out", folder]
+             + argv(**options))
+        with open(os.path.join(folder, "report.json"), encoding="utf-8") as f:
+            return json.load(f)
+
+
+@dataclass
+class Station:
+    """One station of a recording, as `asbuilt report` reads it back.
+
+    `scan_points` are the recorded points in the scanner frame ((N, 3) float32, chunk by chunk,
+    `scan_chunk` the chunk of each); `deviations` holds the agent's inspection of them
+    (`position`, design frame, `distance`, `triangle`, `feature`, `flags`, `chunk`): a chunk the
+    agent could not inspect (no pose, over its limits) has no deviations.
+    """
+
+    job: int
+    station: int
+    name: str = ""
+    layer: int = 0
+    printed_height: float = float("nan")
+    pose: Optional[Dict[str, Any]] = None
+    scan_points: Any = None
+    scan_chunk: Any = None
+    deviations: Dict[str, Any] = field(default_factory=dict)
+    report: Optional[Dict[str, Any]] = None
+    findings: Optional[Dict[str, Any]] = None
+
+    @property
+    def design_points(self):
+        """The inspected points in the design frame, (N, 3) float64."""
+        return self.deviations.get("position")
+
+    def __repr__(self) -> str:
+        n = 0 if self.scan_points is None else len(self.scan_points)
+        return f"Station(job={self.job}, station={self.station}, name={self.name!r}, points={n})"
+
+
+@dataclass
+class Recording:
+    """A recording read back: `report` is report.json's content as `asbuilt report` writes it,
+    `stations` each station's inputs and outputs."""
+
+    path: str
+    report: Dict[str, Any]
+    stations: List[Station]
+
+
+def read_recording(path, *, tolerance: Optional[float] = None,
+                   max_distance: Optional[float] = None) -> Recording:
+    """Reads a recording (the agent's recorder or `asbuilt pack`) with `asbuilt report`'s own
+    code: the design attached to it, the agent's recorded settings, every station inspected
+    again. `tolerance` and `max_distance` override the recorded ones, as the command's flags."""
+    report, stations = _read_recording_parts(os.fspath(path), tolerance, max_distance)
+    for s in stations:
+        for key in ("pose", "report", "findings"):
+            s[key] = _public(s.get(key))
+    return Recording(os.fspath(path), report, [Station(**s) for s in stations])
+
+
+def _public(value: Any) -> Any:
+    """A message as a dict without its wire-format padding (`_reserved...` fields)."""
+    if isinstance(value, dict):
+        return {k: _public(v) for k, v in value.items() if not k.startswith("_")}
+    if isinstance(value, list):
+        return [_public(v) for v in value]
+    return value
+
+
+class SimulatedJob(_SimulatedJob):
+    """A simulated print job, as `asbuilt sim` runs it: `SimulatedJob(part="wall",
+    scan_after=[8, 16], defect=["bulge:x=0,y=-0.5,z=0.3,radius=0.1,height=8mm"], seed=1)`.
+    Keywords are `asbuilt sim`'s job flags. `stations()` is the robot's plan, `scan(i)` what
+    the scanner sees at station i, `design` the part."""
+
+    def __new__(cls, **options: Any):
+        return super().__new__(cls, argv(**options))

@@ -1,0 +1,342 @@
+//! The cell's side in Python: `asbuilt.Cell` sends stations to a running agent over its
+//! iceoryx2 services and takes its reports and findings back, with the same ports and the same
+//! station sender as `asbuilt publish` and the simulator (one definition of every message: the
+//! protocol crate's). `asbuilt.SimulatedJob` gives a simulated print cell's stations and scans.
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::{
+    FixedText, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent, StationEventKind,
+    StationFindings, StationReport, StationSender, codec,
+};
+use asbuilt_sim::{AsBuilt, SimJob};
+use clap::Parser;
+use iceoryx2::prelude::*;
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use crate::convert::{self, anyhow_err, runtime};
+
+/// The ports of a running agent (its `services.prefix`), opened as a robot cell opens them.
+///
+/// `send_station` sends Begin, the pose, the chunks (the last flagged) and End; `receive`
+/// returns the agent's reports and findings as they come. Not shared between threads.
+#[pyclass(unsendable, module = "asbuilt")]
+pub struct Cell {
+    ports: CellPorts,
+    /// Dropped after the ports: the node owns their shared memory.
+    _node: Node<Ipc>,
+    max_points_per_chunk: usize,
+}
+
+fn pose_mode(text: &str) -> PyResult<PoseMode> {
+    match text {
+        "design_scanner" => Ok(PoseMode::DesignScanner),
+        "fixed" => Ok(PoseMode::FixedOrientation),
+        "6dof" => Ok(PoseMode::SixDof),
+        other => Err(PyValueError::new_err(format!(
+            "pose_mode {other:?}: give design_scanner (the pose is T_design_scanner), fixed \
+             (flange translation, calibrated orientation) or 6dof (flange pose in the robot base)"
+        ))),
+    }
+}
+
+/// Scan points from arrays: (N, 3) float32 scanner-frame xyz, optional intensity and flags.
+fn scan_points(
+    points: &PyReadonlyArray2<'_, f32>,
+    intensity: Option<&PyReadonlyArray1<'_, f32>>,
+    flags: Option<&PyReadonlyArray1<'_, u16>>,
+) -> PyResult<Vec<ScanPoint>> {
+    let p = points.as_array();
+    if p.ncols() != 3 {
+        return Err(PyValueError::new_err(format!(
+            "points must be an (N, 3) float32 array in the scanner frame, metres; got shape {:?}",
+            p.shape()
+        )));
+    }
+    let n = p.nrows();
+    let intensity = intensity.map(|a| a.as_array());
+    let flags = flags.map(|a| a.as_array());
+    for (name, len) in [
+        ("intensity", intensity.as_ref().map(|a| a.len())),
+        ("flags", flags.as_ref().map(|a| a.len())),
+    ] {
+        if let Some(len) = len
+            && len != n
+        {
+            return Err(PyValueError::new_err(format!(
+                "{name} has {len} entries for {n} points"
+            )));
+        }
+    }
+    Ok(p.rows()
+        .into_iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let mut s = ScanPoint::new(r[0], r[1], r[2]);
+            if let Some(a) = &intensity {
+                s.intensity = a[i];
+            }
+            if let Some(a) = &flags {
+                s.flags = ScanPointFlags(a[i]);
+            }
+            s
+        })
+        .collect())
+}
+
+#[pymethods]
+impl Cell {
+    /// Opens the services of the agent serving `prefix`, waiting up to `wait` seconds for it.
+    #[new]
+    #[pyo3(signature = (prefix, *, max_points_per_chunk = 16_384, wait = 10.0))]
+    fn new(py: Python<'_>, prefix: &str, max_points_per_chunk: usize, wait: f64) -> PyResult<Self> {
+        if !(wait >= 0.0 && wait.is_finite()) {
+            return Err(PyValueError::new_err(format!(
+                "wait must be seconds >= 0, got {wait}"
+            )));
+        }
+        let names = ServiceNames::new(prefix);
+        // iceoryx2's ports are not Send: they are opened on this thread, with the GIL held.
+        let _ = py;
+        let (node, ports) = asbuilt_tools::publish::connect(
+            &names,
+            max_points_per_chunk,
+            Duration::from_secs_f64(wait),
+        )
+        .map_err(anyhow_err)?;
+        Ok(Self {
+            ports,
+            _node: node,
+            max_points_per_chunk,
+        })
+    }
+
+    /// Sends one station: Begin (with its name, layer and printed height), the pose, the points
+    /// in chunks of at most `chunk_points`, End. `translation` and `rotation_xyzw` are the pose
+    /// the robot reports, in the frame `pose_mode` says. Returns the points sent.
+    #[pyo3(signature = (
+        station, points, translation, rotation_xyzw, *, job = 1, name = "", layer = 0,
+        printed_height = f64::NAN, position_sigma = 0.001, pose_mode = "design_scanner",
+        intensity = None, flags = None, chunk_points = None
+    ))]
+    #[allow(clippy::too_many_arguments)] // a station's Begin and pose, one keyword each
+    fn send_station(
+        &self,
+        station: u32,
+        points: PyReadonlyArray2<'_, f32>,
+        translation: [f64; 3],
+        rotation_xyzw: [f64; 4],
+        job: u64,
+        name: &str,
+        layer: u32,
+        printed_height: f64,
+        position_sigma: f64,
+        pose_mode: &str,
+        intensity: Option<PyReadonlyArray1<'_, f32>>,
+        flags: Option<PyReadonlyArray1<'_, u16>>,
+        chunk_points: Option<usize>,
+    ) -> PyResult<u64> {
+        let chunk = chunk_points.unwrap_or(self.max_points_per_chunk);
+        if chunk == 0 || chunk > self.max_points_per_chunk {
+            return Err(PyValueError::new_err(format!(
+                "chunk_points must be 1 to {} (the cell's max_points_per_chunk), got {chunk}",
+                self.max_points_per_chunk
+            )));
+        }
+        let pts = scan_points(&points, intensity.as_ref(), flags.as_ref())?;
+        let mut begin = StationEvent::new(StationEventKind::Begin, job, station);
+        begin.name = FixedText::truncated(name);
+        begin.layer = layer;
+        begin.printed_height = printed_height;
+        begin.expected_chunks = pts.len().div_ceil(chunk) as u32;
+        begin.expected_points = pts.len() as u64;
+        let mut pose = PoseSnapshot::new(job, station, self::pose_mode(pose_mode)?);
+        pose.translation = translation;
+        pose.rotation_xyzw = rotation_xyzw;
+        pose.position_sigma = position_sigma;
+        // iceoryx2 ports are not Send: the sending stays on this thread, with the GIL held.
+        let mut sink = &self.ports;
+        let mut sender = StationSender::start(begin, pose, &mut sink).map_err(runtime)?;
+        for c in pts.chunks(chunk) {
+            sender.chunk(c, &mut sink).map_err(runtime)?;
+        }
+        let end = sender.finish(&mut sink).map_err(runtime)?;
+        Ok(end.expected_points)
+    }
+
+    /// The agent's reports and findings that arrived, as dicts with `kind` "report" or
+    /// "findings"; waits up to `timeout` seconds for the first when none is there.
+    #[pyo3(signature = (timeout = 0.0))]
+    fn receive<'py>(&self, py: Python<'py>, timeout: f64) -> PyResult<Bound<'py, PyList>> {
+        let out = PyList::empty(py);
+        let deadline = Instant::now() + Duration::from_secs_f64(timeout.max(0.0));
+        loop {
+            self.drain(py, &out)?;
+            let now = Instant::now();
+            if !out.is_empty() || now >= deadline {
+                return Ok(out);
+            }
+            let wait = (deadline - now).min(Duration::from_millis(100));
+            self.ports.wait_for_output(wait).map_err(runtime)?;
+            py.check_signals()?;
+        }
+    }
+
+    fn __repr__(&self) -> String {
+        "Cell(connected)".into()
+    }
+}
+
+impl Cell {
+    fn drain(&self, py: Python<'_>, out: &Bound<'_, PyList>) -> PyResult<()> {
+        let bad =
+            |e: &dyn std::fmt::Debug| runtime(format!("cannot read the agent's outputs: {e:?}"));
+        while let Some(r) = self.ports.reports.receive().map_err(|e| bad(&e))? {
+            let r: StationReport = *r.payload();
+            out.append(tagged(py, "report", &r)?)?;
+        }
+        while let Some(s) = self.ports.findings.receive().map_err(|e| bad(&e))? {
+            let f: StationFindings = codec::decode(s.payload()).map_err(runtime)?;
+            out.append(tagged(py, "findings", &f)?)?;
+        }
+        // Deviations are for viewers; a cell that does not read them must not fill the queue.
+        while let Ok(Some(_)) = self.ports.deviations.receive() {}
+        Ok(())
+    }
+}
+
+fn tagged<'py>(
+    py: Python<'py>,
+    kind: &str,
+    value: &impl serde::Serialize,
+) -> PyResult<Bound<'py, PyAny>> {
+    let v = convert::to_json(py, value)?.into_bound(py);
+    v.set_item("kind", kind)?;
+    Ok(v)
+}
+
+#[derive(Parser)]
+struct JobCli {
+    #[command(flatten)]
+    job: asbuilt_tools::sim_cmd::JobArgs,
+}
+
+/// A simulated print job, as `asbuilt sim` runs it: the part, its defects, where the robot
+/// scans and what the scanner sees. Keywords are `asbuilt sim`'s job flags as a list of
+/// strings (`SimulatedJob(["--part", "wall", "--scan-after", "8,16"])`; the Python wrapper
+/// takes keywords).
+#[pyclass(frozen, subclass, module = "asbuilt")]
+pub struct SimulatedJob {
+    job: SimJob,
+    /// The as-built part of the last layer count scanned.
+    built: Mutex<Option<(u32, std::sync::Arc<AsBuilt>)>>,
+}
+
+#[pymethods]
+impl SimulatedJob {
+    #[new]
+    fn new(args: Vec<String>) -> PyResult<Self> {
+        let argv = std::iter::once("sim".to_string()).chain(args);
+        let cli = JobCli::try_parse_from(argv)
+            .map_err(|e| PyValueError::new_err(e.render().to_string()))?;
+        Ok(Self {
+            job: cli
+                .job
+                .job()
+                .map_err(|e| PyValueError::new_err(format!("{e:#}")))?,
+            built: Mutex::new(None),
+        })
+    }
+
+    /// The design being printed.
+    #[getter]
+    fn design(&self) -> crate::design::Design {
+        crate::design::Design::new(self.job.part.design.clone(), self.job.part.name.clone())
+    }
+
+    #[getter]
+    fn layer_height(&self) -> f64 {
+        self.job.part.layer_height
+    }
+
+    #[getter]
+    fn layers(&self) -> u32 {
+        self.job.part.layers()
+    }
+
+    #[getter]
+    fn job(&self) -> u64 {
+        self.job.job
+    }
+
+    /// Every station in the order the robot visits them: `index`, `name`, `printed` (layers
+    /// printed), `printed_height`, and the pose the robot reports (`translation`,
+    /// `rotation_xyzw`, `pose_mode`, `position_sigma`).
+    fn stations<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let out = PyList::empty(py);
+        for st in self.job.plan() {
+            let d = PyDict::new(py);
+            d.set_item("index", st.index)?;
+            d.set_item("name", &st.name)?;
+            d.set_item("printed", st.printed)?;
+            d.set_item("printed_height", st.printed_height)?;
+            let t: [f64; 3] = st.nominal.translation.vector.into();
+            let q = st.nominal.rotation.coords;
+            d.set_item("translation", t)?;
+            d.set_item("rotation_xyzw", [q.x, q.y, q.z, q.w])?;
+            d.set_item(
+                "pose_mode",
+                match self.job.pose_mode {
+                    PoseMode::SixDof => "6dof",
+                    PoseMode::FixedOrientation => "fixed",
+                    PoseMode::DesignScanner => "design_scanner",
+                },
+            )?;
+            d.set_item("position_sigma", self.job.position_sigma)?;
+            out.append(d)?;
+        }
+        Ok(out)
+    }
+
+    /// Scans station `index` of the plan: the as-built part after its layers, seen from where
+    /// the scanner really was. Returns `points` ((N, 3) float32, scanner frame), `intensity`
+    /// and `flags`, in scan-line order, the same points `asbuilt sim` sends.
+    fn scan<'py>(&self, py: Python<'py>, index: u32) -> PyResult<Bound<'py, PyDict>> {
+        let plan = self.job.plan();
+        let st = plan
+            .iter()
+            .find(|s| s.index == index)
+            .ok_or_else(|| {
+                PyValueError::new_err(format!("no station {index}: the plan has {}", plan.len()))
+            })?
+            .clone();
+        let part = {
+            let mut slot = self.built.lock().unwrap_or_else(|e| e.into_inner());
+            match &*slot {
+                Some((k, b)) if *k == st.printed => b.clone(),
+                _ => {
+                    let b = py
+                        .detach(|| self.job.as_built(st.printed))
+                        .map_err(anyhow_err)?;
+                    let b = std::sync::Arc::new(b);
+                    *slot = Some((st.printed, b.clone()));
+                    b
+                }
+            }
+        };
+        let scan = py.detach(|| self.job.scan(&st, &part));
+        let d = PyDict::new(py);
+        let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| p.xyz).collect();
+        d.set_item("points", convert::array3(py, &xyz))?;
+        let i: Vec<f32> = scan.points.iter().map(|p| p.intensity).collect();
+        d.set_item("intensity", i.into_pyarray(py))?;
+        let f: Vec<u16> = scan.points.iter().map(|p| p.flags.0).collect();
+        d.set_item("flags", f.into_pyarray(py))?;
+        Ok(d)
+    }
+}

@@ -1,0 +1,39 @@
+"""The command line's code from Python: `asbuilt.inspect` and C2M give the same bits."""
+
+import numpy as np
+import pytest
+
+import asbuilt
+from conftest import BUNNY_STATIONS, read_ply
+
+
+def test_c2m_equals_inspect_on_the_bunny(tmp_path, bunny_path, bunny):
+    report = asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, max_distance=0.005,
+                             out=tmp_path)
+    assert len(report["stations"]) == 10
+    ply = read_ply(tmp_path / "deviations.ply")
+    assert len(ply) > 300_000
+    pts = np.stack([ply["x"], ply["y"], ply["z"]], axis=1)
+    r = bunny.c2m(pts, max_distance=0.005, tolerance=report["parameters"]["tolerance_m"])
+    # deviations.ply keeps the distance as float32: the same bits at the file's precision.
+    np.testing.assert_array_equal(r["distance"].astype(np.float32), ply["c2m"])
+    np.testing.assert_array_equal(r["triangle"], ply["triangle"])
+    np.testing.assert_array_equal(r["feature"], ply["feature"])
+    np.testing.assert_array_equal(r["flags"], ply["flags"])
+    matched = np.isfinite(r["distance"]).sum()
+    assert matched == report["overall"]["matched"]
+
+
+def test_inspect_refuses_bad_flags_with_the_usage(bunny_path):
+    with pytest.raises(ValueError, match="--no-such-flag"):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, no_such_flag=1)
+    with pytest.raises(RuntimeError, match="tolerance"):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, tolerance=-1)
+
+
+def test_argv_spells_flags_as_the_command_line():
+    assert asbuilt.argv(max_distance=0.01, png=True, ascii=False, method=["c2m", "m3c2"],
+                        limit=["width=3mm", "creep=1mm"], rerun=None) == [
+        "--max-distance=0.01", "--png", "--method=c2m,m3c2",
+        "--limit=width=3mm", "--limit=creep=1mm"]
+    assert asbuilt.argv(translation=[-1, 0, 2.5]) == ["--translation=-1,0,2.5"]

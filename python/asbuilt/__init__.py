@@ -19,7 +19,7 @@ import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
 
-from ._asbuilt import Cell, Design, SimulatedJob as _SimulatedJob, __version__
+from ._asbuilt import Cell as _Cell, Design, SimulatedJob as _SimulatedJob, __version__
 from ._asbuilt import read_recording_parts as _read_recording_parts
 from ._asbuilt import run as _run
 from ._asbuilt import suite
@@ -153,6 +153,33 @@ def _public(value: Any) -> Any:
     if isinstance(value, list):
         return [_public(v) for v in value]
     return value
+
+
+class Cell:
+    """The cell's side of a running agent (its `services.prefix`), as a robot controller and a
+    scanner driver talk to it over iceoryx2 shared memory.
+
+        cell = asbuilt.Cell("asbuilt")
+        cell.send_station(0, points, translation, rotation_xyzw, name="L008-S1", layer=7,
+                          printed_height=0.16)
+        for message in cell.receive(timeout=5.0):
+            ...   # message["kind"] is "report" or "findings"
+
+    `send_station` sends Begin, the pose, the points in chunks (the last flagged) and End, and
+    returns the points sent; `points` are (N, 3) float32 in the scanner frame, the pose is
+    what the robot reports in `pose_mode` ("design_scanner", "fixed" or "6dof"). `receive`
+    returns the agent's reports and findings that arrived, waiting up to `timeout` seconds for
+    the first. One thread only: the ports are not shared between threads.
+    """
+
+    def __init__(self, prefix: str, *, max_points_per_chunk: int = 16384, wait: float = 10.0):
+        self._cell = _Cell(prefix, max_points_per_chunk=max_points_per_chunk, wait=wait)
+
+    def send_station(self, station: int, points, translation, rotation_xyzw, **options) -> int:
+        return self._cell.send_station(station, points, translation, rotation_xyzw, **options)
+
+    def receive(self, timeout: float = 0.0) -> List[Dict[str, Any]]:
+        return [_public(m) for m in self._cell.receive(timeout)]
 
 
 class SimulatedJob(_SimulatedJob):

@@ -105,8 +105,8 @@ impl SuiteConfig {
 }
 
 /// The suite's parameters as a user gives them, `None` for the default: `asbuilt inspect`'s
-/// flags and the Python package's keywords both resolve here, so they mean the same when left
-/// out.
+/// flags and the Python package's keywords (the flags' names) both resolve here, so they mean
+/// the same when left out. Errors name the flags.
 #[derive(Debug, Clone, Default)]
 pub struct SuiteOptions {
     /// C2M runs whatever is listed.
@@ -136,24 +136,24 @@ impl SuiteOptions {
     pub fn resolve(&self) -> Result<SuiteConfig> {
         if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
             bail!(
-                "the tolerance must be a positive number of metres, got {}",
+                "--tolerance must be a positive number of metres, got {}",
                 self.tolerance
             );
         }
         for (name, v) in [
-            ("max distance", self.max_distance),
+            ("--max-distance", self.max_distance),
             ("spacing", Some(self.spacing)),
-            ("projection diameter", self.projection_diameter),
-            ("max depth", self.max_depth),
-            ("normal diameter", self.normal_diameter),
-            ("coverage threshold", self.coverage_threshold),
-            ("scanner step", self.scanner_step_mrad),
-            ("layer height", self.layer_height),
+            ("--projection-diameter", self.projection_diameter),
+            ("--max-depth", self.max_depth),
+            ("--normal-diameter", self.normal_diameter),
+            ("--coverage-threshold", self.coverage_threshold),
+            ("--scanner-step-mrad", self.scanner_step_mrad),
+            ("--layer-height", self.layer_height),
         ] {
             if let Some(v) = v
                 && !(v > 0.0 && v.is_finite())
             {
-                bail!("the {name} must be a positive number, got {v}");
+                bail!("{name} must be a positive number, got {v}");
             }
         }
         let mut methods = self.methods.clone();
@@ -165,9 +165,7 @@ impl SuiteOptions {
                 .iter()
                 .any(|m| matches!(m, Method::C2c | Method::M3c2))
         {
-            bail!(
-                "a reference cloud is for C2C and two-cloud M3C2: add c2c or m3c2 to the methods"
-            );
+            bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
         }
         let max_distance = self.max_distance.unwrap_or(10.0 * self.tolerance);
         let coverage_threshold = self

@@ -165,8 +165,7 @@ impl Plan {
             reference: args.reference.clone(),
             local_plane: args.local_plane,
         }
-        .resolve()
-        .context("check the command's flags (--tolerance, --spacing, --method, ...)")?;
+        .resolve()?;
         let stations = match (&args.stations, &args.scan) {
             (Some(path), _) => stations::load(path)?,
             (None, Some(scan)) => single_station(&args, scan)?,

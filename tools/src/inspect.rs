@@ -536,7 +536,7 @@ fn stream_station(
         maps,
         viewer,
     } = out;
-    let read = file.stream(station.scan_index, CHUNK, &mut |chunk| {
+    let read = file.stream_ahead(station.scan_index, CHUNK, READ_AHEAD, &mut |chunk| {
         let devs = &mut buffer[..chunk.len()];
         inspector.process(chunk, devs);
         for d in devs
@@ -564,6 +564,9 @@ fn stream_station(
     bar.finish_and_clear();
     Ok((read?, bounds))
 }
+
+/// Chunks read ahead of the one being inspected.
+const READ_AHEAD: usize = 2;
 
 fn progress_bar(declared: Option<u64>, name: &str) -> ProgressBar {
     let bar = match declared {

@@ -363,3 +363,58 @@ fn xyz_keeps_good_points_around_bad_lines_and_nan() {
     assert_eq!(notes.first_malformed_line, Some(6));
     assert!(xyz::parse("a b c\n".as_bytes(), Path::new("t.xyz"), 2, &mut |_| Ok(())).is_err());
 }
+
+/// Reading ahead on a thread hands the sink the same chunks in the same order as reading in
+/// turn, and a sink's error stops the reader and comes back naming the file.
+#[test]
+fn reading_ahead_gives_the_same_chunks_and_stops_at_the_sinks_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ahead.ply");
+    let points = sample_scan(10_007, 3);
+    write_file(
+        &path,
+        &[(
+            OutScan {
+                name: "ahead".into(),
+                pose: Isometry3::identity(),
+                points: points.len() as u64,
+            },
+            points,
+        )],
+    );
+    let f = ScanFile::open(&path).unwrap();
+    let collect = |ahead: Option<usize>| {
+        let mut chunks: Vec<Vec<[u32; 3]>> = Vec::new();
+        let mut sink = |c: &[ScanPoint]| {
+            chunks.push(c.iter().map(|p| p.xyz.map(f32::to_bits)).collect());
+            Ok(())
+        };
+        let notes = match ahead {
+            None => f.stream(0, 1000, &mut sink),
+            Some(a) => f.stream_ahead(0, 1000, a, &mut sink),
+        }
+        .unwrap();
+        (chunks, notes.invalid)
+    };
+    let in_turn = collect(None);
+    assert_eq!(in_turn.0.len(), 11);
+    assert_eq!(collect(Some(1)), in_turn);
+    assert_eq!(collect(Some(3)), in_turn);
+
+    let mut seen = 0;
+    let e = f
+        .stream_ahead(0, 1000, 2, &mut |_| {
+            seen += 1;
+            if seen == 3 {
+                anyhow::bail!("the disk is full");
+            }
+            Ok(())
+        })
+        .unwrap_err();
+    assert_eq!(seen, 3, "no chunk after the failing one");
+    let msg = format!("{e:#}");
+    assert!(
+        msg.contains("the disk is full") && msg.contains("ahead.ply"),
+        "{msg}"
+    );
+}

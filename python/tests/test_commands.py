@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import asbuilt
-from conftest import BUNNY_STATIONS, read_ply
+from ply_reader import read_ply
+from conftest import BUNNY_STATIONS
 
 
 def test_c2m_equals_inspect_on_the_bunny(tmp_path, bunny_path, bunny):

@@ -103,6 +103,29 @@ impl SimJob {
         }
         out
     }
+    /// The job and the truth of each scan layer, as `truth.json` holds it for a reviewer.
+    pub fn truth_json(&self) -> serde_json::Value {
+        let t = |t: &Truth| {
+            serde_json::json!({
+                "kind": t.kind,
+                "magnitude_m": t.magnitude,
+                "position_m": [t.position.x, t.position.y, t.position.z],
+                "layers": [t.layers.0, t.layers.1],
+                "direction": t.direction,
+            })
+        };
+        serde_json::json!({
+            "part": self.part.name,
+            "layer_height_m": self.part.layer_height,
+            "scan_after_layers": self.scan_after,
+            "defects": self.defects.iter().map(|d| format!("{d:?}")).collect::<Vec<_>>(),
+            "truth": self.truth().iter().map(|(k, tr)| {
+                let mut v = t(tr);
+                v["after_layers"] = serde_json::json!(k);
+                v
+            }).collect::<Vec<_>>(),
+        })
+    }
 
     /// What each defect did by each scan layer.
     pub fn truth(&self) -> Vec<(u32, Truth)> {

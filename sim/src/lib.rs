@@ -7,12 +7,14 @@
 
 mod asbuilt;
 mod cell;
+mod defect_spec;
 mod defects;
 mod part;
 mod scanner;
 
 pub use asbuilt::{AsBuilt, as_built};
 pub use cell::{PlannedStation, SimEvent, SimJob, SimOutcome, run, write_stl};
+pub use defect_spec::DefectSpecError;
 pub use defects::{Defect, Truth};
 pub use part::{OUTLINE_SPACING, Part, PartError, Ring, resample, signed_area2};
 pub use scanner::{Scan, ScannerModel, perturb, scan, stations_around};

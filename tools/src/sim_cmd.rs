@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::{CellPorts, ServiceNames};
 use asbuilt_core::Units;
 use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
-use asbuilt_sim::{Defect, Part, Truth};
+use asbuilt_sim::{Defect, Part};
 use asbuilt_sim::{SimEvent, SimJob, SimOutcome};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -110,7 +110,7 @@ impl JobArgs {
         job.defects = self
             .defects
             .iter()
-            .map(|d| parse_defect(d, &job.part))
+            .map(|d| Defect::parse(d, &job.part).map_err(|e| anyhow::anyhow!("--defect {e}")))
             .collect::<Result<_>>()?;
         job.seed = self.seed;
         job.job = self.job;
@@ -130,102 +130,6 @@ impl JobArgs {
         job.rate = crate::publish::parse_rate(&self.rate)?;
         Ok(job)
     }
-}
-
-/// `KIND[:key=value,...]`, lengths in metres or with an `mm` suffix.
-pub fn parse_defect(spec: &str, part: &Part) -> Result<Defect> {
-    let (kind, rest) = spec.split_once(':').unwrap_or((spec, ""));
-    let mut kv = std::collections::BTreeMap::new();
-    for item in rest.split(',').filter(|s| !s.is_empty()) {
-        let (k, v) = item
-            .split_once('=')
-            .with_context(|| format!("--defect {spec:?}: {item:?} is not key=value"))?;
-        kv.insert(k.trim().to_string(), v.trim().to_string());
-    }
-    let bad = |what: &str| anyhow::anyhow!("--defect {spec:?}: {what}");
-    let len = |k: &str, default: f64| -> Result<f64> {
-        match kv.get(k) {
-            None => Ok(default),
-            Some(v) => {
-                let (num, scale) = match v.strip_suffix("mm") {
-                    Some(n) => (n, 1e-3),
-                    None => (v.strip_suffix('m').unwrap_or(v), 1.0),
-                };
-                num.parse::<f64>()
-                    .map(|x| x * scale)
-                    .ok()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(|| bad(&format!("{k}={v} is not a length")))
-            }
-        }
-    };
-    let layer = |k: &str, default: u32| -> Result<u32> {
-        kv.get(k).map_or(Ok(default), |v| {
-            v.parse()
-                .map_err(|_| bad(&format!("{k}={v} is not a layer number")))
-        })
-    };
-    let n = part.layers();
-    let (lo, hi) = part.design.bounds();
-    let mid = nalgebra::center(&lo, &hi);
-    let d = match kind {
-        "over-extrusion" | "under-extrusion" => {
-            let (a, b) = match kv.get("layers") {
-                Some(r) => {
-                    let (a, b) = r.split_once('-').unwrap_or((r, r));
-                    (
-                        a.parse().map_err(|_| bad("layers=A-B"))?,
-                        b.parse().map_err(|_| bad("layers=A-B"))?,
-                    )
-                }
-                None => (n / 6, n / 6 + 3),
-            };
-            let w = len("width", 0.01)?.abs();
-            Defect::Extrusion {
-                first: a,
-                last: b,
-                width: if kind == "over-extrusion" { w } else { -w },
-            }
-        }
-        "height-drift" => Defect::HeightDrift {
-            from: layer("from", n / 3)?,
-            per_layer: len("per-layer", 0.001)?,
-        },
-        "lateral-shift" => Defect::LateralShift {
-            from: layer("from", n / 3)?,
-            offset: [len("dx", 0.0)?, len("dy", 0.008)?],
-        },
-        "sag" => Defect::Sag {
-            layers: layer("layers", 3)?.max(1),
-            depth: len("depth", 0.008)?,
-        },
-        "missing-segment" => Defect::MissingSegment {
-            layer: layer("layer", n / 2)?,
-            centre: [len("x", mid.x + 0.2 * (hi.x - lo.x))?, len("y", mid.y)?],
-            direction: match kv.get("along").map(String::as_str) {
-                None | Some("x") => [1.0, 0.0],
-                Some("y") => [0.0, 1.0],
-                Some(o) => return Err(bad(&format!("along={o}: give x or y"))),
-            },
-            length: len("length", 0.2)?,
-        },
-        "bulge" => Defect::Bulge {
-            centre: [
-                len("x", mid.x - 0.25 * (hi.x - lo.x))?,
-                len("y", lo.y)?,
-                len("z", 0.5 * part.height())?,
-            ],
-            radius: len("radius", 0.1)?,
-            height: len("height", 0.012)?,
-        },
-        other => {
-            return Err(bad(&format!(
-                "unknown kind {other:?}; kinds: over-extrusion, under-extrusion, height-drift, \
-                 lateral-shift, sag, missing-segment, bulge"
-            )));
-        }
-    };
-    Ok(d)
 }
 
 #[derive(Args)]
@@ -396,30 +300,7 @@ fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {
     ExitCode::SUCCESS
 }
 
-pub fn truth_json(job: &SimJob) -> serde_json::Value {
-    let t = |t: &Truth| {
-        serde_json::json!({
-            "kind": t.kind,
-            "magnitude_m": t.magnitude,
-            "position_m": [t.position.x, t.position.y, t.position.z],
-            "layers": [t.layers.0, t.layers.1],
-            "direction": t.direction,
-        })
-    };
-    serde_json::json!({
-        "part": job.part.name,
-        "layer_height_m": job.part.layer_height,
-        "scan_after_layers": job.scan_after,
-        "defects": job.defects.iter().map(|d| format!("{d:?}")).collect::<Vec<_>>(),
-        "truth": job.truth().iter().map(|(k, tr)| {
-            let mut v = t(tr);
-            v["after_layers"] = serde_json::json!(k);
-            v
-        }).collect::<Vec<_>>(),
-    })
-}
-
 pub fn write_truth(path: &Path, job: &SimJob) -> Result<()> {
-    std::fs::write(path, serde_json::to_string_pretty(&truth_json(job))?)
+    std::fs::write(path, serde_json::to_string_pretty(&job.truth_json())?)
         .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -12,6 +12,7 @@ use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint};
 pub trait Message: Serialize + DeserializeOwned {
     /// The iceoryx2 type name and the MCAP schema name.
     const TYPE_NAME: &'static str;
+    /// The version this build writes and reads.
     const VERSION: u16;
     /// The version this instance claims (the payload's own field).
     fn version(&self) -> u16;
@@ -32,32 +33,48 @@ macro_rules! message {
 }
 pub(crate) use message;
 
+/// A record that cannot be read back as the message it claims to be.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DecodeError {
     #[error(
         "{message} version {found} cannot be read by this build, which reads version {expected}: \
          use the asbuilt release that wrote it, or re-record"
     )]
+    /// Written by a release with another version of the message.
     VersionMismatch {
+        /// The message's type name.
         message: &'static str,
+        /// The version the record claims.
         found: u16,
+        /// The version this build reads.
         expected: u16,
     },
+    /// Postcard could not decode the record (cut short, or not this message).
     #[error("corrupt {message} record: {reason}")]
     Corrupt {
+        /// The message's type name.
         message: &'static str,
+        /// What postcard said.
         reason: String,
     },
+    /// More bytes than the message holds: the record is another message.
     #[error("{message} record has {extra} unread bytes after the message: it is not a {message}")]
-    TrailingBytes { message: &'static str, extra: usize },
+    TrailingBytes {
+        /// The message's type name.
+        message: &'static str,
+        /// Bytes left after the message.
+        extra: usize,
+    },
 }
 
+/// One record: the version, then the message.
 pub fn encode<M: Message>(msg: &M) -> Vec<u8> {
     let mut out = postcard::to_allocvec(&M::VERSION).expect("u16 always encodes");
     out.extend(postcard::to_allocvec(msg).expect("fixed-size message always encodes"));
     out
 }
 
+/// A record back into its message, checking its version and that nothing is left over.
 pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     let body = read_version::<M>(bytes)?;
     let (msg, rest): (M, _) = postcard::take_from_bytes(body).map_err(|e| corrupt::<M>(e))?;
@@ -71,18 +88,24 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     Ok(msg)
 }
 
+/// A scan chunk's record: the header, then its points.
 pub fn encode_scan_chunk(header: &ChunkHeader, points: &[ScanPoint]) -> Vec<u8> {
     encode_slice(header, points)
 }
 
+/// A scan chunk's record back into its header and points; the header's `point_count` must
+/// match the points that follow.
 pub fn decode_scan_chunk(bytes: &[u8]) -> Result<(ChunkHeader, Vec<ScanPoint>), DecodeError> {
     decode_slice(bytes, |h: &ChunkHeader| h.point_count)
 }
 
+/// A deviation chunk's record: the header, then one deviation per point.
 pub fn encode_deviation_chunk(header: &DeviationHeader, points: &[PointDeviation]) -> Vec<u8> {
     encode_slice(header, points)
 }
 
+/// A deviation chunk's record back into its header and deviations; the header's
+/// `point_count` must match the deviations that follow.
 pub fn decode_deviation_chunk(
     bytes: &[u8],
 ) -> Result<(DeviationHeader, Vec<PointDeviation>), DecodeError> {

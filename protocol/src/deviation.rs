@@ -9,12 +9,19 @@ use crate::codec::Message;
 #[type_name("asbuilt.DeviationHeader.v1")]
 #[repr(C)]
 pub struct DeviationHeader {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u16,
+    /// The station the chunk belongs to, as its Begin numbered it.
     pub station: u32,
+    /// The job (one print) the station belongs to.
     pub job: u64,
+    /// The `sequence` of the scan chunk these deviations answer.
     pub sequence: u64,
+    /// When the agent finished the chunk, nanoseconds since the Unix epoch.
     pub timestamp_ns: u64,
+    /// Deviations in the slice that follows, one per scan point of the chunk.
     pub point_count: u32,
     /// Points of the chunk that were rejected (non-finite, out of range, flagged by the scanner).
     pub rejected: u32,
@@ -34,6 +41,7 @@ impl Default for DeviationHeader {
 }
 
 impl DeviationHeader {
+    /// The header of chunk `sequence` of a station, all counts zero.
     pub fn new(job: u64, station: u32, sequence: u64) -> Self {
         Self {
             version: Self::VERSION,
@@ -58,8 +66,11 @@ pub enum Feature {
     /// No closest point: the point was rejected or had no match.
     #[default]
     None = 0,
+    /// The closest point lies inside a triangle.
     Face = 1,
+    /// The closest point lies on an edge (`feature_index` says which).
     Edge = 2,
+    /// The closest point is a vertex (`feature_index` says which).
     Vertex = 3,
 }
 
@@ -76,6 +87,7 @@ impl DeviationFlags {
     /// |distance| exceeds the tolerance.
     pub const OUT_OF_TOLERANCE: u8 = 1 << 2;
 
+    /// Whether flag `bit` (one of the constants above) is set.
     pub fn contains(self, bit: u8) -> bool {
         self.0 & bit != 0
     }
@@ -96,11 +108,14 @@ pub struct PointDeviation {
     pub feature: u8,
     /// Which edge (0: v0-v1, 1: v1-v2, 2: v2-v0) or vertex (0..3) when `feature` says so.
     pub feature_index: u8,
+    /// What happened to the point: no match, rejected, out of tolerance.
     pub flags: DeviationFlags,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u8,
 }
 
 impl Feature {
+    /// `None` for a value no known sender writes.
     pub fn from_u8(v: u8) -> Option<Self> {
         match v {
             0 => Some(Self::None),
@@ -113,6 +128,7 @@ impl Feature {
 }
 
 impl PointDeviation {
+    /// The closest feature, or `None` for a value no known sender writes.
     pub fn feature(&self) -> Option<Feature> {
         Feature::from_u8(self.feature)
     }

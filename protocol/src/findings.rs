@@ -10,7 +10,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::codec::Message;
 
+/// Layer bands a [`StationFindings`] holds at most.
 pub const MAX_LAYER_ROWS: usize = 256;
+/// Regions, and missing areas, a [`StationFindings`] holds at most, largest first.
 pub const MAX_REGIONS: usize = 64;
 /// Upper bound of an encoded [`StationFindings`], bytes.
 pub const MAX_FINDINGS_BYTES: usize = 64 * 1024;
@@ -20,10 +22,15 @@ pub const MAX_FINDINGS_BYTES: usize = 64 * 1024;
 #[type_name("asbuilt.FindingsHeader.v1")]
 #[repr(C)]
 pub struct FindingsHeader {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u16,
+    /// The station whose report the findings follow.
     pub station: u32,
+    /// The job (one print) the station belongs to.
     pub job: u64,
+    /// The last printed layer of the scan layer the findings cover.
     pub layer: u32,
     /// Length of the encoded findings that follow.
     pub bytes: u32,
@@ -46,9 +53,13 @@ impl Default for FindingsHeader {
 /// One layer band's side faces. Metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LayerFinding {
+    /// The band's layer, 0-based from the bed.
     pub layer: u32,
+    /// The band's bottom in the design frame.
     pub z_min: f64,
+    /// The band's top in the design frame.
     pub z_max: f64,
+    /// Design samples on the band's sides that had an M3C2 distance.
     pub samples: u32,
     /// Mean M3C2 distance on the band's sides.
     pub mean: f64,
@@ -75,6 +86,7 @@ impl LayerFinding {
     }
 }
 
+/// Which way a region departs from the design.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum RegionKind {
     /// Material outside the design.
@@ -86,6 +98,7 @@ pub enum RegionKind {
 }
 
 impl RegionKind {
+    /// The kind as reports spell it: `excess`, `deficit`, `missing`.
     pub fn as_str(self) -> &'static str {
         match self {
             RegionKind::Excess => "excess",
@@ -98,15 +111,23 @@ impl RegionKind {
 /// A connected area of the design. Positions in the design frame, metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RegionFinding {
+    /// Excess, deficit or missing material.
     pub kind: RegionKind,
+    /// Design samples in the region.
     pub samples: u32,
+    /// The design surface the region covers, square metres.
     pub area_m2: f64,
+    /// The mean position of the region's samples.
     pub centroid: [f64; 3],
+    /// The lower corner of the region's bounding box.
     pub min: [f64; 3],
+    /// The upper corner of the region's bounding box.
     pub max: [f64; 3],
     /// Largest |deviation| with its sign; NaN for missing material.
     pub peak: f64,
+    /// Where the peak deviation was measured.
     pub peak_at: [f64; 3],
+    /// Mean signed deviation over the region; NaN for missing material.
     pub mean: f64,
     /// First and last layer band; `u32::MAX` when the layer height is unknown.
     pub layers: [u32; 2],
@@ -115,19 +136,25 @@ pub struct RegionFinding {
 /// What the agent found over one scan layer's stations so far.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StationFindings {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
+    /// The job (one print) the station belongs to.
     pub job: u64,
     /// The station whose report these follow.
     pub station: u32,
+    /// The last printed layer of this scan layer, 0-based.
     pub layer: u32,
     /// NaN when not printing.
     pub printed_height: f64,
+    /// The tolerance the regions were judged with, metres.
     pub tolerance: f64,
     /// Stations of this scan layer that went into the findings.
     pub stations: u32,
     /// Top of the print minus the printed height; NaN when the top was not seen.
     pub top_height_deviation: f64,
+    /// Design samples on the top that had an M3C2 distance.
     pub top_samples: u32,
+    /// The layer bands' side faces, from the bed up.
     pub layers: heapless::Vec<LayerFinding, MAX_LAYER_ROWS>,
     /// Areas out of tolerance, largest first.
     pub regions: heapless::Vec<RegionFinding, MAX_REGIONS>,
@@ -139,6 +166,7 @@ pub struct StationFindings {
 crate::codec::message!(StationFindings, "asbuilt.StationFindings.v1", 1);
 
 impl StationFindings {
+    /// Empty findings for a station: no layers, no regions, nothing seen of the top.
     pub fn new(job: u64, station: u32) -> Self {
         Self {
             version: Self::VERSION,

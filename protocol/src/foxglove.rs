@@ -22,11 +22,17 @@ use foxglove::messages::{
 use crate::recording::Recorded;
 use crate::{DeviationFlags, PointDeviation, PoseSnapshot};
 
+/// The design as a `foxglove.SceneUpdate` (one triangle list), once per recording.
 pub const TOPIC_DESIGN: &str = "/foxglove/design";
+/// Each station's scanner pose as a `foxglove.FrameTransform` from the design frame.
 pub const TOPIC_STATIONS: &str = "/foxglove/stations";
+/// Each deviation chunk as a `foxglove.PointCloud` coloured by signed distance.
 pub const TOPIC_DEVIATIONS: &str = "/foxglove/deviations";
+/// Each station report as JSON.
 pub const TOPIC_REPORTS: &str = "/foxglove/reports";
+/// Each station's findings as JSON.
 pub const TOPIC_FINDINGS: &str = "/foxglove/findings";
+/// Each scan chunk as a `foxglove.PointCloud` in its station's frame (`pack --foxglove`).
 pub const TOPIC_SCANS: &str = "/foxglove/scans";
 /// The frame every point and the design are in; stations hang from it.
 pub const DESIGN_FRAME: &str = "design";

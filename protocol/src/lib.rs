@@ -9,6 +9,8 @@
 //!
 //! Units: metres, radians, nanoseconds since the Unix epoch.
 
+#![warn(missing_docs)]
+
 pub mod codec;
 mod deviation;
 mod findings;

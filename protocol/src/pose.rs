@@ -17,6 +17,7 @@ pub enum PoseMode {
 }
 
 impl PoseMode {
+    /// `None` for a value no known sender writes.
     pub fn from_u8(v: u8) -> Option<Self> {
         match v {
             0 => Some(Self::SixDof),
@@ -33,13 +34,19 @@ impl PoseMode {
 #[type_name("asbuilt.PoseSnapshot.v1")]
 #[repr(C)]
 pub struct PoseSnapshot {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// A [`PoseMode`] as `u8`; read it with [`PoseSnapshot::mode`].
     pub mode: u8,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u8,
+    /// The station this pose places, as its Begin numbered it.
     pub station: u32,
+    /// The job (one print) the station belongs to.
     pub job: u64,
+    /// Counts the poses a cell sends, for its own ordering; the agent does not read it.
     pub sequence: u64,
+    /// When the controller sampled the pose, nanoseconds since the Unix epoch.
     pub timestamp_ns: u64,
     /// Metres.
     pub translation: [f64; 3],
@@ -57,6 +64,7 @@ impl PoseSnapshot {
         PoseMode::from_u8(self.mode)
     }
 
+    /// An identity pose of the given mode, with the robot's usual 1 mm position sigma.
     pub fn new(job: u64, station: u32, mode: PoseMode) -> Self {
         Self {
             version: Self::VERSION,

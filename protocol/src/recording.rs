@@ -24,25 +24,38 @@ use crate::{
     StationEvent, StationFindings, StationReport,
 };
 
+/// The MCAP message encoding of the asbuilt channels: [`crate::codec`]'s postcard records.
 pub const MESSAGE_ENCODING: &str = "asbuilt-postcard";
+/// The MCAP schema encoding: the message's fields as text, for a reader without asbuilt.
 pub const SCHEMA_ENCODING: &str = "asbuilt-fields-text";
+/// The MCAP profile of an asbuilt recording.
 pub const PROFILE: &str = "asbuilt";
+/// The metadata record holding [`JobMetadata`].
 pub const METADATA_JOB: &str = "asbuilt.job";
+/// The attachment name prefix of the design file (`design/<file name>`).
 pub const ATTACHMENT_DESIGN: &str = "design";
 
 /// The channels of a recording.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Channel {
+    /// Robot poses, from the cell ([`PoseSnapshot`]).
     Poses,
+    /// Scan chunks, from the scanner ([`ChunkHeader`] and points).
     ScanChunks,
+    /// Station Begin and End, from the cell ([`StationEvent`]).
     StationEvents,
+    /// Deviation chunks, from the agent ([`DeviationHeader`] and deviations).
     Deviations,
+    /// Station reports, from the agent ([`StationReport`]).
     Reports,
+    /// The agent's health ([`AgentStatus`]).
     Status,
+    /// Findings after each report, from the agent ([`StationFindings`]).
     Findings,
 }
 
 impl Channel {
+    /// Every channel, in the order a recording declares them.
     pub const ALL: [Channel; 7] = [
         Channel::Poses,
         Channel::ScanChunks,
@@ -56,6 +69,7 @@ impl Channel {
     /// The cell's messages to the agent: what a replay sends again.
     pub const INPUTS: [Channel; 3] = [Channel::Poses, Channel::ScanChunks, Channel::StationEvents];
 
+    /// The MCAP topic of the channel.
     pub fn topic(self) -> &'static str {
         match self {
             Channel::Poses => "/robot/poses",
@@ -68,10 +82,12 @@ impl Channel {
         }
     }
 
+    /// The channel of an MCAP topic; `None` for a topic asbuilt does not write.
     pub fn from_topic(topic: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|c| c.topic() == topic)
     }
 
+    /// The MCAP schema name of the channel's messages.
     pub fn schema_name(self) -> &'static str {
         match self {
             Channel::Poses => PoseSnapshot::TYPE_NAME,
@@ -132,16 +148,24 @@ pub fn schema_text(channel: Channel) -> &'static str {
 /// One decoded message of a recording.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Recorded {
+    /// A robot pose.
     Pose(PoseSnapshot),
+    /// A scan chunk: its header and points.
     Chunk(ChunkHeader, Vec<ScanPoint>),
+    /// A station's Begin or End.
     Event(StationEvent),
+    /// A deviation chunk: its header and one deviation per scan point.
     Deviations(DeviationHeader, Vec<PointDeviation>),
+    /// A station report.
     Report(Box<StationReport>),
+    /// An agent status.
     Status(Box<AgentStatus>),
+    /// A station's findings.
     Findings(Box<StationFindings>),
 }
 
 impl Recorded {
+    /// The channel the message is recorded on.
     pub fn channel(&self) -> Channel {
         match self {
             Recorded::Pose(_) => Channel::Poses,
@@ -154,6 +178,7 @@ impl Recorded {
         }
     }
 
+    /// A record of `channel` back into its message.
     pub fn decode(channel: Channel, bytes: &[u8]) -> Result<Self, DecodeError> {
         Ok(match channel {
             Channel::Poses => Recorded::Pose(codec::decode(bytes)?),
@@ -172,6 +197,7 @@ impl Recorded {
         })
     }
 
+    /// The message as its channel records it.
     pub fn encode(&self) -> Vec<u8> {
         match self {
             Recorded::Pose(m) => codec::encode(m),
@@ -200,10 +226,15 @@ impl Recorded {
 /// What the `asbuilt.job` metadata record holds.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct JobMetadata {
+    /// What wrote the recording: `asbuilt agent`, `asbuilt pack`...
     pub writer: String,
+    /// The asbuilt release that wrote it.
     pub asbuilt_version: String,
+    /// The design file as the writer named it.
     pub design_path: String,
+    /// The design file's declared units, `m` or `mm`.
     pub design_units: String,
+    /// SHA-256 of the design file's bytes, hexadecimal.
     pub design_sha256: String,
     /// The agent's configuration file as it was, or how a packed file was made.
     pub config: String,
@@ -212,6 +243,7 @@ pub struct JobMetadata {
 }
 
 impl JobMetadata {
+    /// The record's key-value map.
     pub fn to_map(&self) -> BTreeMap<String, String> {
         [
             ("writer", &self.writer),
@@ -227,6 +259,7 @@ impl JobMetadata {
         .collect()
     }
 
+    /// Back from the record's map; a key left out reads as empty.
     pub fn from_map(m: &BTreeMap<String, String>) -> Self {
         let g = |k: &str| m.get(k).cloned().unwrap_or_default();
         Self {
@@ -369,6 +402,7 @@ impl<W: Write + Seek> RecordingWriter<W> {
         }
     }
 
+    /// Writes the job's metadata record.
     pub fn metadata(&mut self, meta: &JobMetadata) -> Result<(), mcap::McapError> {
         self.mcap.write_metadata(&mcap::records::Metadata {
             name: METADATA_JOB.to_string(),
@@ -376,6 +410,8 @@ impl<W: Write + Seek> RecordingWriter<W> {
         })
     }
 
+    /// Attaches the design file's bytes as `design/<name>`, so a recording can be reviewed
+    /// without the design beside it.
     pub fn attach_design(
         &mut self,
         name: &str,
@@ -403,16 +439,23 @@ impl<W: Write + Seek> RecordingWriter<W> {
     }
 }
 
+/// Why a recording cannot be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
+    /// Not an MCAP file, or one the mcap crate cannot read.
     #[error("not a readable MCAP file: {0}")]
     Mcap(#[from] mcap::McapError),
+    /// Records are cut short or overlap (a writer died, or the file was damaged).
     #[error("the file is damaged: {0}")]
     Damaged(#[from] Damaged),
+    /// A record does not decode as its channel's message.
     #[error("message {index} on {topic}: {source}")]
     Decode {
+        /// The message's index in the file, from 0.
         index: usize,
+        /// The message's topic.
         topic: String,
+        /// Why it does not decode.
         source: DecodeError,
     },
 }
@@ -493,6 +536,7 @@ pub struct AgentOrder<I> {
 }
 
 impl<I> AgentOrder<I> {
+    /// Reorders `inner`'s messages into the order the agent handled them.
     pub fn new(inner: I) -> Self {
         Self {
             inner,
@@ -636,10 +680,14 @@ pub fn recover<W: Write + Seek>(
     Ok((w.finish()?, counts))
 }
 
+/// What a recovery kept.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RecoverCounts {
+    /// Messages copied, in every channel.
     pub messages: u64,
+    /// Metadata records copied.
     pub metadata: u64,
+    /// Attachments copied.
     pub attachments: u64,
     /// Messages on channels this build does not know.
     pub skipped: u64,

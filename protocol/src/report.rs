@@ -13,10 +13,15 @@ pub const HISTOGRAM_BINS: usize = 64;
 pub struct DeviationStats {
     /// Points with a distance (valid and matched).
     pub count: u64,
+    /// Mean signed distance, metres.
     pub mean: f64,
+    /// Standard deviation of the signed distances, metres.
     pub std: f64,
+    /// Root mean square of the signed distances, metres.
     pub rms: f64,
+    /// Smallest signed distance, metres.
     pub min: f64,
+    /// Largest signed distance, metres.
     pub max: f64,
     /// Median of |d|, estimated from a histogram; see `asbuilt_core::stats` for the error bound.
     pub median_abs: f64,
@@ -34,10 +39,15 @@ pub struct DeviationStats {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
 #[repr(C)]
 pub struct Histogram {
+    /// Lower edge of the first bin, metres.
     pub low: f64,
+    /// Upper edge of the last bin, metres.
     pub high: f64,
+    /// Distances below `low`.
     pub underflow: u64,
+    /// Distances at or above `high`.
     pub overflow: u64,
+    /// Counts of the equal bins between `low` and `high`.
     #[serde(with = "bounded_bins")]
     pub bins: [u64; HISTOGRAM_BINS],
 }
@@ -82,6 +92,7 @@ impl std::ops::AddAssign for RejectCounts {
 }
 
 impl RejectCounts {
+    /// Every rejected point, whatever the reason.
     pub fn total(&self) -> u64 {
         self.non_finite
             + self.out_of_range
@@ -95,16 +106,23 @@ impl RejectCounts {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
 #[repr(C)]
 pub struct ChunkCounts {
+    /// Chunks that arrived for the station.
     pub received: u64,
     /// From the station's End event; 0 when unknown.
     pub expected: u64,
+    /// Chunks whose sequence had already arrived (dropped).
     pub duplicate: u64,
+    /// Chunks that arrived after a later one.
     pub out_of_order: u64,
+    /// Sequences that never arrived, as far as the last sequence or End says.
     pub missing: u64,
+    /// Chunks without points.
     pub empty: u64,
+    /// Chunks larger than the agent accepts (dropped, their points counted rejected).
     pub oversized: u64,
 }
 
+/// How a station closed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[repr(u8)]
 pub enum StationStatus {
@@ -124,33 +142,48 @@ pub enum StationStatus {
 #[type_name("asbuilt.StationReport.v1")]
 #[repr(C)]
 pub struct StationReport {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// A [`StationStatus`] as `u8`; read it with [`StationReport::status`].
     pub status: u8,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u8,
+    /// The station's number within the job, as its Begin numbered it.
     pub station: u32,
+    /// The job (one print) the station belongs to.
     pub job: u64,
+    /// The last printed layer when the station was scanned, from its Begin.
     pub layer: u32,
+    /// Zero; keeps the layout free of padding.
     pub _reserved2: u32,
+    /// The station's name, from its Begin.
     pub name: FixedText<48>,
     /// Metres; NaN when not printing.
     pub printed_height: f64,
+    /// The tolerance the points were judged with, metres.
     pub tolerance: f64,
+    /// Points farther than this from the design had no match, metres.
     pub max_distance: f64,
+    /// One-sigma position uncertainty of the station's pose, metres.
     pub position_sigma: f64,
     /// Every point that arrived, good or bad.
     pub points_received: u64,
     /// Valid points farther than `max_distance` from the design.
     pub no_match: u64,
+    /// Statistics of the matched points' signed distances.
     pub stats: DeviationStats,
+    /// Rejected points by reason.
     pub rejected: RejectCounts,
+    /// How the station's chunks arrived.
     pub chunks: ChunkCounts,
+    /// Histogram of the matched points' signed distances.
     pub histogram: Histogram,
 }
 
 crate::codec::message!(StationReport, "asbuilt.StationReport.v1", 1);
 
 impl StationReport {
+    /// The status, or `None` for a value no known sender writes.
     pub fn status(&self) -> Option<StationStatus> {
         match self.status {
             0 => Some(StationStatus::Complete),
@@ -161,6 +194,7 @@ impl StationReport {
         }
     }
 
+    /// An empty report of a complete station: no points, no chunks.
     pub fn new(job: u64, station: u32) -> Self {
         Self {
             version: Self::VERSION,

@@ -7,11 +7,15 @@ use crate::{ChunkHeader, PoseSnapshot, ScanPoint, StationEvent, StationEventKind
 
 /// Where a station's messages go, and the clock that stamps them.
 pub trait StationSink {
+    /// What the destination fails with.
     type Error;
     /// The timestamp for a message sent after `points_sent` points of this station.
     fn now_ns(&mut self, points_sent: u64) -> u64;
+    /// Sends a station event (Begin or End).
     fn event(&mut self, event: &StationEvent) -> Result<(), Self::Error>;
+    /// Sends the station's pose.
     fn pose(&mut self, pose: &PoseSnapshot) -> Result<(), Self::Error>;
+    /// Sends one chunk of points with its header.
     fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), Self::Error>;
 }
 

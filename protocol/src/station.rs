@@ -4,10 +4,13 @@ use serde::{Deserialize, Serialize};
 use crate::codec::Message;
 use crate::text::FixedText;
 
+/// Whether a [`StationEvent`] opens or closes a station.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
 pub enum StationEventKind {
+    /// The station starts: its pose and chunks follow.
     Begin = 0,
+    /// The station is done: everything it sent has been sent.
     End = 1,
 }
 
@@ -16,12 +19,17 @@ pub enum StationEventKind {
 #[type_name("asbuilt.StationEvent.v1")]
 #[repr(C)]
 pub struct StationEvent {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// A [`StationEventKind`] as `u8`; read it with [`StationEvent::kind`].
     pub kind: u8,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u8,
+    /// The station's number within the job, chosen by the cell.
     pub station: u32,
+    /// The job (one print) the station belongs to.
     pub job: u64,
+    /// When the cell sent the event, nanoseconds since the Unix epoch.
     pub timestamp_ns: u64,
     /// Index of the last printed layer when this station was scanned.
     pub layer: u32,
@@ -31,12 +39,14 @@ pub struct StationEvent {
     pub expected_points: u64,
     /// Height of the printed part in the design frame, metres; NaN when not printing.
     pub printed_height: f64,
+    /// The station's name for people (reports, the viewer), at most 48 bytes of UTF-8.
     pub name: FixedText<48>,
 }
 
 crate::codec::message!(StationEvent, "asbuilt.StationEvent.v1", 1);
 
 impl StationEvent {
+    /// The kind, or `None` for a value no known sender writes.
     pub fn kind(&self) -> Option<StationEventKind> {
         match self.kind {
             0 => Some(StationEventKind::Begin),
@@ -45,6 +55,7 @@ impl StationEvent {
         }
     }
 
+    /// An event of `kind` for a station, with nothing expected and no printed height.
     pub fn new(kind: StationEventKind, job: u64, station: u32) -> Self {
         Self {
             version: Self::VERSION,

@@ -4,9 +4,11 @@ use serde::{Deserialize, Serialize};
 use crate::codec::Message;
 use crate::report::RejectCounts;
 
+/// What the agent is doing, as [`AgentStatus`] says it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
 pub enum AgentState {
+    /// Reading chunks and answering stations.
     Serving = 0,
     /// A termination signal arrived: open stations are being closed with partial reports.
     ShuttingDown = 1,
@@ -23,9 +25,13 @@ pub struct InputRejects {
     pub chunks_after_close: u64,
     /// Chunks pushed out of the bounded wait-for-pose buffer by newer ones.
     pub chunks_pending_overflow: u64,
+    /// Chunks without points.
     pub chunks_empty: u64,
+    /// Chunks larger than the agent accepts.
     pub chunks_oversized: u64,
+    /// Chunks whose sequence had already arrived.
     pub chunks_duplicate: u64,
+    /// Chunks that arrived after a later one of their station.
     pub chunks_out_of_order: u64,
     /// `point_count` in the header disagrees with the payload length.
     pub chunks_malformed: u64,
@@ -38,6 +44,7 @@ pub struct InputRejects {
 }
 
 impl InputRejects {
+    /// Every rejected input, whatever the reason.
     pub fn total(&self) -> u64 {
         self.chunks_unknown_station
             + self.chunks_after_close
@@ -58,7 +65,9 @@ impl InputRejects {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ZeroCopySend)]
 #[repr(C)]
 pub struct OutputDrops {
+    /// Deviation chunks a full subscriber queue did not take.
     pub deviation_chunks: u64,
+    /// Station reports a full subscriber queue did not take.
     pub reports: u64,
     /// Deviation chunks computed but not published because no output sample could be loaned.
     pub deviation_chunks_unloaned: u64,
@@ -69,33 +78,44 @@ pub struct OutputDrops {
 #[type_name("asbuilt.AgentStatus.v1")]
 #[repr(C)]
 pub struct AgentStatus {
+    /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// An [`AgentState`] as `u8`; read it with [`AgentStatus::state`].
     pub state: u8,
+    /// Zero; keeps the layout free of padding.
     pub _reserved: u8,
+    /// The agent's operating-system process id.
     pub process_id: u32,
+    /// When the status was taken, nanoseconds since the Unix epoch.
     pub timestamp_ns: u64,
+    /// Nanoseconds since the agent started.
     pub uptime_ns: u64,
     /// Points of accepted chunks processed since start.
     pub points_processed: u64,
+    /// Accepted chunks processed since start.
     pub chunks_processed: u64,
     /// Over the last status period.
     pub points_per_second: f64,
+    /// Stations begun and not yet reported.
     pub stations_open: u32,
     /// Chunks held while they wait for their station's pose.
     pub chunks_waiting: u32,
+    /// Stations reported since start.
     pub stations_reported: u64,
     /// Dead iceoryx2 nodes (crashed publishers) whose resources the agent removed.
     pub dead_nodes_cleaned: u64,
     /// Points rejected in all stations so far, by reason.
     pub rejected_points: RejectCounts,
+    /// Inputs rejected whole, by reason.
     pub input: InputRejects,
+    /// Outputs that did not reach every subscriber, by kind.
     pub output: OutputDrops,
 }
 
 crate::codec::message!(AgentStatus, "asbuilt.AgentStatus.v1", 1);
 
 impl AgentStatus {
+    /// The state, or `None` for a value no known sender writes.
     pub fn state(&self) -> Option<AgentState> {
         match self.state {
             0 => Some(AgentState::Serving),
@@ -104,6 +124,7 @@ impl AgentStatus {
         }
     }
 
+    /// A serving agent's status with every count zero.
     pub fn new(process_id: u32) -> Self {
         Self {
             version: Self::VERSION,

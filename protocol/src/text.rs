@@ -16,11 +16,14 @@ pub struct FixedText<const N: usize> {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("text of {len} bytes does not fit a field of {capacity} bytes; use a shorter name")]
 pub struct TextTooLong {
+    /// The text's length in bytes.
     pub len: usize,
+    /// The field's capacity in bytes.
     pub capacity: usize,
 }
 
 impl<const N: usize> FixedText<N> {
+    /// No text.
     pub const fn empty() -> Self {
         Self {
             len: 0,
@@ -28,6 +31,7 @@ impl<const N: usize> FixedText<N> {
         }
     }
 
+    /// The text, or an error when it is longer than `N` bytes.
     pub fn new(text: &str) -> Result<Self, TextTooLong> {
         if text.len() > N {
             return Err(TextTooLong {
@@ -50,6 +54,7 @@ impl<const N: usize> FixedText<N> {
         Self::new(&text[..end]).expect("cut to capacity")
     }
 
+    /// The text.
     pub fn as_str(&self) -> &str {
         // A payload from shared memory is foreign data: never trust its length or its bytes.
         let len = (self.len as usize).min(N);

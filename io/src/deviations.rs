@@ -22,6 +22,8 @@ const POINT: [Property; 8] = [
     Property::new("flags", Scalar::U8),
 ];
 
+/// The deviations of an inspection as `deviations.ply` (and `deviations.txt` when asked):
+/// position, signed distance, triangle, station, feature and flags per point.
 pub struct DeviationsPly {
     ply: PlyWriter,
     /// The same points as text with a header line, for tools that read ASCII.

@@ -6,23 +6,31 @@ use std::path::PathBuf;
 /// error, a parser's error) stays attached for callers that walk the chain.
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
+    /// The file is not there.
     #[error("cannot open {kind} file {path}: it does not exist; check the path")]
     NotFound {
+        /// The file as given.
         path: PathBuf,
         /// "scan" or "design".
         kind: &'static str,
     },
+    /// The file is there but cannot be opened (permissions, a directory...).
     #[error("cannot open {path}: {source}")]
     Open {
+        /// The file as given.
         path: PathBuf,
+        /// What the operating system said.
         #[source]
         source: std::io::Error,
     },
+    /// The extension names no format asbuilt reads.
     #[error("{path}: unknown {kind} format .{extension}: use {expected}")]
     UnknownFormat {
+        /// The file as given.
         path: PathBuf,
         /// "scan" or "design".
         kind: &'static str,
+        /// The extension, without the dot.
         extension: String,
         /// The formats that would be read, as a user types them.
         expected: &'static str,
@@ -31,26 +39,41 @@ pub enum IoError {
     /// record or element where that is known.
     #[error("cannot read {path} as {format}: {what}")]
     Malformed {
+        /// The file as given.
         path: PathBuf,
+        /// The format the file was read as.
         format: &'static str,
+        /// What is wrong, and where.
         what: String,
     },
+    /// The file cannot be written.
     #[error("cannot write {path}: {source}")]
     Write {
+        /// The file as given.
         path: PathBuf,
+        /// What the operating system said.
         #[source]
         source: std::io::Error,
     },
+    /// The design holds no triangle with an area.
     #[error(
         "design file {path} has no usable triangles (empty, or every triangle degenerate): \
          export the surface as a triangle mesh"
     )]
-    EmptyDesign { path: PathBuf },
+    EmptyDesign {
+        /// The file as given.
+        path: PathBuf,
+    },
     /// A scan reader or writer failed; its message says where in the file. The reader's
     /// chain of causes is kept whole in `cause` and written out in the message, so it is not
     /// also offered as `source()` (a caller printing the chain would print it twice).
     #[error("{}", scan_message(path, cause))]
-    Scan { path: PathBuf, cause: anyhow::Error },
+    Scan {
+        /// The file as given.
+        path: PathBuf,
+        /// The reader's error with its causes.
+        cause: anyhow::Error,
+    },
 }
 
 impl IoError {

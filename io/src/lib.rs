@@ -6,6 +6,8 @@
 //! A design file's units are declared by the caller, never guessed. Every error names the file,
 //! the line or record where it can, and what to do.
 
+#![warn(missing_docs)]
+
 mod deviations;
 mod error;
 mod mesh;

@@ -15,8 +15,11 @@ use crate::IoError;
 /// Mesh file formats a design can come in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MeshFormat {
+    /// Binary or ASCII STL.
     Stl,
+    /// Wavefront OBJ (faces with more than three vertices are fanned into triangles).
     Obj,
+    /// PLY, binary or ASCII, with a `face` element.
     Ply,
 }
 

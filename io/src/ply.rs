@@ -15,10 +15,15 @@ use crate::IoError;
 /// A property's scalar type, as the PLY header names it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Scalar {
+    /// `double`.
     F64,
+    /// `float`.
     F32,
+    /// `uint`.
     U32,
+    /// `ushort`.
     U16,
+    /// `uchar`.
     U8,
 }
 
@@ -46,11 +51,14 @@ impl Scalar {
 /// One column of the vertex element.
 #[derive(Debug, Clone, Copy)]
 pub struct Property {
+    /// The property's name in the header.
     pub name: &'static str,
+    /// Its scalar type.
     pub scalar: Scalar,
 }
 
 impl Property {
+    /// A column `name` of type `scalar`.
     pub const fn new(name: &'static str, scalar: Scalar) -> Self {
         Self { name, scalar }
     }

@@ -24,12 +24,18 @@ use nalgebra::Isometry3;
 
 use crate::IoError;
 
+/// Scan file formats, by extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
+    /// ASTM E57 (`.e57`): several scans, each with its pose.
     E57,
+    /// ASPRS LAS or LAZ (`.las`, `.laz`): one cloud in a world frame.
     Las,
+    /// Leica PTX (`.ptx`): several scans, each with its header's transform.
     Ptx,
+    /// PLY (`.ply`): one cloud, no pose.
     Ply,
+    /// Text, one point a line (`.xyz`, `.txt`, `.pts`, `.asc`, `.csv`).
     Xyz,
 }
 
@@ -71,6 +77,7 @@ pub enum PoseSource {
 }
 
 impl PoseSource {
+    /// Where the pose came from, as a station line says it.
     pub fn describe(self) -> &'static str {
         match self {
             PoseSource::E57 => "the E57 scan pose",
@@ -83,7 +90,9 @@ impl PoseSource {
 /// One scan inside a file.
 #[derive(Debug, Clone)]
 pub struct ScanInfo {
+    /// The scan's position in the file, from 0.
     pub index: usize,
+    /// The scan's name in the file, or one made from the file's name.
     pub name: String,
     /// Points the file declares for this scan, if it declares them.
     pub points: Option<u64>,
@@ -98,7 +107,9 @@ pub struct ScanInfo {
 /// What a reader had to leave out or flag, besides the points it handed out.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct ReadNotes {
+    /// Lines (text formats) that could not be read as a point, left out.
     pub malformed_lines: u64,
+    /// The first of those lines, 1-based.
     pub first_malformed_line: Option<u64>,
     /// Points the scanner marked invalid (no return); handed out flagged, never dropped.
     pub invalid: u64,
@@ -111,9 +122,14 @@ impl ReadNotes {
     }
 }
 
+/// A scan file opened for reading: its format and the scans it holds, read point by point
+/// only when streamed.
 pub struct ScanFile {
+    /// The file as given.
     pub path: PathBuf,
+    /// The format its extension says.
     pub format: Format,
+    /// The scans it holds, in file order.
     pub scans: Vec<ScanInfo>,
 }
 

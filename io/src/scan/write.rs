@@ -17,7 +17,9 @@ use crate::ply::{PlyWriter, Property, Scalar};
 /// A scan to write: its name, pose (`p_file = pose · p_scan`) and point count.
 #[derive(Debug, Clone)]
 pub struct OutScan {
+    /// The scan's name, where the format keeps one.
     pub name: String,
+    /// `p_file = pose · p_scan`.
     pub pose: Isometry3<f64>,
     /// Points that will be fed, invalid ones included (PTX headers and PLY counts need it).
     pub points: u64,
@@ -26,10 +28,12 @@ pub struct OutScan {
 /// Calls its argument with every chunk of the scan.
 pub type Feed<'f> = &'f mut dyn FnMut(&mut dyn FnMut(&[ScanPoint]) -> Result<()>) -> Result<()>;
 
+/// A scan file being written, scan after scan.
 pub trait CloudWriter {
     /// Writes one scan; returns the points written (formats without an invalid flag leave
     /// invalid points out).
     fn write_scan(&mut self, scan: &OutScan, feed: Feed) -> Result<u64>;
+    /// Ends the file (counts, footers) and flushes it.
     fn finish(self: Box<Self>) -> Result<()>;
 }
 

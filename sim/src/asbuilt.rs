@@ -15,10 +15,13 @@ const MAX_CAP_EDGE: f64 = 0.15;
 /// The as-built part after `printed` layers with `defects`: triangles, outward, metres.
 #[derive(Debug, Clone)]
 pub struct AsBuilt {
+    /// Vertices, design frame.
     pub vertices: Vec<Point3<f64>>,
+    /// Triangles as vertex indices, counter-clockwise seen from outside.
     pub triangles: Vec<[u32; 3]>,
     /// Height of the printed top, metres (it differs from the nominal one under drift and sag).
     pub top: f64,
+    /// Layers printed.
     pub printed: u32,
 }
 
@@ -30,6 +33,7 @@ struct LayerRings {
     gapped: bool,
 }
 
+/// The as-built part after `printed` layers (at most the part's) with `defects` applied.
 pub fn as_built(part: &Part, defects: &[Defect], printed: u32) -> Result<AsBuilt, PartError> {
     let printed = printed.min(part.layers());
     let states = layer_states(part, defects, printed);

@@ -22,22 +22,31 @@ use rand_chacha::ChaCha8Rng;
 /// A print job to simulate.
 #[derive(Debug, Clone)]
 pub struct SimJob {
+    /// The part to print.
     pub part: Part,
+    /// Defects of the print.
     pub defects: Vec<Defect>,
     /// Layer counts after which the robot scans, ascending.
     pub scan_after: Vec<u32>,
+    /// Stations around the part at each scan layer.
     pub stations_per_scan: u32,
     /// Stations stand this far out from the part's footprint and this far above its top, m.
     pub standoff: f64,
+    /// Metres the stations stand above the printed top.
     pub lift: f64,
     /// `FixedOrientation` (the Z+F mounting) or `SixDof`.
     pub pose_mode: PoseMode,
     /// Pose error of the robot-mounted scanner, metres and radians (six-DoF only).
     pub position_sigma: f64,
+    /// One-sigma rotation error of the robot pose, radians.
     pub rotation_sigma: f64,
+    /// The scanner's model: angular step, ranges, noise, dropout, mixed pixels.
     pub scanner: ScannerModel,
+    /// Seed of every random draw, so a job gives the same points each time.
     pub seed: u64,
+    /// The job number the messages carry.
     pub job: u64,
+    /// Points per scan chunk sent.
     pub chunk_points: usize,
     /// Points per second, or `None` for as fast as the agent takes them.
     pub rate: Option<f64>,
@@ -157,9 +166,12 @@ impl SimJob {
     }
 }
 
+/// A station the job will scan from.
 #[derive(Debug, Clone)]
 pub struct PlannedStation {
+    /// The station's number within the job.
     pub index: u32,
+    /// The station's name: its scan layer and place around the part.
     pub name: String,
     /// Layers printed when it scans.
     pub printed: u32,
@@ -172,6 +184,7 @@ pub struct PlannedStation {
 }
 
 impl PlannedStation {
+    /// The scanner's origin as the robot reports it.
     pub fn origin(&self) -> Point3<f64> {
         Point3::from(self.nominal.translation.vector)
     }
@@ -179,25 +192,40 @@ impl PlannedStation {
 
 /// What happened, as it happened.
 pub enum SimEvent<'a> {
+    /// A station's scan was simulated.
     Scanned {
+        /// The station.
         station: &'a PlannedStation,
+        /// Its scan.
         scan: &'a Scan,
+        /// Seconds the simulation took.
         seconds: f64,
     },
+    /// A station's messages were sent to the agent.
     Sent {
+        /// The station.
         station: &'a PlannedStation,
+        /// Points sent.
         points: u64,
+        /// Seconds the sending took.
         seconds: f64,
     },
+    /// The agent reported a station.
     Report(&'a StationReport),
+    /// The agent sent a station's findings.
     Findings(&'a StationFindings),
 }
 
+/// What a job sent and got back.
 #[derive(Debug, Default)]
 pub struct SimOutcome {
+    /// Points sent over every station.
     pub points_sent: u64,
+    /// Seconds the whole job took, up to its last report (or the end of the wait for it).
     pub seconds: f64,
+    /// The reports, as they came.
     pub reports: Vec<StationReport>,
+    /// The findings, as they came.
     pub findings: Vec<StationFindings>,
 }
 

@@ -7,7 +7,9 @@ use super::part::Part;
 #[derive(Debug, thiserror::Error)]
 #[error("{spec:?}: {problem}")]
 pub struct DefectSpecError {
+    /// The spelling as given.
     pub spec: String,
+    /// What is wrong with it.
     pub problem: String,
 }
 

@@ -10,25 +10,54 @@ use super::part::Part;
 pub enum Defect {
     /// Layers `first..=last` come out `width` wider (over-extrusion, > 0) or narrower (< 0),
     /// half of it on each side.
-    Extrusion { first: u32, last: u32, width: f64 },
+    Extrusion {
+        /// The first layer affected.
+        first: u32,
+        /// The last layer affected.
+        last: u32,
+        /// Metres wider (> 0) or narrower (< 0) than the design.
+        width: f64,
+    },
     /// From layer `from` on, every layer is `per_layer` thicker (> 0) or thinner than nominal.
-    HeightDrift { from: u32, per_layer: f64 },
+    HeightDrift {
+        /// The first layer affected.
+        from: u32,
+        /// Metres each layer gains (> 0) or loses.
+        per_layer: f64,
+    },
     /// From layer `from` on, the layers sit shifted by `offset` (x, y).
-    LateralShift { from: u32, offset: [f64; 2] },
+    LateralShift {
+        /// The first layer affected.
+        from: u32,
+        /// Metres in x and y.
+        offset: [f64; 2],
+    },
     /// The top `layers` layers of the print, still fresh, settle so that the top ends `depth`
     /// low, most of it in the top layer, and spread sideways by half of what they lose.
-    Sag { layers: u32, depth: f64 },
+    Sag {
+        /// Top layers that settle.
+        layers: u32,
+        /// Metres the top ends low.
+        depth: f64,
+    },
     /// Layer `layer` is missing over `length` of its path around `centre`, along `direction`.
     MissingSegment {
+        /// The layer with the gap.
         layer: u32,
+        /// The gap's middle in x and y; the path nearest to it loses the segment.
         centre: [f64; 2],
+        /// The gap's direction in the plane.
         direction: [f64; 2],
+        /// The gap's length, metres.
         length: f64,
     },
     /// The surface swells outward by up to `height` within `radius` of `centre`.
     Bulge {
+        /// The bulge's centre in the design frame, on or near the surface.
         centre: [f64; 3],
+        /// Metres from the centre where the swelling ends.
         radius: f64,
+        /// The swelling at the centre, metres.
         height: f64,
     },
 }
@@ -36,6 +65,7 @@ pub enum Defect {
 /// What a defect did to a print after `printed` layers, in the terms the agent reports.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Truth {
+    /// The defect's kind as `--defect` spells it.
     pub kind: &'static str,
     /// The quantity the agent should measure: width deviation, top height deviation, shift,
     /// missing length, bulge height. Signed, metres.
@@ -49,6 +79,7 @@ pub struct Truth {
 }
 
 impl Defect {
+    /// The kind as `--defect` spells it.
     pub fn kind(&self) -> &'static str {
         match self {
             Defect::Extrusion { width, .. } if *width < 0.0 => "under-extrusion",

@@ -5,6 +5,8 @@
 //!
 //! A crate of its own so that the agent, which never simulates, does not link it.
 
+#![warn(missing_docs)]
+
 mod asbuilt;
 mod cell;
 mod defect_spec;

@@ -29,19 +29,29 @@ enum Shape {
 /// the printed outline at any height.
 #[derive(Debug, Clone)]
 pub struct Part {
+    /// The part's name: `wall`, `column`, or the mesh file's stem.
     pub name: String,
+    /// The design the agent compares against, metres.
     pub design: Design,
+    /// Metres per printed layer.
     pub layer_height: f64,
     height: f64,
     shape: Shape,
 }
 
+/// A part that cannot be printed in layers.
 #[derive(Debug, thiserror::Error)]
 pub enum PartError {
+    /// The layer height is not positive or not below the part's height.
     #[error("layer height {0} m must be positive and below the part's height {1} m")]
     LayerHeight(f64, f64),
+    /// A layer's height cuts no section of the design.
     #[error("the design has no section at z = {z:.4} m (it may be open or not stand on z = 0)")]
-    NoSection { z: f64 },
+    NoSection {
+        /// The height, metres.
+        z: f64,
+    },
+    /// The design could not be cut at a layer.
     #[error("slicing the design: {0}")]
     Cut(#[from] CutError),
 }

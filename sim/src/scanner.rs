@@ -23,18 +23,24 @@ pub struct ScannerModel {
     pub step_deg: f64,
     /// Lowest and highest elevation the head sees, degrees.
     pub min_elevation_deg: f64,
+    /// Highest elevation the head sees, degrees.
     pub max_elevation_deg: f64,
+    /// Closest range that returns, metres.
     pub min_range: f64,
+    /// Farthest range that returns, metres.
     pub max_range: f64,
     /// Range noise σ = `range_sigma` + `range_sigma_per_m` · range, metres.
     pub range_sigma: f64,
+    /// Range noise growing with range, metres per metre.
     pub range_sigma_per_m: f64,
     /// Returns thin out from this incidence angle on and vanish at `dropout_end_deg`.
     pub dropout_start_deg: f64,
+    /// Incidence angle beyond which nothing returns, degrees.
     pub dropout_end_deg: f64,
     /// Probability that a pixel on an edge (a neighbour ≥ `edge_jump` farther or empty)
     /// returns a mixed range between the two surfaces.
     pub mixed_pixel_probability: f64,
+    /// Range jump, metres, that makes a pixel an edge.
     pub edge_jump: f64,
 }
 
@@ -59,10 +65,13 @@ impl Default for ScannerModel {
 /// A scan: points in the scanner frame, in scan-line order (column by column, bottom to top).
 #[derive(Debug, Clone, Default)]
 pub struct Scan {
+    /// Points, scanner frame.
     pub points: Vec<ScanPoint>,
     /// Rays cast (pixels in the part's angular window) and how many returned nothing.
     pub rays: u64,
+    /// Rays that returned nothing (beyond range, dropout, no surface).
     pub dropped: u64,
+    /// Returns mixed between two surfaces at an edge.
     pub mixed: u64,
 }
 

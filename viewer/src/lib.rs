@@ -14,6 +14,8 @@
 //! Colours: a diverging scale centred on 0, saturated at ± the tolerance: blue (missing
 //! material) through white (on the design) to red (excess); grey for no match.
 
+#![warn(missing_docs)]
+
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
@@ -34,6 +36,7 @@ pub struct ViewerParams {
     pub max_points_per_station: usize,
     /// Items waiting for the viewer thread beyond which new ones are dropped.
     pub queue: usize,
+    /// The tolerance the colours are scaled to, metres.
     pub tolerance: f64,
     /// Where the viewer's warnings go (it never fails its caller): the agent's log, stderr.
     pub warn: fn(std::fmt::Arguments<'_>),
@@ -41,57 +44,86 @@ pub struct ViewerParams {
 
 /// One thing to show.
 pub enum View {
+    /// The design mesh, once.
     Design {
+        /// Vertices, design frame, metres.
         vertices: Vec<Point3<f64>>,
+        /// Triangles as vertex indices.
         triangles: Vec<[u32; 3]>,
     },
+    /// A station's scanner pose, on the station's timeline.
     Station {
+        /// The station's number.
         index: u32,
+        /// The station's name.
         name: String,
+        /// The last printed layer when it scanned.
         layer: u32,
+        /// `T_design_scanner`.
         pose: Isometry3<f64>,
+        /// When it began, nanoseconds since the Unix epoch.
         time_ns: u64,
     },
     /// Design-frame positions and their signed distance (NaN: no match).
     Points {
+        /// The station's number.
         index: u32,
+        /// The station's name.
         name: String,
+        /// Design frame, metres.
         positions: Vec<Point3<f64>>,
+        /// Signed distances, metres, one per position.
         distances: Vec<f32>,
     },
+    /// A station's report: its statistics as series and its histogram.
     Report {
+        /// The station's number.
         index: u32,
+        /// The station's name.
         name: String,
+        /// The report.
         report: Box<StationReport>,
     },
     /// Design samples or core points with a value in metres and, for M3C2, significance.
     Samples {
+        /// The entity path to log them under.
         path: String,
+        /// Design frame, metres.
         positions: Vec<Point3<f64>>,
+        /// Metres, one per position; NaN where there is none.
         values: Vec<f32>,
+        /// Whether each value is beyond its level of detection (M3C2).
         significant: Option<Vec<bool>>,
     },
     /// A scan layer's findings: regions and missing material as boxes, per-layer width and
     /// top height as series.
     Findings {
+        /// The station whose report the findings follow.
         index: u32,
+        /// The findings.
         findings: Box<asbuilt_protocol::StationFindings>,
     },
     /// A per-layer value as a time series on the `layer` timeline.
     LayerValue {
+        /// The series' entity path.
         series: String,
+        /// The layer, 0-based.
         layer: u32,
+        /// The value, metres.
         value: f64,
     },
 }
 
+/// A rerun view fed from a thread of its own, so showing never blocks its caller.
 pub struct Viewer {
     tx: Option<SyncSender<View>>,
     thread: Option<JoinHandle<()>>,
+    /// Views dropped because the viewer thread was behind.
     pub dropped: Arc<AtomicU64>,
     settings: ViewerParams,
 }
 
+/// The view could not start: a file that cannot be written, a URL that is not a viewer's.
 #[derive(Debug, thiserror::Error)]
 #[error("cannot start the rerun view: {0}")]
 pub struct ViewerError(String);
@@ -140,6 +172,7 @@ impl Viewer {
         }
     }
 
+    /// Points shown per station, at most.
     pub fn max_points_per_station(&self) -> usize {
         self.settings.max_points_per_station
     }

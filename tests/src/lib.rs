@@ -5,6 +5,8 @@
 //! builds the shipped `main.rs` files of the agent and the command line again under the names
 //! `e2e-asbuilt-agent` and `e2e-asbuilt` (see Cargo.toml): the same source, not a stand-in.
 
+#![warn(missing_docs)]
+
 pub mod fuzz;
 
 use std::io::Read;
@@ -25,6 +27,7 @@ pub fn unique_prefix(test: &str) -> String {
     format!("asbuilt-e2e/{test}-{}-{nanos}", std::process::id())
 }
 
+/// The real third-party data beside the repository (`../shared/data`).
 pub fn shared_data() -> PathBuf {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     assert!(p.is_dir(), "test data not found at {}", p.display());
@@ -66,8 +69,11 @@ pub fn write_box_stl(path: &Path, min: [f64; 3], max: [f64; 3]) {
 
 /// A running agent; killed when dropped.
 pub struct Agent {
+    /// The agent's process.
     pub child: Child,
+    /// The service prefix it serves under.
     pub prefix: String,
+    /// Its folder: the configuration, the log, the recordings.
     pub dir: tempfile::TempDir,
     log: PathBuf,
 }
@@ -79,6 +85,7 @@ impl Agent {
         Self::start_in(exe, prefix, config, dir)
     }
 
+    /// [`Agent::start`] in a folder the test made.
     pub fn start_in(exe: &str, prefix: &str, config: &str, dir: tempfile::TempDir) -> Agent {
         let path = dir.path().join("agent.toml");
         std::fs::write(
@@ -102,10 +109,12 @@ impl Agent {
         }
     }
 
+    /// The agent's process id.
     pub fn pid(&self) -> u32 {
         self.child.id()
     }
 
+    /// Everything the agent has logged so far.
     pub fn log(&self) -> String {
         let mut s = String::new();
         std::fs::File::open(&self.log)
@@ -115,6 +124,7 @@ impl Agent {
         s
     }
 
+    /// Sends the agent a signal (`TERM`, `INT`, `KILL`...) and asserts it was delivered.
     pub fn signal(&self, signal: &str) {
         let ok = Command::new("kill")
             .arg(format!("-{signal}"))
@@ -158,6 +168,7 @@ fn rand_suffix() -> u32 {
 
 /// The cell's side of an agent's services, in the test process.
 pub struct Cell {
+    /// The cell's ports on the agent's services.
     pub ports: CellPorts,
     _node: Node<Ipc>,
 }
@@ -193,6 +204,7 @@ impl Cell {
         out
     }
 
+    /// Receives every deviation chunk waiting; returns their points.
     pub fn drain_deviations(&self) -> usize {
         let mut n = 0;
         while let Ok(Some(d)) = self.ports.deviations.receive() {

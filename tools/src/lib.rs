@@ -2,6 +2,8 @@
 //! command they name. The `asbuilt` executable is `main` over these two; the Python package runs
 //! the same commands in its own process (`asbuilt.inspect`, `asbuilt.read_recording`).
 
+#![warn(missing_docs)]
+
 mod calibrate;
 mod convert;
 mod demo;
@@ -27,6 +29,7 @@ use clap::{Parser, Subcommand};
     version,
     about = "Geometric inspection for construction 3D printing"
 )]
+/// The command line's arguments, checked by clap.
 pub struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -17,6 +17,7 @@ use iceoryx2::prelude::*;
 use crate::stations;
 use asbuilt_io::scan::ScanFile;
 
+/// `asbuilt publish`'s arguments.
 #[derive(Args)]
 pub struct PublishArgs {
     /// Stations file: [[station]] with id, scan, and a pose (translation, rotation_xyzw) unless
@@ -72,6 +73,7 @@ pub(crate) fn parse_rate(s: &str) -> Result<Option<f64>> {
     Ok(Some(r))
 }
 
+/// Streams the stations' scans into a running agent and waits for its reports.
 pub fn run(args: PublishArgs) -> Result<ExitCode> {
     let rate = parse_rate(&args.rate)?;
     if args.chunk_points == 0 {

@@ -28,6 +28,7 @@ use asbuilt_core::scan_layer::SampleState;
 use asbuilt_report::maps::{MapCollector, ScanLayerMaps};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 
+/// `asbuilt report`'s arguments.
 #[derive(Args)]
 pub struct ReportArgs {
     /// The recording (from the agent's recorder or `asbuilt pack`).
@@ -52,6 +53,7 @@ pub struct ReportArgs {
     png: bool,
 }
 
+/// Writes report.json and report.html for a recording and prints its summary table.
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     write(
         &args.recording,
@@ -163,8 +165,11 @@ impl Outputs for Collected {
 /// What the command line sets over the recording's configuration.
 #[derive(Default)]
 pub struct Overrides {
+    /// The tolerance to judge with instead of the recorded one, metres.
     pub tolerance: Option<f64>,
+    /// The maximum distance instead of the recorded one, metres.
     pub max_distance: Option<f64>,
+    /// Per-layer limits instead of the defaults.
     pub limits: Vec<asbuilt_core::verdict::LayerLimit>,
     /// Write the maps as PNG files too.
     pub png: bool,
@@ -189,7 +194,9 @@ pub fn write(
 /// lifecycle made of it.
 #[derive(Default)]
 pub struct StationReadBack {
+    /// The job the station belongs to.
     pub job: u64,
+    /// The station's number within the job.
     pub station: u32,
     /// The station's Begin as recorded (name, layer, printed height).
     pub begin: Option<StationEvent>,
@@ -199,6 +206,7 @@ pub struct StationReadBack {
     pub chunks: BTreeMap<u64, Vec<ScanPoint>>,
     /// The deviations of each inspected chunk, by sequence number: entry i is chunk point i's.
     pub deviations: BTreeMap<u64, Vec<PointDeviation>>,
+    /// The agent's report of the station, as recorded.
     pub report: Option<StationReport>,
     /// The findings of the station's scan layer drawn after this station.
     pub findings: Option<StationFindings>,

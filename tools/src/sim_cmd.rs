@@ -61,6 +61,7 @@ pub struct JobArgs {
 }
 
 impl JobArgs {
+    /// The part `--part` names, sliced in `--layer-height` layers.
     pub fn part(&self) -> Result<Part> {
         match self.part.as_str() {
             "wall" => Ok(Part::wall()),
@@ -87,6 +88,7 @@ impl JobArgs {
         }
     }
 
+    /// The whole job the arguments describe: part, defects, scan layers, stations, scanner.
     pub fn job(&self) -> Result<SimJob> {
         let part = self.part()?;
         let mut job = SimJob::new(part);
@@ -132,8 +134,10 @@ impl JobArgs {
     }
 }
 
+/// `asbuilt sim`'s arguments.
 #[derive(Args)]
 pub struct SimArgs {
+    /// What to print and how.
     #[command(flatten)]
     pub job: JobArgs,
     /// Service prefix of the agent (its services.prefix).
@@ -150,6 +154,8 @@ pub struct SimArgs {
     pub findings: bool,
 }
 
+/// Sends the simulated job to a running agent and prints its reports and findings as they
+/// come; exit code 1 when a station got no report.
 pub fn run(args: SimArgs) -> Result<ExitCode> {
     let job = args.job.job()?;
     let names = ServiceNames::new(&args.prefix);
@@ -222,6 +228,7 @@ fn say(bar: &ProgressBar, line: String) {
     }
 }
 
+/// One line for a station report, as `sim` and `demo` print it.
 pub fn report_line(r: &StationReport) -> String {
     format!(
         "  {:<10} layer {:>3} {:?}: {:>8} points, median |d| {:.2} mm, p95 {:.2} mm, {:.1} % in \
@@ -236,6 +243,7 @@ pub fn report_line(r: &StationReport) -> String {
     )
 }
 
+/// One line for a scan layer's findings, as `sim` and `demo` print it.
 pub fn findings_line(f: &StationFindings) -> String {
     let mut items = Vec::new();
     if f.top_height_deviation.abs() > f.tolerance {
@@ -300,6 +308,7 @@ fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {
     ExitCode::SUCCESS
 }
 
+/// Writes the job's truth.json (the injected defects and what the agent should find).
 pub fn write_truth(path: &Path, job: &SimJob) -> Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(&job.truth_json())?)
         .with_context(|| format!("cannot write {}", path.display()))

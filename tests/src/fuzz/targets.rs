@@ -15,7 +15,9 @@ use asbuilt_protocol::{
 
 use super::Outcome;
 
+/// One kind of input a user or a peer can hand us, and how to feed it to asbuilt.
 pub struct Target {
+    /// The target's name, as `fuzz --target` takes it.
     pub name: &'static str,
     /// A text format: number tokens are mutated too.
     pub text: bool,
@@ -32,6 +34,7 @@ impl Target {
     }
 }
 
+/// Every fuzz target.
 pub const TARGETS: &[Target] = &[
     scan("scan-ply", true),
     scan("scan-xyz", true),
@@ -68,6 +71,7 @@ pub const TARGETS: &[Target] = &[
     },
 ];
 
+/// The target named `name`.
 pub fn target(name: &str) -> Option<&'static Target> {
     TARGETS.iter().find(|t| t.name == name)
 }

@@ -14,19 +14,30 @@ use serde::de::DeserializeOwned;
 /// with its own issue; asking for it now is a configuration error, not a silent no-op.
 pub const AVAILABLE_METHODS: &[&str] = &["c2m"];
 
+/// `agent.toml`, read and checked: every section with its defaults filled in.
 #[derive(Debug, Clone)]
 pub struct AgentConfig {
     /// The file the configuration was read from, for messages.
     pub source: PathBuf,
+    /// `[design]`: the design file and its units.
     pub design: DesignConfig,
+    /// `[calibration]`: the chain from the robot's pose to the design frame.
     pub frames: FrameChain,
+    /// `[inspect]`: methods, tolerance, maximum distance, range, index cell.
     pub inspect: InspectConfig,
+    /// `[services]`: the iceoryx2 service names' prefix.
     pub services: ServicesConfig,
+    /// `[limits]`: the bounds on chunks, queues and open stations.
     pub limits: Limits,
+    /// `[status]`: how often the agent reports its health.
     pub status: StatusConfig,
+    /// `[recorder]`: the MCAP recording.
     pub recorder: RecorderConfig,
+    /// `[viewer]`: the rerun view.
     pub viewer: ViewerConfig,
+    /// `[findings]`: M3C2 and coverage over each scan layer.
     pub findings: FindingsConfig,
+    /// `[tolerances]`: the limits the findings are held to.
     pub tolerances: TolerancesConfig,
     /// The file as written, for the recording's metadata.
     pub text: String,
@@ -39,6 +50,7 @@ pub struct AgentConfig {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FindingsConfig {
+    /// Findings are computed and sent after each station.
     pub enabled: bool,
     /// Spacing of the design samples (the M3C2 core points), metres.
     pub spacing: f64,
@@ -85,12 +97,15 @@ impl Default for FindingsConfig {
 }
 
 impl FindingsConfig {
+    /// The M3C2 cylinder diameter: the one given, else the default for the spacing and layer
+    /// height.
     pub fn projection_diameter(&self) -> f64 {
         use asbuilt_core::scan_layer::defaults;
         self.projection_diameter
             .unwrap_or_else(|| defaults::projection_diameter(self.spacing, self.layer_height))
     }
 
+    /// The coverage threshold: the one given, else the default for `tolerance`.
     pub fn coverage_threshold(&self, tolerance: f64) -> f64 {
         use asbuilt_core::scan_layer::defaults;
         self.coverage_threshold
@@ -213,6 +228,7 @@ impl Default for RecorderConfig {
     }
 }
 
+/// `[design]`: the design file and the units it is written in.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DesignConfig {
@@ -223,6 +239,7 @@ pub struct DesignConfig {
 }
 
 impl DesignConfig {
+    /// The declared units (checked when the configuration is loaded).
     pub fn units(&self) -> Units {
         self.units.parse().unwrap_or(Units::Metres)
     }
@@ -243,9 +260,11 @@ struct CalibrationSection {
     r_base_flange_xyzw: Option<[f64; 4]>,
 }
 
+/// `[inspect]`: how each scan point is compared with the design.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct InspectConfig {
+    /// Methods per point; only `c2m` today (see [`AVAILABLE_METHODS`]).
     pub methods: Vec<String>,
     /// Metres: |d| <= tolerance is within tolerance.
     pub tolerance: f64,
@@ -270,11 +289,13 @@ impl Default for InspectConfig {
 }
 
 impl InspectConfig {
+    /// The maximum distance: the one given, else ten times the tolerance.
     pub fn max_distance(&self) -> f64 {
         self.max_distance.unwrap_or(10.0 * self.tolerance)
     }
 }
 
+/// `[services]`: where the agent's iceoryx2 services are.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServicesConfig {
@@ -290,6 +311,7 @@ impl Default for ServicesConfig {
     }
 }
 
+/// `[limits]`: what bounds the agent's memory and its queues.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Limits {
@@ -318,6 +340,7 @@ impl Default for Limits {
 }
 
 impl Limits {
+    /// [`Limits::station_timeout_s`] as a duration.
     pub fn station_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.station_timeout_s)
     }
@@ -333,6 +356,7 @@ impl Limits {
     }
 }
 
+/// `[status]`: the agent's health messages and log lines.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StatusConfig {
@@ -347,6 +371,7 @@ impl Default for StatusConfig {
 }
 
 impl StatusConfig {
+    /// [`StatusConfig::period_s`] as a duration.
     pub fn period(&self) -> Duration {
         Duration::from_secs_f64(self.period_s)
     }
@@ -356,7 +381,9 @@ impl StatusConfig {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{file}: {} problem(s):\n  - {}", problems.len(), problems.join("\n  - "))]
 pub struct ConfigError {
+    /// The configuration file.
     pub file: String,
+    /// Every problem, as `key: what is wrong; what to do`.
     pub problems: Vec<String>,
 }
 
@@ -374,6 +401,8 @@ const SECTIONS: &[&str] = &[
 ];
 
 impl AgentConfig {
+    /// Reads and checks `path`: every problem at once, or the configuration with relative paths
+    /// resolved against the file's folder.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let fail = |p: String| ConfigError {
             file: path.display().to_string(),
@@ -548,12 +577,19 @@ pub fn recorded_tolerances(text: &str) -> Result<TolerancesConfig, Vec<String>> 
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TolerancesConfig {
+    /// |width deviation| of a layer band, metres.
     pub width: Option<f64>,
+    /// |top of the print − printed height|, metres.
     pub top_height: Option<f64>,
+    /// |shift| of a layer band in the plan, metres.
     pub position: Option<f64>,
+    /// |peak deviation| of an area of the surface, metres.
     pub surface: Option<f64>,
+    /// Area of missing material, m².
     pub missing_area_m2: Option<f64>,
+    /// |change of a layer band's width| since the first scan layer that saw it, metres.
     pub creep: Option<f64>,
+    /// A value beyond this fraction of its limit warns (default 0.75).
     pub warn_fraction: Option<f64>,
     /// Per range of layers, later entries winning: `"width=12mm@2-4"` (the `--limit` syntax).
     pub layers: Vec<String>,
@@ -593,6 +629,7 @@ impl TolerancesConfig {
         Ok(l)
     }
 
+    /// The limits for a job whose tolerance is `tolerance`.
     pub fn limits(&self, tolerance: f64) -> Result<asbuilt_core::verdict::Limits, String> {
         self.limits_with(tolerance, &[])
     }

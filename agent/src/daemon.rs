@@ -30,6 +30,7 @@ const MAX_TICK: Duration = Duration::from_millis(250);
 /// How often the loop looks for a printed height prepared on a worker thread.
 const PREPARING_POLL: Duration = Duration::from_millis(2);
 
+/// Why the agent cannot start or keep serving.
 #[derive(Debug, thiserror::Error)]
 pub enum AgentError {
     /// The design file named in `[design]` could not be loaded.
@@ -38,12 +39,16 @@ pub enum AgentError {
     /// The design loaded but cannot be indexed (its extent, the maximum distance).
     #[error("indexing the design: {0}")]
     Index(#[from] asbuilt_core::c2m::C2mError),
+    /// The recorder's folder cannot be made or written.
     #[error("cannot start the recorder in {dir}: {source}")]
     Recorder {
+        /// The folder.
         dir: std::path::PathBuf,
+        /// What the operating system said.
         #[source]
         source: std::io::Error,
     },
+    /// The rerun view cannot start.
     #[error(transparent)]
     Viewer(#[from] asbuilt_viewer::ViewerError),
     /// The cell's services: a node, a port or the wait set could not be made.
@@ -54,7 +59,9 @@ pub enum AgentError {
 /// What a run did, for the exit message.
 #[derive(Debug, Clone, Copy)]
 pub struct RunSummary {
+    /// Stations reported over the run.
     pub stations_reported: u64,
+    /// Points of accepted chunks processed over the run.
     pub points_processed: u64,
 }
 

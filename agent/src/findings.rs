@@ -37,6 +37,8 @@ impl Epoch {
     }
 }
 
+/// The agent's findings: each scan layer's design samples, fed with every station's points,
+/// turned into [`asbuilt_protocol::StationFindings`] after each report.
 pub struct FindingsStage {
     maker: EpochMaker,
     epochs: Vec<Epoch>,
@@ -101,6 +103,7 @@ impl EpochMaker {
 }
 
 impl FindingsStage {
+    /// A stage for `config`; the scratch buffer is sized once for `max_points_per_chunk`.
     pub fn new(
         config: FindingsConfig,
         tolerance: f64,

@@ -41,11 +41,15 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 
+/// The iceoryx2 service kind: inter-process, shared memory.
 pub type Ipc = ipc::Service;
 
+/// A received scan chunk, still in shared memory.
 pub type ChunkSample = iceoryx2::sample::Sample<Ipc, [ScanPoint], ChunkHeader>;
+/// A received deviation chunk, still in shared memory.
 pub type DeviationSample = iceoryx2::sample::Sample<Ipc, [PointDeviation], DeviationHeader>;
 
+/// A service, port or node could not be made or used; the message says which and why.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]
 pub struct IpcError(pub String);
@@ -57,19 +61,30 @@ fn err(what: impl std::fmt::Display, e: impl std::fmt::Debug) -> IpcError {
 /// The names of a cell's services.
 #[derive(Debug, Clone)]
 pub struct ServiceNames {
+    /// The prefix every name starts with.
     pub prefix: String,
+    /// `PREFIX/robot/poses`: poses, cell to agent.
     pub poses: String,
+    /// `PREFIX/scanner/chunks`: scan chunks, cell to agent.
     pub chunks: String,
+    /// `PREFIX/job/stations`: station Begin and End, cell to agent.
     pub stations: String,
+    /// `PREFIX/agent/inbox`: the event that wakes the agent.
     pub inbox: String,
+    /// `PREFIX/agent/deviations`: deviation chunks, agent to cell.
     pub deviations: String,
+    /// `PREFIX/agent/reports`: station reports, agent to cell.
     pub reports: String,
+    /// `PREFIX/agent/findings`: findings, agent to cell.
     pub findings: String,
+    /// `PREFIX/agent/status`: the agent's health.
     pub status: String,
+    /// `PREFIX/agent/outbox`: the event that wakes the cell.
     pub outbox: String,
 }
 
 impl ServiceNames {
+    /// The names under `prefix`.
     pub fn new(prefix: &str) -> Self {
         let n = |s: &str| format!("{prefix}/{s}");
         Self {
@@ -94,8 +109,11 @@ fn service_name(s: &str) -> Result<ServiceName, IpcError> {
 /// Sizes of the agent's queues and samples.
 #[derive(Debug, Clone, Copy)]
 pub struct QueueSizes {
+    /// Points per chunk sample, at most.
     pub max_points_per_chunk: usize,
+    /// Scan chunks a subscriber queues.
     pub chunk_queue: usize,
+    /// Chunks held while their station's pose has not arrived.
     pub pending_chunks: usize,
 }
 
@@ -134,18 +152,27 @@ fn control_subscriber<T: std::fmt::Debug + ZeroCopySend>(
 
 /// The agent's side: it owns the services.
 pub struct AgentPorts {
+    /// Poses from the cell.
     pub poses: Subscriber<Ipc, PoseSnapshot, ()>,
+    /// Scan chunks from the scanner.
     pub chunks: Subscriber<Ipc, [ScanPoint], ChunkHeader>,
+    /// Station events from job control.
     pub stations: Subscriber<Ipc, StationEvent, ()>,
+    /// Wakes the agent when an input arrives.
     pub inbox: Listener<Ipc>,
+    /// Deviation chunks out.
     pub deviations: Publisher<Ipc, [PointDeviation], DeviationHeader>,
+    /// Station reports out.
     pub reports: Publisher<Ipc, StationReport, ()>,
     /// Encoded [`asbuilt_protocol::StationFindings`] behind their header.
     pub findings: Publisher<Ipc, [u8], FindingsHeader>,
+    /// The agent's health out.
     pub status: Publisher<Ipc, AgentStatus, ()>,
+    /// Wakes the cell when an output is sent.
     pub outbox: Notifier<Ipc>,
     /// Deviation chunks and reports a full subscriber queue did not take.
     pub deviation_drops: Arc<AtomicU64>,
+    /// Reports a full subscriber queue did not take.
     pub report_drops: Arc<AtomicU64>,
 }
 
@@ -159,6 +186,7 @@ fn counting_handler(
 }
 
 impl AgentPorts {
+    /// Creates (or opens) every service under `names` with the agent's queue sizes.
     pub fn create(node: &Node<Ipc>, names: &ServiceNames, q: QueueSizes) -> Result<Self, IpcError> {
         let exists = |what: &str, e: &dyn std::fmt::Debug| {
             IpcError(format!(
@@ -268,14 +296,23 @@ impl AgentPorts {
 /// The cell's side: what a robot controller, scanner driver and job control use to talk to a
 /// running agent (and what `asbuilt publish`, the simulator and the tests use).
 pub struct CellPorts {
+    /// Poses to the agent.
     pub poses: Publisher<Ipc, PoseSnapshot, ()>,
+    /// Scan chunks to the agent.
     pub chunks: Publisher<Ipc, [ScanPoint], ChunkHeader>,
+    /// Station events to the agent.
     pub stations: Publisher<Ipc, StationEvent, ()>,
+    /// Wakes the agent.
     pub inbox: Notifier<Ipc>,
+    /// Deviation chunks from the agent.
     pub deviations: Subscriber<Ipc, [PointDeviation], DeviationHeader>,
+    /// Station reports from the agent.
     pub reports: Subscriber<Ipc, StationReport, ()>,
+    /// Encoded [`asbuilt_protocol::StationFindings`] behind their header, from the agent.
     pub findings: Subscriber<Ipc, [u8], FindingsHeader>,
+    /// The agent's health.
     pub status: Subscriber<Ipc, AgentStatus, ()>,
+    /// Wakes the cell when the agent sent something.
     pub outbox: Listener<Ipc>,
     chunk_service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
         Ipc,
@@ -503,11 +540,13 @@ impl CellPorts {
             .map_err(|e| err("cannot notify the agent", e))
     }
 
+    /// Sends a pose and wakes the agent.
     pub fn send_pose(&self, pose: &PoseSnapshot) -> Result<(), IpcError> {
         self.deliver("pose", || self.poses.send_copy(*pose))?;
         self.wake_agent()
     }
 
+    /// Sends a station event and wakes the agent.
     pub fn send_event(&self, ev: &StationEvent) -> Result<(), IpcError> {
         self.deliver("station event", || self.stations.send_copy(*ev))?;
         self.wake_agent()

@@ -7,6 +7,8 @@
 //! on; [`recorder`] writes everything to MCAP on a thread of its own; the geometry is
 //! `asbuilt-core`'s.
 
+#![warn(missing_docs)]
+
 pub mod config;
 pub mod daemon;
 pub mod findings;

@@ -30,7 +30,9 @@ use crate::{info, warn};
 
 /// A received scan chunk: a header and its points, wherever they live.
 pub trait ChunkSource {
+    /// The chunk's header.
     fn header(&self) -> &ChunkHeader;
+    /// The chunk's points, scanner frame.
     fn points(&self) -> &[ScanPoint];
 }
 
@@ -53,6 +55,7 @@ pub trait Outputs {
         n: usize,
         fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
     );
+    /// Publishes a station's report.
     fn report(&mut self, report: &StationReport);
     /// Everything a station's report was computed from, just before the report: a reader of a
     /// recording merges these into its overall statistics.
@@ -69,11 +72,16 @@ pub trait Outputs {
     }
 }
 
+/// What bounds the lifecycle's memory and how long it waits.
 #[derive(Debug, Clone, Copy)]
 pub struct LifecycleLimits {
+    /// Chunks with more points are rejected.
     pub max_points_per_chunk: usize,
+    /// Chunks held while their station's pose has not arrived.
     pub pending_chunks: usize,
+    /// Stations open at the same time.
     pub open_stations: usize,
+    /// Time without a message after which an open station closes as timed out.
     pub station_timeout: Duration,
 }
 
@@ -155,12 +163,16 @@ struct Pending<C> {
 /// Counters for the status message, kept across stations.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Counters {
+    /// Points of accepted chunks processed.
     pub points_processed: u64,
+    /// Accepted chunks processed.
     pub chunks_processed: u64,
+    /// Stations reported.
     pub stations_reported: u64,
     /// Points rejected in the stations already reported; [`Lifecycle::fill_status`] adds those
     /// of the open ones.
     pub rejected_points: RejectCounts,
+    /// Inputs rejected whole, by reason.
     pub input: InputRejects,
 }
 
@@ -186,6 +198,9 @@ struct Preparation {
     done: mpsc::Receiver<Result<Prepared, CutError>>,
 }
 
+/// Every station of every job from Begin to report: poses, chunks in order, timeouts, the
+/// printed design of each height, the findings after each report. Pure and synchronous: the
+/// daemon feeds it messages and the time, a recording's reader does the same.
 pub struct Lifecycle<C> {
     designs: PrintedDesigns,
     preparing: Vec<Preparation>,
@@ -196,10 +211,13 @@ pub struct Lifecycle<C> {
     open: Vec<OpenStation>,
     pending: VecDeque<Pending<C>>,
     closed: VecDeque<StationKey>,
+    /// Counters for the status message.
     pub counters: Counters,
 }
 
 impl<C: ChunkSource> Lifecycle<C> {
+    /// A lifecycle over `designs` (the design and its printed heights) placing points through
+    /// `frames`.
     pub fn new(
         designs: PrintedDesigns,
         frames: FrameChain,
@@ -233,10 +251,12 @@ impl<C: ChunkSource> Lifecycle<C> {
             .map_or(0, |b| b.layer)
     }
 
+    /// Stations begun and not yet reported.
     pub fn stations_open(&self) -> usize {
         self.open.len()
     }
 
+    /// Chunks held while their station's pose has not arrived.
     pub fn chunks_waiting(&self) -> usize {
         self.pending.len()
     }
@@ -255,8 +275,6 @@ impl<C: ChunkSource> Lifecycle<C> {
         s.chunks_waiting = self.pending.len() as u32;
     }
 
-    /// True when a chunk with this header can be processed now (its station is open with a
-    /// pose). The daemon reads the event and pose queues before giving up on a chunk.
     /// Whether a Begin or pose for this station can be taken without closing another station
     /// early: it is open or reported already, or a slot is free.
     pub fn has_room_for(&self, job: u64, station: u32) -> bool {
@@ -266,6 +284,8 @@ impl<C: ChunkSource> Lifecycle<C> {
             || self.open.len() < self.limits.open_stations
     }
 
+    /// True when a chunk with this header can be processed now (its station is open with a
+    /// pose). The daemon reads the event and pose queues before giving up on a chunk.
     pub fn is_ready_for(&self, h: &ChunkHeader) -> bool {
         self.find(&(h.job, h.station))
             .is_some_and(|i| self.ready(i))
@@ -387,6 +407,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
     }
 
+    /// Takes a station's Begin or End.
     pub fn on_event(&mut self, ev: &StationEvent, now: Instant, out: &mut impl Outputs) {
         if !self.readable::<StationEvent>(ev.version, format_args!("station event")) {
             return;
@@ -440,6 +461,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
     }
 
+    /// Takes a station's pose; the chunks waiting for it are processed.
     pub fn on_pose(&mut self, pose: &PoseSnapshot, now: Instant, out: &mut impl Outputs) {
         if !self.readable::<PoseSnapshot>(pose.version, format_args!("pose")) {
             return;
@@ -475,6 +497,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         self.release_pending(key, now, out);
     }
 
+    /// Takes a scan chunk: processed now, held for its station's pose, or rejected and counted.
     pub fn on_chunk(&mut self, chunk: C, now: Instant, out: &mut impl Outputs) {
         let h = *chunk.header();
         let n = chunk.points().len();

@@ -6,13 +6,18 @@ use std::fmt::Arguments;
 use std::io::Write;
 use std::time::{SystemTime, UNIX_EPOCH};
 
+/// How serious a log line is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Level {
+    /// What the agent is doing.
     Info,
+    /// Something went wrong and was handled (an input dropped, a queue full).
     Warn,
+    /// The agent cannot go on as asked.
     Error,
 }
 
+/// Writes one line at `level`, timestamped.
 pub fn line(level: Level, args: Arguments<'_>) {
     let name = match level {
         Level::Info => "INFO ",
@@ -48,16 +53,19 @@ fn utc_now() -> String {
     )
 }
 
+/// Logs a line at [`log::Level::Info`](crate::log::Level::Info), `format!`-style.
 #[macro_export]
 macro_rules! info {
     ($($t:tt)*) => { $crate::log::line($crate::log::Level::Info, format_args!($($t)*)) };
 }
 
+/// Logs a line at [`log::Level::Warn`](crate::log::Level::Warn), `format!`-style.
 #[macro_export]
 macro_rules! warn {
     ($($t:tt)*) => { $crate::log::line($crate::log::Level::Warn, format_args!($($t)*)) };
 }
 
+/// Logs a line at [`log::Level::Error`](crate::log::Level::Error), `format!`-style.
 #[macro_export]
 macro_rules! error {
     ($($t:tt)*) => { $crate::log::line($crate::log::Level::Error, format_args!($($t)*)) };

@@ -40,16 +40,20 @@ enum Item {
 /// What the recorder left out, for the status line and the log.
 #[derive(Debug, Default)]
 pub struct RecorderCounters {
+    /// Scan chunks written.
     pub chunks_recorded: AtomicU64,
     /// Chunks left out because the queue was over its byte budget or the disk nearly full.
     pub chunks_dropped: AtomicU64,
     /// Chunks left out by `scan_every`.
     pub chunks_decimated: AtomicU64,
+    /// Recording files opened (one more at every rotation).
     pub files: AtomicU64,
     /// Flushes done (or failed) by the writer: what was queued before the n-th is on disk.
     pub flushes: AtomicU64,
 }
 
+/// The MCAP recorder: messages queue under a byte budget to a writer thread, so recording
+/// never blocks the event loop; only reports wait for room.
 pub struct Recorder {
     tx: Option<SyncSender<Item>>,
     thread: Option<JoinHandle<()>>,
@@ -63,6 +67,7 @@ pub struct Recorder {
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     /// Flushes asked for so far.
     flushes_asked: AtomicU64,
+    /// What was recorded and what was left out.
     pub counters: Arc<RecorderCounters>,
 }
 
@@ -143,14 +148,17 @@ impl Recorder {
         }
     }
 
+    /// Records a pose.
     pub fn pose(&self, p: &PoseSnapshot) {
         self.small(Recorded::Pose(*p));
     }
 
+    /// Records a station event.
     pub fn event(&self, e: &StationEvent) {
         self.small(Recorded::Event(*e));
     }
 
+    /// Records a status.
     pub fn status(&self, s: &AgentStatus) {
         self.small(Recorded::Status(Box::new(*s)));
     }
@@ -163,6 +171,7 @@ impl Recorder {
         self.flushed(Recorded::Report(Box::new(*r)))
     }
 
+    /// Records a station's findings, and flushes them like a report.
     pub fn findings(&self, f: &StationFindings) {
         self.flushed(Recorded::Findings(Box::new(f.clone())));
     }
@@ -219,6 +228,7 @@ impl Recorder {
         true
     }
 
+    /// Records a scan chunk, unless `scan_every` leaves it out or the budget is spent.
     pub fn chunk(&mut self, h: &ChunkHeader, points: &[ScanPoint]) {
         let bytes = std::mem::size_of_val(points);
         if self.admit(bytes) {

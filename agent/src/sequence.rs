@@ -8,6 +8,7 @@ use asbuilt_protocol::ChunkCounts;
 /// How far behind the newest chunk a late one is still accepted.
 const WINDOW: u64 = 64;
 
+/// What to do with a chunk, by its sequence number.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ChunkVerdict {
     /// Process it.
@@ -20,6 +21,7 @@ pub enum ChunkVerdict {
     TooOld,
 }
 
+/// One station's chunk sequence numbers: the highest accepted and a window behind it.
 #[derive(Debug, Clone, Default)]
 pub struct SequenceTracker {
     /// One past the highest sequence accepted.
@@ -30,10 +32,12 @@ pub struct SequenceTracker {
 }
 
 impl SequenceTracker {
+    /// A tracker that has seen no chunk.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// The verdict on chunk `sequence`, counted.
     pub fn offer(&mut self, sequence: u64) -> ChunkVerdict {
         let verdict = if sequence >= self.next {
             let shift = sequence - self.next + 1;

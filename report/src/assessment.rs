@@ -19,29 +19,41 @@ const AREA_MATCH_MARGIN: f64 = 0.05;
 /// More than this share of a station's points beyond the maximum distance is worth a warning.
 const NO_MATCH_WARN: f64 = 0.01;
 
+/// The report's judgement: every finding, layer band, scan layer and station held to the limits.
 #[derive(Debug, Clone, Serialize)]
 pub struct Assessment {
+    /// The limits everything was held to.
     pub limits: LimitsSection,
     /// The worst verdict of each job's latest scan layer.
     pub verdict: &'static str,
     /// What the page opens with: what is out of tolerance, where, since when, what changed.
     pub summary: Vec<String>,
+    /// Per scan layer, in print order: its findings with their verdicts.
     pub scan_layers: Vec<ScanLayerVerdicts>,
     /// Per layer band, lowest first: its measures in every scan layer that saw it.
     pub layer_history: Vec<LayerHistory>,
+    /// Each station's own verdict from its points.
     pub stations: Vec<StationVerdict>,
     /// All stations' points together, judged as one station's.
     pub overall: Option<StationVerdict>,
 }
 
+/// The limits, as report.json writes them.
 #[derive(Debug, Clone, Serialize)]
 pub struct LimitsSection {
+    /// |width deviation| of a layer band.
     pub width_m: f64,
+    /// |top of the print − printed height|.
     pub top_height_m: f64,
+    /// |shift| of a layer band in the plan.
     pub position_m: f64,
+    /// |peak deviation| of an area of the surface.
     pub surface_m: f64,
+    /// Area of missing material.
     pub missing_area_m2: f64,
+    /// |change of a layer band's width| since the first scan layer that saw it.
     pub creep_m: f64,
+    /// A value beyond this fraction of its limit warns.
     pub warn_fraction: f64,
     /// `KIND=VALUE@FIRST-LAST`, in the order they apply.
     pub ranges: Vec<String>,
@@ -66,10 +78,14 @@ impl From<&Limits> for LimitsSection {
     }
 }
 
+/// How many findings passed, warned and failed.
 #[derive(Debug, Clone, Copy, Default, Serialize, PartialEq, Eq)]
 pub struct VerdictCounts {
+    /// Within the warning fraction of their limit.
     pub pass: u32,
+    /// Beyond the warning fraction, within the limit.
     pub warn: u32,
+    /// Beyond the limit.
     pub fail: u32,
 }
 
@@ -94,13 +110,18 @@ impl VerdictCounts {
     }
 }
 
+/// One scan layer's verdicts.
 #[derive(Debug, Clone, Serialize)]
 pub struct ScanLayerVerdicts {
+    /// The job.
     pub job: u64,
     /// The scan layer: the last layer printed (from 0) when it was scanned.
     pub layer: u32,
+    /// Height of the print when it was scanned, metres; `None` when not printing.
     pub printed_height: Option<f64>,
+    /// Stations whose points went into its findings.
     pub stations: u32,
+    /// The worst verdict of its findings: `pass`, `warn` or `fail`.
     pub verdict: &'static str,
     /// Over the findings below.
     pub counts: VerdictCounts,
@@ -112,9 +133,12 @@ pub struct ScanLayerVerdicts {
     pub resolved: Vec<String>,
 }
 
+/// A layer band's verdict in one scan layer.
 #[derive(Debug, Clone, Serialize)]
 pub struct LayerVerdict {
+    /// The band's layer, from 0.
     pub layer: u32,
+    /// The worst verdict of what touches it.
     pub verdict: &'static str,
 }
 
@@ -125,9 +149,11 @@ pub struct Item {
     pub label: String,
     /// width, position, top_height, creep, excess, deficit or missing.
     pub kind: &'static str,
+    /// `pass`, `warn` or `fail`.
     pub verdict: &'static str,
     /// Signed metres (m² for missing material).
     pub value: f64,
+    /// The limit it was held to, in the value's unit.
     pub limit: f64,
     /// First and last layer band, when known.
     pub layers: Option<[u32; 2]>,
@@ -141,45 +167,62 @@ pub struct Item {
     pub since: u32,
     /// new, grown, shrunk or steady, against the previous scan layer.
     pub change: &'static str,
+    /// Its value in the previous scan layer, when that one showed it.
     pub previous: Option<f64>,
     /// One line a person reads.
     pub text: String,
 }
 
+/// One layer band through every scan layer that saw it.
 #[derive(Debug, Clone, Serialize)]
 pub struct LayerHistory {
+    /// The job.
     pub job: u64,
+    /// The band's layer, from 0.
     pub layer: u32,
+    /// The band's bottom, metres.
     pub z_min: f64,
+    /// The band's top, metres.
     pub z_max: f64,
+    /// Its measures in each scan layer, in print order.
     pub scans: Vec<LayerScan>,
     /// Relative width (see [`LayerScan::width_relative`]) in the latest scan layer minus that in
     /// the first, metres: creep or sag under the layers above.
     pub width_change: Option<f64>,
+    /// The creep's verdict against its limit, once two scan layers saw the band.
     pub creep_verdict: Option<&'static str>,
 }
 
+/// A layer band's measures in one scan layer.
 #[derive(Debug, Clone, Serialize)]
 pub struct LayerScan {
     /// The scan layer.
     pub scan_layer: u32,
+    /// Height of the print then, metres.
     pub printed_height: Option<f64>,
+    /// Design samples on the band's sides with an M3C2 distance.
     pub samples: u32,
     /// Mean M3C2 distance on the band's sides, metres.
     pub mean: Option<f64>,
+    /// Width deviation, metres, when the sides seen could tell it from a shift.
     pub width: Option<f64>,
     /// Width minus the median width of the scan layer's bands: what is left when the stations'
     /// pose errors, which widen or narrow every band of a scan layer alike, are taken out.
     pub width_relative: Option<f64>,
+    /// Shift in x and y, metres, when the sides seen could tell it from a width.
     pub shift: Option<[f64; 2]>,
     /// Top of the print minus the printed height, when this band was the top.
     pub top: Option<f64>,
 }
 
+/// A station's (or all stations') verdict from its points.
 #[derive(Debug, Clone, Serialize)]
 pub struct StationVerdict {
+    /// The station's id.
     pub id: String,
+    /// `pass`, `warn` or `fail`.
     pub verdict: &'static str,
+    /// Why, in one line.
     pub reason: String,
 }
 

@@ -10,26 +10,39 @@ use crate::maps::{MapKind, ScanLayerMaps, Side};
 const SCALE: f32 = 2.0;
 const TITLE_PX: f64 = 22.0;
 
+/// The maps could not be written as PNG files.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
+    /// The output folder cannot be made.
     #[error("cannot create {}: {source}", dir.display())]
     Folder {
+        /// The folder.
         dir: PathBuf,
+        /// What the operating system said.
         source: std::io::Error,
     },
+    /// A PNG file cannot be written.
     #[error("cannot write {}: {source}", path.display())]
     Write {
+        /// The file.
         path: PathBuf,
+        /// What the operating system said.
         source: std::io::Error,
     },
     /// A map that resvg cannot read or draw: a fault of this program, not of the input.
     #[error("cannot render {name}: {cause}")]
-    Render { name: String, cause: String },
+    Render {
+        /// The map's file name.
+        name: String,
+        /// What resvg said.
+        cause: String,
+    },
 }
 
 /// What the export wrote.
 #[derive(Debug, Default)]
 pub struct Exported {
+    /// The files written.
     pub files: Vec<PathBuf>,
     /// No system font was found: the maps carry no text (numbers, axes, titles).
     pub without_fonts: bool,

@@ -4,6 +4,8 @@
 //! table, and `report.html`, one page that opens without a network. `asbuilt inspect` and
 //! `asbuilt report` write it; the computations are asbuilt-core's.
 
+#![warn(missing_docs)]
+
 mod assessment;
 pub mod export;
 mod history;

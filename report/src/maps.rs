@@ -53,6 +53,7 @@ impl Side {
     /// In declaration order: `side as usize` indexes it.
     pub const ALL: [Side; 5] = [Side::Front, Side::Right, Side::Back, Side::Left, Side::Top];
 
+    /// The side as file names and titles spell it.
     pub fn name(self) -> &'static str {
         match self {
             Side::Front => "front",
@@ -347,6 +348,7 @@ impl MapFrame {
 /// One scan layer's maps.
 #[derive(Debug, Clone)]
 pub struct ScanLayerMaps {
+    /// The job.
     pub job: u64,
     /// NaN when not printing.
     pub printed_height: f64,
@@ -519,6 +521,7 @@ fn side_of(facing: &[Option<Side>], d: &PointDeviation) -> Option<Side> {
 }
 
 impl MapKind {
+    /// The kind as file names spell it.
     pub fn name(self) -> &'static str {
         match self {
             MapKind::Points => "c2m",

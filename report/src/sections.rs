@@ -5,18 +5,26 @@ use serde::Serialize;
 
 use crate::suite::{BandMethods, SuiteSection, TwoCloudSection};
 
+/// `report.json`: the design, the parameters, every station and all of them together, the
+/// findings and their verdicts.
 #[derive(Debug, Serialize)]
 pub struct Report {
+    /// The asbuilt release that wrote it.
     pub asbuilt_version: &'static str,
+    /// The design and its index.
     pub design: DesignSection,
+    /// What the comparison was run with.
     pub parameters: Parameters,
     /// The comparisons that ran; C2M always does, since it places and validates the points.
     pub methods: Vec<&'static str>,
+    /// Each station, in order.
     pub stations: Vec<Section>,
+    /// All stations' points together.
     pub overall: Section,
     /// Per layer band, lowest first, with `--layer-height`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub layers: Option<Vec<BandMethods>>,
+    /// M3C2 between the scan and a reference cloud, with `--reference`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
     /// Findings, the latest of each scan layer: drawn again from a recording's chunks with the
@@ -27,40 +35,61 @@ pub struct Report {
     /// history and the summary the page opens with; with findings.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub assessment: Option<crate::Assessment>,
+    /// What the reader should know: open designs, stations that failed, sizes that disagree.
     pub warnings: Vec<String>,
     /// Each scan layer's deviation maps, for report.html.
     #[serde(skip)]
     pub maps: Vec<crate::maps::ScanLayerMaps>,
 }
 
+/// The design as loaded and indexed.
 #[derive(Debug, Serialize)]
 pub struct DesignSection {
+    /// The design file.
     pub path: String,
+    /// The units it was declared in, `m` or `mm`.
     pub units: String,
+    /// Vertices after loading.
     pub vertices: usize,
+    /// Triangles after loading (degenerate ones dropped).
     pub triangles: usize,
+    /// What loading found: open boundaries, dropped triangles.
     pub warnings: Vec<String>,
+    /// The C2M index's cell size.
     pub index_cell_size_m: f64,
+    /// Cells the C2M index keeps.
     pub index_cells: usize,
+    /// The C2M index's memory.
     pub index_bytes: usize,
 }
 
+/// What the comparison was run with. Metres.
 #[derive(Debug, Serialize)]
 pub struct Parameters {
+    /// |d| at most this is within tolerance.
     pub tolerance_m: f64,
+    /// Points farther from the design have no match.
     pub max_distance_m: f64,
+    /// The histogram covers ±this.
     pub histogram_range_m: f64,
+    /// Spacing of the design samples (coverage and M3C2 core points).
     pub spacing_m: f64,
+    /// A design sample with a scan point this close is observed.
     pub coverage_threshold_m: f64,
     /// What raised the coverage threshold where the scan is sparser.
     #[serde(skip_serializing_if = "String::is_empty")]
     pub coverage_spacing: String,
+    /// M3C2 cylinder diameter.
     pub projection_diameter_m: f64,
+    /// M3C2 cylinder half-length: the largest deviation it measures.
     pub max_depth_m: f64,
+    /// The printed height the design was cut at, when printing.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub printed_height_m: Option<f64>,
+    /// Nominal layer height, for the per-layer rows.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub layer_height_m: Option<f64>,
+    /// The reference cloud of two-cloud M3C2.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<String>,
 }
@@ -68,46 +97,79 @@ pub struct Parameters {
 /// One station, or the whole job. Distances in metres; NaN (no matched point) is `null`.
 #[derive(Debug, Serialize)]
 pub struct Section {
+    /// The station's id, or `overall`.
     pub id: String,
+    /// The scan file it was read from (offline).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scan: Option<String>,
+    /// Every point that arrived.
     pub points: u64,
+    /// Points that could be compared.
     pub valid: u64,
+    /// Points rejected, whatever the reason.
     pub rejected: u64,
+    /// Points rejected, by reason.
     pub rejected_by_reason: RejectSection,
+    /// Valid points farther than the maximum distance.
     pub no_match: u64,
+    /// Valid points with a distance.
     pub matched: u64,
+    /// Mean signed distance.
     pub mean: Option<f64>,
+    /// Standard deviation of the signed distances.
     pub std: Option<f64>,
+    /// Root mean square of the signed distances.
     pub rms: Option<f64>,
+    /// Smallest signed distance.
     pub min: Option<f64>,
+    /// Largest signed distance.
     pub max: Option<f64>,
+    /// Median |d| (histogram estimate).
     pub median_abs: Option<f64>,
+    /// 95th percentile of |d| (histogram estimate).
     pub p95_abs: Option<f64>,
+    /// Matched points with |d| within the tolerance.
     pub within_tolerance: u64,
+    /// Matched points beyond +tolerance (excess material).
     pub above_tolerance: u64,
+    /// Matched points beyond −tolerance (missing material).
     pub below_tolerance: u64,
+    /// Histogram of the signed distances.
     pub histogram: HistogramSection,
+    /// What the other methods (C2C, coverage, M3C2) found for it.
     #[serde(flatten)]
     pub suite: SuiteSection,
 }
 
+/// Rejected points by reason.
 #[derive(Debug, Serialize)]
 pub struct RejectSection {
+    /// NaN or infinite coordinates.
     pub non_finite: u64,
+    /// Beyond the maximum range from the scanner.
     pub out_of_range: u64,
+    /// Marked invalid by the scanner.
     pub scanner_invalid: u64,
+    /// Arrived before (or without) their station's pose.
     pub without_pose: u64,
+    /// In chunks rejected whole (oversized, malformed).
     pub in_rejected_chunks: u64,
+    /// Lines of a text scan file that were not points.
     pub malformed_lines: u64,
 }
 
+/// The signed-distance histogram, metres.
 #[derive(Debug, Serialize)]
 pub struct HistogramSection {
+    /// Lower edge of the first bin.
     pub low: f64,
+    /// Upper edge of the last bin.
     pub high: f64,
+    /// Distances below `low`.
     pub underflow: u64,
+    /// Distances at or above `high`.
     pub overflow: u64,
+    /// Counts of the equal bins between `low` and `high`.
     pub bins: Vec<u64>,
 }
 
@@ -133,6 +195,8 @@ impl Section {
         (self.matched > 0).then(|| 100.0 * self.within_tolerance as f64 / self.matched as f64)
     }
 
+    /// A station's section from its report; `scan` and `malformed_lines` come from the file
+    /// it was read from, offline.
     pub fn from_report(r: &StationReport, scan: Option<String>, malformed_lines: u64) -> Self {
         let s = &r.stats;
         let rej: RejectCounts = r.rejected;

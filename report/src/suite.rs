@@ -24,17 +24,24 @@ use serde::Serialize;
 use crate::finite;
 use asbuilt_io::ply::{Property, Scalar, write_table};
 
+/// A comparison `--method` can ask for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Method {
+    /// Signed point-to-mesh distance.
     C2m,
+    /// Cloud-to-cloud distance, to design samples or a `--reference` cloud.
     C2c,
+    /// Which design samples the scan observed, and which are missing.
     Coverage,
+    /// M3C2 along the design's normals at the design samples.
     M3c2,
 }
 
 impl Method {
+    /// Every method, in report order.
     pub const ALL: [Method; 4] = [Method::C2m, Method::C2c, Method::Coverage, Method::M3c2];
 
+    /// The method as `--method` and report.json spell it.
     pub fn name(self) -> &'static str {
         match self {
             Method::C2m => "c2m",
@@ -77,28 +84,43 @@ pub fn parse_methods(text: &str) -> Result<Methods, String> {
     Ok(Methods(out))
 }
 
+/// The suite's parameters, checked and with every default resolved ([`SuiteOptions::resolve`]).
+/// Metres.
 #[derive(Debug, Clone)]
 pub struct SuiteConfig {
+    /// The methods to run, sorted; C2M always runs.
     pub methods: Vec<Method>,
+    /// |d| at most this is within tolerance.
     pub tolerance: f64,
+    /// Spacing of the design samples.
     pub spacing: f64,
+    /// M3C2 cylinder diameter.
     pub projection_diameter: f64,
+    /// M3C2 cylinder half-length: the largest deviation it measures.
     pub max_depth: f64,
+    /// Neighbourhood diameter for the normals of two-cloud M3C2.
     pub normal_diameter: f64,
+    /// A design sample with a scan point this close is observed.
     pub coverage_threshold: f64,
     /// What raises the coverage threshold where the scan is sparser.
     pub coverage_spacing: ScanSpacing,
+    /// C2C's maximum distance: points farther from the reference have no match.
     pub reach: f64,
+    /// Nominal layer height, for the per-layer rows and the findings.
     pub layer_height: Option<f64>,
+    /// The printed height the design is cut at.
     pub printed_height: Option<f64>,
+    /// The reference cloud, for C2C and two-cloud M3C2 against it.
     pub reference: Option<PathBuf>,
     /// C2C local plane neighbours; `None` for the default (6 against samples, off against a
     /// reference), `Some(0)` for nearest point only.
     pub local_plane: Option<usize>,
+    /// Seed of the design sampling, so a job gives the same samples each time.
     pub seed: u64,
 }
 
 impl SuiteConfig {
+    /// Whether method `m` runs.
     pub fn has(&self, m: Method) -> bool {
         self.methods.contains(&m)
     }
@@ -111,9 +133,11 @@ impl SuiteConfig {
 pub struct SuiteOptions {
     /// C2M runs whatever is listed.
     pub methods: Vec<Method>,
+    /// |d| at most this is within tolerance, metres.
     pub tolerance: f64,
     /// Default 10 × tolerance.
     pub max_distance: Option<f64>,
+    /// Spacing of the design samples, metres.
     pub spacing: f64,
     /// Default twice the spacing, at most half the layer height.
     pub projection_diameter: Option<f64>,
@@ -125,9 +149,13 @@ pub struct SuiteOptions {
     pub coverage_threshold: Option<f64>,
     /// The scanner's angular step, milliradians; without it the spacing is measured.
     pub scanner_step_mrad: Option<f64>,
+    /// Nominal layer height, metres, for the per-layer rows and the findings.
     pub layer_height: Option<f64>,
+    /// The printed height to cut the design at, metres.
     pub printed_height: Option<f64>,
+    /// A reference cloud for C2C and two-cloud M3C2.
     pub reference: Option<PathBuf>,
+    /// C2C local plane neighbours (see [`SuiteConfig::local_plane`]).
     pub local_plane: Option<usize>,
 }
 
@@ -202,15 +230,25 @@ impl SuiteOptions {
 /// Unsigned or signed distance statistics of one method. Metres.
 #[derive(Debug, Serialize)]
 pub struct DistanceSection {
+    /// Points with a distance.
     pub matched: u64,
+    /// Points with none within the maximum distance.
     pub no_match: u64,
+    /// Mean distance.
     pub mean: Option<f64>,
+    /// Standard deviation.
     pub std: Option<f64>,
+    /// Root mean square.
     pub rms: Option<f64>,
+    /// Smallest distance.
     pub min: Option<f64>,
+    /// Largest distance.
     pub max: Option<f64>,
+    /// Median |d| (histogram estimate).
     pub median_abs: Option<f64>,
+    /// 95th percentile of |d| (histogram estimate).
     pub p95_abs: Option<f64>,
+    /// Points with |d| within the tolerance.
     pub within_tolerance: u64,
 }
 
@@ -231,14 +269,20 @@ impl DistanceSection {
     }
 }
 
+/// Coverage: which design samples the scan observed. Counts of design samples.
 #[derive(Debug, Serialize)]
 pub struct CoverageSection {
     /// Design samples, each standing for `area_per_sample_m2`.
     pub observed: u64,
+    /// Facing a station in range with a clear view, and no scan point near: missing material.
     pub missing: u64,
+    /// Facing a station in range, but the design itself blocks the view.
     pub occluded: u64,
+    /// No station could have seen it (out of range, facing away, grazing).
     pub not_scanned: u64,
+    /// The design surface the missing samples stand for, m².
     pub missing_area_m2: f64,
+    /// The design surface one sample stands for, m².
     pub area_per_sample_m2: f64,
     /// The scanner's angular step the threshold was raised by, mrad (given or measured);
     /// absent with a fixed threshold.
@@ -265,14 +309,22 @@ impl CoverageSection {
     }
 }
 
+/// M3C2 at the design samples, along the design's normals. Metres.
 #[derive(Debug, Serialize)]
 pub struct M3c2Section {
+    /// Design samples used as core points.
     pub core_points: u64,
+    /// Core points with scan points in their cylinder.
     pub with_points: u64,
+    /// Core points whose distance exceeds their level of detection.
     pub significant: u64,
+    /// Mean distance over the core points with one.
     pub mean_distance: Option<f64>,
+    /// Smallest distance.
     pub min_distance: Option<f64>,
+    /// Largest distance.
     pub max_distance: Option<f64>,
+    /// The registration error in the level of detection: the stations' pose sigma.
     pub registration_sigma_m: f64,
 }
 
@@ -293,10 +345,13 @@ impl M3c2Section {
 /// What the suite adds to one station's (or the job's) section.
 #[derive(Debug, Default, Serialize)]
 pub struct SuiteSection {
+    /// C2C, with `--method c2c`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub c2c: Option<DistanceSection>,
+    /// Coverage, with `--method coverage`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coverage: Option<CoverageSection>,
+    /// M3C2, with `--method m3c2`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2: Option<M3c2Section>,
     /// Points more than the tolerance above the printed height: excess material, or layers
@@ -305,10 +360,14 @@ pub struct SuiteSection {
     pub above_printed_height: Option<u64>,
 }
 
+/// One method's distances in a layer band. Metres.
 #[derive(Debug, Serialize)]
 pub struct BandStats {
+    /// Points (or core points) in the band.
     pub count: u32,
+    /// Mean distance.
     pub mean: f64,
+    /// Standard deviation; `None` for fewer than two.
     pub std: Option<f64>,
 }
 
@@ -326,16 +385,23 @@ impl From<&BandRow> for BandStats {
 /// (not the findings' width and shift rows, which are `core::findings::LayerRow`).
 #[derive(Debug, Serialize)]
 pub struct BandMethods {
+    /// The band's layer, from 0.
     pub layer: u32,
+    /// The band's bottom, metres.
     pub z_min: f64,
+    /// The band's top, metres.
     pub z_max: f64,
     /// Where the scan's points in this band top out (98th percentile of their heights).
     pub top_m: Option<f64>,
+    /// C2M in the band.
     pub c2m: Option<BandStats>,
+    /// C2C in the band.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub c2c: Option<BandStats>,
+    /// M3C2 in the band.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2: Option<BandStats>,
+    /// Missing material in the band, m².
     #[serde(skip_serializing_if = "Option::is_none")]
     pub missing_area_m2: Option<f64>,
 }
@@ -344,29 +410,41 @@ pub struct BandMethods {
 /// reference.
 #[derive(Debug, Serialize)]
 pub struct TwoCloudSection {
+    /// The reference cloud file.
     pub reference: String,
+    /// Its points.
     pub reference_points: usize,
+    /// Scan points compared.
     pub scan_points: usize,
+    /// Core points subsampled from the reference.
     pub core_points: usize,
+    /// Core points with a distance.
     pub with_distance: usize,
+    /// Core points whose distance exceeds their level of detection.
     pub significant: usize,
+    /// Mean distance, metres.
     pub mean_distance: Option<f64>,
+    /// Neighbourhood diameter for the normals, metres.
     pub normal_diameter_m: f64,
 }
 
 /// The job-level additions.
 #[derive(Debug, Default, Serialize)]
 pub struct SuiteTotals {
+    /// The section's methods over every station.
     #[serde(flatten)]
     pub section: SuiteSection,
+    /// Per layer band, lowest first, with `--layer-height`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub layers: Option<Vec<BandMethods>>,
+    /// Two-cloud M3C2 against `--reference`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub m3c2_two_cloud: Option<TwoCloudSection>,
     /// For the rerun view: missing samples with their reverse distance, and M3C2 core points
     /// with distance and significance.
     #[serde(skip)]
     pub missing_view: Vec<(Point3<f64>, f32, bool)>,
+    /// M3C2 core points with distance and significance, for the rerun view.
     #[serde(skip)]
     pub m3c2_view: Vec<(Point3<f64>, f32, bool)>,
     /// With M3C2 and coverage: the job's findings, as the agent draws them for a scan layer,
@@ -393,6 +471,8 @@ struct Layers {
     c2c: LayerBands,
 }
 
+/// The offline deviation suite: C2C, coverage and M3C2 over a job's stations, beside the C2M
+/// the command line runs; the findings as the agent draws them.
 pub struct Suite {
     config: SuiteConfig,
     c2c: Option<C2cRun>,
@@ -550,6 +630,7 @@ impl Suite {
         ScanLayer::new(samples, sharp_edges, params).context("--method coverage/m3c2")
     }
 
+    /// Starts a station: its own statistics begin at zero.
     pub fn begin_station(&mut self) {
         if let Some(c) = &mut self.c2c {
             c.station = DeviationAccumulator::new(c.station.config());

@@ -11,6 +11,7 @@ use rayon::prelude::*;
 use crate::cloud::CloudIndex;
 use crate::m3c2::classic::plane_normal;
 
+/// The parameters of a cloud-to-cloud distance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct C2cParams {
     /// Beyond this a point has no match, metres.
@@ -19,15 +20,19 @@ pub struct C2cParams {
     pub local_plane_k: Option<NonZeroUsize>,
 }
 
+/// C2C parameters that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum C2cError {
+    /// The maximum distance is not a positive number.
     #[error("C2C maximum distance must be a positive number of metres, got {0}")]
     MaxDistance(f64),
+    /// A local plane needs three neighbours at least.
     #[error("a local plane needs at least 3 neighbours, got {0}")]
     TooFewNeighbours(usize),
 }
 
 impl C2cParams {
+    /// Checks the parameters.
     pub fn validate(&self) -> Result<(), C2cError> {
         if !(self.max_distance > 0.0 && self.max_distance.is_finite()) {
             return Err(C2cError::MaxDistance(self.max_distance));

@@ -6,24 +6,36 @@ use std::num::NonZeroUsize;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Point3;
 
+/// A reference cloud that cannot be indexed.
 #[derive(Debug, thiserror::Error)]
 pub enum CloudError {
+    /// No points.
     #[error("the reference cloud is empty")]
     Empty,
+    /// More points than a `u32` indexes.
     #[error("the reference cloud has {0} points, more than the 4,294,967,295 a k-d tree indexes")]
     TooLarge(usize),
+    /// A point is not finite.
     #[error("reference point {index} is not finite ({point:?}): remove it before indexing")]
-    NotFinite { index: usize, point: [f64; 3] },
+    NotFinite {
+        /// The point's index.
+        index: usize,
+        /// Its coordinates.
+        point: [f64; 3],
+    },
+    /// The k-d tree could not be built.
     #[error("cannot index the reference cloud: {0}")]
     Build(String),
 }
 
+/// A reference cloud's k-d tree (kiddo), for nearest-neighbour and radius queries.
 pub struct CloudIndex {
     tree: ImmutableKdTree<f64, 3>,
     points: Vec<[f64; 3]>,
 }
 
 impl CloudIndex {
+    /// Indexes `points`; every point must be finite.
     pub fn new(points: &[Point3<f64>]) -> Result<Self, CloudError> {
         if points.is_empty() {
             return Err(CloudError::Empty);
@@ -43,14 +55,17 @@ impl CloudIndex {
         Ok(Self { tree, points })
     }
 
+    /// Points indexed.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether no point is indexed (never, once built).
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
 
+    /// Reference point `i`.
     pub fn point(&self, i: u32) -> Point3<f64> {
         Point3::from(self.points[i as usize])
     }

@@ -26,6 +26,7 @@ use crate::c2m::Surface;
 use crate::probes::{ProbeGrid, Scratch};
 use crate::sampling::DesignSamples;
 
+/// The parameters of coverage.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CoverageParams {
     /// Farthest a scan point may be from a sample and still count as its nearest, metres. It is
@@ -100,30 +101,49 @@ impl CoverageParams {
     }
 }
 
+/// Coverage parameters that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum CoverageError {
     #[error(
         "coverage threshold ({threshold} m) and reach ({reach} m) must be positive, with the \
          threshold no larger than the reach"
     )]
-    Distances { threshold: f64, reach: f64 },
+    /// The threshold or the reach is not positive, or the threshold exceeds the reach.
+    Distances {
+        /// The threshold, metres.
+        threshold: f64,
+        /// The reach, metres.
+        reach: f64,
+    },
     #[error(
         "maximum range ({max_range} m) must be positive and the maximum incidence \
          ({max_incidence_deg}°) between 0 and 90"
     )]
+    /// The range or the incidence is out of bounds.
     Sight {
+        /// The maximum range, metres.
         max_range: f64,
+        /// The maximum incidence, degrees.
         max_incidence_deg: f64,
     },
+    /// The scanner's angular step is out of bounds.
     #[error("the scanner's angular step ({step} rad) must be positive and under 0.1 rad")]
-    Step { step: f64 },
+    Step {
+        /// The step, radians.
+        step: f64,
+    },
 }
 
+/// What a design sample's stations saw of it (see the module's classes).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SampleClass {
+    /// A scan point within the threshold, or material buried it.
     Observed,
+    /// A station should have seen material there and saw none.
     Missing,
+    /// A station faces it in range but the design blocks the view.
     Occluded,
+    /// No station could have seen it.
     NotScanned,
 }
 
@@ -163,12 +183,18 @@ impl Nearest {
     }
 }
 
+/// Coverage over the stations closed so far, in design samples.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CoverageSummary {
+    /// Samples observed.
     pub observed: u64,
+    /// Samples missing.
     pub missing: u64,
+    /// Samples occluded.
     pub occluded: u64,
+    /// Samples no station could have seen.
     pub not_scanned: u64,
+    /// The design surface the missing samples stand for, m².
     pub missing_area_m2: f64,
     /// Missing samples, as indices into [`Coverage::samples`].
     pub missing_samples: Vec<u32>,
@@ -183,14 +209,19 @@ pub struct CoverageSummary {
 pub struct SampleOutcome {
     /// This sample's index in the samples coverage was built from.
     pub sample: u32,
+    /// The sample's position, design frame.
     pub position: Point3<f64>,
+    /// The design's outward unit normal there.
     pub normal: Vector3<f64>,
     /// Signed distance to the nearest scan point, metres: negative when that point lies inside
     /// the design. `None` when no scan point came within reach.
     pub reverse_distance: Option<f64>,
+    /// Its class.
     pub class: SampleClass,
 }
 
+/// Coverage of a design's samples by a job's stations, in memory proportional to the samples:
+/// each sample keeps its nearest scan point, per station and over all of them.
 pub struct Coverage {
     grid: ProbeGrid,
     params: CoverageParams,
@@ -209,6 +240,7 @@ struct Station {
 }
 
 impl Coverage {
+    /// Coverage of `samples`, nothing seen yet.
     pub fn new(samples: &DesignSamples, params: CoverageParams) -> Result<Self, CoverageError> {
         params.validate()?;
         let grid = ProbeGrid::new(&samples.points, &samples.normals, params.reach);
@@ -224,6 +256,7 @@ impl Coverage {
         })
     }
 
+    /// The parameters it was made with.
     pub fn params(&self) -> &CoverageParams {
         &self.params
     }
@@ -233,6 +266,7 @@ impl Coverage {
         self.grid.points()
     }
 
+    /// The design surface one sample stands for, m².
     pub fn area_per_sample(&self) -> f64 {
         self.area_per_sample
     }

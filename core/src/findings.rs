@@ -24,8 +24,10 @@ use crate::coverage::{SampleClass, SampleOutcome};
 use crate::m3c2::streaming::CoreResult;
 use asbuilt_protocol::{RegionFinding, StationFindings};
 
+/// What findings are drawn with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FindingParams {
+    /// |d| beyond this is out of tolerance, metres.
     pub tolerance: f64,
     /// Layer height, metres; without it there are no per-layer rows.
     pub layer_height: Option<f64>,
@@ -49,10 +51,12 @@ pub struct FindingParams {
 /// where the sides seen cannot separate width and shift; read it with `width()`, `shift_xy()`).
 pub use asbuilt_protocol::LayerFinding as LayerRow;
 
+/// The top of the print against the printed height.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TopRow {
     /// Top of the print minus the printed height it should have, metres.
     pub height_deviation: f64,
+    /// Design samples on the top with an M3C2 distance.
     pub samples: u32,
 }
 
@@ -60,25 +64,38 @@ pub struct TopRow {
 /// `StationFindings` carry, one definition for both.
 pub use asbuilt_protocol::RegionKind;
 
+/// A connected area of the design out of tolerance, or missing. Design frame, metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Region {
+    /// Excess, deficit or missing.
     pub kind: RegionKind,
+    /// Design samples in it.
     pub samples: u32,
+    /// The design surface it covers, m².
     pub area_m2: f64,
+    /// The mean position of its samples.
     pub centroid: Point3<f64>,
+    /// The lower corner of its bounding box.
     pub min: Point3<f64>,
+    /// The upper corner of its bounding box.
     pub max: Point3<f64>,
     /// Largest |distance| with its sign, metres; NaN for missing material.
     pub peak: f64,
+    /// Where the peak was measured.
     pub peak_at: Point3<f64>,
+    /// Mean signed distance; NaN for missing material.
     pub mean: f64,
     /// Layer bands it spans, when the layer height is known.
     pub layers: Option<(u32, u32)>,
 }
 
+/// What a scan layer's stations show: layer bands, the top, areas out of tolerance, missing
+/// material.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Findings {
+    /// Per layer band, lowest first.
     pub layers: Vec<LayerRow>,
+    /// The top, when it was seen.
     pub top: Option<TopRow>,
     /// Out-of-tolerance areas, largest first.
     pub regions: Vec<Region>,

@@ -4,18 +4,22 @@
 use asbuilt_protocol::{PoseMode, PoseSnapshot};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
+/// A pose that cannot place points.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FrameError {
     #[error(
         "rotation quaternion [x, y, z, w] = {0:?} has norm {1:.6}, not 1: send a unit quaternion, \
          scalar last"
     )]
+    /// The rotation is not a unit quaternion.
     NotUnit([f64; 4], f64),
+    /// A translation or rotation value is NaN or infinite.
     #[error("pose has a non-finite translation or rotation: {0:?} / {1:?}")]
     NonFinite([f64; 3], [f64; 4]),
     #[error(
         "pose mode {0} is unknown to this build (0: 6-DoF, 1: fixed orientation, 2: design-scanner)"
     )]
+    /// The pose's mode is not one this build knows.
     UnknownMode(u8),
 }
 

@@ -18,20 +18,33 @@ use crate::m3c2::Running;
 pub struct CutReport {
     /// Closed outlines in the cut plane, outer and holes.
     pub loops: usize,
+    /// Triangles of the cap that closes the cut.
     pub cap_triangles: usize,
     /// Outline pieces that did not close (an open design): left without a cap.
     pub open_chains: usize,
 }
 
+/// A height the design cannot be cut at.
 #[derive(Debug, thiserror::Error)]
 pub enum CutError {
+    /// The height is NaN or infinite.
     #[error("printed height {height} m is not a finite number")]
-    Height { height: f64 },
+    Height {
+        /// The height given.
+        height: f64,
+    },
     #[error(
         "printed height {height} m is at or below the design's lowest point ({lowest} m): \
          nothing is printed yet"
     )]
-    BelowDesign { height: f64, lowest: f64 },
+    /// Nothing of the design lies below the height.
+    BelowDesign {
+        /// The height given, metres.
+        height: f64,
+        /// The design's lowest point, metres.
+        lowest: f64,
+    },
+    /// The cut mesh is empty.
     #[error("cut design: {0}")]
     Design(#[from] DesignError),
 }
@@ -331,11 +344,17 @@ struct Band {
 /// One band's row of a per-layer table.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BandRow {
+    /// The band's layer, from 0.
     pub layer: u32,
+    /// The band's bottom, metres.
     pub z_min: f64,
+    /// The band's top, metres.
     pub z_max: f64,
+    /// Values in the band.
     pub count: u32,
+    /// Their mean.
     pub mean: f64,
+    /// Their standard deviation; `None` for fewer than two.
     pub std: Option<f64>,
     /// 98th percentile of the heights of the values in the band, metres: where a printed top
     /// layer stands.
@@ -379,6 +398,7 @@ impl LayerBands {
         (self.base, self.layer_height)
     }
 
+    /// Adds `value` measured at height `z` to its band; values outside every band are counted.
     #[inline]
     pub fn push(&mut self, z: f64, value: f64) {
         let n = self.bands.len() as f64;
@@ -398,6 +418,7 @@ impl LayerBands {
         b.heights[bin] += 1;
     }
 
+    /// Adds another table of the same bands.
     pub fn merge(&mut self, other: &Self) {
         for (a, b) in self.bands.iter_mut().zip(&other.bands) {
             a.values.merge(&b.values);

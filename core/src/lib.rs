@@ -1,6 +1,8 @@
 //! Pure, synchronous geometry and statistics for asbuilt, shared by the agent and the offline
 //! tools. No I/O beyond reading design files; no logging.
 
+#![warn(missing_docs)]
+
 pub mod c2m;
 pub mod design;
 pub mod frames;

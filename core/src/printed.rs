@@ -16,6 +16,7 @@ use crate::layers::CutError;
 pub struct PrintedDesign {
     /// The cut height, metres; NaN for the whole design.
     pub height: f64,
+    /// The design's one index, which answers for this height too.
     pub index: Arc<C2mIndex>,
     section: Option<Section>,
     full: Arc<Design>,
@@ -32,6 +33,7 @@ pub struct PrintedDesign {
 pub const SHARP_EDGE_DEG: f64 = 30.0;
 
 impl PrintedDesign {
+    /// The section at the cut height; `None` for the whole design.
     pub fn section(&self) -> Option<&Section> {
         self.section.as_ref()
     }
@@ -209,10 +211,13 @@ impl Surface for PrintedDesign {
     }
 }
 
+/// A printed height that cannot be prepared.
 #[derive(Debug, thiserror::Error)]
 pub enum PrintedError {
+    /// The design cannot be cut there.
     #[error(transparent)]
     Cut(#[from] CutError),
+    /// The design cannot be indexed.
     #[error(transparent)]
     Index(#[from] C2mError),
 }
@@ -306,6 +311,7 @@ impl PrintedDesigns {
         })
     }
 
+    /// The whole design, as a printed design with no cut.
     pub fn full(&self) -> &Arc<PrintedDesign> {
         &self.full
     }
@@ -315,6 +321,7 @@ impl PrintedDesigns {
         &self.preparer.full
     }
 
+    /// A preparer to make printed heights on a worker thread.
     pub fn preparer(&self) -> Preparer {
         self.preparer.clone()
     }

@@ -48,6 +48,7 @@ pub struct Scratch {
 }
 
 impl Scratch {
+    /// Memory held, bytes.
     pub fn bytes(&self) -> usize {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.sorted.capacity() * size_of::<Point3<f64>>()
@@ -104,18 +105,22 @@ impl ProbeGrid {
         grid
     }
 
+    /// Probes in the grid.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether the grid holds no probe.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
 
+    /// The probes' positions, in grid order.
     pub fn points(&self) -> &[Point3<f64>] {
         &self.points
     }
 
+    /// The probes' unit normals, in grid order.
     pub fn normals(&self) -> &[Vector3<f64>] {
         &self.normals
     }
@@ -125,6 +130,7 @@ impl ProbeGrid {
         &self.ids
     }
 
+    /// Memory held, bytes.
     pub fn bytes(&self) -> usize {
         self.points.capacity() * size_of::<Point3<f64>>()
             + self.normals.capacity() * size_of::<Vector3<f64>>()

@@ -9,8 +9,10 @@ use rayon::prelude::*;
 
 use crate::design::Design;
 
+/// Points spread evenly over a design's surface, with the face each lies on.
 #[derive(Debug, Clone)]
 pub struct DesignSamples {
+    /// The samples, design frame.
     pub points: Vec<Point3<f64>>,
     /// Unit outward normal of the face each sample lies on.
     pub normals: Vec<Vector3<f64>>,
@@ -20,18 +22,25 @@ pub struct DesignSamples {
     pub area_per_sample: f64,
 }
 
+/// A sampling that cannot be made.
 #[derive(Debug, thiserror::Error)]
 pub enum SamplingError {
+    /// The spacing is not a positive number.
     #[error("sample spacing must be a positive number of metres, got {0}")]
     Spacing(f64),
     #[error(
         "a spacing of {spacing} m puts {count} samples on {area:.3} m² of design, more than the \
          limit of {limit}: use a larger --spacing"
     )]
+    /// The spacing would make more samples than [`MAX_SAMPLES`].
     TooMany {
+        /// The spacing, metres.
         spacing: f64,
+        /// The design's area, m².
         area: f64,
+        /// The samples it would take.
         count: f64,
+        /// [`MAX_SAMPLES`].
         limit: usize,
     },
 }
@@ -104,10 +113,12 @@ impl DesignSamples {
         })
     }
 
+    /// Samples.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether there is no sample.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }

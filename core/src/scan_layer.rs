@@ -47,16 +47,21 @@ pub mod defaults {
 /// What a scan layer measures. Either method may be left out; findings need both.
 #[derive(Debug, Clone)]
 pub struct ScanLayerParams {
+    /// M3C2 at the design samples, when it runs.
     pub m3c2: Option<StreamingParams>,
+    /// Coverage of the design samples, when it runs.
     pub coverage: Option<CoverageParams>,
     /// How the findings are drawn; `printed_height` is this layer's.
     pub findings: FindingParams,
 }
 
+/// A scan layer that cannot be set up.
 #[derive(Debug, thiserror::Error)]
 pub enum ScanLayerError {
+    /// M3C2's parameters cannot be used.
     #[error("M3C2: {0}")]
     M3c2(#[from] StreamingError),
+    /// Coverage's parameters cannot be used.
     #[error("coverage: {0}")]
     Coverage(#[from] CoverageError),
 }
@@ -64,22 +69,29 @@ pub enum ScanLayerError {
 /// One design sample as the findings saw it: what a map of the scan layer draws.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SampleState {
+    /// The sample, design frame.
     pub position: Point3<f64>,
     /// Outward.
     pub normal: Vector3<f64>,
     /// M3C2 distance along the normal, metres; `None` with no point in the cylinder.
     pub m3c2: Option<f64>,
+    /// Whether the M3C2 distance exceeds its level of detection.
     pub significant: bool,
+    /// What coverage made of it.
     pub class: SampleClass,
 }
 
 /// What one station added, per method that runs.
 #[derive(Debug, Clone)]
 pub struct StationPart {
+    /// Coverage over the station, when it runs.
     pub coverage: Option<CoverageSummary>,
+    /// M3C2 over the station, when it runs.
     pub m3c2: Option<StreamingSummary>,
 }
 
+/// A scan layer's state over its design samples: M3C2 and coverage fed with each station's
+/// points, and the findings drawn from them. Memory proportional to the samples.
 pub struct ScanLayer {
     m3c2: Option<StreamingM3c2>,
     coverage: Option<Coverage>,
@@ -123,6 +135,7 @@ impl ScanLayer {
         self.samples
     }
 
+    /// The design surface one sample stands for, m².
     pub fn area_per_sample(&self) -> f64 {
         self.area_per_sample
     }
@@ -132,10 +145,12 @@ impl ScanLayer {
         self.stations
     }
 
+    /// The M3C2 state, when it runs.
     pub fn m3c2(&self) -> Option<&StreamingM3c2> {
         self.m3c2.as_ref()
     }
 
+    /// The coverage state, when it runs.
     pub fn coverage(&self) -> Option<&Coverage> {
         self.coverage.as_ref()
     }
@@ -147,6 +162,7 @@ impl ScanLayer {
             + self.sharp_edges.len() * size_of::<[Point3<f64>; 2]>()
     }
 
+    /// Starts a station: its per-station state begins empty.
     pub fn begin_station(&mut self) {
         if let Some(m) = &mut self.m3c2 {
             m.begin_station();

@@ -30,14 +30,17 @@ const SORT_BLOCK: usize = 1 << 16;
 /// Chunks smaller than this are not worth sorting.
 const SORT_MIN: usize = 8 * TASK_POINTS;
 
+/// How a station's points are inspected.
 #[derive(Debug, Clone, Copy)]
 pub struct InspectParams {
+    /// The tolerance and the histogram's range.
     pub stats: StatsConfig,
     /// Metres, scanner frame.
     pub max_range: f64,
 }
 
 impl InspectParams {
+    /// The defaults around `tolerance` metres.
     pub fn with_tolerance(tolerance: f64) -> Self {
         Self {
             stats: StatsConfig::with_tolerance(tolerance),
@@ -49,8 +52,11 @@ impl InspectParams {
 /// What one chunk produced, beyond the deviations written to the output slice.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ChunkOutcome {
+    /// Points rejected (non-finite, out of range, flagged by the scanner).
     pub rejected: u32,
+    /// Valid points farther than the maximum distance.
     pub no_match: u32,
+    /// Matched points beyond the tolerance.
     pub out_of_tolerance: u32,
 }
 
@@ -58,14 +64,18 @@ pub struct ChunkOutcome {
 /// exact, so a job's tally is the merge of its stations' whatever the order.
 #[derive(Clone)]
 pub struct Tally {
+    /// Statistics of the matched points' distances.
     pub stats: DeviationAccumulator,
+    /// Rejected points by reason.
     pub rejected: RejectCounts,
     /// Every point that arrived, good or bad.
     pub points_received: u64,
+    /// Valid points farther than the maximum distance.
     pub no_match: u64,
 }
 
 impl Tally {
+    /// Nothing counted yet.
     pub fn new(config: StatsConfig) -> Self {
         Self {
             stats: DeviationAccumulator::new(config),
@@ -75,6 +85,7 @@ impl Tally {
         }
     }
 
+    /// Adds another tally's counts.
     pub fn merge(&mut self, other: &Self) {
         self.stats.merge(&other.stats);
         self.rejected += other.rejected;
@@ -123,6 +134,7 @@ where
     I: std::ops::Deref,
     I::Target: Surface,
 {
+    /// An inspector for points in the scanner frame placed by `t_design_scanner`.
     pub fn new(index: I, t_design_scanner: Isometry3<f64>, config: InspectParams) -> Self {
         Self {
             index,

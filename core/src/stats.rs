@@ -38,6 +38,9 @@ impl StatsConfig {
     }
 }
 
+/// Streaming statistics of signed distances in bounded memory: exact count, mean, std, min and
+/// max (sums in integer nanometres, so any order of the same points gives the same bits), and
+/// the median and 95th percentile of |d| from a fine log histogram.
 #[derive(Clone)]
 pub struct DeviationAccumulator {
     config: StatsConfig,
@@ -56,6 +59,7 @@ pub struct DeviationAccumulator {
 }
 
 impl DeviationAccumulator {
+    /// Empty statistics for `config`.
     pub fn new(config: StatsConfig) -> Self {
         Self {
             config,
@@ -78,10 +82,12 @@ impl DeviationAccumulator {
         }
     }
 
+    /// The configuration it was made with.
     pub fn config(&self) -> StatsConfig {
         self.config
     }
 
+    /// Distances taken.
     pub fn count(&self) -> u64 {
         self.count
     }
@@ -147,6 +153,7 @@ impl DeviationAccumulator {
         }
     }
 
+    /// The signed-distance histogram so far.
     pub fn histogram(&self) -> Histogram {
         self.histogram
     }
@@ -173,6 +180,7 @@ impl DeviationAccumulator {
         self.max_abs
     }
 
+    /// The statistics so far.
     pub fn finish(&self) -> DeviationStats {
         let n = self.count;
         if n == 0 {

@@ -9,14 +9,19 @@
 use std::fmt;
 use std::str::FromStr;
 
+/// How a value stands against its limit, worst last.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Verdict {
+    /// Within the warning fraction of the limit.
     Pass,
+    /// Beyond the warning fraction, within the limit.
     Warn,
+    /// Beyond the limit.
     Fail,
 }
 
 impl Verdict {
+    /// `pass`, `warn` or `fail`.
     pub fn as_str(self) -> &'static str {
         match self {
             Verdict::Pass => "pass",
@@ -51,6 +56,7 @@ pub enum LimitKind {
 }
 
 impl LimitKind {
+    /// Every kind, in report order.
     pub const ALL: [LimitKind; 6] = [
         LimitKind::Width,
         LimitKind::TopHeight,
@@ -97,9 +103,13 @@ impl FromStr for LimitKind {
 /// One kind's limit over the layer bands `first..=last`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LayerLimit {
+    /// The kind limited.
     pub kind: LimitKind,
+    /// The limit, metres (m² for missing area).
     pub value: f64,
+    /// The first layer band, from 0.
     pub first: u32,
+    /// The last layer band, inclusive.
     pub last: u32,
 }
 
@@ -186,11 +196,17 @@ fn parse_amount(v: &str, area: bool) -> Result<f64, String> {
 /// The limits of a job.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Limits {
+    /// |width deviation| of a layer band, metres.
     pub width: f64,
+    /// |top of the print − printed height|, metres.
     pub top_height: f64,
+    /// |shift| of a layer band in the plan, metres.
     pub position: f64,
+    /// |peak deviation| of an area of the surface, metres.
     pub surface: f64,
+    /// Area of missing material, m².
     pub missing_area_m2: f64,
+    /// |change of a layer band's width| since the first scan layer that saw it, metres.
     pub creep: f64,
     /// A value beyond this fraction of its limit warns.
     pub warn_fraction: f64,

@@ -3,7 +3,7 @@
 //! and `report` all write or read through this module, so a recording means the same to each.
 //!
 //! - One channel per message stream, topic as the iceoryx2 service without its prefix
-//!   (`/scanner/chunks`), message encoding [`MESSAGE_ENCODING`] (the [`codec`](crate::codec)
+//!   (`/scanner/chunks`), message encoding [`MESSAGE_ENCODING`] (the `codec`
 //!   records: a postcard varint version, then the message).
 //! - Each channel's schema is named for the message type and version
 //!   (`asbuilt.ScanChunk.v1`); its data is a text that lists the fields ([`schema_text`]),

@@ -5,6 +5,8 @@
 //! `asbuilt-tools`, the cell's ports from `asbuilt-agent`. Arrays cross as NumPy arrays; the GIL
 //! is released while Rust works.
 
+#![warn(missing_docs)]
+
 mod cell;
 mod commands;
 mod convert;

@@ -149,6 +149,8 @@ pub struct SimArgs {
     /// Write the injected defects and their truth per scan layer here (JSON).
     #[arg(long)]
     pub truth: Option<PathBuf>,
+    // The help text names agent.toml's section as it is written, not a Rust item.
+    #[allow(rustdoc::broken_intra_doc_links)]
     /// Also wait for the agent's findings (its [findings] section must be on).
     #[arg(long)]
     pub findings: bool,

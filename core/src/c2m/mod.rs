@@ -44,9 +44,11 @@ pub struct Closest {
     /// The design's triangle; for a cut design, the triangle a clipped piece came from, or
     /// the design's triangle count plus the cap triangle's number.
     pub triangle: u32,
+    /// Where on the triangle the closest point lies: its face, an edge or a vertex.
     pub region: Region,
 }
 
+/// The parameters of a C2M index.
 #[derive(Debug, Clone, Copy)]
 pub struct C2mParams {
     /// Points farther than this from the design have no match. Metres.
@@ -64,30 +66,42 @@ impl Default for C2mParams {
     }
 }
 
+/// A design that cannot be indexed with the parameters given.
 #[derive(Debug, thiserror::Error)]
 pub enum C2mError {
+    /// The maximum distance is not a positive number.
     #[error("maximum distance must be a positive number of metres, got {0}")]
     MaxDistance(f64),
+    /// The cell size is not a positive number.
     #[error("cell size must be a positive number of metres, got {0}")]
     CellSize(f64),
+    /// The design is too large for the grid's cell addresses (wrong units, most likely).
     #[error(
         "the design is {extent} m across: coordinates that large cannot be indexed; check the \
          design's units"
     )]
-    Extent { extent: f64 },
+    Extent {
+        /// The design's largest extent, metres.
+        extent: f64,
+    },
 }
 
 /// What the index costs; reported so that a memory budget can be checked.
 #[derive(Debug, Clone, Copy)]
 pub struct IndexStats {
+    /// Triangles indexed.
     pub triangles: usize,
+    /// The grid's cell size, metres.
     pub cell_size: f64,
     /// Points within this distance of the design are answered by the grid.
     pub band: f64,
+    /// Cells the grid keeps.
     pub cells: usize,
+    /// Candidate triangles over every kept cell's list.
     pub candidates: usize,
     /// Cells whose candidate list was too long to keep (the BVH answers them).
     pub bvh_cells: usize,
+    /// Memory of the whole index (grid, lists, BVH, mesh), bytes.
     pub bytes: usize,
 }
 
@@ -142,6 +156,7 @@ const SURFACE_CELLS_PER_TRIANGLE: f64 = 0.5;
 const CANDIDATES_PER_TRIANGLE: f64 = 14.0;
 
 impl C2mIndex {
+    /// Indexes `design` for queries up to `params.max_distance` from it, in parallel.
     pub fn build(design: &Design, params: C2mParams) -> Result<Self, C2mError> {
         Self::build_mesh(
             design.vertices.clone(),
@@ -211,6 +226,7 @@ impl C2mIndex {
         })
     }
 
+    /// Points farther than this from the design have no match, metres.
     pub fn max_distance(&self) -> f64 {
         self.max_distance
     }
@@ -225,6 +241,7 @@ impl C2mIndex {
         (self.lowest, self.highest)
     }
 
+    /// What the index holds and costs.
     pub fn stats(&self) -> IndexStats {
         let g = self.grid.stats();
         IndexStats {
@@ -519,6 +536,7 @@ fn cell_size(mesh: &Mesh, given: Option<f64>, extent: f64) -> f64 {
 pub trait Surface: Sync {
     /// The closest feature of `p`, or `None` beyond the maximum distance (or not finite).
     fn closest(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest>;
+    /// Points farther than this from the surface have no match, metres.
     fn max_distance(&self) -> f64;
     /// Whether the surface blocks the line of sight from `eye` to `target`, surface within
     /// `margin` of either end aside.

@@ -46,6 +46,7 @@ pub struct Section {
 }
 
 impl Section {
+    /// The printed height the design is cut at, metres.
     pub fn height(&self) -> f64 {
         self.height
     }
@@ -60,6 +61,7 @@ impl Section {
         self.reported.len()
     }
 
+    /// Memory of the section (its index and triangle map), bytes.
     pub fn bytes(&self) -> usize {
         self.index.as_ref().map_or(0, |i| i.stats().bytes)
             + self.reported.len() * 4

@@ -7,21 +7,27 @@ use nalgebra::{Point3, Vector3};
 /// Where on a triangle `(v0, v1, v2)` the closest point lies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Region {
+    /// Inside the triangle.
     Face,
     /// Edge `i` runs from vertex `i` to vertex `(i + 1) % 3`.
     Edge(u8),
+    /// Vertex `i`.
     Vertex(u8),
 }
 
 /// A triangle prepared for repeated closest-point queries.
 #[derive(Debug, Clone, Copy)]
 pub struct Triangle {
+    /// Vertex 0.
     pub a: Point3<f64>,
+    /// Vertex 1 minus vertex 0.
     pub ab: Vector3<f64>,
+    /// Vertex 2 minus vertex 0.
     pub ac: Vector3<f64>,
 }
 
 impl Triangle {
+    /// The triangle `(a, b, c)`.
     pub fn new(a: Point3<f64>, b: Point3<f64>, c: Point3<f64>) -> Self {
         Self {
             a,
@@ -30,10 +36,12 @@ impl Triangle {
         }
     }
 
+    /// Vertex 1.
     pub fn b(&self) -> Point3<f64> {
         self.a + self.ab
     }
 
+    /// Vertex 2.
     pub fn c(&self) -> Point3<f64> {
         self.a + self.ac
     }
@@ -170,6 +178,7 @@ impl<const N: usize> Default for Lanes<N> {
 }
 
 impl<const N: usize> Lanes<N> {
+    /// Puts `t` into lane `lane`.
     #[inline(always)]
     pub fn set(&mut self, lane: usize, t: &Triangle) {
         for k in 0..3 {

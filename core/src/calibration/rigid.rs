@@ -3,12 +3,14 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
+/// A rigid fit of measured points onto known ones, with what a surveyor checks of it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RigidFit {
     /// `to ≈ transform · from`.
     pub transform: Isometry3<f64>,
     /// |transform · from_i − to_i| per pair, metres.
     pub residuals: Vec<f64>,
+    /// Root mean square of the residuals, metres.
     pub rms: f64,
     /// One-sigma uncertainty of the translation per axis at the targets' centroid, metres:
     /// σ̂ / √n with σ̂² = Σ|r|² / degrees of freedom.
@@ -25,22 +27,37 @@ pub const FLAG_FLOOR: f64 = 0.002;
 /// named. Wide, because σ̂ comes from few targets and targets far out have long lever arms.
 pub const FLAG_SIGMAS: f64 = 6.0;
 
+/// Why a rigid fit cannot be made.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum RigidError {
+    /// Measured and known points do not pair up.
     #[error("{from} measured points for {to} known points: every target needs both")]
-    Lengths { from: usize, to: usize },
+    Lengths {
+        /// Measured points.
+        from: usize,
+        /// Known points.
+        to: usize,
+    },
+    /// Fewer targets than the fit needs.
     #[error("{got} target(s) given; {need} are needed ({what})")]
     TooFew {
+        /// Targets given.
         got: usize,
+        /// Targets needed.
         need: usize,
+        /// What needs them.
         what: &'static str,
     },
+    /// The targets are on one line: the rotation about it is not determined.
     #[error(
         "the targets are (nearly) on one line (spread across the line {spread_mm:.2} mm): the \
          rotation about that line is not determined. Add a target off the line, or use the \
          fixed-orientation mode"
     )]
-    Collinear { spread_mm: f64 },
+    Collinear {
+        /// How far the targets spread across their line, millimetres.
+        spread_mm: f64,
+    },
 }
 
 /// The least-squares rigid transform with `to ≈ T · from`. Needs at least 3 targets that are

@@ -5,16 +5,20 @@ use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 use crate::cloud::CloudIndex;
 use crate::m3c2::classic::plane_normal;
 
+/// A sphere target found in a scan.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SphereFit {
+    /// The sphere's centre, in the scan's frame.
     pub centre: Point3<f64>,
     /// RMS of the radial residuals of the inliers, metres.
     pub residual_rms: f64,
     /// One-sigma uncertainty of the centre per axis, metres: σ̂² (JᵀJ)⁻¹ of the fit.
     pub centre_sigma: Vector3<f64>,
+    /// Points on the sphere's shell.
     pub inliers: usize,
 }
 
+/// How sphere targets are looked for.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DetectParams {
     /// The targets' radius, metres.
@@ -27,6 +31,7 @@ pub struct DetectParams {
 }
 
 impl DetectParams {
+    /// Parameters for targets of `radius` metres: a shell of 3 % of it (1 to 5 mm), 50 points.
     pub fn new(radius: f64) -> Self {
         Self {
             radius,

@@ -18,13 +18,16 @@ pub enum DesignError {
         "the mesh has no usable triangles (empty, or every triangle degenerate): export the \
          surface as a triangle mesh"
     )]
+    /// No triangle with an area is left.
     Empty,
 }
 
 /// The unit a design file was written in. Declared by the user, never guessed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Units {
+    /// The file's numbers are metres.
     Metres,
+    /// The file's numbers are millimetres.
     Millimetres,
 }
 
@@ -62,7 +65,9 @@ impl std::str::FromStr for Units {
 /// What loading and cleaning found. Everything here is a warning unless the mesh ends up empty.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct MeshReport {
+    /// Vertices the file holds.
     pub input_vertices: usize,
+    /// Triangles the file holds (after polygons are fanned).
     pub input_triangles: usize,
     /// Vertices dropped because another one had the same position.
     pub merged_vertices: usize,
@@ -70,6 +75,7 @@ pub struct MeshReport {
     pub degenerate_triangles: usize,
     /// Triangles that point to a vertex the file does not have.
     pub invalid_indices: usize,
+    /// Edge checks of the cleaned mesh.
     pub topology: Topology,
 }
 
@@ -118,8 +124,11 @@ impl MeshReport {
 /// An indexed triangle mesh in metres, with no degenerate triangles.
 #[derive(Debug, Clone)]
 pub struct Design {
+    /// Vertices, metres.
     pub vertices: Vec<Point3<f64>>,
+    /// Triangles as vertex indices, counter-clockwise seen from outside.
     pub triangles: Vec<[u32; 3]>,
+    /// What loading and cleaning found.
     pub report: MeshReport,
 }
 
@@ -191,6 +200,7 @@ impl Design {
         (lo, hi)
     }
 
+    /// The surface's area, m².
     pub fn surface_area(&self) -> f64 {
         self.triangles.iter().map(|t| self.triangle_area(t)).sum()
     }

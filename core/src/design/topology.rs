@@ -3,6 +3,7 @@ use std::collections::HashMap;
 /// Edge-based checks of a triangle mesh.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Topology {
+    /// Distinct undirected edges.
     pub edges: usize,
     /// Edges used by one triangle only: the mesh has holes or is a sheet.
     pub boundary_edges: usize,
@@ -13,6 +14,7 @@ pub struct Topology {
 }
 
 impl Topology {
+    /// The edge checks of `triangles`.
     pub fn of(triangles: &[[u32; 3]]) -> Self {
         // Per undirected edge: how many triangles use it in each direction.
         let mut uses: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(triangles.len() * 2);
@@ -42,6 +44,7 @@ impl Topology {
         out
     }
 
+    /// Whether every edge has two triangles that traverse it in opposite directions.
     pub fn is_closed_and_oriented(&self) -> bool {
         self.boundary_edges == 0 && self.non_manifold_edges == 0 && self.inconsistent_edges == 0
     }

@@ -8,6 +8,7 @@ use rayon::prelude::*;
 use super::lod95;
 use crate::cloud::CloudIndex;
 
+/// How a cylinder's points become one position along the normal.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Estimator {
     /// Mean position; spread is the standard deviation.
@@ -16,6 +17,7 @@ pub enum Estimator {
     Median,
 }
 
+/// The parameters of two-cloud M3C2 (Lague et al. 2013), in the clouds' units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClassicParams {
     /// Diameter of the sphere whose points of cloud 1 give each core point's normal.
@@ -24,6 +26,7 @@ pub struct ClassicParams {
     pub projection_diameter: f64,
     /// Cylinder half-length along the normal.
     pub max_depth: f64,
+    /// Mean or median position in each cylinder.
     pub estimator: Estimator,
     /// Registration error added to the level of detection, in the clouds' units.
     pub registration_error: f64,
@@ -35,6 +38,8 @@ pub struct ClassicParams {
 }
 
 impl ClassicParams {
+    /// The paper's three scales, with a mean, no registration error, normals towards +Z and
+    /// five points for statistics.
     pub fn new(normal_diameter: f64, projection_diameter: f64, max_depth: f64) -> Self {
         Self {
             normal_diameter,
@@ -53,31 +58,41 @@ impl ClassicParams {
     "M3C2 scales must be positive: normal diameter {normal_diameter}, projection diameter \
      {projection_diameter}, maximum depth {max_depth}"
 )]
+/// M3C2 scales that cannot be used.
 pub struct ClassicError {
+    /// The normal diameter given.
     pub normal_diameter: f64,
+    /// The projection diameter given.
     pub projection_diameter: f64,
+    /// The maximum depth given.
     pub max_depth: f64,
 }
 
 /// One cloud's projections inside a cylinder.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Projection {
+    /// Points of the cloud in the cylinder.
     pub count: u32,
     /// Mean or median offset along the normal from the core point.
     pub position: f64,
+    /// Their spread along the normal (standard deviation, or its robust estimate).
     pub spread: f64,
 }
 
+/// M3C2 at one core point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClassicResult {
     /// `None` when fewer than three points of cloud 1 lie within the normal scale.
     pub normal: Option<Vector3<f64>>,
+    /// Cloud 1's projection.
     pub cloud1: Projection,
+    /// Cloud 2's projection.
     pub cloud2: Projection,
     /// Cloud 2's position minus cloud 1's; `None` when either cylinder is empty.
     pub distance: Option<f64>,
     /// `None` when either cylinder holds fewer than the minimum points for statistics.
     pub lod95: Option<f64>,
+    /// Whether |distance| exceeds the level of detection.
     pub significant: bool,
 }
 

@@ -23,12 +23,16 @@ pub mod streaming;
 /// threads (Chan, Golub and LeVeque 1979).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Running {
+    /// Values taken.
     pub n: u32,
+    /// Their mean.
     pub mean: f64,
+    /// The sum of their squared deviations from the mean.
     pub m2: f64,
 }
 
 impl Running {
+    /// Takes one value.
     #[inline]
     pub fn push(&mut self, x: f64) {
         self.n += 1;
@@ -37,6 +41,7 @@ impl Running {
         self.m2 += d * (x - self.mean);
     }
 
+    /// Takes another run's values, as if pushed here.
     pub fn merge(&mut self, o: &Self) {
         if o.n == 0 {
             return;

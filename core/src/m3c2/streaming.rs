@@ -12,6 +12,7 @@ use super::{Running, lod95};
 use crate::probes::{ProbeGrid, Scratch};
 use crate::sampling::DesignSamples;
 
+/// The parameters of M3C2 at design samples, along the design's normals.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StreamingParams {
     /// Cylinder diameter, metres.
@@ -27,8 +28,11 @@ pub struct StreamingParams {
     "M3C2 projection diameter ({projection_diameter} m) and maximum depth ({max_depth} m) must be \
      positive numbers of metres"
 )]
+/// M3C2 scales that cannot be used.
 pub struct StreamingError {
+    /// The projection diameter given.
     pub projection_diameter: f64,
+    /// The maximum depth given.
     pub max_depth: f64,
 }
 
@@ -37,30 +41,41 @@ pub struct StreamingError {
 pub struct CoreResult {
     /// This core point's index in the samples M3C2 was built from.
     pub sample: u32,
+    /// The core point, design frame.
     pub position: Point3<f64>,
+    /// The design's outward unit normal there.
     pub normal: Vector3<f64>,
     /// Mean offset of the scan along the normal, metres; `None` with no point in the cylinder.
     pub distance: Option<f64>,
     /// Standard deviation of the offsets, metres.
     pub spread: Option<f64>,
+    /// Scan points in the cylinder.
     pub count: u32,
     /// Level of detection at 95 %, metres.
     pub lod95: Option<f64>,
+    /// Whether |distance| exceeds the level of detection.
     pub significant: bool,
 }
 
+/// M3C2 over a station, or over the job so far.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct StreamingSummary {
+    /// Core points.
     pub core_points: u64,
     /// Core points with at least one scan point in their cylinder.
     pub with_points: u64,
+    /// Core points whose distance exceeds their level of detection.
     pub significant: u64,
     /// Mean and extremes of the distances of core points with points, metres.
     pub mean_distance: Option<f64>,
+    /// Smallest distance, metres.
     pub min_distance: Option<f64>,
+    /// Largest distance, metres.
     pub max_distance: Option<f64>,
 }
 
+/// M3C2 streamed chunk by chunk at fixed core points (design samples) with the design's
+/// normals, in memory proportional to the core points, never to the scan.
 pub struct StreamingM3c2 {
     grid: ProbeGrid,
     params: StreamingParams,
@@ -70,6 +85,7 @@ pub struct StreamingM3c2 {
 }
 
 impl StreamingM3c2 {
+    /// M3C2 at the samples of `core`, nothing seen yet.
     pub fn new(core: &DesignSamples, params: StreamingParams) -> Result<Self, StreamingError> {
         let ok = |v: f64| v > 0.0 && v.is_finite();
         if !ok(params.projection_diameter) || !ok(params.max_depth) {
@@ -91,14 +107,17 @@ impl StreamingM3c2 {
         })
     }
 
+    /// The parameters it was made with.
     pub fn params(&self) -> &StreamingParams {
         &self.params
     }
 
+    /// Core points.
     pub fn len(&self) -> usize {
         self.grid.len()
     }
 
+    /// Whether there is no core point.
     pub fn is_empty(&self) -> bool {
         self.grid.is_empty()
     }
@@ -110,6 +129,7 @@ impl StreamingM3c2 {
             + self.scratch.bytes()
     }
 
+    /// Starts a station: its cylinders begin empty.
     pub fn begin_station(&mut self) {
         self.station.fill(Running::default());
     }
@@ -142,6 +162,8 @@ impl StreamingM3c2 {
         self.summary_of(&self.station, registration_sigma)
     }
 
+    /// The job's M3C2 over every closed station, with `registration_sigma` in the level of
+    /// detection.
     pub fn total(&self, registration_sigma: f64) -> StreamingSummary {
         self.summary_of(&self.total, registration_sigma)
     }

@@ -126,9 +126,8 @@ impl FindingsConfig {
         use asbuilt_core::scan_layer::{ScanLayerParams, defaults};
         let threshold = self.coverage_threshold(tolerance);
         let projection_diameter = self.projection_diameter();
-        // Coverage reaches twice the threshold: far enough to tell excess and deficit from
-        // missing, near enough to stay cheap.
-        let mut coverage = CoverageParams::with_threshold(threshold, 2.0 * threshold);
+        let reach = defaults::coverage_reach(threshold, max_depth);
+        let mut coverage = CoverageParams::with_threshold(threshold, reach);
         coverage.max_incidence_deg = self.max_incidence_deg;
         coverage.spacing = self.coverage_spacing();
         ScanLayerParams {

@@ -80,3 +80,68 @@ def test_send_station_checks_its_arrays(tmp_path):
         asbuilt.SimulatedJob(part="wall", scan_after=[99])
     with pytest.raises(ValueError, match="unexpected argument"):
         asbuilt.SimulatedJob(part="wall", colour="red")
+
+
+def _same(offline, live, path="findings"):
+    """Counts equal, lengths equal; measures equal to 1e-9 relative (the agent sums a sample's
+    cylinder over its own chunks, the suite over its own: the last bits may differ)."""
+    if isinstance(live, dict):
+        for k, v in live.items():
+            if k not in ("kind", "job", "station", "layer", "version"):
+                _same(offline[k], v, f"{path}.{k}")
+    elif isinstance(live, (list, tuple)):
+        assert len(offline) == len(live), f"{path}: {len(offline)} offline, {len(live)} live"
+        for i, (a, b) in enumerate(zip(offline, live)):
+            _same(a, b, f"{path}[{i}]")
+    elif isinstance(live, float):
+        assert (np.isnan(offline) and np.isnan(live)) or \
+            abs(offline - live) <= 1e-9 * max(1.0, abs(live)), f"{path}: {offline} vs {live}"
+    else:
+        assert offline == live, f"{path}: {offline} vs {live}"
+
+
+def test_the_offline_suite_on_a_recordings_scans_gives_the_agents_findings(tmp_path):
+    # Height drift puts the top 14 mm above the printed height at the second scan layer, the
+    # bulge a side 15 mm out: deviations beyond the coverage threshold, where an agent and an
+    # offline run that looked for scan points differently would disagree.
+    job = asbuilt.SimulatedJob(part="wall", scan_after=[8, 24], stations=2, step_deg=0.15,
+                               defect=["bulge:x=-0.5,y=-0.0867,z=0.08,radius=0.1,height=15mm",
+                                       "height-drift:from=10,per-layer=1mm"])
+    job.design.write_stl(tmp_path / "design.stl")
+    prefix = f"asbuilt-pytest-offline-{os.getpid()}"
+    with asbuilt.Agent(agent_config(prefix, job), str(tmp_path)) as agent:
+        agent.wait_until_serving()
+        cell = asbuilt.Cell(prefix, wait=30.0)
+        live = {}
+        for st in job.stations():
+            scan = job.scan(st["index"])
+            cell.send_station(
+                st["index"], scan["points"], st["translation"], st["rotation_xyzw"],
+                job=job.job, name=st["name"], layer=st["printed"] - 1,
+                printed_height=st["printed_height"], position_sigma=st["position_sigma"],
+                pose_mode=st["pose_mode"], intensity=scan["intensity"], flags=scan["flags"])
+        deadline = time.monotonic() + 120
+        got = []
+        while time.monotonic() < deadline and sum(m["kind"] == "findings" for m in got) < 4:
+            got += cell.receive(timeout=1.0)
+        assert agent.alive(), agent.log()
+    for m in got:
+        if m["kind"] == "findings":
+            live[m["layer"]] = m  # the last of a scan layer covers all its stations
+    assert sorted(live) == [7, 23], got
+    rec = asbuilt.read_recording(next((tmp_path / "recording").glob("*.mcap")))
+    design = asbuilt.Design.load(tmp_path / "design.stl", units="m")
+    for layer, findings in live.items():
+        stations = [s for s in rec.stations if s.layer == layer]
+        assert len(stations) == 2
+        # The agent's fixed-orientation pose with no calibration: the scanner sits at the
+        # pose's translation.
+        inputs = [dict(points=s.design_points, origin=s.pose["translation"],
+                       sigma=s.pose["position_sigma"]) for s in stations]
+        offline = asbuilt.suite(design, inputs, methods=["coverage", "m3c2"], tolerance=0.005,
+                                max_distance=0.03, layer_height=job.layer_height,
+                                printed_height=stations[0].printed_height)["findings"]
+        _same(offline, findings, f"layer {layer}")
+    # The raised top was judged by the whole top, not by the few samples within 6 mm of it.
+    assert live[23]["top_height_deviation"] > 0.010
+    assert live[23]["top_samples"] > 0.5 * live[7]["top_samples"] > 100

@@ -599,7 +599,10 @@ impl Suite {
         let coverage = CoverageParams {
             spacing: config.coverage_spacing,
             max_incidence_deg: defaults::MAX_INCIDENCE_DEG,
-            ..CoverageParams::with_threshold(config.coverage_threshold, config.reach)
+            ..CoverageParams::with_threshold(
+                config.coverage_threshold,
+                defaults::coverage_reach(config.coverage_threshold, config.max_depth),
+            )
         };
         let m3c2 = StreamingParams {
             projection_diameter: config.projection_diameter,

@@ -4,10 +4,12 @@
 
 use std::fmt::Arguments;
 use std::io::Write;
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// How serious a log line is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[repr(u8)]
 pub enum Level {
     /// What the agent is doing.
     Info,
@@ -17,8 +19,25 @@ pub enum Level {
     Error,
 }
 
+/// Lines below this level are not written (a [`Level`] as `u8`).
+static MIN_LEVEL: AtomicU8 = AtomicU8::new(Level::Info as u8);
+
+/// Writes lines at `level` and above only, for the whole process; returns the level before.
+/// A library that runs the lifecycle for its caller (reading a recording back from Python)
+/// keeps its progress lines to itself this way, and its warnings still show.
+pub fn set_min_level(level: Level) -> Level {
+    match MIN_LEVEL.swap(level as u8, Ordering::Relaxed) {
+        0 => Level::Info,
+        1 => Level::Warn,
+        _ => Level::Error,
+    }
+}
+
 /// Writes one line at `level`, timestamped.
 pub fn line(level: Level, args: Arguments<'_>) {
+    if (level as u8) < MIN_LEVEL.load(Ordering::Relaxed) {
+        return;
+    }
     let name = match level {
         Level::Info => "INFO ",
         Level::Warn => "WARN ",

@@ -4,6 +4,7 @@
 
 use std::path::PathBuf;
 
+use asbuilt_agent::log::{self, Level};
 use asbuilt_tools::report_cmd::{Overrides, StationReadBack, read_back};
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
@@ -26,8 +27,15 @@ pub fn read_recording_parts<'py>(
         max_distance,
         ..Default::default()
     };
+    // The agent's lifecycle reads the recording; its progress lines (a few per station) are
+    // not the Python caller's business, its warnings are.
     let (report, stations) = py
-        .detach(|| read_back(&path, overrides))
+        .detach(|| {
+            let before = log::set_min_level(Level::Warn);
+            let read = read_back(&path, overrides);
+            log::set_min_level(before);
+            read
+        })
         .map_err(anyhow_err)?;
     let list = PyList::empty(py);
     for s in &stations {

@@ -55,3 +55,15 @@ def test_a_file_that_is_not_a_recording_is_refused(tmp_path):
         assert "bad.mcap" in str(e)
     else:
         raise AssertionError("a damaged recording was read")
+
+
+def test_reading_a_recording_keeps_the_agents_progress_lines_to_itself(capfd, tmp_path,
+                                                                       bunny_recording):
+    # The command line shows the lifecycle's lines as it replays the recording ...
+    assert asbuilt.run("report", bunny_recording, "--out", tmp_path) == 0
+    assert " INFO " in capfd.readouterr().err
+    # ... Python's reader does not, and the command line still does afterwards.
+    asbuilt.read_recording(bunny_recording)
+    assert " INFO " not in capfd.readouterr().err
+    assert asbuilt.run("report", bunny_recording, "--out", tmp_path) == 0
+    assert " INFO " in capfd.readouterr().err

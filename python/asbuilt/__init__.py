@@ -190,3 +190,14 @@ class SimulatedJob(_SimulatedJob):
 
     def __new__(cls, **options: Any):
         return super().__new__(cls, argv(**options))
+
+    def send(self, cell: "Cell", station: Dict[str, Any]) -> int:
+        """Scans `station` (an entry of `stations()`) and sends it through `cell` as the robot
+        cell does: Begin with its layer and printed height, the pose, the points in chunks, End.
+        Returns the points sent."""
+        scan = self.scan(station["index"])
+        return cell.send_station(
+            station["index"], scan["points"], station["translation"], station["rotation_xyzw"],
+            job=self.job, name=station["name"], layer=station["printed"] - 1,
+            printed_height=station["printed_height"], position_sigma=station["position_sigma"],
+            pose_mode=station["pose_mode"], intensity=scan["intensity"], flags=scan["flags"])

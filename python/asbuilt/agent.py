@@ -46,6 +46,8 @@ class Agent:
     recording is closed)."""
 
     def __init__(self, config: Dict[str, Any], folder: str):
+        # The agent runs in `folder`: a relative folder would be taken twice.
+        folder = os.path.abspath(os.fspath(folder))
         os.makedirs(folder, exist_ok=True)
         self.folder = folder
         self.config_path = os.path.join(folder, "agent.toml")

@@ -66,12 +66,7 @@ def print_and_inspect(job, cell) -> int:
         print(f"scanning after layer {printed}")
         stations = [s for s in plan if s["printed"] == layers]
         for st in stations:
-            scan = job.scan(st["index"])
-            cell.send_station(
-                st["index"], scan["points"], st["translation"], st["rotation_xyzw"],
-                job=job.job, name=st["name"], layer=st["printed"] - 1,
-                printed_height=st["printed_height"], position_sigma=st["position_sigma"],
-                pose_mode=st["pose_mode"], intensity=scan["intensity"], flags=scan["flags"])
+            job.send(cell, st)
             report = wait_for(cell, "report", st["index"])
             s = report["stats"]
             print(f"  {st['name']}: {report['points_received']} points, median |d| "

@@ -20,24 +20,22 @@ def agent_config(prefix, job):
     }
 
 
-def test_a_python_cell_gets_reports_and_findings(tmp_path):
+def test_a_python_cell_gets_reports_and_findings(tmp_path, monkeypatch):
     job = asbuilt.SimulatedJob(part="wall", scan_after=[8], stations=2, step_deg=0.15,
                                defect=["bulge:x=-0.5,y=-0.0867,z=0.08,radius=0.1,height=15mm"])
-    job.design.write_stl(tmp_path / "design.stl")
+    # The agent's folder given relative to the working directory, as a script would.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cell").mkdir()
+    job.design.write_stl(tmp_path / "cell" / "design.stl")
     prefix = f"asbuilt-pytest-{os.getpid()}"
-    with asbuilt.Agent(agent_config(prefix, job), str(tmp_path)) as agent:
+    with asbuilt.Agent(agent_config(prefix, job), "cell") as agent:
         agent.wait_until_serving()
         cell = asbuilt.Cell(prefix, wait=30.0)
         sent = {}
         got = []
         for st in job.stations():
-            scan = job.scan(st["index"])
-            sent[st["index"]] = cell.send_station(
-                st["index"], scan["points"], st["translation"], st["rotation_xyzw"],
-                job=job.job, name=st["name"], layer=st["printed"] - 1,
-                printed_height=st["printed_height"], position_sigma=st["position_sigma"],
-                pose_mode=st["pose_mode"], intensity=scan["intensity"], flags=scan["flags"])
-            assert sent[st["index"]] == len(scan["points"]) > 1000
+            sent[st["index"]] = job.send(cell, st)
+            assert sent[st["index"]] == len(job.scan(st["index"])["points"]) > 1000
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             got += cell.receive(timeout=1.0)
@@ -57,7 +55,7 @@ def test_a_python_cell_gets_reports_and_findings(tmp_path):
     last = findings[-1]
     assert last["regions"], last
     # The agent recorded the job: the recording reads back with the same stations.
-    recordings = list((tmp_path / "recording").glob("*.mcap"))
+    recordings = list((tmp_path / "cell" / "recording").glob("*.mcap"))
     assert len(recordings) == 1
     rec = asbuilt.read_recording(recordings[0])
     assert [s.station for s in rec.stations] == [0, 1]
@@ -112,19 +110,14 @@ def test_the_offline_suite_on_a_recordings_scans_gives_the_agents_findings(tmp_p
     with asbuilt.Agent(agent_config(prefix, job), str(tmp_path)) as agent:
         agent.wait_until_serving()
         cell = asbuilt.Cell(prefix, wait=30.0)
-        live = {}
         for st in job.stations():
-            scan = job.scan(st["index"])
-            cell.send_station(
-                st["index"], scan["points"], st["translation"], st["rotation_xyzw"],
-                job=job.job, name=st["name"], layer=st["printed"] - 1,
-                printed_height=st["printed_height"], position_sigma=st["position_sigma"],
-                pose_mode=st["pose_mode"], intensity=scan["intensity"], flags=scan["flags"])
+            job.send(cell, st)
         deadline = time.monotonic() + 120
         got = []
         while time.monotonic() < deadline and sum(m["kind"] == "findings" for m in got) < 4:
             got += cell.receive(timeout=1.0)
         assert agent.alive(), agent.log()
+    live = {}
     for m in got:
         if m["kind"] == "findings":
             live[m["layer"]] = m  # the last of a scan layer covers all its stations

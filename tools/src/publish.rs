@@ -139,26 +139,28 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         reports.len(),
         expected.len()
     );
-    let complete = reports
+    Ok(reports_verdict(expected.len(), &reports, args.wait))
+}
+
+/// Exit code 1, with what went wrong, when a station got no report within `wait` seconds or
+/// reported incomplete; success otherwise. Shared with `replay`.
+pub(crate) fn reports_verdict(expected: usize, reports: &[StationReport], wait: f64) -> ExitCode {
+    if reports.len() < expected {
+        eprintln!(
+            "error: {} station(s) got no report within {wait:.0} s",
+            expected - reports.len(),
+        );
+        return ExitCode::from(1);
+    }
+    let incomplete = reports
         .iter()
-        .filter(|r| r.status() == Some(StationStatus::Complete))
+        .filter(|r| r.status() != Some(StationStatus::Complete))
         .count();
-    if reports.len() < expected.len() {
-        eprintln!(
-            "error: {} station(s) got no report within {:.0} s",
-            expected.len() - reports.len(),
-            args.wait
-        );
-        return Ok(ExitCode::from(1));
+    if incomplete > 0 {
+        eprintln!("error: {incomplete} station(s) reported incomplete");
+        return ExitCode::from(1);
     }
-    if complete < reports.len() {
-        eprintln!(
-            "error: {} station(s) reported incomplete",
-            reports.len() - complete
-        );
-        return Ok(ExitCode::from(1));
-    }
-    Ok(ExitCode::SUCCESS)
+    ExitCode::SUCCESS
 }
 
 pub(crate) fn collect_reports(

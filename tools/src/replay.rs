@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use asbuilt_agent::ipc::ServiceNames;
+use asbuilt_protocol::StationReport;
 use asbuilt_protocol::recording::{self, Channel, Recorded};
-use asbuilt_protocol::{StationReport, StationStatus};
 use clap::Args;
 
 use crate::publish::collect_reports;
@@ -108,23 +108,11 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     if let Some(dir) = &args.out {
         write_reports(dir, &mut reports)?;
     }
-    if reports.len() < stations.len() {
-        eprintln!(
-            "error: {} station(s) got no report within {:.0} s",
-            stations.len() - reports.len(),
-            args.wait
-        );
-        return Ok(ExitCode::from(1));
-    }
-    let incomplete = reports
-        .iter()
-        .filter(|r| r.status() != Some(StationStatus::Complete))
-        .count();
-    if incomplete > 0 {
-        eprintln!("error: {incomplete} station(s) reported incomplete");
-        return Ok(ExitCode::from(1));
-    }
-    Ok(ExitCode::SUCCESS)
+    Ok(crate::publish::reports_verdict(
+        stations.len(),
+        &reports,
+        args.wait,
+    ))
 }
 
 /// What a first pass over a recording finds: the stations to expect (job, station), the largest

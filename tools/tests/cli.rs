@@ -33,6 +33,22 @@ fn report(dir: &Path) -> Value {
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+/// `asbuilt inspect` of a stations file against a design in metres.
+fn inspect_stations(design: &Path, stations: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "inspect",
+        "--design",
+        s(design),
+        "--units",
+        "m",
+        "--stations",
+        s(stations),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    asbuilt(&args)
+}
 
 /// `asbuilt inspect` on one scan taken from `translation` (x,y,z) with no rotation.
 fn inspect_scan(
@@ -138,19 +154,7 @@ fn bunny_stations_from_bun_conf() {
 
     let out = dir.path().join("out");
     let mesh = data().join("stanford-bunny/bun_zipper.ply");
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
-        s(&mesh),
-        "--units",
-        "m",
-        "--stations",
-        s(&toml),
-        "--max-distance",
-        "0.005",
-        "--out",
-        s(&out),
-    ]);
+    let o = inspect_stations(&mesh, &toml, &out, &["--max-distance", "0.005"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let r = report(&out);
     let stations = r["stations"].as_array().unwrap();
@@ -283,17 +287,7 @@ fn station_without_pose_is_named() {
          [[station]]\nid = \"west\"\nscan = \"missing.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 2]\n",
     )
     .unwrap();
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
-        s(&stl),
-        "--units",
-        "m",
-        "--stations",
-        s(&toml),
-        "--out",
-        s(dir.path()),
-    ]);
+    let o = inspect_stations(&stl, &toml, dir.path(), &[]);
     assert_eq!(o.status.code(), Some(2));
     let e = stderr(&o);
     assert!(e.contains("station \"south\" has no pose"), "{e}");
@@ -334,17 +328,7 @@ fn unreadable_scan_fails_its_station_and_keeps_the_others() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let o = asbuilt(&[
-        "inspect",
-        "--design",
-        s(&stl),
-        "--units",
-        "m",
-        "--stations",
-        s(&toml),
-        "--out",
-        s(&out),
-    ]);
+    let o = inspect_stations(&stl, &toml, &out, &[]);
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{e}");
     assert!(

@@ -1,5 +1,5 @@
 """Shared fixtures: the repository's real data (the Stanford bunny beside the repository, as
-the Rust tests use it) (the PLY reader is in ply_reader.py)."""
+the Rust tests use it). The reader for the PLY files asbuilt writes is in ply_reader.py."""
 
 import os
 import pathlib

@@ -21,8 +21,11 @@ use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
-/// Points per processing chunk: the only per-point buffer, reused for every chunk.
+/// Points per processing chunk. The per-point buffers are chunks, reused for every chunk: the
+/// deviations, and the scan's chunks in flight from the reader ([`READ_AHEAD`] + 2).
 const CHUNK: usize = 1 << 16;
+/// Chunks the reader thread parses ahead of the one being inspected.
+const READ_AHEAD: usize = 2;
 
 #[derive(Args)]
 pub struct InspectArgs {
@@ -564,9 +567,6 @@ fn stream_station(
     bar.finish_and_clear();
     Ok((read?, bounds))
 }
-
-/// Chunks read ahead of the one being inspected.
-const READ_AHEAD: usize = 2;
 
 fn progress_bar(declared: Option<u64>, name: &str) -> ProgressBar {
     let bar = match declared {

@@ -110,14 +110,15 @@ fn named(name: &str, error: String) -> Outcome {
     }
 }
 
-/// Every scan of the file, as `inspect` and `publish` read it.
+/// Every scan of the file, as `inspect` reads it: parsed on a thread of its own, chunks read
+/// ahead (`publish` and `pack` take the same chunks from the same reader, in turn).
 fn read_scan(name: &str, bytes: &[u8], scratch: &Path) -> Outcome {
     let path = as_file(name, bytes, scratch);
     let read = || -> anyhow::Result<String> {
         let file = ScanFile::open(&path)?;
         let mut points = 0usize;
         for i in 0..file.scans.len() {
-            file.stream(i, 4096, &mut |c| {
+            file.stream_ahead(i, 4096, 2, &mut |c| {
                 points += c.len();
                 Ok(())
             })?;

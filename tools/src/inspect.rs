@@ -21,8 +21,9 @@ use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
-/// Points per processing chunk. The per-point buffers are chunks, reused for every chunk: the
-/// deviations, and the scan's chunks in flight from the reader ([`READ_AHEAD`] + 2).
+/// Points per processing chunk. The per-point buffers are chunks, reused for every chunk: two
+/// of deviations (one being measured, one being written), and the scan's chunks in flight from
+/// the reader ([`READ_AHEAD`] + 2).
 const CHUNK: usize = 1 << 16;
 /// Chunks the reader thread parses ahead of the one being inspected.
 const READ_AHEAD: usize = 2;
@@ -508,7 +509,7 @@ type Bounds = (Point3<f64>, Point3<f64>);
 
 /// Where a station's deviations go besides the statistics.
 struct StationOutputs<'a> {
-    buffer: &'a mut [PointDeviation],
+    buffer: &'a mut Vec<PointDeviation>,
     ply: &'a mut DeviationsPly,
     suite: &'a mut Suite,
     maps: &'a mut MapCollector,
@@ -517,6 +518,12 @@ struct StationOutputs<'a> {
 
 /// Streams station `n`'s scan through its inspector into the outputs, with a progress bar.
 /// Returns what the reader noted and the bounds of the points that reached the design frame.
+///
+/// Three stages run at once: the reader parses chunks ahead, the inspector measures one chunk
+/// on every core, and the output stage writes the chunk before (deviations.ply, the suite, the
+/// maps, the viewer) on a thread of its own, so the cores are not left idle while a chunk is
+/// written. The outputs see the chunks in file order, as before; two deviation buffers go
+/// back and forth between the inspector and the output stage.
 fn stream_station(
     file: &ScanFile,
     station: &Station,
@@ -527,11 +534,6 @@ fn stream_station(
 ) -> Result<(asbuilt_io::ReadNotes, Bounds)> {
     let declared = file.scans[station.scan_index].points;
     let bar = progress_bar(declared, &station.id);
-    let view_step = viewer::stride(declared.unwrap_or(1_000_000) as usize, rerun_points);
-    let mut bounds = (
-        Point3::from([f64::INFINITY; 3]),
-        Point3::from([f64::NEG_INFINITY; 3]),
-    );
     let StationOutputs {
         buffer,
         ply,
@@ -539,33 +541,97 @@ fn stream_station(
         maps,
         viewer,
     } = out;
-    let read = file.stream_ahead(station.scan_index, CHUNK, READ_AHEAD, &mut |chunk| {
-        let devs = &mut buffer[..chunk.len()];
-        inspector.process(chunk, devs);
-        for d in devs
-            .iter()
-            .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
-        {
-            let p = Point3::from(d.position);
-            bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
-        }
-        ply.write(n as u16, devs)?;
-        suite.chunk(devs);
-        maps.points((0, n as u32), devs);
-        if let Some(v) = viewer {
-            let (positions, distances) = viewer::decimate(devs, view_step);
-            v.show(View::Points {
-                index: n as u32,
-                name: station.id.clone(),
-                positions,
-                distances,
-            });
-        }
-        bar.inc(chunk.len() as u64);
-        Ok(())
+    let stage = OutputStage {
+        ply,
+        suite,
+        maps,
+        viewer,
+        station: n,
+        name: &station.id,
+        view_step: viewer::stride(declared.unwrap_or(1_000_000) as usize, rerun_points),
+        bar: &bar,
+    };
+    let (full_tx, full_rx) = std::sync::mpsc::sync_channel::<Vec<PointDeviation>>(1);
+    let (empty_tx, empty_rx) = std::sync::mpsc::channel::<Vec<PointDeviation>>();
+    for b in [std::mem::take(buffer), Vec::with_capacity(CHUNK)] {
+        empty_tx.send(b).expect("the receiver is here");
+    }
+    let (read, written) = std::thread::scope(|scope| {
+        let writer = scope.spawn(move || stage.run(full_rx, empty_tx));
+        let read = file.stream_ahead(station.scan_index, CHUNK, READ_AHEAD, &mut |chunk| {
+            // Gone only when the output stage failed; its error is the one reported.
+            let stopped = || anyhow::anyhow!("the output stage stopped");
+            let mut devs = empty_rx.recv().map_err(|_| stopped())?;
+            devs.clear();
+            devs.resize(chunk.len(), PointDeviation::default());
+            inspector.process(chunk, &mut devs);
+            full_tx.send(devs).map_err(|_| stopped())
+        });
+        drop(full_tx);
+        let written = writer.join();
+        (read, written)
     });
     bar.finish_and_clear();
+    let bounds = match written {
+        Ok(w) => w?,
+        Err(panic) => std::panic::resume_unwind(panic),
+    };
+    // A buffer the next station can use without allocating again.
+    *buffer = empty_rx.try_iter().last().unwrap_or_default();
     Ok((read?, bounds))
+}
+
+/// The outputs of a station's deviations, fed chunk by chunk on a thread of their own.
+struct OutputStage<'a> {
+    ply: &'a mut DeviationsPly,
+    suite: &'a mut Suite,
+    maps: &'a mut MapCollector,
+    viewer: Option<&'a Viewer>,
+    station: usize,
+    name: &'a str,
+    view_step: usize,
+    bar: &'a ProgressBar,
+}
+
+impl OutputStage<'_> {
+    /// Writes every chunk that comes on `full` and hands its buffer back on `empty`; returns
+    /// the bounds of the points that reached the design frame.
+    fn run(
+        self,
+        full: std::sync::mpsc::Receiver<Vec<PointDeviation>>,
+        empty: std::sync::mpsc::Sender<Vec<PointDeviation>>,
+    ) -> Result<Bounds> {
+        let n = self.station;
+        let mut bounds = (
+            Point3::from([f64::INFINITY; 3]),
+            Point3::from([f64::NEG_INFINITY; 3]),
+        );
+        for devs in full {
+            for d in devs
+                .iter()
+                .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
+            {
+                let p = Point3::from(d.position);
+                bounds = (bounds.0.inf(&p), bounds.1.sup(&p));
+            }
+            self.ply.write(n as u16, &devs)?;
+            self.suite.chunk(&devs);
+            self.maps.points((0, n as u32), &devs);
+            if let Some(v) = self.viewer {
+                let (positions, distances) = viewer::decimate(&devs, self.view_step);
+                v.show(View::Points {
+                    index: n as u32,
+                    name: self.name.to_string(),
+                    positions,
+                    distances,
+                });
+            }
+            self.bar.inc(devs.len() as u64);
+            // The receiver outlives this stage.
+            let _ = empty.send(devs);
+        }
+        Ok(bounds)
+    }
 }
 
 fn progress_bar(declared: Option<u64>, name: &str) -> ProgressBar {

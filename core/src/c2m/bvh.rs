@@ -241,9 +241,18 @@ impl Bvh {
         best
     }
 
-    /// Every triangle whose distance to `p` is at most `radius`, with that distance.
-    pub fn within(&self, mesh: &Mesh, p: &Point3<f64>, radius: f64, out: &mut Vec<(u32, f64)>) {
-        with_avx2(|| self.within_in_lanes(mesh, p, radius, out))
+    /// Every triangle whose distance to `p` is at most `radius` and whose box meets the box
+    /// `region`, with that distance (and some within `radius` whose box does not: only the
+    /// nodes are tested against `region`).
+    pub fn within(
+        &self,
+        mesh: &Mesh,
+        p: &Point3<f64>,
+        radius: f64,
+        region: (Point3<f64>, Point3<f64>),
+        out: &mut Vec<(u32, f64)>,
+    ) {
+        with_avx2(|| self.within_in_lanes(mesh, p, radius, region, out))
     }
 
     /// A leaf's triangles measured four at a time.
@@ -253,13 +262,17 @@ impl Bvh {
         mesh: &Mesh,
         p: &Point3<f64>,
         radius: f64,
+        (lo, hi): (Point3<f64>, Point3<f64>),
         out: &mut Vec<(u32, f64)>,
     ) {
         const L: usize = 4;
         let r2 = radius * radius;
         let mut lanes = Lanes::<L>::default();
         self.visit_leaves(
-            |n| box_dist2(n, p) <= r2,
+            |n| {
+                box_dist2(n, p) <= r2
+                    && (0..3).all(|k| n.min[k] as f64 <= hi[k] && n.max[k] as f64 >= lo[k])
+            },
             |leaf| {
                 for first in leaf.clone().step_by(L) {
                     let m = (leaf.end - first).min(L);

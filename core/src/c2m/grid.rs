@@ -212,8 +212,9 @@ impl Grid {
     pub fn key(&self, p: &Point3<f64>) -> Option<u64> {
         let mut ijk = [0i64; 3];
         for (k, v) in ijk.iter_mut().enumerate() {
-            let f = ((p[k] - self.origin[k]) * self.inv_h).floor();
-            if !(0.0..=AXIS_MAX as f64).contains(&f) {
+            let f = (p[k] - self.origin[k]) * self.inv_h;
+            // Truncation is the floor from zero up, and needs no call into libm.
+            if !(0.0..AXIS_MAX as f64 + 1.0).contains(&f) {
                 return None;
             }
             *v = f as i64;
@@ -428,17 +429,23 @@ fn candidates(
     let band = BAND * h;
     // Slack of a few ulps keeps rounding from dropping a triangle that ties.
     let reach = band * (1.0 + 1e-12) + 1e-15;
-    scratch.clear();
-    bvh.within(mesh, c, band + half_diag, scratch);
-    scratch.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
     let half = Vector3::repeat(0.5 * h);
     let (cell_lo, cell_hi) = (c - half, c + half);
-    let mut tris = Vec::new();
-    let mut dist = Vec::new();
-    let mut top = f32::NEG_INFINITY;
-    for &(t, d) in scratch.iter() {
+    // Nodes are pruned against the cell grown by the reach, and a little more: the tests below
+    // measure triangles rebuilt from a vertex and two edges, which can round past the vertices.
+    let slack = Vector3::repeat(1.01 * reach + 1e-9 * (1.0 + c.coords.amax()));
+    scratch.clear();
+    bvh.within(
+        mesh,
+        c,
+        band + half_diag,
+        (cell_lo - slack, cell_hi + slack),
+        scratch,
+    );
+    // The exact tests first, the sort over the triangles that pass: the list is the same.
+    scratch.retain(|&(t, d)| {
         if d - half_diag > reach {
-            continue;
+            return false;
         }
         let tri = mesh.triangle(t as usize);
         let (lo, hi) = tri.aabb();
@@ -449,20 +456,27 @@ fn candidates(
             })
             .sum::<f64>();
         if gap2 > reach * reach {
-            continue;
+            return false;
         }
-        if let Some(n) = tri.ab.cross(&tri.ac).try_normalize(0.0) {
-            let slab = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
-            if n.dot(&(c - tri.a)).abs() - slab > reach {
-                continue;
+        match tri.ab.cross(&tri.ac).try_normalize(0.0) {
+            Some(n) => {
+                let slab = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
+                n.dot(&(c - tri.a)).abs() - slab <= reach
             }
+            None => true,
         }
-        if tris.len() == longest {
-            return Some((Vec::new(), Vec::new(), f32::INFINITY));
-        }
+    });
+    if scratch.len() > longest {
+        return Some((Vec::new(), Vec::new(), f32::INFINITY));
+    }
+    scratch.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    let mut tris = Vec::with_capacity(scratch.len());
+    let mut dist = Vec::with_capacity(scratch.len());
+    let mut top = f32::NEG_INFINITY;
+    for &(t, d) in scratch.iter() {
         tris.push(t);
         dist.push((d / step).floor().min(255.0) as u8);
-        top = top.max(round_up(hi.z));
+        top = top.max(round_up(mesh.triangle(t as usize).aabb().1.z));
     }
     (!tris.is_empty()).then_some((tris, dist, top))
 }

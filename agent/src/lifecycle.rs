@@ -983,14 +983,7 @@ mod tests {
             nalgebra::Point3::new(-0.5, -0.5, -0.5),
             nalgebra::Point3::new(0.5, 0.5, 0.5),
         );
-        PrintedDesigns::new(
-            d,
-            C2mParams {
-                max_distance: 0.05,
-                cell_size: None,
-            },
-        )
-        .unwrap()
+        PrintedDesigns::new(d, C2mParams::within(0.05)).unwrap()
     }
 
     fn limits() -> LifecycleLimits {

@@ -30,14 +30,7 @@ fn bench(c: &mut Criterion) {
     let design =
         asbuilt_io::read_design(&mesh, Units::Metres).expect("bunny mesh in ../shared/data");
     let t0 = Instant::now();
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 0.005,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let index = C2mIndex::build(&design, C2mParams::within(0.005)).unwrap();
     let s = index.stats();
     eprintln!(
         "index: {} triangles, {} cells of {:.3} mm, {} candidates, {:.0} MB, built in {:.2} s",
@@ -116,10 +109,7 @@ fn bench(c: &mut Criterion) {
 fn design_index(c: &mut Criterion, design: &Design, index: &C2mIndex) {
     let mut g = c.benchmark_group("design_index");
     g.sample_size(10);
-    let params = C2mParams {
-        max_distance: 0.005,
-        cell_size: None,
-    };
+    let params = C2mParams::within(0.005);
     g.bench_function("build_bunny", |b| {
         b.iter(|| C2mIndex::build(design, params).unwrap().stats().bytes)
     });

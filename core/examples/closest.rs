@@ -10,14 +10,7 @@ fn main() {
     }
     let design =
         asbuilt_io::read_design(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design");
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 1e3,
-            cell_size: None,
-        },
-    )
-    .expect("index");
+    let index = C2mIndex::build(&design, C2mParams::within(1e3)).expect("index");
     let p = Point3::new(
         a[3].parse().unwrap(),
         a[4].parse().unwrap(),

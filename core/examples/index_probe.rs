@@ -20,14 +20,7 @@ fn main() {
     };
     eprintln!("peak RSS after loading: {}", peak_rss());
     let t = Instant::now();
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 0.005,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let index = C2mIndex::build(&design, C2mParams::within(0.005)).unwrap();
     let build = t.elapsed().as_secs_f64();
     eprintln!("peak RSS after indexing: {}", peak_rss());
     let s = index.stats();

@@ -366,14 +366,7 @@ mod tests {
     #[test]
     fn a_height_is_prepared_once_and_the_whole_design_serves_above_the_top() {
         let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
-        let mut p = PrintedDesigns::new(
-            d,
-            C2mParams {
-                max_distance: 0.1,
-                cell_size: None,
-            },
-        )
-        .unwrap();
+        let mut p = PrintedDesigns::new(d, C2mParams::within(0.1)).unwrap();
         let a = p.at(0.5).unwrap();
         let b = p.at(0.5).unwrap();
         assert!(Arc::ptr_eq(&a, &b));

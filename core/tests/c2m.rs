@@ -9,14 +9,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn index(design: &Design, max_distance: f64) -> C2mIndex {
-    C2mIndex::build(
-        design,
-        C2mParams {
-            max_distance,
-            cell_size: None,
-        },
-    )
-    .unwrap()
+    C2mIndex::build(design, C2mParams::within(max_distance)).unwrap()
 }
 
 fn q(index: &C2mIndex, p: [f64; 3]) -> Option<Closest> {
@@ -521,14 +514,7 @@ fn an_index_that_takes_the_design_over_answers_as_one_that_borrows_it() {
     let design = icosphere(Point3::new(0.1, -0.2, 0.3), 0.5, 4);
     let points = probe_points(&design, 20_000, 0.01, 11);
     let borrowed = index(&design, 0.02);
-    let owned = C2mIndex::from_design(
-        design.clone(),
-        C2mParams {
-            max_distance: 0.02,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let owned = C2mIndex::from_design(design.clone(), C2mParams::within(0.02)).unwrap();
     let (mut a, mut b) = (Cursor::default(), Cursor::default());
     for p in &points {
         let (x, y) = (borrowed.query(p, &mut a), owned.query(p, &mut b));

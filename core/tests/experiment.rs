@@ -167,14 +167,7 @@ fn region_medians(truth: &[Point3<f64>], d: &[Option<f64>]) -> [f64; 3] {
 #[allow(clippy::too_many_lines)] // the source study's experiment end to end, into one table
 fn the_source_study_experiment() {
     let design = design();
-    let index = C2mIndex::build(
-        &design,
-        C2mParams {
-            max_distance: 0.03,
-            cell_size: None,
-        },
-    )
-    .unwrap();
+    let index = C2mIndex::build(&design, C2mParams::within(0.03)).unwrap();
     let truth = scan_in_design_frame();
     // The scanner's true pose in the design frame; the scan is recorded in its own frame.
     let pose = Isometry3::new(Vector3::new(0.3, -0.8, 0.6), Vector3::new(0.9, 0.1, -0.2));

@@ -55,10 +55,7 @@ impl Design {
             return Ok(ix.clone());
         }
         let design = self.design.clone();
-        let params = C2mParams {
-            max_distance,
-            cell_size: None,
-        };
+        let params = C2mParams::within(max_distance);
         let ix = py
             .detach(|| C2mIndex::build(&design, params))
             .map_err(runtime)?;

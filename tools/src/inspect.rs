@@ -280,13 +280,7 @@ impl Job {
         // The design's counts are all the report needs of it from here: the index takes it over.
         let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
-        let index = C2mIndex::from_design(
-            design,
-            C2mParams {
-                max_distance: plan.suite.reach,
-                cell_size: None,
-            },
-        )?;
+        let index = C2mIndex::from_design(design, C2mParams::within(plan.suite.reach))?;
         let ix = index.stats();
         eprintln!(
             "design {}: {} triangles, index {} cells of {:.2} mm, {:.0} MB, built in {:.1} s",

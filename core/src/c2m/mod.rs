@@ -57,12 +57,19 @@ pub struct C2mParams {
     pub cell_size: Option<f64>,
 }
 
-impl Default for C2mParams {
-    fn default() -> Self {
+impl C2mParams {
+    /// Points matched up to `max_distance` metres, the cell size picked from the design.
+    pub fn within(max_distance: f64) -> Self {
         Self {
-            max_distance: 0.05,
+            max_distance,
             cell_size: None,
         }
+    }
+}
+
+impl Default for C2mParams {
+    fn default() -> Self {
+        Self::within(0.05)
     }
 }
 

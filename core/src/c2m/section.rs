@@ -266,10 +266,7 @@ impl C2mIndex {
             // which put hundreds of candidates in any cell. Its BVH alone builds in half the
             // time of a grid of eight design cells and answers faster (1.9 against 1.5 M
             // points/s a thread on the bunny cut at mid height, the same on a twisted column).
-            let params = C2mParams {
-                max_distance: self.max_distance,
-                cell_size: None,
-            };
+            let params = C2mParams::within(self.max_distance);
             Some(
                 C2mIndex::build_mesh(
                     vertices,

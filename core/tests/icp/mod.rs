@@ -161,14 +161,7 @@ mod tests {
     #[test]
     fn recovers_a_known_offset_of_a_box() {
         let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.6, 0.4));
-        let index = C2mIndex::build(
-            &d,
-            C2mParams {
-                max_distance: 0.1,
-                cell_size: None,
-            },
-        )
-        .unwrap();
+        let index = C2mIndex::build(&d, C2mParams::within(0.1)).unwrap();
         let pts = DesignSamples::generate(&d, 0.01, 4).unwrap().points;
         let truth = Isometry3::new(
             Vector3::new(0.01, -0.02, 0.015),

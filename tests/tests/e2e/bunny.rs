@@ -54,14 +54,7 @@ fn bunny_mesh(file: &str) -> Design {
 }
 
 fn c2m_index(design: &Design, max_distance: f64) -> C2mIndex {
-    C2mIndex::build(
-        design,
-        C2mParams {
-            max_distance,
-            cell_size: None,
-        },
-    )
-    .unwrap()
+    C2mIndex::build(design, C2mParams::within(max_distance)).unwrap()
 }
 
 fn inspect(

@@ -145,42 +145,36 @@ fn over_and_under_extrusion_are_found_per_layer_with_their_sign() {
     }
 }
 
-#[test]
-fn height_drift_shows_as_the_top_too_high() {
-    let job = wall_job(
-        12,
-        vec![Defect::HeightDrift {
-            from: 4,
-            per_layer: 0.001,
-        }],
-    );
+/// Runs a 12-layer wall with one defect that moves the top; the top's height deviation must
+/// match the injected truth.
+fn top_moved_by(test: &str, defect: Defect) -> StationFindings {
+    let job = wall_job(12, vec![defect]);
     let t = truth_of(&job);
-    let (_, f) = run("sim_drift", &job);
+    let (_, f) = run(test, &job);
     assert!(
         within(f.top_height_deviation, t.magnitude),
         "{} vs {t:?}",
         f.top_height_deviation
     );
-    assert!(f.count() >= 1);
+    f
+}
+
+#[test]
+fn height_drift_shows_as_the_top_too_high() {
+    let drift = Defect::HeightDrift {
+        from: 4,
+        per_layer: 0.001,
+    };
+    assert!(top_moved_by("sim_drift", drift).count() >= 1);
 }
 
 #[test]
 fn sag_shows_as_the_top_too_low() {
-    let job = wall_job(
-        12,
-        vec![Defect::Sag {
-            layers: 3,
-            depth: 0.008,
-        }],
-    );
-    let t = truth_of(&job);
-    let (_, f) = run("sim_sag", &job);
-    assert!(
-        within(f.top_height_deviation, t.magnitude),
-        "{} vs {t:?}",
-        f.top_height_deviation
-    );
-    assert!(f.top_height_deviation < -TOLERANCE);
+    let sag = Defect::Sag {
+        layers: 3,
+        depth: 0.008,
+    };
+    assert!(top_moved_by("sim_sag", sag).top_height_deviation < -TOLERANCE);
 }
 
 #[test]

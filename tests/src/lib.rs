@@ -269,6 +269,28 @@ pub fn publish_bunny(asbuilt: &str, prefix: &str) -> std::process::Output {
         .unwrap()
 }
 
+/// An agent (`agent_exe`) run over the whole bunny job: started with `config` under a prefix
+/// named for `test`, fed by [`publish_bunny`] through `asbuilt`, then stopped with SIGTERM.
+/// Returns it once it has exited cleanly; its folder holds what it wrote.
+pub fn agent_after_bunny_job(agent_exe: &str, asbuilt: &str, test: &str, config: &str) -> Agent {
+    let prefix = unique_prefix(test);
+    let mut agent = Agent::start(agent_exe, &prefix, config);
+    let publish = publish_bunny(asbuilt, &prefix);
+    assert!(
+        publish.status.success(),
+        "{}\nagent:\n{}",
+        String::from_utf8_lossy(&publish.stderr),
+        agent.log()
+    );
+    agent.signal("TERM");
+    assert!(
+        agent.wait_exit(Duration::from_secs(30)).success(),
+        "agent:\n{}",
+        agent.log()
+    );
+    agent
+}
+
 /// A small demo (two scan layers of two stations, one over-extruded band) into `out`, as the
 /// end-to-end tests of the demo and of its view run it.
 pub fn small_demo(asbuilt: &str, out: &Path) -> std::process::Output {

@@ -9,7 +9,7 @@ use std::process::Command;
 use asbuilt_protocol::recording::RecordingWriter;
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{StationEventKind, StationReport};
-use asbuilt_tests::{Agent, bunny_agent_config, publish_bunny, shared_data, unique_prefix};
+use asbuilt_tests::{Agent, agent_after_bunny_job, bunny_agent_config, shared_data, unique_prefix};
 use serde_json::Value;
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
@@ -72,6 +72,23 @@ fn by_topic(bytes: &[u8]) -> Topics {
             .push(m.data.into_owned());
     }
     (by_topic, schemas)
+}
+
+/// `asbuilt replay` of `recording` into `agent`, with `args`; it must succeed.
+fn replay(recording: &Path, agent: &Agent, args: &[&str]) {
+    let o = Command::new(ASBUILT)
+        .arg("replay")
+        .arg(recording)
+        .args(["--prefix", &agent.prefix])
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "{}\nagent:\n{}",
+        String::from_utf8_lossy(&o.stderr),
+        agent.log()
+    );
 }
 
 /// `pack --foxglove`: the design, a frame per station and every valid scan point in its
@@ -153,17 +170,7 @@ fn the_packed_bunny_replayed_through_the_agent_reports_what_inspect_reports() {
     let prefix = unique_prefix("replay");
     let agent = Agent::start(AGENT, &prefix, &bunny_agent_config(""));
     let out = dir.path().join("replay");
-    let o = Command::new(ASBUILT)
-        .args(["replay", rec.to_str().unwrap(), "--prefix", &prefix])
-        .args(["--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "{}\nagent:\n{}",
-        String::from_utf8_lossy(&o.stderr),
-        agent.log()
-    );
+    replay(&rec, &agent, &["--out", out.to_str().unwrap()]);
     let replayed: Vec<Value> =
         serde_json::from_str(&std::fs::read_to_string(out.join("replay.json")).unwrap()).unwrap();
 
@@ -303,21 +310,7 @@ fn an_independent_mcap_reader_reads_the_recording() {
 #[test]
 fn a_recorded_job_replays_to_identical_reports() {
     let config = bunny_agent_config("[recorder]\ndir = \"rec\"\n");
-    let prefix = unique_prefix("record");
-    let mut agent = Agent::start(AGENT, &prefix, &config);
-    let publish = publish_bunny(ASBUILT, &prefix);
-    assert!(
-        publish.status.success(),
-        "{}\nagent:\n{}",
-        String::from_utf8_lossy(&publish.stderr),
-        agent.log()
-    );
-    agent.signal("TERM");
-    assert!(
-        agent
-            .wait_exit(std::time::Duration::from_secs(30))
-            .success()
-    );
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "record", &config);
     let log = agent.log();
     assert!(log.contains("recorder: closed"), "{log}");
     assert!(log.contains("43 scan chunks recorded, 0 left out"), "{log}");
@@ -348,18 +341,7 @@ fn a_recorded_job_replays_to_identical_reports() {
         &config.replace("[recorder]\ndir = \"rec\"\n", ""),
     );
     let cell = asbuilt_tests::Cell::open(&prefix2, 16);
-    let o = Command::new(ASBUILT)
-        .arg("replay")
-        .arg(&files[0])
-        .args(["--prefix", &prefix2])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "{}\nagent:\n{}",
-        String::from_utf8_lossy(&o.stderr),
-        fresh.log()
-    );
+    replay(&files[0], &fresh, &[]);
     let replayed: Vec<Vec<u8>> = cell
         .reports(10, std::time::Duration::from_secs(30))
         .iter()
@@ -428,16 +410,7 @@ fn a_recording_reports_what_inspect_reports() {
 /// messages, and the agent's log.
 fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
     let config = bunny_agent_config(&format!("[recorder]\ndir = \"rec\"\n{recorder}\n"));
-    let prefix = unique_prefix("rec-limits");
-    let mut agent = Agent::start(AGENT, &prefix, &config);
-    let publish = publish_bunny(ASBUILT, &prefix);
-    assert!(publish.status.success(), "{}", agent.log());
-    agent.signal("TERM");
-    assert!(
-        agent
-            .wait_exit(std::time::Duration::from_secs(30))
-            .success()
-    );
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "rec-limits", &config);
     let log = agent.log();
     let mut files: Vec<PathBuf> = std::fs::read_dir(agent.dir.path().join("rec"))
         .unwrap()

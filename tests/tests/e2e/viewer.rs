@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use asbuilt_tests::{Agent, bunny_agent_config, publish_bunny, shared_data, unique_prefix};
+use asbuilt_tests::{agent_after_bunny_job, bunny_agent_config, shared_data};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::LogMsg;
 
@@ -88,20 +88,8 @@ fn inspect_writes_a_view_of_the_bunny() {
 
 #[test]
 fn the_agent_writes_a_view_of_a_job() {
-    let prefix = unique_prefix("viewer");
-    let mut agent = Agent::start(
-        AGENT,
-        &prefix,
-        &bunny_agent_config("[viewer]\nrrd = \"job.rrd\"\nmax_points_per_station = 4000\n"),
-    );
-    let publish = publish_bunny(ASBUILT, &prefix);
-    assert!(publish.status.success(), "{}", agent.log());
-    agent.signal("TERM");
-    assert!(
-        agent
-            .wait_exit(std::time::Duration::from_secs(30))
-            .success()
-    );
+    let config = bunny_agent_config("[viewer]\nrrd = \"job.rrd\"\nmax_points_per_station = 4000\n");
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "viewer", &config);
     let log = agent.log();
     assert!(log.contains("viewer: closed (0 item(s) dropped"), "{log}");
     let rrd = agent.dir.path().join("job.rrd");

@@ -17,7 +17,7 @@ pub fn runtime(e: impl std::fmt::Display) -> PyErr {
 }
 
 pub fn anyhow_err(e: anyhow::Error) -> PyErr {
-    PyRuntimeError::new_err(format!("{e:#}"))
+    PyRuntimeError::new_err(asbuilt_tools::error_message(e.as_ref()))
 }
 
 /// An (N, 3) array of f64 as points. Any layout is accepted (a copy is made once).

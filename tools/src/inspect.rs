@@ -323,7 +323,11 @@ impl Job {
         let file = match ScanFile::open(&station.scan) {
             Ok(f) => f,
             Err(e) => {
-                eprintln!("error: station {}: {e:#}", station.id);
+                eprintln!(
+                    "error: station {}: {}",
+                    station.id,
+                    crate::error_message(&e)
+                );
                 self.failed.push(station.id.clone());
                 return;
             }
@@ -358,7 +362,11 @@ impl Job {
         let (notes, bounds) = match read {
             Ok(r) => r,
             Err(e) => {
-                eprintln!("error: station {}: {e:#}", station.id);
+                eprintln!(
+                    "error: station {}: {}",
+                    station.id,
+                    crate::error_message(e.as_ref())
+                );
                 self.failed.push(station.id.clone());
                 return;
             }

@@ -94,6 +94,26 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// What to tell the user of `e`: the error and its causes joined by `: `, each said once. Many
+/// errors already name their cause in their own message (`cannot write F: No space left on
+/// device`), and the chain then repeats it; a cause already said is left out.
+pub fn error_message(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut message = String::new();
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        cause = c.source();
+        let text = c.to_string();
+        if message.contains(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
+}
+
 fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
     let dir = out
         .parent()
@@ -122,4 +142,30 @@ fn run_agent(config: &std::path::Path) -> anyhow::Result<ExitCode> {
         summary.points_processed
     );
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::error_message;
+    use anyhow::Context;
+
+    #[test]
+    fn an_error_message_says_each_cause_once() {
+        let full = std::io::Error::from_raw_os_error(28);
+        let os = full.to_string();
+        let write = asbuilt_io::IoError::Write {
+            path: "out/deviations.ply".into(),
+            source: full,
+        };
+        let e = Err::<(), _>(write).context("station s1").unwrap_err();
+        let m = error_message(e.as_ref());
+        assert_eq!(
+            m,
+            format!("station s1: cannot write out/deviations.ply: {os}")
+        );
+        assert_eq!(m.matches(&os).count(), 1, "{m}");
+        // Causes that add something are all kept, in order.
+        let e = anyhow::anyhow!("inner").context("middle").context("outer");
+        assert_eq!(error_message(e.as_ref()), "outer: middle: inner");
+    }
 }

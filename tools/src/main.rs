@@ -9,7 +9,7 @@ fn main() -> ExitCode {
     match asbuilt_tools::run(asbuilt_tools::Cli::parse()) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", asbuilt_tools::error_message(e.as_ref()));
             ExitCode::from(2)
         }
     }

@@ -124,6 +124,17 @@ impl Agent {
         s
     }
 
+    /// Asserts that a command which fed this agent (`asbuilt publish`, `replay`...) succeeded;
+    /// if not, shows its standard error and the agent's log.
+    pub fn assert_fed(&self, command: &std::process::Output) {
+        assert!(
+            command.status.success(),
+            "{}\nagent log:\n{}",
+            String::from_utf8_lossy(&command.stderr),
+            self.log()
+        );
+    }
+
     /// Sends the agent a signal (`TERM`, `INT`, `KILL`...) and asserts it was delivered.
     pub fn signal(&self, signal: &str) {
         let ok = Command::new("kill")
@@ -275,13 +286,7 @@ pub fn publish_bunny(asbuilt: &str, prefix: &str) -> std::process::Output {
 pub fn agent_after_bunny_job(agent_exe: &str, asbuilt: &str, test: &str, config: &str) -> Agent {
     let prefix = unique_prefix(test);
     let mut agent = Agent::start(agent_exe, &prefix, config);
-    let publish = publish_bunny(asbuilt, &prefix);
-    assert!(
-        publish.status.success(),
-        "{}\nagent:\n{}",
-        String::from_utf8_lossy(&publish.stderr),
-        agent.log()
-    );
+    agent.assert_fed(&publish_bunny(asbuilt, &prefix));
     agent.signal("TERM");
     assert!(
         agent.wait_exit(Duration::from_secs(30)).success(),

@@ -99,12 +99,7 @@ fn a_clean_bunny_job_reports_what_inspect_reports_bit_for_bit() {
         .args(["--prefix", &prefix, "--chunk-points", "10000"])
         .output()
         .unwrap();
-    assert!(
-        publish.status.success(),
-        "{}\nagent log:\n{}",
-        String::from_utf8_lossy(&publish.stderr),
-        agent.log()
-    );
+    agent.assert_fed(&publish);
     let reports = cell.reports(10, LONG);
     assert_eq!(reports.len(), 10, "agent log:\n{}", agent.log());
 
@@ -363,12 +358,7 @@ fn a_killed_publisher_times_out_and_a_restarted_one_is_served() {
         .args(["--prefix", &prefix, "--job", "2"])
         .output()
         .unwrap();
-    assert!(
-        again.status.success(),
-        "{}\nagent log:\n{}",
-        String::from_utf8_lossy(&again.stderr),
-        agent.log()
-    );
+    agent.assert_fed(&again);
     let full = report_of(&cell.reports(1, LONG), 2, 0);
     assert_eq!(full.status(), Some(StationStatus::Complete));
     assert_eq!(full.stats.count, 100_000);

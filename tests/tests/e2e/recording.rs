@@ -83,12 +83,7 @@ fn replay(recording: &Path, agent: &Agent, args: &[&str]) {
         .args(args)
         .output()
         .unwrap();
-    assert!(
-        o.status.success(),
-        "{}\nagent:\n{}",
-        String::from_utf8_lossy(&o.stderr),
-        agent.log()
-    );
+    agent.assert_fed(&o);
 }
 
 /// `pack --foxglove`: the design, a frame per station and every valid scan point in its

@@ -78,6 +78,15 @@ fn truth_of(job: &SimJob) -> Truth {
     t[0].1.clone()
 }
 
+/// A wall printed `layers` high with one `defect`, scanned and inspected: the defect's truth
+/// and what the agent found.
+fn found(test: &str, layers: u32, defect: Defect) -> (Truth, StationFindings) {
+    let job = wall_job(layers, vec![defect]);
+    let t = truth_of(&job);
+    let (_, f) = run(test, &job);
+    (t, f)
+}
+
 fn within(found: f64, truth: f64) -> bool {
     (found - truth).abs() <= (0.2 * truth.abs()).max(0.001)
 }
@@ -109,16 +118,15 @@ fn a_defect_free_print_raises_nothing_at_5_mm() {
 #[test]
 fn over_and_under_extrusion_are_found_per_layer_with_their_sign() {
     for (test, width) in [("sim_over", 0.012), ("sim_under", -0.010)] {
-        let job = wall_job(
+        let (t, f) = found(
+            test,
             10,
-            vec![Defect::Extrusion {
+            Defect::Extrusion {
                 first: 3,
                 last: 5,
                 width,
-            }],
+            },
         );
-        let t = truth_of(&job);
-        let (_, f) = run(test, &job);
         for layer in 3..=5 {
             let row = f.layers.iter().find(|l| l.layer == layer).unwrap();
             assert!(within(row.width_deviation, t.magnitude), "{row:?} vs {t:?}");
@@ -148,9 +156,7 @@ fn over_and_under_extrusion_are_found_per_layer_with_their_sign() {
 /// Runs a 12-layer wall with one defect that moves the top; the top's height deviation must
 /// match the injected truth.
 fn top_moved_by(test: &str, defect: Defect) -> StationFindings {
-    let job = wall_job(12, vec![defect]);
-    let t = truth_of(&job);
-    let (_, f) = run(test, &job);
+    let (t, f) = found(test, 12, defect);
     assert!(
         within(f.top_height_deviation, t.magnitude),
         "{} vs {t:?}",
@@ -179,15 +185,14 @@ fn sag_shows_as_the_top_too_low() {
 
 #[test]
 fn a_lateral_shift_is_found_from_the_layer_it_starts() {
-    let job = wall_job(
+    let (t, f) = found(
+        "sim_shift",
         12,
-        vec![Defect::LateralShift {
+        Defect::LateralShift {
             from: 6,
             offset: [0.0, 0.008],
-        }],
+        },
     );
-    let t = truth_of(&job);
-    let (_, f) = run("sim_shift", &job);
     for l in &f.layers {
         let shift = l.shift[1];
         if l.layer >= 7 && l.layer <= 10 {
@@ -210,17 +215,16 @@ fn a_lateral_shift_is_found_from_the_layer_it_starts() {
 
 #[test]
 fn a_missing_segment_is_found_where_it_is_missing() {
-    let job = wall_job(
+    let (t, f) = found(
+        "sim_gap",
         12,
-        vec![Defect::MissingSegment {
+        Defect::MissingSegment {
             layer: 8,
             centre: [0.3, 0.0],
             direction: [1.0, 0.0],
             length: 0.25,
-        }],
+        },
     );
-    let t = truth_of(&job);
-    let (_, f) = run("sim_gap", &job);
     assert!(!f.missing.is_empty(), "{f:#?}");
     let m = &f.missing[0];
     assert!(
@@ -238,16 +242,15 @@ fn a_missing_segment_is_found_where_it_is_missing() {
 
 #[test]
 fn a_bulge_is_found_with_its_peak_and_place() {
-    let job = wall_job(
+    let (t, f) = found(
+        "sim_bulge",
         14,
-        vec![Defect::Bulge {
+        Defect::Bulge {
             centre: [-0.4, -0.0867, 0.14],
             radius: 0.1,
             height: 0.015,
-        }],
+        },
     );
-    let t = truth_of(&job);
-    let (_, f) = run("sim_bulge", &job);
     let r = f
         .regions
         .iter()

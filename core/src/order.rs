@@ -76,13 +76,23 @@ pub(crate) fn morton_order<T: Sync>(
     keyed.into_iter().map(|(_, i)| i).collect()
 }
 
-/// Where each point went: `place[order[j]] == j`.
-pub(crate) fn places(order: &[u32]) -> Vec<u32> {
+/// `items` in `order` into `sorted` (cleared first), in parallel: a block's items scatter over
+/// megabytes.
+pub(crate) fn gather<T: Copy + Send + Sync>(items: &[T], order: &[u32], sorted: &mut Vec<T>) {
+    sorted.clear();
+    sorted.par_extend(order.par_iter().map(|&i| items[i as usize]));
+}
+
+/// Puts each result of the items taken in `order` back in its item's place:
+/// `out[order[j]] = sorted[j]`, in parallel.
+pub(crate) fn put_back<T: Copy + Send + Sync>(sorted: &[T], order: &[u32], out: &mut [T]) {
     let mut place = vec![0u32; order.len()];
     for (j, &i) in order.iter().enumerate() {
         place[i as usize] = j as u32;
     }
-    place
+    out.par_iter_mut()
+        .zip(place.par_iter())
+        .for_each(|(o, &j)| *o = sorted[j as usize]);
 }
 
 type Bounds = ([f64; 3], [f64; 3]);

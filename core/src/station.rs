@@ -205,18 +205,13 @@ where
         let mut total: Option<Tally> = None;
         for (ps, os) in points.chunks(SORT_BLOCK).zip(out.chunks_mut(SORT_BLOCK)) {
             let order = morton_order(ps);
-            // Gathered and put back in parallel: a block's points scatter over megabytes.
-            sorted_points.clear();
-            sorted_points.par_extend(order.par_iter().map(|&i| ps[i as usize]));
+            order::gather(ps, &order, sorted_points);
             sorted_out.clear();
             sorted_out.resize(ps.len(), PointDeviation::default());
             let t = &self.t_design_scanner;
             let block =
                 inspect_in_parallel(&*self.index, t, &self.config, sorted_points, sorted_out);
-            let place = order::places(&order);
-            os.par_iter_mut()
-                .zip(place.par_iter())
-                .for_each(|(o, &j)| *o = sorted_out[j as usize]);
+            order::put_back(sorted_out, &order, os);
             if let Some(b) = block {
                 match &mut total {
                     Some(t) => t.merge(&b),

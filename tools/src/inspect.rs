@@ -564,7 +564,7 @@ fn stream_station(
             // Gone only when the output stage failed; its error is the one reported.
             let stopped = || anyhow::anyhow!("the output stage stopped");
             let mut devs = empty_rx.recv().map_err(|_| stopped())?;
-            devs.clear();
+            // Every deviation is written by the inspector: only a longer chunk adds any.
             devs.resize(chunk.len(), PointDeviation::default());
             inspector.process(chunk, &mut devs);
             full_tx.send(devs).map_err(|_| stopped())

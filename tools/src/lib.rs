@@ -95,15 +95,15 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 }
 
 /// What to tell the user of `e`: the error and its causes joined by `: `, each said once. Many
-/// errors already name their cause in their own message (`cannot write F: No space left on
-/// device`), and the chain then repeats it; a cause already said is left out.
+/// errors already end their own message with their cause (`cannot write F: No space left on
+/// device`), and the chain then repeats it; a cause the message so far ends with is left out.
 pub fn error_message(e: &(dyn std::error::Error + 'static)) -> String {
     let mut message = String::new();
     let mut cause = Some(e);
     while let Some(c) = cause {
         cause = c.source();
         let text = c.to_string();
-        if message.contains(&text) {
+        if message.ends_with(&text) {
             continue;
         }
         if !message.is_empty() {

@@ -109,7 +109,7 @@ fn check_entry(s: &StationEntry, base: &Path, problems: &mut Vec<String>) -> Opt
     let file = match ScanFile::open(&scan) {
         Ok(f) => f,
         Err(e) => {
-            problems.push(format!("station {:?}: {e:#}", s.id));
+            problems.push(format!("station {:?}: {}", s.id, crate::error_message(&e)));
             return None;
         }
     };

@@ -443,6 +443,7 @@ fn candidates(
         scratch,
     );
     // The exact tests first, the sort over the triangles that pass: the list is the same.
+    let mut top = f32::NEG_INFINITY;
     scratch.retain(|&(t, d)| {
         if d - half_diag > reach {
             return false;
@@ -458,13 +459,17 @@ fn candidates(
         if gap2 > reach * reach {
             return false;
         }
-        match tri.ab.cross(&tri.ac).try_normalize(0.0) {
+        let kept = match tri.ab.cross(&tri.ac).try_normalize(0.0) {
             Some(n) => {
                 let slab = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
                 n.dot(&(c - tri.a)).abs() - slab <= reach
             }
             None => true,
+        };
+        if kept {
+            top = top.max(round_up(hi.z));
         }
+        kept
     });
     if scratch.len() > longest {
         return Some((Vec::new(), Vec::new(), f32::INFINITY));
@@ -472,11 +477,9 @@ fn candidates(
     scratch.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
     let mut tris = Vec::with_capacity(scratch.len());
     let mut dist = Vec::with_capacity(scratch.len());
-    let mut top = f32::NEG_INFINITY;
     for &(t, d) in scratch.iter() {
         tris.push(t);
         dist.push((d / step).floor().min(255.0) as u8);
-        top = top.max(round_up(mesh.triangle(t as usize).aabb().1.z));
     }
     (!tris.is_empty()).then_some((tris, dist, top))
 }

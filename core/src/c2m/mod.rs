@@ -462,15 +462,11 @@ impl C2mIndex {
         let mut results = Vec::with_capacity(block);
         for (ps, os) in points.chunks(SORT_BLOCK).zip(out.chunks_mut(SORT_BLOCK)) {
             let order = order::morton_order(ps, position);
-            sorted.clear();
-            sorted.par_extend(order.par_iter().map(|&i| ps[i as usize]));
+            order::gather(ps, &order, &mut sorted);
             results.clear();
             results.resize(ps.len(), None);
             self.query_in_order(&sorted, &mut results);
-            let place = order::places(&order);
-            os.par_iter_mut()
-                .zip(place.par_iter())
-                .for_each(|(o, &j)| *o = results[j as usize]);
+            order::put_back(&results, &order, os);
         }
     }
 

@@ -265,6 +265,42 @@ fn equals_brute_force_on_the_bunny() {
     }
 }
 
+/// Points just beyond the grid's band, where a list's best is taken as the closest only when
+/// the point lies deep enough in its cell: every answer is brute force's, on a smooth sphere
+/// and on the bunny's small features.
+#[test]
+fn just_beyond_the_band_equals_brute_force() {
+    let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
+    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
+    let sphere = asbuilt_core::design::shapes::icosphere(Point3::new(0.3, -0.2, 1.0), 0.5, 5);
+    for (design, seed) in [(bunny, 21), (sphere, 22)] {
+        let idx = index(&design, 0.05);
+        let s = idx.stats();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let points: Vec<Point3<f64>> = (0..10_000)
+            .map(|_| {
+                let t = design.triangles[rng.random_range(0..design.triangles.len())];
+                let [a, b, c] = t.map(|k| design.vertices[k as usize]);
+                let (u, v): (f64, f64) = (rng.random(), rng.random());
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let n = (b - a).cross(&(c - a)).normalize();
+                let off = s.band + rng.random::<f64>() * s.cell_size;
+                let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
+                a + (b - a) * u + (c - a) * v + n * (side * off)
+            })
+            .collect();
+        let mut fast = vec![None; points.len()];
+        idx.query_batch(&points, &mut fast);
+        for (p, f) in points.iter().zip(&fast) {
+            assert_eq!(f, &idx.brute_force(p), "at {p:?}");
+        }
+    }
+}
+
 /// A batch in no spatial order is answered block by block along a Morton curve; every answer
 /// is the one its point gets in scan order.
 #[test]

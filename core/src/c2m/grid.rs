@@ -207,6 +207,18 @@ impl Grid {
         BAND * self.h
     }
 
+    /// How far from `p` (in the cell with centre `c`) a list's best candidate is sure to be
+    /// the closest triangle: a triangle left out of the list is farther than the band from the
+    /// cell, and a path from `p` to it leaves the cell first, so it is farther from `p` than the
+    /// band plus `p`'s depth in the cell. A margin far above rounding keeps the test exact.
+    #[inline]
+    pub fn sure_within(&self, c: &Point3<f64>, p: &Point3<f64>) -> f64 {
+        let off = (p - c).abs().max();
+        let depth = (0.5 * self.h - off).max(0.0);
+        let margin = 1e-9 * (self.h + c.coords.amax());
+        (BAND * self.h + depth - margin).max(BAND * self.h)
+    }
+
     /// The key of the cell holding `p`, or `None` outside the grid (or not finite).
     #[inline]
     pub fn key(&self, p: &Point3<f64>) -> Option<u64> {

@@ -288,14 +288,14 @@ impl C2mIndex {
         match self.cell_of(p, cache) {
             Some(cell) if cell.has_list() => {
                 let best = self.grid.closest(&self.mesh, &cell, &cache.center, p);
-                self.confirm(p, best, limit2, &All)
+                self.confirm(p, &cache.center, best, limit2, &All)
             }
             found => self.closest_far(p, found.is_some(), hint, limit2, &All),
         }
     }
 
     /// The kept cell holding `p`, through the cache.
-    #[inline]
+    #[inline(always)]
     fn cell_of(&self, p: &Point3<f64>, cache: &mut CellCache) -> Option<Cell> {
         let key = self.grid.key(p)?;
         if !(cache.valid && cache.key == key) {
@@ -309,18 +309,24 @@ impl C2mIndex {
         cache.cell
     }
 
-    /// A cell's best candidate is the closest when it lies within the grid's band; beyond, it
-    /// bounds (and starts) the BVH's search.
+    /// A cell's best candidate is the closest when it lies within the grid's band, or deeper
+    /// in the cell by as much as `p` is ([`Grid::sure_within`]); beyond, it bounds (and starts)
+    /// the BVH's search.
     #[inline]
     fn confirm<F: bvh::Filter>(
         &self,
         p: &Point3<f64>,
+        center: &Point3<f64>,
         (t, d2): (u32, f64),
         limit2: f64,
         filter: &F,
     ) -> Option<(u32, f64)> {
         let band = self.grid.band();
         if d2 <= band * band {
+            return Some((t, d2));
+        }
+        let sure = self.grid.sure_within(center, p);
+        if d2 <= sure * sure {
             return Some((t, d2));
         }
         self.bvh
@@ -368,7 +374,7 @@ impl C2mIndex {
             // Every candidate lies below the cut: the design's closest is the cut's.
             Some(cell) if cell.has_list() && self.grid.top(&cell) < h => {
                 let best = self.grid.closest(&self.mesh, &cell, &cursor.cell.center, p);
-                self.confirm(p, best, bound2, &Below(h))
+                self.confirm(p, &cursor.cell.center, best, bound2, &Below(h))
             }
             found => self.closest_far(p, found.is_some(), cursor.last, bound2, &Below(h)),
         };

@@ -62,8 +62,8 @@ pub struct Grid {
     z_step: f64,
     h: f64,
     inv_h: f64,
-    /// Metres per unit of a candidate's distance byte.
-    step: f64,
+    /// Candidate distance bytes per metre.
+    inv_step: f64,
     cells: FxHashMap<u64, Cell>,
     cand: Vec<u32>,
     dist: Vec<u8>,
@@ -162,7 +162,7 @@ impl Grid {
             z_step,
             h,
             inv_h,
-            step,
+            inv_step: 1.0 / step,
             cells,
             cand,
             dist,
@@ -177,7 +177,7 @@ impl Grid {
             z_step: f64::MIN_POSITIVE,
             h: 0.0,
             inv_h: 0.0,
-            step: 0.0,
+            inv_step: 0.0,
             cells: FxHashMap::default(),
             cand: Vec::new(),
             dist: Vec::new(),
@@ -273,11 +273,13 @@ impl Grid {
         let (s, n) = (cell.start as usize, cell.len as usize);
         let (cand, dist) = (&self.cand[s..s + n], &self.dist[s..s + n]);
         let mut best: Option<(u32, f64)> = None;
-        // A margin of rounding keeps a triangle that ties from being cut off.
-        let mut stop = f64::INFINITY;
+        // The last distance byte that can still beat the best: `d(c, T) - |p - c| <= best` in
+        // bytes, with margins of rounding so that a triangle that ties is not cut off. The loop
+        // compares bytes, not metres.
+        let mut last = u8::MAX;
         let mut lanes = Lanes::<L>::default();
         let mut i = 0;
-        while i < n && dist[i] as f64 * self.step - dc <= stop {
+        while i < n && dist[i] <= last {
             let m = (n - i).min(L);
             for (l, &t) in cand[i..i + m].iter().enumerate() {
                 lanes.set(l, &mesh.triangle(t as usize));
@@ -286,7 +288,9 @@ impl Grid {
             for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
                 if super::better_internal(mesh, t, d2, best) {
                     best = Some((t, d2));
-                    stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
+                    let stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
+                    let bytes = (stop + dc) * self.inv_step * (1.0 + 1e-9) + 1e-9;
+                    last = bytes.min(255.0) as u8;
                 }
             }
             i += m;

@@ -491,9 +491,15 @@ impl C2mIndex {
 
     /// The signed result for internal triangle `t`.
     fn signed(&self, p: &Point3<f64>, t: u32) -> Closest {
-        let (q, region) = self.mesh.triangle(t as usize).closest_point(p);
-        let n = self.mesh.pseudo_normal(t as usize, region);
+        let tri = self.mesh.triangle(t as usize);
+        let (q, region) = tri.closest_point(p);
         let d = (p - q).norm();
+        // A face's pseudo-normal is its unit normal: the unnormalised one gives the same sign
+        // (p - q lies along it), without a square root and a division.
+        let n = match region {
+            Region::Face => tri.ab.cross(&tri.ac),
+            _ => self.mesh.pseudo_normal(t as usize, region),
+        };
         let distance = if (p - q).dot(&n) < 0.0 { -d } else { d };
         Closest {
             distance,

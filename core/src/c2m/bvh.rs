@@ -198,15 +198,16 @@ impl Bvh {
                 let s = node.start as usize;
                 let mut m = 0;
                 for t in (s..s + node.count as usize).filter(|&t| filter.triangle(mesh, t)) {
-                    lanes.set(m, &mesh.triangle(t));
                     ids[m] = t as u32;
                     m += 1;
                     if m == L {
+                        mesh.load(&mut lanes, &ids);
                         measure(m, &lanes, &ids, &mut best, &mut bound2);
                         m = 0;
                     }
                 }
                 if m > 0 {
+                    mesh.load(&mut lanes, &ids[..m]);
                     measure(m, &lanes, &ids, &mut best, &mut bound2);
                 }
                 continue;

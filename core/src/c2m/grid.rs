@@ -281,9 +281,7 @@ impl Grid {
         let mut i = 0;
         while i < n && dist[i] <= last {
             let m = (n - i).min(L);
-            // A short last group repeats its first triangle in the spare lanes.
-            let f = |l: usize| &mesh.faces[cand[i + if l < m { l } else { 0 }] as usize];
-            lanes.set_faces(&mesh.vertices, [f(0), f(1), f(2), f(3)]);
+            mesh.load(&mut lanes, &cand[i..i + m]);
             let d2 = lanes.dist2(p);
             for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
                 if super::better_internal(mesh, t, d2, best) {

@@ -12,7 +12,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::normals::{PseudoNormals, vertex_normals};
-use super::triangle::{Region, Triangle};
+use super::triangle::{Lanes, Region, Triangle};
 
 /// An edge's neighbour code: a triangle (internal index) below this, a boundary edge, or an
 /// entry of the side table of edge normals (the high bit set).
@@ -94,6 +94,13 @@ impl Mesh {
     pub fn triangle(&self, t: usize) -> Triangle {
         let [a, b, c] = self.faces[t].map(|i| self.vertices[i as usize]);
         Triangle::new(a, b, c)
+    }
+
+    /// Internal triangles `ts` (one to four) into `lanes`; spare lanes repeat the first.
+    #[inline(always)]
+    pub fn load(&self, lanes: &mut Lanes<4>, ts: &[u32]) {
+        let f = |l: usize| &self.faces[ts[if l < ts.len() { l } else { 0 }] as usize];
+        lanes.set_faces(&self.vertices, [f(0), f(1), f(2), f(3)]);
     }
 
     /// Largest z of a triangle's vertices.

@@ -483,9 +483,11 @@ impl C2mIndex {
             .zip(out.par_chunks_mut(TASK))
             .for_each(|(ps, os)| {
                 let mut cursor = Cursor::default();
-                for (p, o) in ps.iter().zip(os) {
-                    *o = self.query(p, &mut cursor);
-                }
+                triangle::with_avx2(|| {
+                    for (p, o) in ps.iter().zip(os) {
+                        *o = self.query(p, &mut cursor);
+                    }
+                });
             });
     }
 

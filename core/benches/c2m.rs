@@ -3,8 +3,10 @@
 //!
 //! Points are taken on the surface and offset by Gaussian noise (σ 0.5 mm), in scan-like order:
 //! consecutive points lie close together, as consecutive points of a scan line do; and the same
-//! points shuffled (a merged or reference cloud). Also: the index's build, and the section that a
-//! new printed height needs, on the bunny and on a generated 1,004,000-triangle free-form column.
+//! points shuffled (a merged or reference cloud). Beside it, parry's `TriMesh` (a BVH with
+//! pseudo-normals) answers the same points on the same cores. Also: the index's build, and the
+//! section that a new printed height needs, on the bunny and on a generated 1,004,000-triangle
+//! free-form column.
 //!
 //! Run: `cargo bench -p asbuilt-core --bench c2m`
 
@@ -60,6 +62,19 @@ fn bench(c: &mut Criterion) {
         b.iter(|| index.query_batch(&shuffled, &mut out))
     });
 
+    // parry's triangle mesh on the same points and cores, for the ratio: its BVH projection
+    // with pseudo-normals (the sign) and the same maximum distance.
+    let t0 = Instant::now();
+    let trimesh = parry_bunny(&design);
+    eprintln!(
+        "parry TriMesh (BVH, pseudo-normals) built in {:.2} s",
+        t0.elapsed().as_secs_f64()
+    );
+    let mut projected: Vec<Option<(f64, bool)>> = vec![None; points.len()];
+    g.bench_function("parry_trimesh", |b| {
+        b.iter(|| parry_project(&trimesh, &points, &mut projected))
+    });
+
     // The full per-station path: validation, transform, C2M, deviations and statistics.
     let scan: Vec<ScanPoint> = points
         .iter()
@@ -102,6 +117,40 @@ fn bench(c: &mut Criterion) {
     }
     let bf = sample.len() as f64 / t.elapsed().as_secs_f64();
     eprintln!("brute force (1 core): {:.0} points/s", bf);
+}
+
+fn parry_bunny(design: &Design) -> parry3d_f64::shape::TriMesh {
+    use parry3d_f64::math::Vector;
+    use parry3d_f64::shape::{TriMesh, TriMeshFlags};
+    let vertices = design
+        .vertices
+        .iter()
+        .map(|v| Vector::new(v.x, v.y, v.z))
+        .collect();
+    TriMesh::with_flags(vertices, design.triangles.clone(), TriMeshFlags::ORIENTED)
+        .expect("the bunny as a parry TriMesh")
+}
+
+/// Distance and inside/outside of each point within 5 mm, in parallel as `query_batch` is.
+fn parry_project(
+    mesh: &parry3d_f64::shape::TriMesh,
+    points: &[nalgebra::Point3<f64>],
+    out: &mut [Option<(f64, bool)>],
+) {
+    use parry3d_f64::math::Vector;
+    use parry3d_f64::query::PointQuery;
+    use rayon::prelude::*;
+    points
+        .par_chunks(4096)
+        .zip(out.par_chunks_mut(4096))
+        .for_each(|(ps, os)| {
+            for (p, o) in ps.iter().zip(os) {
+                let v = Vector::new(p.x, p.y, p.z);
+                *o = mesh
+                    .project_local_point_with_max_dist(v, false, 0.005)
+                    .map(|proj| ((proj.point - v).length(), proj.is_inside));
+            }
+        });
 }
 
 /// What the design costs: the index's build, and a new printed height's section, on the bunny

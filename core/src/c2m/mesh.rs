@@ -118,6 +118,7 @@ impl Mesh {
     }
 
     /// The pseudo-normal of the feature `region` of internal triangle `t`.
+    #[inline(always)]
     pub fn pseudo_normal(&self, t: usize, region: Region) -> Vector3<f64> {
         match region {
             Region::Face => self.face_normal(t),

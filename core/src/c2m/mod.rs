@@ -491,7 +491,9 @@ impl C2mIndex {
             });
     }
 
-    /// The signed result for internal triangle `t`.
+    /// The signed result for internal triangle `t`. Inlined, so that it is compiled for AVX2
+    /// inside the query loop.
+    #[inline(always)]
     fn signed(&self, p: &Point3<f64>, t: u32) -> Closest {
         let tri = self.mesh.triangle(t as usize);
         let (q, region) = tri.closest_point(p);

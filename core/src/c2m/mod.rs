@@ -277,7 +277,7 @@ impl C2mIndex {
 
     /// The closest triangle (internal) and squared distance, from the grid where `p` is near
     /// the surface, else from the BVH under `limit2`.
-    #[inline]
+    #[inline(always)]
     fn closest(
         &self,
         p: &Point3<f64>,

@@ -191,13 +191,12 @@ impl PrintedDesign {
 }
 
 impl Surface for PrintedDesign {
-    /// Out of line and in the AVX2 context, as the whole design's is.
-    #[inline(never)]
+    #[inline]
     fn closest(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
-        crate::c2m::triangle::with_avx2(|| match &self.section {
+        match &self.section {
             None => self.index.query(p, cursor),
             Some(s) => self.index.query_cut(p, cursor, s),
-        })
+        }
     }
 
     fn max_distance(&self) -> f64 {

@@ -9,7 +9,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::mesh::Mesh;
-use super::triangle::{Lanes, with_avx2};
+use super::triangle::{Lanes, avx2};
 
 const LEAF_SIZE: usize = 8;
 /// Below this many triangles a subtree is built on one thread.
@@ -147,7 +147,9 @@ impl Bvh {
         hint: Option<u32>,
         filter: &F,
     ) -> Option<(u32, f64)> {
-        with_avx2(|| self.closest_in_lanes(mesh, p, limit2, hint, filter))
+        avx2!(<F: Filter> [bvh: &Bvh = self, mesh: &Mesh = mesh, p: &Point3<f64> = p, limit2: f64 = limit2, hint: Option<u32> = hint, filter: &F = filter] -> Option<(u32, f64)> {
+            bvh.closest_in_lanes(mesh, p, limit2, hint, filter)
+        })
     }
 
     /// The descent, a leaf's triangles measured four at a time.
@@ -165,11 +167,19 @@ impl Bvh {
         let mut bound2 = limit2;
         let mut lanes = Lanes::<L>::default();
         let mut ids = [0u32; L];
-        let measure = |m: usize,
-                       lanes: &Lanes<L>,
-                       ids: &[u32; L],
-                       best: &mut Option<(u32, f64)>,
-                       bound2: &mut f64| {
+        // Not a closure: one left out of line would run without AVX2.
+        #[inline(always)]
+        #[allow(clippy::too_many_arguments)]
+        fn measure(
+            mesh: &Mesh,
+            p: &Point3<f64>,
+            limit2: f64,
+            m: usize,
+            lanes: &Lanes<4>,
+            ids: &[u32; 4],
+            best: &mut Option<(u32, f64)>,
+            bound2: &mut f64,
+        ) {
             let d2 = lanes.dist2(p);
             for (&t, &d2) in ids[..m].iter().zip(&d2) {
                 if d2 <= limit2 && super::better_internal(mesh, t, d2, *best) {
@@ -177,14 +187,14 @@ impl Bvh {
                     *bound2 = d2;
                 }
             }
-        };
+        }
         if let Some(h) = hint
             && (h as usize) < mesh.len()
             && filter.triangle(mesh, h as usize)
         {
             lanes.set(0, &mesh.triangle(h as usize));
             ids[0] = h;
-            measure(1, &lanes, &ids, &mut best, &mut bound2);
+            measure(mesh, p, limit2, 1, &lanes, &ids, &mut best, &mut bound2);
         }
         // Boxes farther than the bound cannot hold a closer triangle; boxes exactly at the bound
         // may hold a tie with a lower id, so they are still searched.
@@ -202,13 +212,13 @@ impl Bvh {
                     m += 1;
                     if m == L {
                         mesh.load(&mut lanes, &ids);
-                        measure(m, &lanes, &ids, &mut best, &mut bound2);
+                        measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
                         m = 0;
                     }
                 }
                 if m > 0 {
                     mesh.load(&mut lanes, &ids[..m]);
-                    measure(m, &lanes, &ids, &mut best, &mut bound2);
+                    measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
                 }
                 continue;
             }
@@ -253,10 +263,13 @@ impl Bvh {
         region: (Point3<f64>, Point3<f64>),
         out: &mut Vec<(u32, f64)>,
     ) {
-        with_avx2(|| self.within_in_lanes(mesh, p, radius, region, out))
+        avx2!([bvh: &Bvh = self, mesh: &Mesh = mesh, p: &Point3<f64> = p, radius: f64 = radius, region: (Point3<f64>, Point3<f64>) = region, out: &mut Vec<(u32, f64)> = out] -> () {
+            bvh.within_in_lanes(mesh, p, radius, region, out)
+        })
     }
 
-    /// A leaf's triangles measured four at a time.
+    /// The leaves' triangles gathered first, then measured four at a time here, not in the
+    /// visit's closure (one left out of line would run without AVX2).
     #[inline(always)]
     fn within_in_lanes(
         &self,
@@ -266,31 +279,35 @@ impl Bvh {
         (lo, hi): (Point3<f64>, Point3<f64>),
         out: &mut Vec<(u32, f64)>,
     ) {
-        const L: usize = 4;
         let r2 = radius * radius;
-        let mut lanes = Lanes::<L>::default();
+        let start = out.len();
         self.visit_leaves(
             |n| {
                 box_dist2(n, p) <= r2
                     && (0..3).all(|k| n.min[k] as f64 <= hi[k] && n.max[k] as f64 >= lo[k])
             },
             |leaf| {
-                for first in leaf.clone().step_by(L) {
-                    let m = (leaf.end - first).min(L);
-                    for l in 0..m {
-                        lanes.set(l, &mesh.triangle(first + l));
-                    }
-                    let d2 = lanes.dist2(p);
-                    for (l, &d2) in d2[..m].iter().enumerate() {
-                        let d = d2.sqrt();
-                        if d <= radius {
-                            out.push(((first + l) as u32, d));
-                        }
-                    }
-                }
+                out.extend(leaf.map(|t| (t as u32, f64::INFINITY)));
                 false
             },
         );
+        let mut lanes = Lanes::<4>::default();
+        let (mut kept, mut i) = (start, start);
+        while i < out.len() {
+            let m = (out.len() - i).min(4);
+            let ids: [u32; 4] = std::array::from_fn(|l| out[i + l.min(m - 1)].0);
+            mesh.load(&mut lanes, &ids[..m]);
+            let d2 = lanes.dist2(p);
+            for (&t, &d2) in ids[..m].iter().zip(&d2) {
+                let d = d2.sqrt();
+                if d <= radius {
+                    out[kept] = (t, d);
+                    kept += 1;
+                }
+            }
+            i += m;
+        }
+        out.truncate(kept);
     }
 
     /// Internal triangles whose box meets the plane `z` (conservatively).

@@ -21,7 +21,7 @@ use rustc_hash::FxHashMap;
 
 use super::bvh::Bvh;
 use super::mesh::Mesh;
-use super::triangle::{Lanes, with_avx2};
+use super::triangle::{Lanes, avx2};
 
 /// Cells per axis are addressed with 21 bits each, packed into one u64 key.
 const AXIS_BITS: u32 = 21;
@@ -255,7 +255,9 @@ impl Grid {
         c: &Point3<f64>,
         p: &Point3<f64>,
     ) -> (u32, f64) {
-        with_avx2(|| self.closest_in_lanes(mesh, cell, c, p))
+        avx2!([grid: &Grid = self, mesh: &Mesh = mesh, cell: &Cell = cell, c: &Point3<f64> = c, p: &Point3<f64> = p] -> (u32, f64) {
+            grid.closest_in_lanes(mesh, cell, c, p)
+        })
     }
 
     /// Candidates four at a time, nearest to the cell's centre first, until the next four

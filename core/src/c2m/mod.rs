@@ -264,8 +264,16 @@ impl C2mIndex {
 
     /// The closest design feature of `p`, or `None` when it is farther than the maximum
     /// distance (or not finite).
-    #[inline]
+    #[inline(never)]
     pub fn query(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
+        triangle::avx2!([index: &C2mIndex = self, p: &Point3<f64> = p, cursor: &mut Cursor = cursor] -> Option<Closest> {
+            index.query_inline(p, cursor)
+        })
+    }
+
+    /// [`C2mIndex::query`], compiled into its caller.
+    #[inline(always)]
+    fn query_inline(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
         let limit2 = self.max_distance * self.max_distance;
         let (t, d2) = self.closest(p, &mut cursor.cell, cursor.last, limit2)?;
         if d2 > limit2 {
@@ -356,7 +364,21 @@ impl C2mIndex {
     /// The closest feature of `p` on the design cut at `section`'s height and closed by its
     /// cap: what [`C2mIndex::query`] on an index of `crate::layers::cut_at`'s mesh gives, to
     /// rounding.
+    #[inline(never)]
     pub fn query_cut(
+        &self,
+        p: &Point3<f64>,
+        cursor: &mut Cursor,
+        section: &Section,
+    ) -> Option<Closest> {
+        triangle::avx2!([index: &C2mIndex = self, p: &Point3<f64> = p, cursor: &mut Cursor = cursor, section: &Section = section] -> Option<Closest> {
+            index.query_cut_inline(p, cursor, section)
+        })
+    }
+
+    /// [`C2mIndex::query_cut`], compiled into its caller.
+    #[inline(always)]
+    fn query_cut_inline(
         &self,
         p: &Point3<f64>,
         cursor: &mut Cursor,
@@ -482,12 +504,12 @@ impl C2mIndex {
             .par_chunks(TASK)
             .zip(out.par_chunks_mut(TASK))
             .for_each(|(ps, os)| {
-                let mut cursor = Cursor::default();
-                triangle::with_avx2(|| {
+                triangle::avx2!([index: &C2mIndex = self, ps: &[Point3<f64>] = ps, os: &mut [Option<Closest>] = os] -> () {
+                    let mut cursor = Cursor::default();
                     for (p, o) in ps.iter().zip(os) {
-                        *o = self.query(p, &mut cursor);
+                        *o = index.query_inline(p, &mut cursor);
                     }
-                });
+                })
             });
     }
 
@@ -563,12 +585,9 @@ pub trait Surface: Sync {
 }
 
 impl Surface for C2mIndex {
-    /// Out of line and in the AVX2 context, as [`C2mIndex::query_batch`] runs its queries: a
-    /// station's points come through here one by one (inlined into the station's loop, which
-    /// is compiled for any x86-64, the station ran 7 % slower).
-    #[inline(never)]
+    #[inline]
     fn closest(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
-        triangle::with_avx2(|| self.query(p, cursor))
+        self.query(p, cursor)
     }
     fn max_distance(&self) -> f64 {
         self.max_distance

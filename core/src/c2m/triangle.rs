@@ -141,22 +141,28 @@ pub(crate) fn has_avx2() -> bool {
     false
 }
 
-/// Runs `f` compiled for AVX2 where the CPU has it, so that the lanes fill 256-bit registers,
-/// and as it is elsewhere. `f` is inlined into the AVX2 body, and with it what it calls with
-/// `#[inline(always)]`. No FMA is enabled: both give the same bits.
-#[inline(always)]
-pub(crate) fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    if has_avx2() {
-        #[target_feature(enable = "avx2")]
-        fn run<R>(f: impl FnOnce() -> R) -> R {
-            f()
+/// Runs a body compiled for AVX2 where the CPU has it, so that the lanes fill 256-bit
+/// registers, and as it is elsewhere; no FMA is enabled, so both give the same bits. The body
+/// is a function of the named values (`name: Type = value`), and what it calls with
+/// `#[inline(always)]` is compiled into it. A closure would not do: the compiler may leave a
+/// large one out of line, and then it runs without AVX2 (it did, in the `asbuilt` binary).
+macro_rules! avx2 {
+    ($(<$($g:ident: $b:path),*>)? [$($arg:ident: $ty:ty = $val:expr),* $(,)?] -> $ret:ty $body:block) => {{
+        #[inline(always)]
+        fn body$(<$($g: $b),*>)?($($arg: $ty),*) -> $ret $body
+        #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
+        unsafe fn avx2$(<$($g: $b),*>)?($($arg: $ty),*) -> $ret {
+            body($($arg),*)
         }
-        // SAFETY: the CPU has AVX2.
-        return unsafe { run(f) };
-    }
-    f()
+        if $crate::c2m::triangle::has_avx2() {
+            // SAFETY: the CPU has AVX2 (`has_avx2` is false on other architectures).
+            unsafe { avx2($($val),*) }
+        } else {
+            body($($val),*)
+        }
+    }};
 }
+pub(crate) use avx2;
 
 /// `N` triangles side by side, coordinate by coordinate, so that their distances to a point are
 /// measured together (the compiler turns the lanes into vector instructions).
@@ -274,37 +280,63 @@ impl Lanes<4> {
         }
     }
 
+    /// [`Lanes::set_faces`] with AVX2 instructions, compiled into its caller (which runs with
+    /// AVX2: a function of its own would be left out of line).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn set_faces_avx2(&mut self, vertices: &[Point3<f64>], faces: [&[u32; 3]; 4]) {
+    #[inline(always)]
+    unsafe fn set_faces_avx2(&mut self, vertices: &[Point3<f64>], faces: [&[u32; 3]; 4]) {
         use std::arch::x86_64::*;
-        // x, y, z of a point; the fourth lane is masked off, so nothing past it is read.
-        let mask = _mm256_setr_epi64x(-1, -1, -1, 0);
-        let load = |i: u32| {
-            let v: &Point3<f64> = &vertices[i as usize];
-            // SAFETY: a point is three f64 in a row, and only those three are read.
-            unsafe { _mm256_maskload_pd(v.coords.as_ptr(), mask) }
+        let (a, b, c) = unsafe {
+            (
+                corner_avx2(vertices, faces, 0),
+                corner_avx2(vertices, faces, 1),
+                corner_avx2(vertices, faces, 2),
+            )
         };
-        // Rows (x, y, z, 0) of the four triangles' corner `k`, as columns x, y, z.
-        let corner = |k: usize| {
-            let [r0, r1, r2, r3] = faces.map(|f| load(f[k]));
-            let (t0, t1) = (_mm256_unpacklo_pd(r0, r1), _mm256_unpackhi_pd(r0, r1));
-            let (t2, t3) = (_mm256_unpacklo_pd(r2, r3), _mm256_unpackhi_pd(r2, r3));
-            [
-                _mm256_permute2f128_pd::<0x20>(t0, t2),
-                _mm256_permute2f128_pd::<0x20>(t1, t3),
-                _mm256_permute2f128_pd::<0x31>(t0, t2),
-            ]
-        };
-        let (a, b, c) = (corner(0), corner(1), corner(2));
         for k in 0..3 {
-            // SAFETY: each row is four f64.
+            // SAFETY: the CPU has AVX2, and each row is four f64.
             unsafe {
                 _mm256_storeu_pd(self.a[k].as_mut_ptr(), a[k]);
                 _mm256_storeu_pd(self.ab[k].as_mut_ptr(), _mm256_sub_pd(b[k], a[k]));
                 _mm256_storeu_pd(self.ac[k].as_mut_ptr(), _mm256_sub_pd(c[k], a[k]));
             }
         }
+    }
+}
+
+/// Corner `k` of four triangles as columns x, y, z: each point loaded whole as a row
+/// (x, y, z, 0), the four rows transposed.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn corner_avx2(
+    vertices: &[Point3<f64>],
+    faces: [&[u32; 3]; 4],
+    k: usize,
+) -> [std::arch::x86_64::__m256d; 3] {
+    use std::arch::x86_64::*;
+    // SAFETY: the CPU has AVX2; a point is three f64 in a row, and the fourth lane is masked
+    // off, so nothing past it is read.
+    unsafe {
+        let mask = _mm256_setr_epi64x(-1, -1, -1, 0);
+        // Loaded one by one, not in a closure: a closure is compiled without AVX2 unless it
+        // is inlined.
+        let r0 = _mm256_maskload_pd(vertices[faces[0][k] as usize].coords.as_ptr(), mask);
+        let r1 = _mm256_maskload_pd(vertices[faces[1][k] as usize].coords.as_ptr(), mask);
+        let r2 = _mm256_maskload_pd(vertices[faces[2][k] as usize].coords.as_ptr(), mask);
+        let r3 = _mm256_maskload_pd(vertices[faces[3][k] as usize].coords.as_ptr(), mask);
+        let (t0, t1) = (_mm256_unpacklo_pd(r0, r1), _mm256_unpackhi_pd(r0, r1));
+        let (t2, t3) = (_mm256_unpacklo_pd(r2, r3), _mm256_unpackhi_pd(r2, r3));
+        [
+            _mm256_permute2f128_pd::<0x20>(t0, t2),
+            _mm256_permute2f128_pd::<0x20>(t1, t3),
+            _mm256_permute2f128_pd::<0x31>(t0, t2),
+        ]
     }
 }
 

@@ -147,7 +147,14 @@ impl Bvh {
         hint: Option<u32>,
         filter: &F,
     ) -> Option<(u32, f64)> {
-        avx2!(<F: Filter> [bvh: &Bvh = self, mesh: &Mesh = mesh, p: &Point3<f64> = p, limit2: f64 = limit2, hint: Option<u32> = hint, filter: &F = filter] -> Option<(u32, f64)> {
+        avx2!(<F: Filter> [
+            bvh: &Bvh = self,
+            mesh: &Mesh = mesh,
+            p: &Point3<f64> = p,
+            limit2: f64 = limit2,
+            hint: Option<u32> = hint,
+            filter: &F = filter,
+        ] -> Option<(u32, f64)> {
             bvh.closest_in_lanes(mesh, p, limit2, hint, filter)
         })
     }
@@ -263,7 +270,14 @@ impl Bvh {
         region: (Point3<f64>, Point3<f64>),
         out: &mut Vec<(u32, f64)>,
     ) {
-        avx2!([bvh: &Bvh = self, mesh: &Mesh = mesh, p: &Point3<f64> = p, radius: f64 = radius, region: (Point3<f64>, Point3<f64>) = region, out: &mut Vec<(u32, f64)> = out] -> () {
+        avx2!([
+            bvh: &Bvh = self,
+            mesh: &Mesh = mesh,
+            p: &Point3<f64> = p,
+            radius: f64 = radius,
+            region: (Point3<f64>, Point3<f64>) = region,
+            out: &mut Vec<(u32, f64)> = out,
+        ] -> () {
             bvh.within_in_lanes(mesh, p, radius, region, out)
         })
     }

@@ -255,7 +255,13 @@ impl Grid {
         c: &Point3<f64>,
         p: &Point3<f64>,
     ) -> (u32, f64) {
-        avx2!([grid: &Grid = self, mesh: &Mesh = mesh, cell: &Cell = cell, c: &Point3<f64> = c, p: &Point3<f64> = p] -> (u32, f64) {
+        avx2!([
+            grid: &Grid = self,
+            mesh: &Mesh = mesh,
+            cell: &Cell = cell,
+            c: &Point3<f64> = c,
+            p: &Point3<f64> = p,
+        ] -> (u32, f64) {
             grid.closest_in_lanes(mesh, cell, c, p)
         })
     }

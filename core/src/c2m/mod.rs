@@ -266,7 +266,11 @@ impl C2mIndex {
     /// distance (or not finite).
     #[inline(never)]
     pub fn query(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
-        triangle::avx2!([index: &C2mIndex = self, p: &Point3<f64> = p, cursor: &mut Cursor = cursor] -> Option<Closest> {
+        triangle::avx2!([
+            index: &C2mIndex = self,
+            p: &Point3<f64> = p,
+            cursor: &mut Cursor = cursor,
+        ] -> Option<Closest> {
             index.query_inline(p, cursor)
         })
     }
@@ -371,7 +375,12 @@ impl C2mIndex {
         cursor: &mut Cursor,
         section: &Section,
     ) -> Option<Closest> {
-        triangle::avx2!([index: &C2mIndex = self, p: &Point3<f64> = p, cursor: &mut Cursor = cursor, section: &Section = section] -> Option<Closest> {
+        triangle::avx2!([
+            index: &C2mIndex = self,
+            p: &Point3<f64> = p,
+            cursor: &mut Cursor = cursor,
+            section: &Section = section,
+        ] -> Option<Closest> {
             index.query_cut_inline(p, cursor, section)
         })
     }
@@ -504,7 +513,11 @@ impl C2mIndex {
             .par_chunks(TASK)
             .zip(out.par_chunks_mut(TASK))
             .for_each(|(ps, os)| {
-                triangle::avx2!([index: &C2mIndex = self, ps: &[Point3<f64>] = ps, os: &mut [Option<Closest>] = os] -> () {
+                triangle::avx2!([
+                    index: &C2mIndex = self,
+                    ps: &[Point3<f64>] = ps,
+                    os: &mut [Option<Closest>] = os,
+                ] -> () {
                     let mut cursor = Cursor::default();
                     for (p, o) in ps.iter().zip(os) {
                         *o = index.query_inline(p, &mut cursor);

@@ -147,7 +147,10 @@ pub(crate) fn has_avx2() -> bool {
 /// `#[inline(always)]` is compiled into it. A closure would not do: the compiler may leave a
 /// large one out of line, and then it runs without AVX2 (it did, in the `asbuilt` binary).
 macro_rules! avx2 {
-    ($(<$($g:ident: $b:path),*>)? [$($arg:ident: $ty:ty = $val:expr),* $(,)?] -> $ret:ty $body:block) => {{
+    (
+        $(<$($g:ident: $b:path),*>)?
+        [$($arg:ident: $ty:ty = $val:expr),* $(,)?] -> $ret:ty $body:block
+    ) => {{
         #[inline(always)]
         fn body$(<$($g: $b),*>)?($($arg: $ty),*) -> $ret $body
         #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]

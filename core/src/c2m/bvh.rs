@@ -155,108 +155,96 @@ impl Bvh {
             hint: Option<u32> = hint,
             filter: &F = filter,
         ] -> Option<(u32, f64)> {
-            bvh.closest_in_lanes(mesh, p, limit2, hint, filter)
-        })
-    }
-
-    /// The descent, a leaf's triangles measured four at a time.
-    #[inline(always)]
-    fn closest_in_lanes<F: Filter>(
-        &self,
-        mesh: &Mesh,
-        p: &Point3<f64>,
-        limit2: f64,
-        hint: Option<u32>,
-        filter: &F,
-    ) -> Option<(u32, f64)> {
-        const L: usize = 4;
-        let mut best: Option<(u32, f64)> = None;
-        let mut bound2 = limit2;
-        let mut lanes = Lanes::<L>::default();
-        let mut ids = [0u32; L];
-        // Not a closure: one left out of line would run without AVX2.
-        #[inline(always)]
-        #[allow(clippy::too_many_arguments)]
-        fn measure(
-            mesh: &Mesh,
-            p: &Point3<f64>,
-            limit2: f64,
-            m: usize,
-            lanes: &Lanes<4>,
-            ids: &[u32; 4],
-            best: &mut Option<(u32, f64)>,
-            bound2: &mut f64,
-        ) {
-            let d2 = lanes.dist2(p);
-            for (&t, &d2) in ids[..m].iter().zip(&d2) {
-                if d2 <= limit2 && super::better_internal(mesh, t, d2, *best) {
-                    *best = Some((t, d2));
-                    *bound2 = d2;
-                }
-            }
-        }
-        if let Some(h) = hint
-            && (h as usize) < mesh.len()
-            && filter.triangle(mesh, h as usize)
-        {
-            lanes.set(0, &mesh.triangle(h as usize));
-            ids[0] = h;
-            measure(mesh, p, limit2, 1, &lanes, &ids, &mut best, &mut bound2);
-        }
-        // Boxes farther than the bound cannot hold a closer triangle; boxes exactly at the bound
-        // may hold a tie with a lower id, so they are still searched.
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let i = stack[top] as usize;
-            let node = &self.nodes[i];
-            if node.count > 0 {
-                let s = node.start as usize;
-                let mut m = 0;
-                for t in (s..s + node.count as usize).filter(|&t| filter.triangle(mesh, t)) {
-                    ids[m] = t as u32;
-                    m += 1;
-                    if m == L {
-                        mesh.load(&mut lanes, &ids);
-                        measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
-                        m = 0;
+            // The descent, a leaf's triangles measured four at a time.
+            const L: usize = 4;
+            let mut best: Option<(u32, f64)> = None;
+            let mut bound2 = limit2;
+            let mut lanes = Lanes::<L>::default();
+            let mut ids = [0u32; L];
+            // Not a closure: one left out of line would run without AVX2.
+            #[inline(always)]
+            #[allow(clippy::too_many_arguments)]
+            fn measure(
+                mesh: &Mesh,
+                p: &Point3<f64>,
+                limit2: f64,
+                m: usize,
+                lanes: &Lanes<4>,
+                ids: &[u32; 4],
+                best: &mut Option<(u32, f64)>,
+                bound2: &mut f64,
+            ) {
+                let d2 = lanes.dist2(p);
+                for (&t, &d2) in ids[..m].iter().zip(&d2) {
+                    if d2 <= limit2 && super::better_internal(mesh, t, d2, *best) {
+                        *best = Some((t, d2));
+                        *bound2 = d2;
                     }
                 }
-                if m > 0 {
-                    mesh.load(&mut lanes, &ids[..m]);
-                    measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
+            }
+            if let Some(h) = hint
+                && (h as usize) < mesh.len()
+                && filter.triangle(mesh, h as usize)
+            {
+                lanes.set(0, &mesh.triangle(h as usize));
+                ids[0] = h;
+                measure(mesh, p, limit2, 1, &lanes, &ids, &mut best, &mut bound2);
+            }
+            // Boxes farther than the bound cannot hold a closer triangle; boxes exactly at the
+            // bound may hold a tie with a lower id, so they are still searched.
+            let mut stack = [0u32; 64];
+            let mut top = 1usize;
+            while top > 0 {
+                top -= 1;
+                let i = stack[top] as usize;
+                let node = &bvh.nodes[i];
+                if node.count > 0 {
+                    let s = node.start as usize;
+                    let mut m = 0;
+                    for t in (s..s + node.count as usize).filter(|&t| filter.triangle(mesh, t)) {
+                        ids[m] = t as u32;
+                        m += 1;
+                        if m == L {
+                            mesh.load(&mut lanes, &ids);
+                            measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
+                            m = 0;
+                        }
+                    }
+                    if m > 0 {
+                        mesh.load(&mut lanes, &ids[..m]);
+                        measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
+                    }
+                    continue;
                 }
-                continue;
+                let (l, r) = (i + 1, node.start as usize);
+                let (nl, nr) = (&bvh.nodes[l], &bvh.nodes[r]);
+                let dl = if filter.node(nl.min[2]) {
+                    box_dist2(nl, p)
+                } else {
+                    f64::INFINITY
+                };
+                let dr = if filter.node(nr.min[2]) {
+                    box_dist2(nr, p)
+                } else {
+                    f64::INFINITY
+                };
+                let (near, dn, far, df) = if dl <= dr {
+                    (l, dl, r, dr)
+                } else {
+                    (r, dr, l, dl)
+                };
+                // Depth is at most log2(triangles) + 1 (median splits), far below 63.
+                if df <= bound2 {
+                    stack[top] = far as u32;
+                    top += 1;
+                }
+                if dn <= bound2 {
+                    stack[top] = near as u32;
+                    top += 1;
+                }
             }
-            let (l, r) = (i + 1, node.start as usize);
-            let (nl, nr) = (&self.nodes[l], &self.nodes[r]);
-            let dl = if filter.node(nl.min[2]) {
-                box_dist2(nl, p)
-            } else {
-                f64::INFINITY
-            };
-            let dr = if filter.node(nr.min[2]) {
-                box_dist2(nr, p)
-            } else {
-                f64::INFINITY
-            };
-            let (near, dn, far, df) = if dl <= dr {
-                (l, dl, r, dr)
-            } else {
-                (r, dr, l, dl)
-            };
-            // Depth is at most log2(triangles) + 1 (median splits), far below 63.
-            if df <= bound2 {
-                stack[top] = far as u32;
-                top += 1;
-            }
-            if dn <= bound2 {
-                stack[top] = near as u32;
-                top += 1;
-            }
-        }
-        best
+            best
+        })
     }
 
     /// Every triangle whose distance to `p` is at most `radius` and whose box meets the box
@@ -278,50 +266,39 @@ impl Bvh {
             region: (Point3<f64>, Point3<f64>) = region,
             out: &mut Vec<(u32, f64)> = out,
         ] -> () {
-            bvh.within_in_lanes(mesh, p, radius, region, out)
-        })
-    }
-
-    /// The leaves' triangles gathered first, then measured four at a time here, not in the
-    /// visit's closure (one left out of line would run without AVX2).
-    #[inline(always)]
-    fn within_in_lanes(
-        &self,
-        mesh: &Mesh,
-        p: &Point3<f64>,
-        radius: f64,
-        (lo, hi): (Point3<f64>, Point3<f64>),
-        out: &mut Vec<(u32, f64)>,
-    ) {
-        let r2 = radius * radius;
-        let start = out.len();
-        self.visit_leaves(
-            |n| {
-                box_dist2(n, p) <= r2
-                    && (0..3).all(|k| n.min[k] as f64 <= hi[k] && n.max[k] as f64 >= lo[k])
-            },
-            |leaf| {
-                out.extend(leaf.map(|t| (t as u32, f64::INFINITY)));
-                false
-            },
-        );
-        let mut lanes = Lanes::<4>::default();
-        let (mut kept, mut i) = (start, start);
-        while i < out.len() {
-            let m = (out.len() - i).min(4);
-            let ids: [u32; 4] = std::array::from_fn(|l| out[i + l.min(m - 1)].0);
-            mesh.load(&mut lanes, &ids[..m]);
-            let d2 = lanes.dist2(p);
-            for (&t, &d2) in ids[..m].iter().zip(&d2) {
-                let d = d2.sqrt();
-                if d <= radius {
-                    out[kept] = (t, d);
-                    kept += 1;
+            // The leaves' triangles gathered first, then measured four at a time here, not in the
+            // visit's closure (one left out of line would run without AVX2).
+            let (lo, hi) = region;
+            let r2 = radius * radius;
+            let start = out.len();
+            bvh.visit_leaves(
+                |n| {
+                    box_dist2(n, p) <= r2
+                        && (0..3).all(|k| n.min[k] as f64 <= hi[k] && n.max[k] as f64 >= lo[k])
+                },
+                |leaf| {
+                    out.extend(leaf.map(|t| (t as u32, f64::INFINITY)));
+                    false
+                },
+            );
+            let mut lanes = Lanes::<4>::default();
+            let (mut kept, mut i) = (start, start);
+            while i < out.len() {
+                let m = (out.len() - i).min(4);
+                let ids: [u32; 4] = std::array::from_fn(|l| out[i + l.min(m - 1)].0);
+                mesh.load(&mut lanes, &ids[..m]);
+                let d2 = lanes.dist2(p);
+                for (&t, &d2) in ids[..m].iter().zip(&d2) {
+                    let d = d2.sqrt();
+                    if d <= radius {
+                        out[kept] = (t, d);
+                        kept += 1;
+                    }
                 }
+                i += m;
             }
-            i += m;
-        }
-        out.truncate(kept);
+            out.truncate(kept);
+        })
     }
 
     /// Internal triangles whose box meets the plane `z` (conservatively).

@@ -245,8 +245,11 @@ impl Grid {
     }
 
     /// The closest candidate of `cell` to `p` (which lies in the cell with centre `c`): internal
-    /// triangle and squared distance. Ties go to the lowest design id. Kept out of line: inlined
-    /// into the query loop, the loop ran 20 % slower.
+    /// triangle and squared distance. Ties go to the lowest design id. Candidates four at a
+    /// time, nearest to the cell's centre first, until the next four cannot beat the best found.
+    /// Measuring a few past that point changes nothing: the best is the closest, ties to the
+    /// lowest id, whichever candidates were measured. Kept out of line: inlined into the query
+    /// loop, the loop ran 20 % slower.
     #[inline(never)]
     pub fn closest(
         &self,
@@ -262,47 +265,33 @@ impl Grid {
             c: &Point3<f64> = c,
             p: &Point3<f64> = p,
         ] -> (u32, f64) {
-            grid.closest_in_lanes(mesh, cell, c, p)
-        })
-    }
-
-    /// Candidates four at a time, nearest to the cell's centre first, until the next four
-    /// cannot beat the best found. Measuring a few past that point changes nothing: the best is
-    /// the closest, ties to the lowest id, whichever candidates were measured.
-    #[inline(always)]
-    fn closest_in_lanes(
-        &self,
-        mesh: &Mesh,
-        cell: &Cell,
-        c: &Point3<f64>,
-        p: &Point3<f64>,
-    ) -> (u32, f64) {
-        const L: usize = 4;
-        let dc = (p - c).norm();
-        let (s, n) = (cell.start as usize, cell.len as usize);
-        let (cand, dist) = (&self.cand[s..s + n], &self.dist[s..s + n]);
-        let mut best: Option<(u32, f64)> = None;
-        // The last distance byte that can still beat the best: `d(c, T) - |p - c| <= best` in
-        // bytes, with margins of rounding so that a triangle that ties is not cut off. The loop
-        // compares bytes, not metres.
-        let mut last = u8::MAX;
-        let mut lanes = Lanes::<L>::default();
-        let mut i = 0;
-        while i < n && dist[i] <= last {
-            let m = (n - i).min(L);
-            mesh.load(&mut lanes, &cand[i..i + m]);
-            let d2 = lanes.dist2(p);
-            for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
-                if super::better_internal(mesh, t, d2, best) {
-                    best = Some((t, d2));
-                    let stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
-                    let bytes = (stop + dc) * self.inv_step * (1.0 + 1e-9) + 1e-9;
-                    last = bytes.min(255.0) as u8;
+            const L: usize = 4;
+            let dc = (p - c).norm();
+            let (s, n) = (cell.start as usize, cell.len as usize);
+            let (cand, dist) = (&grid.cand[s..s + n], &grid.dist[s..s + n]);
+            let mut best: Option<(u32, f64)> = None;
+            // The last distance byte that can still beat the best: `d(c, T) - |p - c| <= best` in
+            // bytes, with margins of rounding so that a triangle that ties is not cut off. The loop
+            // compares bytes, not metres.
+            let mut last = u8::MAX;
+            let mut lanes = Lanes::<L>::default();
+            let mut i = 0;
+            while i < n && dist[i] <= last {
+                let m = (n - i).min(L);
+                mesh.load(&mut lanes, &cand[i..i + m]);
+                let d2 = lanes.dist2(p);
+                for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
+                    if super::better_internal(mesh, t, d2, best) {
+                        best = Some((t, d2));
+                        let stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
+                        let bytes = (stop + dc) * grid.inv_step * (1.0 + 1e-9) + 1e-9;
+                        last = bytes.min(255.0) as u8;
+                    }
                 }
+                i += m;
             }
-            i += m;
-        }
-        best.expect("a kept list has a candidate")
+            best.expect("a kept list has a candidate")
+        })
     }
 }
 

@@ -93,6 +93,35 @@ fn box_dist2(n: &Node, p: &Point3<f64>) -> f64 {
     d2
 }
 
+/// The nodes still to visit, depth first, from the root. The depth is at most
+/// log2(triangles) + 1 (median splits), far below 64.
+struct NodeStack {
+    nodes: [u32; 64],
+    len: usize,
+}
+
+impl NodeStack {
+    #[inline(always)]
+    fn from_root() -> Self {
+        Self {
+            nodes: [0; 64],
+            len: 1,
+        }
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<usize> {
+        self.len = self.len.checked_sub(1)?;
+        Some(self.nodes[self.len] as usize)
+    }
+
+    #[inline(always)]
+    fn push(&mut self, node: usize) {
+        self.nodes[self.len] = node as u32;
+        self.len += 1;
+    }
+}
+
 fn nodes_for(n: usize) -> usize {
     if n <= LEAF_SIZE {
         1
@@ -186,17 +215,14 @@ impl Bvh {
                 && (h as usize) < mesh.len()
                 && filter.triangle(mesh, h as usize)
             {
-                lanes.set(0, &mesh.triangle(h as usize));
                 ids[0] = h;
+                mesh.load(&mut lanes, &ids[..1]);
                 measure(mesh, p, limit2, 1, &lanes, &ids, &mut best, &mut bound2);
             }
             // Boxes farther than the bound cannot hold a closer triangle; boxes exactly at the
             // bound may hold a tie with a lower id, so they are still searched.
-            let mut stack = [0u32; 64];
-            let mut top = 1usize;
-            while top > 0 {
-                top -= 1;
-                let i = stack[top] as usize;
+            let mut stack = NodeStack::from_root();
+            while let Some(i) = stack.pop() {
                 let node = &bvh.nodes[i];
                 if node.count > 0 {
                     let s = node.start as usize;
@@ -233,14 +259,11 @@ impl Bvh {
                 } else {
                     (r, dr, l, dl)
                 };
-                // Depth is at most log2(triangles) + 1 (median splits), far below 63.
                 if df <= bound2 {
-                    stack[top] = far as u32;
-                    top += 1;
+                    stack.push(far);
                 }
                 if dn <= bound2 {
-                    stack[top] = near as u32;
-                    top += 1;
+                    stack.push(near);
                 }
             }
             best
@@ -336,11 +359,8 @@ impl Bvh {
         enter: impl Fn(&Node) -> bool,
         mut leaf: impl FnMut(std::ops::Range<usize>) -> bool,
     ) -> bool {
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let i = stack[top] as usize;
+        let mut stack = NodeStack::from_root();
+        while let Some(i) = stack.pop() {
             let node = &self.nodes[i];
             if !enter(node) {
                 continue;
@@ -351,10 +371,8 @@ impl Bvh {
                     return true;
                 }
             } else {
-                // Depth is at most log2(triangles) + 1 (median splits), far below 63.
-                stack[top] = (i + 1) as u32;
-                stack[top + 1] = node.start;
-                top += 2;
+                stack.push(i + 1);
+                stack.push(node.start as usize);
             }
         }
         false

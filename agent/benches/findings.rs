@@ -8,7 +8,7 @@
 
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_agent::ipc::{CellPorts, Ipc};
 use asbuilt_protocol::{
     ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationStatus,
 };
@@ -16,10 +16,8 @@ use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
 use iceoryx2::prelude::*;
 use nalgebra::Isometry3;
 
-const CHUNK: usize = 65_536;
-
 mod support;
-use support::{AgentProcess, median};
+use support::{AgentSetup, CHUNK, cell_ports, median};
 
 /// Sends one scan layer; returns points/s from the first send to the last report, and the
 /// delays from each report to its findings (ms), when findings come.
@@ -117,30 +115,24 @@ fn main() {
     }
     std::fs::write(&stl, text + "endsolid wall\n").unwrap();
     let base = format!("asbuilt-bench-findings/{}", std::process::id());
+    let setup = AgentSetup {
+        dir: dir.path(),
+        design: &stl,
+        max_distance: 0.03,
+    };
     let start_agent = |name: &str, extra: &str| {
         let prefix = format!("{base}-{name}");
-        let config = dir.path().join(format!("{name}.toml"));
-        std::fs::write(
-            &config,
-            format!(
-                "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-                 max_distance = 0.03\n[services]\nprefix = \"{prefix}\"\n{extra}",
-                stl.display().to_string()
-            ),
-        )
-        .unwrap();
-        let agent = AgentProcess::start(&config, None);
-        (agent, prefix)
+        (setup.start(name, &prefix, extra, false), prefix)
     };
     let (_off_agent, off_prefix) = start_agent("off", "");
     let (_on_agent, on_prefix) =
         start_agent("on", "[findings]\nenabled = true\nlayer_height = 0.02\n");
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
-    let open = |p: &str| {
-        CellPorts::open(&node, &ServiceNames::new(p), CHUNK, Duration::from_secs(60)).unwrap()
-    };
-    let (off, on) = (open(&off_prefix), open(&on_prefix));
+    let (off, on) = (
+        cell_ports(&node, &off_prefix),
+        cell_ports(&node, &on_prefix),
+    );
     let h = part.layer_span(23).1;
     // Warm-up: page in the pools, build the cut and the findings state.
     scan_layer(&off, 0, h, &stations, false);

@@ -23,7 +23,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_agent::ipc::{CellPorts, Ipc};
 use asbuilt_core::{Design, Units};
 use asbuilt_protocol::{
     ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationReport,
@@ -31,13 +31,12 @@ use asbuilt_protocol::{
 };
 use iceoryx2::prelude::*;
 
-const CHUNK: usize = 65_536;
 const STATION_POINTS: usize = 4 << 20;
 
 #[path = "../../core/benches/support/points.rs"]
 mod points;
 mod support;
-use support::{AgentProcess, median};
+use support::{AgentProcess, AgentSetup, CHUNK, cell_ports, median};
 
 fn surface_points(design: &Design, n: usize) -> Vec<ScanPoint> {
     points::noisy_surface_points(design, n)
@@ -103,39 +102,27 @@ fn start_agents(
     rec_prefix: &str,
     fox_prefix: &str,
 ) -> (AgentProcess, AgentProcess, AgentProcess) {
-    let config = dir.join("agent.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-             max_distance = 0.005\n[services]\nprefix = \"{prefix}\"\n[status]\nperiod_s = 1.0\n",
-            mesh.display().to_string()
+    let setup = AgentSetup {
+        dir,
+        design: mesh,
+        max_distance: 0.005,
+    };
+    let status = "[status]\nperiod_s = 1.0\n";
+    (
+        setup.start("agent", prefix, status, false),
+        setup.start(
+            "agent-rec",
+            rec_prefix,
+            &format!("{status}[recorder]\ndir = \"recordings\"\n"),
+            true,
+        ),
+        setup.start(
+            "agent-fox",
+            fox_prefix,
+            &format!("{status}[recorder]\ndir = \"recordings-fox\"\nfoxglove = true\n"),
+            true,
         ),
     )
-    .unwrap();
-    let agent = AgentProcess::start(&config, None);
-    // The same agent with the recorder on, on its own prefix.
-    let rec_config = dir.join("agent-rec.toml");
-    std::fs::write(
-        &rec_config,
-        std::fs::read_to_string(&config)
-            .unwrap()
-            .replace(prefix, rec_prefix)
-            + "[recorder]\ndir = \"recordings\"\n",
-    )
-    .unwrap();
-    let rec_agent = AgentProcess::start(&rec_config, Some(&dir.join("agent-rec.log")));
-    let fox_config = dir.join("agent-fox.toml");
-    std::fs::write(
-        &fox_config,
-        std::fs::read_to_string(&config)
-            .unwrap()
-            .replace(prefix, fox_prefix)
-            + "[recorder]\ndir = \"recordings-fox\"\nfoxglove = true\n",
-    )
-    .unwrap();
-    let fox_agent = AgentProcess::start(&fox_config, Some(&dir.join("agent-fox.log")));
-    (agent, rec_agent, fox_agent)
 }
 
 /// The files a recording agent left in `dir`: how many, their bytes, and the scan and
@@ -179,28 +166,9 @@ fn main() {
         start_agents(dir.path(), &mesh, &prefix, &rec_prefix, &fox_prefix);
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
-    let cell = CellPorts::open(
-        &node,
-        &ServiceNames::new(&prefix),
-        CHUNK,
-        Duration::from_secs(60),
-    )
-    .unwrap();
-
-    let rec_cell = CellPorts::open(
-        &node,
-        &ServiceNames::new(&rec_prefix),
-        CHUNK,
-        Duration::from_secs(60),
-    )
-    .unwrap();
-    let fox_cell = CellPorts::open(
-        &node,
-        &ServiceNames::new(&fox_prefix),
-        CHUNK,
-        Duration::from_secs(60),
-    )
-    .unwrap();
+    let cell = cell_ports(&node, &prefix);
+    let rec_cell = cell_ports(&node, &rec_prefix);
+    let fox_cell = cell_ports(&node, &fox_prefix);
     let mut next = 0u32;
     let mut run_on = |cell: &CellPorts, rate: Option<f64>| {
         let (start, last, done, r) = station(cell, next, &points, rate);

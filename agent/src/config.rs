@@ -525,44 +525,35 @@ pub fn recorded_settings(text: &str) -> Result<(FrameChain, InspectConfig), Vec<
 /// The `[limits]` of a recorded configuration (the defaults where it has none), so that a reader
 /// of the recording assembles its stations as the agent did.
 pub fn recorded_limits(text: &str) -> Result<Limits, Vec<String>> {
-    let table: toml::Table =
-        toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
-    let mut problems = Vec::new();
-    let limits: Limits = section(&table, "limits", &mut problems, true).unwrap_or_default();
-    check_limits(&limits, &mut problems);
-    if problems.is_empty() {
-        Ok(limits)
-    } else {
-        Err(problems)
-    }
+    recorded_section(text, "limits", check_limits)
 }
 
 /// The `[findings]` of a recorded configuration (off where it has none), so that a reader of
 /// the recording draws the findings the agent drew.
 pub fn recorded_findings(text: &str) -> Result<FindingsConfig, Vec<String>> {
-    let table: toml::Table =
-        toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
-    let mut problems = Vec::new();
-    let findings: FindingsConfig =
-        section(&table, "findings", &mut problems, true).unwrap_or_default();
-    check_findings(&findings, &mut problems);
-    if problems.is_empty() {
-        Ok(findings)
-    } else {
-        Err(problems)
-    }
+    recorded_section(text, "findings", check_findings)
 }
 
 /// The `[tolerances]` of a recorded configuration (the job's tolerance for every kind where it
 /// has none), so that a reader of the recording judges the findings by the crew's limits.
 pub fn recorded_tolerances(text: &str) -> Result<TolerancesConfig, Vec<String>> {
+    recorded_section(text, "tolerances", |_, _| {})
+}
+
+/// One section of a recorded configuration, its defaults where the configuration has none,
+/// checked as the agent checked it at start.
+fn recorded_section<T: DeserializeOwned + Default>(
+    text: &str,
+    name: &str,
+    check: impl Fn(&T, &mut Vec<String>),
+) -> Result<T, Vec<String>> {
     let table: toml::Table =
         toml::from_str(text).map_err(|e| vec![format!("not valid TOML: {e}")])?;
     let mut problems = Vec::new();
-    let t: TolerancesConfig =
-        section(&table, "tolerances", &mut problems, true).unwrap_or_default();
+    let value: T = section(&table, name, &mut problems, true).unwrap_or_default();
+    check(&value, &mut problems);
     if problems.is_empty() {
-        Ok(t)
+        Ok(value)
     } else {
         Err(problems)
     }

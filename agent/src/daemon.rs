@@ -774,13 +774,16 @@ impl StatusReporter {
 }
 
 fn log_health(s: &AgentStatus) {
-    let i = s.input;
+    let reasons: Vec<String> = s
+        .input
+        .by_reason()
+        .iter()
+        .map(|(reason, n)| format!("{reason} {n}"))
+        .collect();
     info!(
         "health: {:.2} M points/s, {} points, {} chunks, {} stations open, {} chunks waiting for \
-         a pose, {} reported; rejected points {}; rejected inputs {} (unknown station {}, after \
-         close {}, overflow {}, duplicate {}, out of order {}, empty {}, oversized {}, malformed \
-         {}, version {}, bad poses {}, bad events {}); outputs missed by slow subscribers {} \
-         deviation chunks, {} reports",
+         a pose, {} reported; rejected points {}; rejected inputs {} ({}); outputs missed by slow \
+         subscribers {} deviation chunks, {} reports",
         s.points_per_second / 1e6,
         s.points_processed,
         s.chunks_processed,
@@ -788,18 +791,8 @@ fn log_health(s: &AgentStatus) {
         s.chunks_waiting,
         s.stations_reported,
         s.rejected_points.total(),
-        i.total(),
-        i.chunks_unknown_station,
-        i.chunks_after_close,
-        i.chunks_pending_overflow,
-        i.chunks_duplicate,
-        i.chunks_out_of_order,
-        i.chunks_empty,
-        i.chunks_oversized,
-        i.chunks_malformed,
-        i.version_mismatch,
-        i.poses_invalid,
-        i.events_invalid,
+        s.input.total(),
+        reasons.join(", "),
         s.output.deviation_chunks + s.output.deviation_chunks_unloaned,
         s.output.reports
     );

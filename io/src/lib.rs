@@ -17,4 +17,6 @@ pub mod scan;
 pub use deviations::DeviationsPly;
 pub use error::IoError;
 pub use mesh::{MeshFormat, ply_scalar, read_design, read_design_bytes};
-pub use scan::{DEFAULT_CHUNK, Format, PoseSource, ReadNotes, ScanFile, ScanInfo, read_cloud};
+pub use scan::{
+    DEFAULT_CHUNK, Format, PoseSource, ReadNotes, ScanFile, ScanInfo, Sink, read_cloud,
+};

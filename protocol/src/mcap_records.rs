@@ -171,7 +171,7 @@ struct Fields<'a> {
     rest: &'a [u8],
 }
 
-impl Fields<'_> {
+impl<'a> Fields<'a> {
     fn fail(&self, what: String) -> Damaged {
         Damaged {
             record: self.record,
@@ -179,35 +179,38 @@ impl Fields<'_> {
         }
     }
 
-    fn skip(&mut self, n: u64, field: &str) -> Result<(), Damaged> {
+    /// The next `n` bytes, which must all be there.
+    fn claim(&mut self, n: u64, field: &str) -> Result<&'a [u8], Damaged> {
         if n > self.rest.len() as u64 {
             return Err(self.fail(format!(
                 "{field} claims {n} bytes where {} are left",
                 self.rest.len()
             )));
         }
-        self.rest = &self.rest[n as usize..];
-        Ok(())
+        let (claimed, rest) = self.rest.split_at(n as usize);
+        self.rest = rest;
+        Ok(claimed)
+    }
+
+    fn skip(&mut self, n: u64, field: &str) -> Result<(), Damaged> {
+        self.claim(n, field).map(|_| ())
+    }
+
+    fn le_bytes<const N: usize>(&mut self, field: &str) -> Result<[u8; N], Damaged> {
+        let (b, rest) = self
+            .rest
+            .split_first_chunk::<N>()
+            .ok_or_else(|| self.fail(format!("{field} cut off")))?;
+        self.rest = rest;
+        Ok(*b)
     }
 
     fn u32(&mut self, field: &str) -> Result<u64, Damaged> {
-        let b = self
-            .rest
-            .get(..4)
-            .ok_or_else(|| self.fail(format!("{field} cut off")))?;
-        let v = u32::from_le_bytes(b.try_into().expect("4 bytes"));
-        self.rest = &self.rest[4..];
-        Ok(v.into())
+        self.le_bytes(field).map(|b| u32::from_le_bytes(b).into())
     }
 
     fn u64(&mut self, field: &str) -> Result<u64, Damaged> {
-        let b = self
-            .rest
-            .get(..8)
-            .ok_or_else(|| self.fail(format!("{field} cut off")))?;
-        let v = u64::from_le_bytes(b.try_into().expect("8 bytes"));
-        self.rest = &self.rest[8..];
-        Ok(v)
+        self.le_bytes(field).map(u64::from_le_bytes)
     }
 
     /// A string or byte array behind a 32-bit length.
@@ -220,22 +223,14 @@ impl Fields<'_> {
     /// (mcap reads whole entries while it has not reached the length).
     fn string_map(&mut self, field: &str) -> Result<(), Damaged> {
         let n = self.u32(field)?;
-        if n > self.rest.len() as u64 {
-            return Err(self.fail(format!(
-                "{field} claims {n} bytes where {} are left",
-                self.rest.len()
-            )));
-        }
-        let (inside, after) = self.rest.split_at(n as usize);
         let mut m = Fields {
             record: self.record,
-            rest: inside,
+            rest: self.claim(n, field)?,
         };
         while !m.rest.is_empty() {
             m.bytes32(field)?;
             m.bytes32(field)?;
         }
-        self.rest = after;
         Ok(())
     }
 

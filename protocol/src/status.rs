@@ -44,19 +44,26 @@ pub struct InputRejects {
 }
 
 impl InputRejects {
+    /// Every count with a short name for it, as the agent's health line gives them.
+    pub fn by_reason(&self) -> [(&'static str, u64); 11] {
+        [
+            ("unknown station", self.chunks_unknown_station),
+            ("after close", self.chunks_after_close),
+            ("overflow", self.chunks_pending_overflow),
+            ("duplicate", self.chunks_duplicate),
+            ("out of order", self.chunks_out_of_order),
+            ("empty", self.chunks_empty),
+            ("oversized", self.chunks_oversized),
+            ("malformed", self.chunks_malformed),
+            ("version", self.version_mismatch),
+            ("bad poses", self.poses_invalid),
+            ("bad events", self.events_invalid),
+        ]
+    }
+
     /// Every rejected input, whatever the reason.
     pub fn total(&self) -> u64 {
-        self.chunks_unknown_station
-            + self.chunks_after_close
-            + self.chunks_pending_overflow
-            + self.chunks_empty
-            + self.chunks_oversized
-            + self.chunks_duplicate
-            + self.chunks_out_of_order
-            + self.chunks_malformed
-            + self.version_mismatch
-            + self.poses_invalid
-            + self.events_invalid
+        self.by_reason().iter().map(|(_, n)| n).sum()
     }
 }
 

@@ -183,3 +183,30 @@ fn foreign_text_bytes_never_panic() {
     }
     assert_eq!(t.as_str(), "abc\0\0\0\0\0");
 }
+
+/// Every reason an input is rejected is named once, so the health line and the total miss none.
+#[test]
+fn every_input_reject_is_named_once_and_counted_in_the_total() {
+    let i = InputRejects {
+        chunks_unknown_station: 1,
+        chunks_after_close: 1 << 1,
+        chunks_pending_overflow: 1 << 2,
+        chunks_empty: 1 << 3,
+        chunks_oversized: 1 << 4,
+        chunks_duplicate: 1 << 5,
+        chunks_out_of_order: 1 << 6,
+        chunks_malformed: 1 << 7,
+        version_mismatch: 1 << 8,
+        poses_invalid: 1 << 9,
+        events_invalid: 1 << 10,
+    };
+    let reasons = i.by_reason();
+    let mut bits: Vec<u64> = reasons.iter().map(|(_, n)| *n).collect();
+    bits.sort_unstable();
+    assert_eq!(bits, (0..11).map(|k| 1u64 << k).collect::<Vec<_>>());
+    let mut names: Vec<&str> = reasons.iter().map(|(r, _)| *r).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), 11);
+    assert_eq!(i.total(), (1 << 11) - 1);
+}

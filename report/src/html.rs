@@ -129,16 +129,20 @@ pub fn page(r: &Report, source: &str) -> String {
         }
     }
     body.push_str(&stations(r));
-    let warnings: String = r
-        .warnings
-        .iter()
-        .map(|w| format!("<li>{}</li>", esc(w)))
-        .collect();
+    let warnings = items(&r.warnings);
     format!(
         "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"/>\
          <title>asbuilt report</title><style>{STYLE}</style></head><body>{body}\
          <h2>Warnings</h2><ul>{warnings}</ul></body></html>\n"
     )
+}
+
+/// The `<li>` items of a list of texts, escaped.
+fn items(texts: &[String]) -> String {
+    texts
+        .iter()
+        .map(|t| format!("<li>{}</li>", esc(t)))
+        .collect()
 }
 
 fn badge(verdict: &str) -> String {
@@ -149,11 +153,7 @@ fn badge(verdict: &str) -> String {
 }
 
 fn summary(a: &Assessment) -> String {
-    let lines: String = a
-        .summary
-        .iter()
-        .map(|l| format!("<li>{}</li>", esc(l)))
-        .collect();
+    let lines = items(&a.summary);
     format!(
         "<section class=\"summary\" id=\"summary\"><h2>Summary {}</h2><ul>{lines}</ul>\
          <p>Limits: width ±{:.1} mm, top height ±{:.1} mm, position {:.1} mm, surface ±{:.1} mm, \
@@ -242,11 +242,7 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
         );
     }
     if !s.resolved.is_empty() {
-        let list: String = s
-            .resolved
-            .iter()
-            .map(|t| format!("<li>{}</li>", esc(t)))
-            .collect();
+        let list = items(&s.resolved);
         let _ = write!(
             out,
             "<details><summary>{} resolved since the last scan</summary><ul>{list}</ul></details>",

@@ -830,15 +830,10 @@ fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Stat
         };
     let file = stations::StationsFile {
         station: vec![stations::StationEntry {
-            id: scan
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "scan".into()),
-            scan: scan.to_path_buf(),
-            scan_index: None,
             translation,
             rotation_xyzw,
             position_sigma: Some(DEFAULT_POSITION_SIGMA),
+            ..stations::StationEntry::of_file(scan)
         }],
     };
     stations::resolve(file, std::path::Path::new("."), "--scan")

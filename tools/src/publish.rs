@@ -132,14 +132,18 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     while reports.len() < expected.len() && Instant::now() < deadline {
         collect_reports(&ports, args.job, &mut reports, Duration::from_millis(100))?;
     }
-    let elapsed = started.elapsed().as_secs_f64();
-    eprintln!(
-        "sent {sent_points} points in {elapsed:.2} s ({:.2} M points/s); {} of {} reports back",
-        sent_points as f64 / elapsed / 1e6,
-        reports.len(),
-        expected.len()
-    );
+    tell_rate("sent", sent_points, started, reports.len(), expected.len());
     Ok(reports_verdict(expected.len(), &reports, args.wait))
+}
+
+/// Prints how many points went out how fast, and how many stations have reported. Shared with
+/// `replay`.
+pub(crate) fn tell_rate(verb: &str, points: u64, started: Instant, back: usize, of: usize) {
+    let secs = started.elapsed().as_secs_f64();
+    eprintln!(
+        "{verb} {points} points in {secs:.2} s ({:.2} M points/s); {back} of {of} reports back",
+        points as f64 / secs / 1e6,
+    );
 }
 
 /// Exit code 1, with what went wrong, when a station got no report within `wait` seconds or

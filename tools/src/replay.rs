@@ -98,13 +98,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
             collect_reports(&ports, job, &mut reports, Duration::from_millis(50))?;
         }
     }
-    let secs = started.elapsed().as_secs_f64();
-    eprintln!(
-        "replayed {points} points in {secs:.2} s ({:.2} M points/s); {} of {} reports back",
-        points as f64 / secs / 1e6,
-        reports.len(),
-        stations.len()
-    );
+    crate::publish::tell_rate("replayed", points, started, reports.len(), stations.len());
     if let Some(dir) = &args.out {
         write_reports(dir, &mut reports)?;
     }

@@ -33,6 +33,23 @@ pub struct StationEntry {
     pub position_sigma: Option<f64>,
 }
 
+impl StationEntry {
+    /// A station of every scan in `scan`, named after the file, with the poses the file holds.
+    pub fn of_file(scan: &Path) -> Self {
+        Self {
+            id: scan
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "scan".into()),
+            scan: scan.to_path_buf(),
+            scan_index: None,
+            translation: None,
+            rotation_xyzw: None,
+            position_sigma: None,
+        }
+    }
+}
+
 /// A station ready to inspect.
 #[derive(Debug, Clone)]
 pub struct Station {
@@ -223,20 +240,7 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
 /// Stations from scan files that hold their poses: every scan of every file, in order.
 pub fn from_files(files: &[PathBuf]) -> Result<Vec<Station>> {
     let file = StationsFile {
-        station: files
-            .iter()
-            .map(|f| StationEntry {
-                id: f
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| "scan".into()),
-                scan: f.clone(),
-                scan_index: None,
-                translation: None,
-                rotation_xyzw: None,
-                position_sigma: None,
-            })
-            .collect(),
+        station: files.iter().map(|f| StationEntry::of_file(f)).collect(),
     };
     resolve(file, Path::new("."), "scan files")
 }

@@ -8,7 +8,7 @@ use asbuilt_protocol::{ScanPoint, ScanPointFlags};
 use e57::{CartesianCoordinate, E57Reader};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
-use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
+use super::{Batcher, PoseSource, ReadNotes, ScanInfo, Sink};
 
 fn open(path: &Path) -> Result<E57Reader<std::io::BufReader<std::fs::File>>> {
     E57Reader::from_file(path).map_err(|e| {
@@ -67,12 +67,7 @@ pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
         .collect())
 }
 
-pub fn stream(
-    path: &Path,
-    info: &ScanInfo,
-    chunk: usize,
-    sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
-) -> Result<ReadNotes> {
+pub fn stream(path: &Path, info: &ScanInfo, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
     let mut reader = open(path)?;
     let pc = reader
         .pointclouds()

@@ -7,7 +7,7 @@ use anyhow::Result;
 use asbuilt_protocol::ScanPoint;
 use nalgebra::{Isometry3, Vector3};
 
-use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
+use super::{Batcher, PoseSource, ReadNotes, ScanInfo, Sink};
 
 /// The reader, after the checks on the raw header that the `las` and `laz` crates do not make,
 /// and the file's size.
@@ -205,12 +205,7 @@ pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
     }])
 }
 
-pub fn stream(
-    path: &Path,
-    _info: &ScanInfo,
-    chunk: usize,
-    sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
-) -> Result<ReadNotes> {
+pub fn stream(path: &Path, _info: &ScanInfo, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
     let (mut reader, size) = open(path)?;
     let o = origin(reader.header());
     let mut data = las::PointDataBuilder::new()

@@ -141,6 +141,9 @@ fn naming(path: &Path, cause: anyhow::Error) -> IoError {
     }
 }
 
+/// Where a reader hands each chunk of points; an error it returns ends the read.
+pub type Sink<'s> = dyn FnMut(&[ScanPoint]) -> Result<()> + 's;
+
 /// The chunk size used when a caller has no reason to pick another.
 pub const DEFAULT_CHUNK: usize = 1 << 16;
 
@@ -175,7 +178,7 @@ impl ScanFile {
         &self,
         index: usize,
         chunk: usize,
-        sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
+        sink: &mut Sink,
     ) -> Result<ReadNotes, IoError> {
         let chunk = chunk.max(1);
         let Some(info) = self.scans.get(index) else {
@@ -206,7 +209,7 @@ impl ScanFile {
         index: usize,
         chunk: usize,
         ahead: usize,
-        sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
+        sink: &mut Sink,
     ) -> Result<ReadNotes, IoError> {
         let (full_tx, full_rx) = std::sync::mpsc::sync_channel::<Vec<ScanPoint>>(ahead);
         // Chunks the sink is done with go back to the reader, so no chunk is allocated twice.
@@ -307,11 +310,11 @@ fn stem(path: &Path) -> String {
 struct Batcher<'a> {
     buf: Vec<ScanPoint>,
     chunk: usize,
-    sink: &'a mut dyn FnMut(&[ScanPoint]) -> Result<()>,
+    sink: &'a mut Sink<'a>,
 }
 
 impl<'a> Batcher<'a> {
-    fn new(chunk: usize, sink: &'a mut dyn FnMut(&[ScanPoint]) -> Result<()>) -> Self {
+    fn new(chunk: usize, sink: &'a mut Sink<'a>) -> Self {
         Self {
             buf: Vec::with_capacity(chunk),
             chunk,

@@ -9,7 +9,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ScanPoint;
 
-use super::{Batcher, ReadNotes, ScanInfo};
+use super::{Batcher, ReadNotes, ScanInfo, Sink};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Encoding {
@@ -97,6 +97,16 @@ struct Header {
     lines: u64,
 }
 
+impl Header {
+    /// Where the points are: the `vertex` element, which need not come first.
+    fn vertex_element(&self, path: &Path) -> Result<usize> {
+        self.elements
+            .iter()
+            .position(|e| e.name == "vertex")
+            .with_context(|| format!("{} has no `vertex` element", path.display()))
+    }
+}
+
 fn header(reader: &mut impl BufRead, path: &Path) -> Result<Header> {
     let mut line = String::new();
     let mut lines = 0u64;
@@ -179,11 +189,7 @@ fn header(reader: &mut impl BufRead, path: &Path) -> Result<Header> {
 pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
     let mut reader = BufReader::new(File::open(path)?);
     let h = header(&mut reader, path)?;
-    let vertex = h
-        .elements
-        .iter()
-        .find(|e| e.name == "vertex")
-        .with_context(|| format!("{} has no `vertex` element", path.display()))?;
+    let vertex = &h.elements[h.vertex_element(path)?];
     Ok(vec![ScanInfo {
         index: 0,
         name: super::stem(path),
@@ -220,18 +226,10 @@ fn binary_record(
     Ok(())
 }
 
-pub fn stream(
-    path: &Path,
-    chunk: usize,
-    sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
-) -> Result<ReadNotes> {
+pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
     let mut reader = BufReader::with_capacity(1 << 20, File::open(path)?);
     let h = header(&mut reader, path)?;
-    let vi = h
-        .elements
-        .iter()
-        .position(|e| e.name == "vertex")
-        .with_context(|| format!("{} has no `vertex` element", path.display()))?;
+    let vi = h.vertex_element(path)?;
     let vertex = &h.elements[vi];
     let find = |names: &[&str]| {
         vertex

@@ -11,7 +11,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_protocol::{ScanPoint, ScanPointFlags};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use super::{Batcher, PoseSource, ReadNotes, ScanInfo};
+use super::{Batcher, PoseSource, ReadNotes, ScanInfo, Sink};
 
 /// A PTX scan header.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -174,12 +174,7 @@ pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
     Ok(out)
 }
 
-pub fn stream(
-    path: &Path,
-    info: &ScanInfo,
-    chunk: usize,
-    sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
-) -> Result<ReadNotes> {
+pub fn stream(path: &Path, info: &ScanInfo, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
     let mut file = File::open(path)?;
     file.seek(SeekFrom::Start(info.offset))?;
     let mut reader = BufReader::with_capacity(1 << 20, file);

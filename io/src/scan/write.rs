@@ -11,7 +11,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ScanPoint;
 use nalgebra::{Isometry3, Point3};
 
-use super::Format;
+use super::{Format, Sink};
 use crate::ply::{PlyWriter, Property, Scalar};
 
 /// A scan to write: its name, pose (`p_file = pose · p_scan`) and point count.
@@ -26,7 +26,7 @@ pub struct OutScan {
 }
 
 /// Calls its argument with every chunk of the scan.
-pub type Feed<'f> = &'f mut dyn FnMut(&mut dyn FnMut(&[ScanPoint]) -> Result<()>) -> Result<()>;
+pub type Feed<'f> = &'f mut dyn FnMut(&mut Sink) -> Result<()>;
 
 /// A scan file being written, scan after scan.
 pub trait CloudWriter {

@@ -10,7 +10,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ScanPoint;
 
-use super::{Batcher, ReadNotes, ScanInfo};
+use super::{Batcher, ReadNotes, ScanInfo, Sink};
 
 pub fn scans(path: &Path) -> Vec<ScanInfo> {
     vec![ScanInfo {
@@ -23,11 +23,7 @@ pub fn scans(path: &Path) -> Vec<ScanInfo> {
     }]
 }
 
-pub fn stream(
-    path: &Path,
-    chunk: usize,
-    sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
-) -> Result<ReadNotes> {
+pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
     let file = File::open(path).with_context(|| format!("cannot open scan {}", path.display()))?;
     parse(BufReader::with_capacity(1 << 20, file), path, chunk, sink)
 }
@@ -36,7 +32,7 @@ pub(super) fn parse(
     reader: impl BufRead,
     path: &Path,
     chunk: usize,
-    sink: &mut dyn FnMut(&[ScanPoint]) -> Result<()>,
+    sink: &mut Sink,
 ) -> Result<ReadNotes> {
     let mut notes = ReadNotes::default();
     let mut out = Batcher::new(chunk, sink);

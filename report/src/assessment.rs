@@ -611,8 +611,9 @@ fn scan_layer(
 /// design, warns and points to the findings.
 fn station(s: &Section, limits: &Limits) -> StationVerdict {
     let limit = limits.surface;
-    let (verdict, reason) = match (s.median_abs, s.p95_abs) {
-        _ if s.matched == 0 => (Verdict::Fail, "no point matched the design".to_string()),
+    let d = &s.distances;
+    let (verdict, reason) = match (d.median_abs, d.p95_abs) {
+        _ if d.matched == 0 => (Verdict::Fail, "no point matched the design".to_string()),
         (Some(m), _) if m > limit => (
             Verdict::Fail,
             format!(
@@ -627,18 +628,18 @@ fn station(s: &Section, limits: &Limits) -> StationVerdict {
                 p * 1e3
             ),
         ),
-        _ if (s.no_match as f64) > NO_MATCH_WARN * s.points as f64 => (
+        _ if (d.no_match as f64) > NO_MATCH_WARN * s.points as f64 => (
             Verdict::Warn,
             format!(
                 "{:.1} % of its points found no design within the maximum distance",
-                100.0 * s.no_match as f64 / s.points.max(1) as f64
+                100.0 * d.no_match as f64 / s.points.max(1) as f64
             ),
         ),
         _ => (
             Verdict::Pass,
             format!(
                 "95 % of its points within {:.1} mm",
-                s.p95_abs.unwrap_or(0.0) * 1e3
+                d.p95_abs.unwrap_or(0.0) * 1e3
             ),
         ),
     };

@@ -17,11 +17,6 @@ pub(crate) fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-fn mm(v: Option<f64>) -> String {
-    v.map(|v| format!("{:.3}", v * 1e3))
-        .unwrap_or_else(|| "–".into())
-}
-
 /// A bar per histogram bin, tolerance lines at ±tolerance.
 fn histogram(s: &Section, tolerance: f64) -> String {
     let h = &s.histogram;
@@ -350,6 +345,7 @@ fn stations(r: &Report) -> String {
         .enumerate()
     {
         let v = verdict_of(i);
+        let [mean, std, median, p95] = s.distances.mm_columns("–");
         let _ = write!(
             rows,
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
@@ -358,12 +354,13 @@ fn stations(r: &Report) -> String {
             esc(&s.id),
             s.points,
             s.rejected,
-            s.no_match,
-            mm(s.mean),
-            mm(s.std),
-            mm(s.median_abs),
-            mm(s.p95_abs),
-            s.in_tolerance_percent()
+            s.distances.no_match,
+            mean,
+            std,
+            median,
+            p95,
+            s.distances
+                .in_tolerance_percent()
                 .map_or("–".into(), |p| format!("{p:.1}")),
             v.map_or("", |v| v.verdict),
             v.map_or_else(String::new, |v| v.verdict.to_uppercase()),

@@ -1,6 +1,6 @@
 //! `report.json` and the summary table.
 
-use asbuilt_protocol::{Histogram, RejectCounts, StationReport};
+use asbuilt_protocol::{DeviationStats, Histogram, RejectCounts, StationReport};
 use serde::Serialize;
 
 use crate::suite::{BandMethods, SuiteSection, TwoCloudSection};
@@ -110,26 +110,9 @@ pub struct Section {
     pub rejected: u64,
     /// Points rejected, by reason.
     pub rejected_by_reason: RejectSection,
-    /// Valid points farther than the maximum distance.
-    pub no_match: u64,
-    /// Valid points with a distance.
-    pub matched: u64,
-    /// Mean signed distance.
-    pub mean: Option<f64>,
-    /// Standard deviation of the signed distances.
-    pub std: Option<f64>,
-    /// Root mean square of the signed distances.
-    pub rms: Option<f64>,
-    /// Smallest signed distance.
-    pub min: Option<f64>,
-    /// Largest signed distance.
-    pub max: Option<f64>,
-    /// Median |d| (histogram estimate).
-    pub median_abs: Option<f64>,
-    /// 95th percentile of |d| (histogram estimate).
-    pub p95_abs: Option<f64>,
-    /// Matched points with |d| within the tolerance.
-    pub within_tolerance: u64,
+    /// The signed distances (C2M) of its valid points.
+    #[serde(flatten)]
+    pub distances: DistanceSection,
     /// Matched points beyond +tolerance (excess material).
     pub above_tolerance: u64,
     /// Matched points beyond −tolerance (missing material).
@@ -139,6 +122,66 @@ pub struct Section {
     /// What the other methods (C2C, coverage, M3C2) found for it.
     #[serde(flatten)]
     pub suite: SuiteSection,
+}
+
+/// The distance statistics of one method, signed (C2M) or unsigned (C2C). Metres; `None`
+/// where no point matched.
+#[derive(Debug, Serialize)]
+pub struct DistanceSection {
+    /// Points with a distance.
+    pub matched: u64,
+    /// Points with none within the maximum distance.
+    pub no_match: u64,
+    /// Mean distance.
+    pub mean: Option<f64>,
+    /// Standard deviation.
+    pub std: Option<f64>,
+    /// Root mean square.
+    pub rms: Option<f64>,
+    /// Smallest distance.
+    pub min: Option<f64>,
+    /// Largest distance.
+    pub max: Option<f64>,
+    /// Median |d| (histogram estimate).
+    pub median_abs: Option<f64>,
+    /// 95th percentile of |d| (histogram estimate).
+    pub p95_abs: Option<f64>,
+    /// Points with |d| within the tolerance.
+    pub within_tolerance: u64,
+}
+
+impl DistanceSection {
+    /// From the statistics of the matched points, and the count of those without a match.
+    pub fn new(s: &DeviationStats, no_match: u64) -> Self {
+        Self {
+            matched: s.count,
+            no_match,
+            mean: finite(s.mean),
+            std: finite(s.std),
+            rms: finite(s.rms),
+            min: finite(s.min),
+            max: finite(s.max),
+            median_abs: finite(s.median_abs),
+            p95_abs: finite(s.p95_abs),
+            within_tolerance: s.within,
+        }
+    }
+
+    /// Matched points within the tolerance, per cent; `None` when nothing matched.
+    pub fn in_tolerance_percent(&self) -> Option<f64> {
+        (self.matched > 0).then(|| 100.0 * self.within_tolerance as f64 / self.matched as f64)
+    }
+
+    /// Mean, standard deviation, median |d| and 95 % |d| in millimetres, `none` where absent:
+    /// the columns of the station tables.
+    pub fn mm_columns(&self, none: &str) -> [String; 4] {
+        [self.mean, self.std, self.median_abs, self.p95_abs].map(|v| mm(v, none))
+    }
+}
+
+/// A distance in millimetres to the micrometre, `none` where there is none.
+pub fn mm(v: Option<f64>, none: &str) -> String {
+    v.map_or_else(|| none.to_string(), |v| format!("{:.3}", v * 1e3))
 }
 
 /// Rejected points by reason.
@@ -190,11 +233,6 @@ pub(crate) fn finite(v: f64) -> Option<f64> {
 }
 
 impl Section {
-    /// Matched points within the tolerance, per cent; `None` when nothing matched.
-    pub fn in_tolerance_percent(&self) -> Option<f64> {
-        (self.matched > 0).then(|| 100.0 * self.within_tolerance as f64 / self.matched as f64)
-    }
-
     /// A station's section from its report; `scan` and `malformed_lines` come from the file
     /// it was read from, offline.
     pub fn from_report(r: &StationReport, scan: Option<String>, malformed_lines: u64) -> Self {
@@ -216,16 +254,7 @@ impl Section {
                 in_rejected_chunks: rej.in_rejected_chunks,
                 malformed_lines,
             },
-            no_match: r.no_match,
-            matched: s.count,
-            mean: finite(s.mean),
-            std: finite(s.std),
-            rms: finite(s.rms),
-            min: finite(s.min),
-            max: finite(s.max),
-            median_abs: finite(s.median_abs),
-            p95_abs: finite(s.p95_abs),
-            within_tolerance: s.within,
+            distances: DistanceSection::new(s, r.no_match),
             above_tolerance: s.above,
             below_tolerance: s.below,
             histogram: HistogramSection {
@@ -238,11 +267,6 @@ impl Section {
             suite: SuiteSection::default(),
         }
     }
-}
-
-fn mm(v: Option<f64>) -> String {
-    v.map(|v| format!("{:.3}", v * 1e3))
-        .unwrap_or_else(|| "-".into())
 }
 
 /// The verdict and the summary the page opens with, as lines for a terminal; empty without an
@@ -284,25 +308,22 @@ pub fn summary_table(report: &Report) -> String {
             out.push_str(&"-".repeat(98));
             out.push('\n');
         }
-        let max_abs = match (s.min, s.max) {
+        let d = &s.distances;
+        let max_abs = match (d.min, d.max) {
             (Some(a), Some(b)) => Some(if a.abs() > b.abs() { a } else { b }),
             _ => None,
         };
-        let in_tol = s
+        let in_tol = d
             .in_tolerance_percent()
             .map_or("-".into(), |p| format!("{p:.1}"));
+        let [mean, std, median, p95] = d.mm_columns("-");
         out.push_str(&format!(
-            "{:<12} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>9} {:>9} {:>8}\n",
+            "{:<12} {:>9} {:>8} {:>8} {mean:>9} {std:>8} {median:>8} {p95:>9} {:>9} {in_tol:>8}\n",
             s.id,
             s.points,
             s.rejected,
-            s.no_match,
-            mm(s.mean),
-            mm(s.std),
-            mm(s.median_abs),
-            mm(s.p95_abs),
-            mm(max_abs),
-            in_tol
+            d.no_match,
+            mm(max_abs, "-"),
         ));
     }
     out

@@ -17,11 +17,12 @@ use asbuilt_core::sampling::DesignSamples;
 use asbuilt_core::scan_layer::{ScanLayer, ScanLayerParams, defaults};
 use asbuilt_core::stats::{DeviationAccumulator, StatsConfig};
 use asbuilt_core::{C2mIndex, Design};
-use asbuilt_protocol::{DeviationFlags, DeviationStats, PointDeviation};
+use asbuilt_protocol::{DeviationFlags, PointDeviation};
+
+use crate::sections::DistanceSection;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
-use crate::finite;
 use asbuilt_io::ply::{Property, Scalar, write_table};
 
 /// A comparison `--method` can ask for.
@@ -224,48 +225,6 @@ impl SuiteOptions {
             local_plane: self.local_plane,
             seed: defaults::SAMPLE_SEED,
         })
-    }
-}
-
-/// Unsigned or signed distance statistics of one method. Metres.
-#[derive(Debug, Serialize)]
-pub struct DistanceSection {
-    /// Points with a distance.
-    pub matched: u64,
-    /// Points with none within the maximum distance.
-    pub no_match: u64,
-    /// Mean distance.
-    pub mean: Option<f64>,
-    /// Standard deviation.
-    pub std: Option<f64>,
-    /// Root mean square.
-    pub rms: Option<f64>,
-    /// Smallest distance.
-    pub min: Option<f64>,
-    /// Largest distance.
-    pub max: Option<f64>,
-    /// Median |d| (histogram estimate).
-    pub median_abs: Option<f64>,
-    /// 95th percentile of |d| (histogram estimate).
-    pub p95_abs: Option<f64>,
-    /// Points with |d| within the tolerance.
-    pub within_tolerance: u64,
-}
-
-impl DistanceSection {
-    fn new(s: &DeviationStats, no_match: u64) -> Self {
-        Self {
-            matched: s.count,
-            no_match,
-            mean: finite(s.mean),
-            std: finite(s.std),
-            rms: finite(s.rms),
-            min: finite(s.min),
-            max: finite(s.max),
-            median_abs: finite(s.median_abs),
-            p95_abs: finite(s.p95_abs),
-            within_tolerance: s.within,
-        }
     }
 }
 

@@ -420,10 +420,7 @@ impl Job {
             "station {:<10} {:>8} points  median |d| {} mm  ({:.2} s)",
             station.id,
             section.points,
-            section
-                .median_abs
-                .map(|v| format!("{:.3}", v * 1e3))
-                .unwrap_or("-".into()),
+            asbuilt_report::mm(section.distances.median_abs, "-"),
             t0.elapsed().as_secs_f64()
         );
         let extra = method_line(&section.suite);
@@ -458,7 +455,7 @@ impl Job {
             self.total_malformed,
         );
         overall.suite = totals.section;
-        if overall.matched == 0 {
+        if overall.distances.matched == 0 {
             warnings.push(format!(
                 "no point matched the design within {} m: check the poses, --units and \
                  --max-distance",
@@ -797,7 +794,7 @@ fn write_report(
         );
         return Ok(ExitCode::from(1));
     }
-    if report.overall.matched == 0 {
+    if report.overall.distances.matched == 0 {
         eprintln!("error: {}", report.warnings.last().expect("pushed above"));
         return Ok(ExitCode::from(1));
     }
@@ -860,9 +857,7 @@ fn method_line(s: &suite::SuiteSection) -> String {
     if let Some(c) = &s.c2c {
         parts.push(format!(
             "C2C median {} mm",
-            c.median_abs
-                .map(|v| format!("{:.3}", v * 1e3))
-                .unwrap_or("-".into())
+            asbuilt_report::mm(c.median_abs, "-")
         ));
     }
     if let Some(c) = &s.coverage {

@@ -314,11 +314,7 @@ pub struct CellPorts {
     pub status: Subscriber<Ipc, AgentStatus, ()>,
     /// Wakes the cell when the agent sent something.
     pub outbox: Listener<Ipc>,
-    chunk_service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
-        Ipc,
-        [ScanPoint],
-        ChunkHeader,
-    >,
+    chunk_service: PubSub<[ScanPoint], ChunkHeader>,
 }
 
 /// How long a chunk publisher waits for a full agent queue before it reports the agent stuck.
@@ -410,6 +406,31 @@ fn control_publisher<T: std::fmt::Debug + ZeroCopySend>(
         .map_err(|e| err(format!("cannot publish on {name}"), e))
 }
 
+type PubSub<T, H> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, T, H>;
+
+/// The cell's subscriber on an output service of a running agent; `open` says what the service
+/// carries (iceoryx2 opens sized and slice payloads through different builders).
+fn output_subscriber<T, H>(
+    node: &Node<Ipc>,
+    name: &str,
+    open: impl FnOnce(
+        iceoryx2::service::builder::Builder<Ipc>,
+    ) -> Result<
+        PubSub<T, H>,
+        iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError,
+    >,
+) -> Result<Subscriber<Ipc, T, H>, IpcError>
+where
+    T: std::fmt::Debug + IceoryxSend + ?Sized,
+    H: std::fmt::Debug + ZeroCopySend,
+{
+    open(node.service_builder(&service_name(name)?))
+        .map_err(|e| err(name, e))?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| err(format!("cannot subscribe to {name}"), e))
+}
+
 impl CellPorts {
     /// Opens the services of a running agent, waiting up to `wait` for it to appear.
     /// `max_points_per_chunk` sizes this publisher's chunk samples.
@@ -480,32 +501,19 @@ impl CellPorts {
             .notifier_builder()
             .create()
             .map_err(|e| err("cannot notify the agent", e))?;
-        let deviations = node
-            .service_builder(&service_name(&names.deviations)?)
-            .publish_subscribe::<[PointDeviation]>()
-            .user_header::<DeviationHeader>()
-            .open()
-            .map_err(|e| err(&names.deviations, e))?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| err("cannot subscribe to deviations", e))?;
-        let reports = node
-            .service_builder(&service_name(&names.reports)?)
-            .publish_subscribe::<StationReport>()
-            .open()
-            .map_err(|e| err(&names.reports, e))?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| err("cannot subscribe to reports", e))?;
-        let findings = node
-            .service_builder(&service_name(&names.findings)?)
-            .publish_subscribe::<[u8]>()
-            .user_header::<FindingsHeader>()
-            .open()
-            .map_err(|e| err(&names.findings, e))?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| err("cannot subscribe to findings", e))?;
+        let deviations = output_subscriber(node, &names.deviations, |b| {
+            b.publish_subscribe::<[PointDeviation]>()
+                .user_header::<DeviationHeader>()
+                .open()
+        })?;
+        let reports = output_subscriber(node, &names.reports, |b| {
+            b.publish_subscribe::<StationReport>().open()
+        })?;
+        let findings = output_subscriber(node, &names.findings, |b| {
+            b.publish_subscribe::<[u8]>()
+                .user_header::<FindingsHeader>()
+                .open()
+        })?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()

@@ -5,7 +5,7 @@
 use std::fmt::Write;
 
 use crate::Assessment;
-use crate::html::esc;
+use crate::html::{Margins, esc};
 
 /// One line of a chart.
 struct Series {
@@ -14,15 +14,19 @@ struct Series {
     points: Vec<(f64, f64)>,
 }
 
+/// A chart's size, and the room around its plot for the axes and the legend, pixels.
 const W: f64 = 620.0;
 const H: f64 = 220.0;
-const L: f64 = 50.0;
-const B: f64 = 34.0;
-const T: f64 = 10.0;
-const R: f64 = 150.0;
+const MARGINS: Margins = Margins::new(50.0, 10.0, 150.0, 34.0);
 
 /// A line chart with dashed limits at ±`limit` (mm), `class` naming what it shows.
 fn chart(class: &str, series: &[Series], x_label: &str, y_label: &str, limit: f64) -> String {
+    let Margins {
+        left: l,
+        top: t,
+        right: r,
+        bottom: b,
+    } = MARGINS;
     let all = series.iter().flat_map(|s| s.points.iter());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, -limit, limit);
     for &(x, y) in all {
@@ -39,26 +43,26 @@ fn chart(class: &str, series: &[Series], x_label: &str, y_label: &str, limit: f6
     }
     let pad = 0.08 * (y1 - y0).max(1e-9);
     let (y0, y1) = (y0 - pad, y1 + pad);
-    let sx = |x: f64| L + (x - x0) / (x1 - x0) * (W - L - R);
-    let sy = |y: f64| T + (y1 - y) / (y1 - y0) * (H - T - B);
+    let sx = |x: f64| l + (x - x0) / (x1 - x0) * (W - l - r);
+    let sy = |y: f64| t + (y1 - y) / (y1 - y0) * (H - t - b);
     let mut svg = format!(
         "<svg class=\"chart {class}\" width=\"{W}\" height=\"{H}\" viewBox=\"0 0 {W} {H}\" \
-         role=\"img\" aria-label=\"{}\"><rect x=\"{L}\" y=\"{T}\" width=\"{}\" height=\"{}\" \
+         role=\"img\" aria-label=\"{}\"><rect x=\"{l}\" y=\"{t}\" width=\"{}\" height=\"{}\" \
          fill=\"none\" stroke=\"#bbb\"/>",
         esc(y_label),
-        W - L - R,
-        H - T - B
+        W - l - r,
+        H - t - b
     );
     for y in [-limit, 0.0, limit] {
         let _ = write!(
             svg,
-            "<line x1=\"{L}\" y1=\"{v:.1}\" x2=\"{:.1}\" y2=\"{v:.1}\" stroke=\"{}\" \
+            "<line x1=\"{l}\" y1=\"{v:.1}\" x2=\"{:.1}\" y2=\"{v:.1}\" stroke=\"{}\" \
              stroke-dasharray=\"{}\"/><text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" \
              text-anchor=\"end\">{y:+.1}</text>",
-            W - R,
+            W - r,
             if y == 0.0 { "#999" } else { "#c00" },
             if y == 0.0 { "1,0" } else { "4,3" },
-            L - 4.0,
+            l - 4.0,
             sy(y) + 3.5,
             v = sy(y)
         );
@@ -68,17 +72,17 @@ fn chart(class: &str, series: &[Series], x_label: &str, y_label: &str, limit: f6
             svg,
             "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{x}</text>",
             sx(x),
-            H - B + 14.0
+            H - b + 14.0
         );
     }
     let _ = write!(
         svg,
         "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{}</text>\
          <text x=\"4\" y=\"{:.1}\" font-size=\"10\">{}</text>",
-        0.5 * (L + W - R),
+        0.5 * (l + W - r),
         H - 4.0,
         esc(x_label),
-        T + 8.0,
+        t + 8.0,
         esc(y_label)
     );
     for (k, s) in series.iter().enumerate() {
@@ -104,21 +108,27 @@ fn chart(class: &str, series: &[Series], x_label: &str, y_label: &str, limit: f6
                 s.colour
             );
         }
-        let ly = T + 12.0 * k as f64 + 8.0;
-        let _ = write!(
-            svg,
-            "<line x1=\"{:.1}\" y1=\"{ly:.1}\" x2=\"{:.1}\" y2=\"{ly:.1}\" stroke=\"{c}\" \
-             stroke-width=\"2\"/><text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\">{}</text>",
-            W - R + 10.0,
-            W - R + 26.0,
-            W - R + 30.0,
-            ly + 3.5,
-            esc(&s.name),
-            c = s.colour
-        );
+        legend_entry(&mut svg, k, s);
     }
     svg.push_str("</svg>");
     svg
+}
+
+/// Series `k`'s line and name in the legend right of the plot.
+fn legend_entry(svg: &mut String, k: usize, s: &Series) {
+    let x = W - MARGINS.right;
+    let y = MARGINS.top + 12.0 * k as f64 + 8.0;
+    let _ = write!(
+        svg,
+        "<line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"{c}\" \
+         stroke-width=\"2\"/><text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\">{}</text>",
+        x + 10.0,
+        x + 26.0,
+        x + 30.0,
+        y + 3.5,
+        esc(&s.name),
+        c = s.colour
+    );
 }
 
 /// About five whole-number ticks over `a..=b`.

@@ -21,6 +21,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 use crate::Item;
+use crate::html::Margins;
 
 /// Pixels along the design's longest side.
 const LONGEST_SIDE_PX: f64 = 320.0;
@@ -28,11 +29,8 @@ const LONGEST_SIDE_PX: f64 = 320.0;
 const ZOOM: f64 = 2.0;
 /// A surface within this many pixels of the nearest one in a pixel is the same surface.
 const SLAB_PX: f64 = 2.0;
-/// Room around the raster for axes and labels, screen pixels.
-const LEFT: f64 = 56.0;
-const BOTTOM: f64 = 30.0;
-const TOP: f64 = 12.0;
-const RIGHT: f64 = 12.0;
+/// Room around the raster for axes and labels.
+const MARGINS: Margins = Margins::new(56.0, 12.0, 12.0, 30.0);
 
 /// Where a map looks from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -607,20 +605,24 @@ impl ScanLayerMaps {
         let scale = ZOOM / self.frame.pixel;
         let [u, v, _] = side.project(p);
         let top_v = r.v0 + r.h as f64 * self.frame.pixel;
-        (LEFT + (u - r.u0) * scale, TOP + (top_v - v) * scale)
+        (
+            MARGINS.left + (u - r.u0) * scale,
+            MARGINS.top + (top_v - v) * scale,
+        )
     }
 
     /// Width and height of `side`'s SVG, screen pixels.
     pub fn svg_size(&self, side: Side) -> (f64, f64) {
         let r = self.points.side(side);
         (
-            LEFT + r.w as f64 * ZOOM + RIGHT,
-            TOP + r.h as f64 * ZOOM + BOTTOM,
+            MARGINS.left + r.w as f64 * ZOOM + MARGINS.right,
+            MARGINS.top + r.h as f64 * ZOOM + MARGINS.bottom,
         )
     }
 
     /// The SVG of one side's map with `items`' call-outs; `None` when that map was not made.
     pub fn svg(&self, kind: MapKind, side: Side, items: &[Item]) -> Option<String> {
+        let Margins { left, top, .. } = MARGINS;
         let png = self.png(kind, side)?;
         let r = self.points.side(side);
         let (iw, ih) = (r.w as f64 * ZOOM, r.h as f64 * ZOOM);
@@ -629,8 +631,8 @@ impl ScanLayerMaps {
         let mut svg = format!(
             "<svg class=\"map\" width=\"{w:.0}\" \
              height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" data-kind=\"{}\" data-side=\"{}\" \
-             data-u0=\"{}\" data-v0=\"{}\" data-px-per-m=\"{}\" data-left=\"{LEFT}\" \
-             data-top=\"{TOP}\" data-height-px=\"{ih}\" role=\"img\" aria-label=\"{} map, {}\">",
+             data-u0=\"{}\" data-v0=\"{}\" data-px-per-m=\"{}\" data-left=\"{left}\" \
+             data-top=\"{top}\" data-height-px=\"{ih}\" role=\"img\" aria-label=\"{} map, {}\">",
             kind.name(),
             side.name(),
             r.u0,
@@ -641,7 +643,7 @@ impl ScanLayerMaps {
         );
         let _ = write!(
             svg,
-            "<image x=\"{LEFT}\" y=\"{TOP}\" width=\"{iw}\" height=\"{ih}\" \
+            "<image x=\"{left}\" y=\"{top}\" width=\"{iw}\" height=\"{ih}\" \
              preserveAspectRatio=\"none\" style=\"image-rendering:pixelated\" \
              href=\"data:image/png;base64,{}\"/>",
             base64::engine::general_purpose::STANDARD.encode(png)
@@ -649,12 +651,12 @@ impl ScanLayerMaps {
         self.axes(&mut svg, side);
         if side != Side::Top && self.printed_height.is_finite() {
             let (_, y) = self.screen(side, [0.0, 0.0, self.printed_height]);
-            let (x0, _) = (LEFT, 0.0);
+            let (x0, _) = (left, 0.0);
             let _ = write!(
                 svg,
                 "<line class=\"printed-height\" x1=\"{x0}\" y1=\"{y:.1}\" x2=\"{:.1}\" \
                  y2=\"{y:.1}\" stroke=\"#555\" stroke-dasharray=\"4,3\"/>",
-                LEFT + iw
+                left + iw
             );
         }
         let band_label_y = self.band_label_positions(side, items);
@@ -666,12 +668,13 @@ impl ScanLayerMaps {
     }
 
     fn axes(&self, svg: &mut String, side: Side) {
+        let Margins { left, top, .. } = MARGINS;
         let r = self.points.side(side);
         let px = self.frame.pixel;
         let (iw, ih) = (r.w as f64 * ZOOM, r.h as f64 * ZOOM);
         let _ = write!(
             svg,
-            "<rect x=\"{LEFT}\" y=\"{TOP}\" width=\"{iw}\" height=\"{ih}\" fill=\"none\" \
+            "<rect x=\"{left}\" y=\"{top}\" width=\"{iw}\" height=\"{ih}\" fill=\"none\" \
              stroke=\"#bbb\"/>"
         );
         let (right_name, sign) = side.right_axis();
@@ -679,14 +682,14 @@ impl ScanLayerMaps {
         let step = tick_step(span_u, iw);
         let mut t = (r.u0 / step).ceil() * step;
         while t <= r.u0 + span_u + 1e-9 {
-            let x = LEFT + (t - r.u0) * ZOOM / px;
+            let x = left + (t - r.u0) * ZOOM / px;
             let _ = write!(
                 svg,
                 "<line x1=\"{x:.1}\" y1=\"{:.1}\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#888\"/>\
                  <text x=\"{x:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{}</text>",
-                TOP + ih,
-                TOP + ih + 4.0,
-                TOP + ih + 15.0,
+                top + ih,
+                top + ih + 4.0,
+                top + ih + 15.0,
                 tick_text(sign * t)
             );
             t += step;
@@ -695,13 +698,13 @@ impl ScanLayerMaps {
         let step = tick_step(span_v, ih.max(90.0));
         let mut t = (r.v0 / step).ceil() * step;
         while t <= r.v0 + span_v + 1e-9 {
-            let y = TOP + ih - (t - r.v0) * ZOOM / px;
+            let y = top + ih - (t - r.v0) * ZOOM / px;
             let _ = write!(
                 svg,
-                "<line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{LEFT}\" y2=\"{y:.1}\" stroke=\"#888\"/>\
+                "<line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{left}\" y2=\"{y:.1}\" stroke=\"#888\"/>\
                  <text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"end\">{}</text>",
-                LEFT - 4.0,
-                LEFT - 6.0,
+                left - 4.0,
+                left - 6.0,
                 y + 3.5,
                 tick_text(t)
             );
@@ -712,9 +715,9 @@ impl ScanLayerMaps {
             "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"end\" fill=\"#555\">\
              {right_name} m</text><text x=\"4\" y=\"{:.1}\" font-size=\"10\" fill=\"#555\">{} m\
              </text>",
-            LEFT + iw,
-            TOP + ih + 27.0,
-            TOP + 8.0,
+            left + iw,
+            top + ih + 27.0,
+            top + 8.0,
             side.up_axis()
         );
     }
@@ -793,7 +796,7 @@ impl ScanLayerMaps {
                 // A layer band or the top: a bracket over its heights beside the picture.
                 let (_, ya) = self.screen(side, [0.0, 0.0, it.z[0]]);
                 let (_, yb) = self.screen(side, [0.0, 0.0, it.z[1]]);
-                let x = LEFT - 1.0;
+                let x = MARGINS.left - 1.0;
                 let ym = 0.5 * (ya + yb);
                 let yl = label_y.unwrap_or(ym);
                 let _ = write!(
@@ -922,7 +925,7 @@ mod tests {
         assert!((x1 - x0 - px_per_m).abs() < 1e-9, "{x0} {x1}");
         assert!((y0 - y1 - 0.5 * px_per_m).abs() < 1e-9, "{y0} {y1}");
         // The margin (twice the tolerance) to the picture's left edge.
-        assert!((x0 - LEFT - 0.008 * px_per_m).abs() < 1e-9, "{x0}");
+        assert!((x0 - MARGINS.left - 0.008 * px_per_m).abs() < 1e-9, "{x0}");
     }
 
     #[test]

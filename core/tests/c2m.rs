@@ -201,6 +201,20 @@ fn probe_points(design: &Design, n: usize, scale: f64, seed: u64) -> Vec<Point3<
         .collect()
 }
 
+/// Each point's query, from a fresh cursor, answers as brute force does.
+fn assert_queries_equal_brute_force<'a>(
+    idx: &C2mIndex,
+    points: impl Iterator<Item = &'a Point3<f64>>,
+) {
+    for p in points {
+        assert_eq!(
+            idx.query(p, &mut Cursor::default()),
+            idx.brute_force(p),
+            "{p:?}"
+        );
+    }
+}
+
 fn assert_equals_brute_force(design: &Design, max_distance: f64, points: &[Point3<f64>]) {
     let idx = index(design, max_distance);
     let mut fast = vec![None; points.len()];
@@ -256,13 +270,7 @@ fn equals_brute_force_on_the_bunny() {
         },
     )
     .unwrap();
-    for p in points.iter().step_by(5) {
-        assert_eq!(
-            idx.query(p, &mut Cursor::default()),
-            idx.brute_force(p),
-            "{p:?}"
-        );
-    }
+    assert_queries_equal_brute_force(&idx, points.iter().step_by(5));
 }
 
 /// Points just beyond the grid's band, where a list's best is taken as the closest only when
@@ -536,13 +544,7 @@ fn slivers_duplicates_and_specks_index_within_the_memory_bound() {
         stats.triangles
     );
     let points = probe_points(&design, 20_000, 0.03, 21);
-    for p in points.iter().step_by(3) {
-        assert_eq!(
-            idx.query(p, &mut Cursor::default()),
-            idx.brute_force(p),
-            "{p:?}"
-        );
-    }
+    assert_queries_equal_brute_force(&idx, points.iter().step_by(3));
 }
 
 #[test]

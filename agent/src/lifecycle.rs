@@ -1014,8 +1014,7 @@ mod tests {
 
     #[test]
     fn a_clean_station_reports_complete_when_its_last_chunk_is_in() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         lc.on_event(&event(StationEventKind::Begin, 7, 0), t, &mut out);
         lc.on_pose(&pose(7), t, &mut out);
         for s in 0..3 {
@@ -1034,8 +1033,9 @@ mod tests {
         assert_eq!(lc.stations_open(), 0);
     }
 
-    fn setup(index: PrintedDesigns) -> (Lifecycle<Owned>, Collect, Instant) {
-        let lc = Lifecycle::new(index, FrameChain::default(), cfg(), limits());
+    /// A lifecycle on the cube, nothing received yet, with what it sends and the time it starts.
+    fn setup() -> (Lifecycle<Owned>, Collect, Instant) {
+        let lc = Lifecycle::new(cube(), FrameChain::default(), cfg(), limits());
         (lc, Collect::default(), Instant::now())
     }
 
@@ -1045,8 +1045,7 @@ mod tests {
 
     #[test]
     fn chunks_before_their_pose_wait_and_are_then_processed() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         lc.on_chunk(chunk(3, 0, 10), t, &mut out);
         lc.on_event(&event(StationEventKind::Begin, 3, 2), t, &mut out);
         lc.on_chunk(chunk(3, 1, 10), t, &mut out);
@@ -1061,7 +1060,7 @@ mod tests {
 
     #[test]
     fn a_station_knows_the_layer_its_begin_gave() {
-        let (mut lc, mut out, t) = setup(cube());
+        let (mut lc, mut out, t) = setup();
         assert_eq!(lc.layer_of(4, 1), 0);
         let mut begin = event(StationEventKind::Begin, 1, 2);
         begin.job = 4;
@@ -1073,7 +1072,7 @@ mod tests {
 
     #[test]
     fn an_end_that_overtakes_its_last_chunks_waits_for_them() {
-        let (mut lc, mut out, t) = setup(cube());
+        let (mut lc, mut out, t) = setup();
         lc.on_event(&event(StationEventKind::Begin, 2, 3), t, &mut out);
         lc.on_pose(&pose(2), t, &mut out);
         lc.on_chunk(chunk(2, 0, 10), t, &mut out);
@@ -1100,8 +1099,7 @@ mod tests {
 
     #[test]
     fn a_station_without_pose_is_reported_with_every_point_counted() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         lc.on_event(&event(StationEventKind::Begin, 3, 0), t, &mut out);
         for s in 0..6 {
             lc.on_chunk(chunk(3, s, 10), t, &mut out);
@@ -1120,8 +1118,7 @@ mod tests {
 
     #[test]
     fn bad_chunks_are_counted_by_reason_and_good_points_kept() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         lc.on_event(&event(StationEventKind::Begin, 1, 0), t, &mut out);
         lc.on_pose(&pose(1), t, &mut out);
         let mut c = chunk(1, 0, 10);
@@ -1166,8 +1163,7 @@ mod tests {
 
     #[test]
     fn silence_closes_a_station_as_timed_out_and_late_chunks_are_counted() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         lc.on_event(&event(StationEventKind::Begin, 2, 0), t, &mut out);
         lc.on_pose(&pose(2), t, &mut out);
         lc.on_chunk(chunk(2, 0, 10), t, &mut out);
@@ -1184,8 +1180,7 @@ mod tests {
 
     #[test]
     fn shutdown_writes_partial_reports() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         lc.on_pose(&pose(4), t, &mut out);
         lc.on_chunk(chunk(4, 0, 10), t, &mut out);
         lc.shutdown(&mut out);
@@ -1195,8 +1190,7 @@ mod tests {
 
     #[test]
     fn too_many_open_stations_close_the_least_recent_one() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         for (k, s) in [1u32, 2, 3].into_iter().enumerate() {
             lc.on_event(
                 &event(StationEventKind::Begin, s, 0),
@@ -1212,8 +1206,7 @@ mod tests {
 
     #[test]
     fn a_bad_pose_is_rejected_and_the_station_waits_for_a_good_one() {
-        let index = cube();
-        let (mut lc, mut out, t) = setup(index);
+        let (mut lc, mut out, t) = setup();
         let mut p = pose(5);
         p.rotation_xyzw = [0.0, 0.0, 0.0, 3.0];
         lc.on_pose(&p, t, &mut out);
@@ -1227,7 +1220,7 @@ mod tests {
 
     #[test]
     fn a_new_printed_height_is_prepared_off_the_loop_while_its_chunks_wait() {
-        let (mut lc, mut out, t) = setup(cube());
+        let (mut lc, mut out, t) = setup();
         let mut begin = event(StationEventKind::Begin, 7, 2);
         // Cut at z = 0.3: the points 2 mm above the full cube's top are 0.202 m above the cap,
         // beyond the maximum distance.

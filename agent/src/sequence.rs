@@ -100,15 +100,26 @@ mod tests {
         assert_eq!((c.received, c.missing, c.duplicate), (10, 0, 0));
     }
 
+    /// A tracker offered each sequence in turn, every verdict checked.
+    fn offered(offers: &[(u64, ChunkVerdict)]) -> SequenceTracker {
+        let mut t = SequenceTracker::new();
+        for &(sequence, verdict) in offers {
+            assert_eq!(t.offer(sequence), verdict, "sequence {sequence}");
+        }
+        t
+    }
+
     #[test]
     fn duplicates_gaps_and_late_chunks_are_told_apart() {
-        let mut t = SequenceTracker::new();
-        assert_eq!(t.offer(0), ChunkVerdict::Accept);
-        assert_eq!(t.offer(2), ChunkVerdict::Accept);
-        assert_eq!(t.offer(2), ChunkVerdict::Duplicate);
-        assert_eq!(t.offer(1), ChunkVerdict::AcceptLate);
-        assert_eq!(t.offer(1), ChunkVerdict::Duplicate);
-        assert_eq!(t.offer(5), ChunkVerdict::Accept);
+        use ChunkVerdict::*;
+        let t = offered(&[
+            (0, Accept),
+            (2, Accept),
+            (2, Duplicate),
+            (1, AcceptLate),
+            (1, Duplicate),
+            (5, Accept),
+        ]);
         let c = t.finish(7);
         assert_eq!(c.received, 4);
         assert_eq!(c.duplicate, 2);
@@ -120,11 +131,8 @@ mod tests {
 
     #[test]
     fn chunks_older_than_the_window_are_counted_not_trusted() {
-        let mut t = SequenceTracker::new();
-        assert_eq!(t.offer(0), ChunkVerdict::Accept);
-        assert_eq!(t.offer(200), ChunkVerdict::Accept);
-        assert_eq!(t.offer(100), ChunkVerdict::TooOld);
-        assert_eq!(t.offer(199), ChunkVerdict::AcceptLate);
+        use ChunkVerdict::*;
+        let t = offered(&[(0, Accept), (200, Accept), (100, TooOld), (199, AcceptLate)]);
         let c = t.finish(0);
         assert_eq!(c.received, 3);
         assert_eq!(c.missing, 201 - 3);

@@ -308,10 +308,14 @@ mod tests {
             .sum()
     }
 
+    /// The study wall after 10 layers with one defect.
+    fn ten_layers_of_the_wall_with(defect: Defect) -> AsBuilt {
+        as_built(&Part::wall(), &[defect], 10).unwrap()
+    }
+
     #[test]
     fn a_defect_free_wall_is_the_design_cut_at_the_printed_height() {
-        let p = Part::wall();
-        let m = as_built(&p, &[], 10).unwrap();
+        let m = as_built(&Part::wall(), &[], 10).unwrap();
         assert!((m.top - 0.2).abs() < 1e-12);
         // Without a bottom face the divergence volume is that of the closed box minus the
         // bottom's contribution, which is zero at z = 0.
@@ -325,18 +329,12 @@ mod tests {
 
     #[test]
     fn over_extrusion_widens_the_layers_and_leaves_ledges_that_face_the_right_way() {
-        let p = Part::wall();
         let w = 0.01;
-        let m = as_built(
-            &p,
-            &[Defect::Extrusion {
-                first: 3,
-                last: 5,
-                width: w,
-            }],
-            10,
-        )
-        .unwrap();
+        let m = ten_layers_of_the_wall_with(Defect::Extrusion {
+            first: 3,
+            last: 5,
+            width: w,
+        });
         let extra = (2.0 + w) * (0.1734 + w) - 2.0 * 0.1734;
         let v = 2.0 * 0.1734 * 0.2 + extra * 0.06;
         assert!((volume(&m) - v).abs() < 1e-9, "{} vs {v}", volume(&m));
@@ -346,34 +344,22 @@ mod tests {
 
     #[test]
     fn a_missing_segment_removes_its_volume() {
-        let p = Part::wall();
-        let m = as_built(
-            &p,
-            &[Defect::MissingSegment {
-                layer: 4,
-                centre: [0.3, 0.0],
-                direction: [1.0, 0.0],
-                length: 0.2,
-            }],
-            10,
-        )
-        .unwrap();
+        let m = ten_layers_of_the_wall_with(Defect::MissingSegment {
+            layer: 4,
+            centre: [0.3, 0.0],
+            direction: [1.0, 0.0],
+            length: 0.2,
+        });
         let v = 2.0 * 0.1734 * 0.2 - 0.2 * 0.1734 * 0.02;
         assert!((volume(&m) - v).abs() < 1e-9, "{} vs {v}", volume(&m));
     }
 
     #[test]
     fn a_shift_moves_the_upper_layers() {
-        let p = Part::wall();
-        let m = as_built(
-            &p,
-            &[Defect::LateralShift {
-                from: 5,
-                offset: [0.0, 0.01],
-            }],
-            10,
-        )
-        .unwrap();
+        let m = ten_layers_of_the_wall_with(Defect::LateralShift {
+            from: 5,
+            offset: [0.0, 0.01],
+        });
         assert!((volume(&m) - 2.0 * 0.1734 * 0.2).abs() < 1e-9);
         let max_y = m
             .vertices

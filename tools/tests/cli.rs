@@ -188,13 +188,38 @@ fn bunny_stations_from_bun_conf() {
     assert!(header.contains("property float c2m"));
 }
 
-#[test]
-fn known_offset_on_a_cube_single_scan() {
+/// A metre cube (scaled by `scale`) as cube.stl and a scan of its top face `offset` above it
+/// as top.xyz, in a directory of their own.
+struct CubeJob {
+    dir: tempfile::TempDir,
+    stl: PathBuf,
+    scan: PathBuf,
+    /// Finite points in the scan.
+    points: usize,
+}
+
+fn cube_job(scale: f64, offset: f64, with_nan: bool) -> CubeJob {
     let dir = tempfile::tempdir().unwrap();
     let stl = dir.path().join("cube.stl");
-    cube_stl(&stl, 1000.0);
+    cube_stl(&stl, scale);
     let scan = dir.path().join("top.xyz");
-    let n = top_face_scan(&scan, 0.003, false);
+    let points = top_face_scan(&scan, offset, with_nan);
+    CubeJob {
+        dir,
+        stl,
+        scan,
+        points,
+    }
+}
+
+#[test]
+fn known_offset_on_a_cube_single_scan() {
+    let CubeJob {
+        dir,
+        stl,
+        scan,
+        points: n,
+    } = cube_job(1000.0, 0.003, false);
     let out = dir.path().join("out");
     let o = inspect_scan(
         s(&stl),
@@ -220,11 +245,12 @@ fn known_offset_on_a_cube_single_scan() {
 
 #[test]
 fn nan_points_are_rejected_counted_and_the_rest_kept() {
-    let dir = tempfile::tempdir().unwrap();
-    let stl = dir.path().join("cube.stl");
-    cube_stl(&stl, 1.0);
-    let scan = dir.path().join("top.xyz");
-    let n = top_face_scan(&scan, -0.001, true);
+    let CubeJob {
+        dir,
+        stl,
+        scan,
+        points: n,
+    } = cube_job(1.0, -0.001, true);
     let out = dir.path().join("out");
     let o = inspect_scan(s(&stl), "m", &scan, "0,0,2", s(&out), &[]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -274,16 +300,12 @@ fn design_without_triangles_is_a_clear_error() {
 
 #[test]
 fn station_without_pose_is_named() {
-    let dir = tempfile::tempdir().unwrap();
-    let stl = dir.path().join("cube.stl");
-    cube_stl(&stl, 1.0);
-    let scan = dir.path().join("a.xyz");
-    top_face_scan(&scan, 0.0, false);
+    let CubeJob { dir, stl, .. } = cube_job(1.0, 0.0, false);
     let toml = dir.path().join("stations.toml");
     std::fs::write(
         &toml,
-        "[[station]]\nid = \"north\"\nscan = \"a.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 1]\n\n\
-         [[station]]\nid = \"south\"\nscan = \"a.xyz\"\n\n\
+        "[[station]]\nid = \"north\"\nscan = \"top.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 1]\n\n\
+         [[station]]\nid = \"south\"\nscan = \"top.xyz\"\n\n\
          [[station]]\nid = \"west\"\nscan = \"missing.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 2]\n",
     )
     .unwrap();
@@ -297,11 +319,7 @@ fn station_without_pose_is_named() {
 
 #[test]
 fn millimetre_design_declared_as_metres_is_caught() {
-    let dir = tempfile::tempdir().unwrap();
-    let stl = dir.path().join("cube_mm.stl");
-    cube_stl(&stl, 1000.0);
-    let scan = dir.path().join("top.xyz");
-    top_face_scan(&scan, 0.0, false);
+    let CubeJob { dir, stl, scan, .. } = cube_job(1000.0, 0.0, false);
     let out = dir.path().join("out");
     let o = inspect_scan(s(&stl), "m", &scan, "0,0,2", s(&out), &[]);
     let e = stderr(&o);
@@ -315,15 +333,12 @@ fn millimetre_design_declared_as_metres_is_caught() {
 
 #[test]
 fn unreadable_scan_fails_its_station_and_keeps_the_others() {
-    let dir = tempfile::tempdir().unwrap();
-    let stl = dir.path().join("cube.stl");
-    cube_stl(&stl, 1.0);
-    top_face_scan(&dir.path().join("good.xyz"), 0.0, false);
+    let CubeJob { dir, stl, .. } = cube_job(1.0, 0.0, false);
     std::fs::write(dir.path().join("bad.xyz"), "this is not\na point cloud\n").unwrap();
     let toml = dir.path().join("stations.toml");
     std::fs::write(
         &toml,
-        "[[station]]\nid = \"good\"\nscan = \"good.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 1]\n\n\
+        "[[station]]\nid = \"good\"\nscan = \"top.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 1]\n\n\
          [[station]]\nid = \"bad\"\nscan = \"bad.xyz\"\ntranslation = [0, 0, 2]\nrotation_xyzw = [0, 0, 0, 1]\n",
     )
     .unwrap();

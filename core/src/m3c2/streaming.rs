@@ -225,16 +225,27 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
 
-    #[test]
-    fn a_raised_box_top_is_found_with_the_offset_and_a_lod_from_the_noise() {
-        let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 0.5));
-        let core = DesignSamples::generate(&d, 0.05, 3).unwrap();
+    /// M3C2 at samples `spacing` apart on a 1 m × 1 m box `height` high, at least 5 points a
+    /// cylinder.
+    fn on_box(
+        height: f64,
+        spacing: f64,
+        projection_diameter: f64,
+        max_depth: f64,
+    ) -> StreamingM3c2 {
+        let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, height));
+        let core = DesignSamples::generate(&d, spacing, 3).unwrap();
         let params = StreamingParams {
-            projection_diameter: 0.04,
-            max_depth: 0.02,
+            projection_diameter,
+            max_depth,
             min_points: 5,
         };
-        let mut m = StreamingM3c2::new(&core, params).unwrap();
+        StreamingM3c2::new(&core, params).unwrap()
+    }
+
+    #[test]
+    fn a_raised_box_top_is_found_with_the_offset_and_a_lod_from_the_noise() {
+        let mut m = on_box(0.5, 0.05, 0.04, 0.02);
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let sigma = 0.001;
         let noise = Normal::new(0.0, sigma).unwrap();
@@ -288,14 +299,7 @@ mod tests {
 
     #[test]
     fn points_outside_the_cylinder_do_not_count_and_nothing_grows_with_the_scan() {
-        let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
-        let core = DesignSamples::generate(&d, 0.1, 3).unwrap();
-        let params = StreamingParams {
-            projection_diameter: 0.02,
-            max_depth: 0.01,
-            min_points: 5,
-        };
-        let mut m = StreamingM3c2::new(&core, params).unwrap();
+        let mut m = on_box(1.0, 0.1, 0.02, 0.01);
         let c = m.grid.points()[0];
         let n = m.grid.normals()[0];
         let t = n.cross(&Vector3::new(0.3, 0.5, 0.7)).normalize();

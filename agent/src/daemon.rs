@@ -324,7 +324,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
             warn!("inbox: {e:?}");
         }
         lifecycle.poll_designs(Instant::now(), &mut out);
-        let drained = drain(&ports, &mut lifecycle, &mut out, &mut held);
+        let drained = held.drain(&mut lifecycle, &mut out);
         terminated = drained == Drained::Stop;
         more = drained == Drained::More;
         let now = Instant::now();
@@ -568,15 +568,6 @@ struct HeldControl {
     chunk: Option<ChunkSample>,
 }
 
-impl HeldControl {
-    fn waits_for_a_slot(&self) -> bool {
-        self.event.is_some() || self.pose.is_some()
-    }
-}
-
-/// Reads every queue until all are empty. Station events and poses go first, and again before
-/// any chunk whose station is not ready, because the cell sends a station's Begin and pose
-/// before its chunks but on other services. Returns true when a stop was requested.
 /// How a pass over the input queues ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Drained {
@@ -593,103 +584,115 @@ enum Drained {
 /// their period while a cell streams without a pause.
 const DRAIN_SLICE: Duration = Duration::from_millis(100);
 
-fn drain(
-    ports: &AgentPorts,
-    lifecycle: &mut Lifecycle<ChunkSample>,
-    out: &mut IpcOutputs<'_>,
-    held: &mut HeldControl,
-) -> Drained {
-    let deadline = Instant::now() + DRAIN_SLICE;
-    loop {
-        let mut any = drain_control(ports, lifecycle, out, held);
+impl HeldControl {
+    fn waits_for_a_slot(&self) -> bool {
+        self.event.is_some() || self.pose.is_some()
+    }
+
+    /// Reads every queue until all are empty, or for at most [`DRAIN_SLICE`]. Station events
+    /// and poses go first, and again before any chunk whose station is not ready, because the
+    /// cell sends a station's Begin and pose before its chunks but on other services. What
+    /// cannot be taken yet is held here.
+    fn drain(
+        &mut self,
+        lifecycle: &mut Lifecycle<ChunkSample>,
+        out: &mut IpcOutputs<'_>,
+    ) -> Drained {
+        let ports = out.ports;
+        let deadline = Instant::now() + DRAIN_SLICE;
         loop {
-            let sample = match held.chunk.take() {
-                Some(s) => s,
-                None => match ports.chunks.receive() {
-                    Ok(Some(s)) => s,
-                    Ok(None) => break,
-                    Err(e) => {
-                        warn!("scan chunks: {e:?}");
+            let mut any = self.drain_control(lifecycle, out);
+            loop {
+                let sample = match self.chunk.take() {
+                    Some(s) => s,
+                    None => match ports.chunks.receive() {
+                        Ok(Some(s)) => s,
+                        Ok(None) => break,
+                        Err(e) => {
+                            warn!("scan chunks: {e:?}");
+                            break;
+                        }
+                    },
+                };
+                if !lifecycle.is_ready_for(sample.user_header()) {
+                    any |= self.drain_control(lifecycle, out);
+                    // A station waiting for a slot or for its printed design: leave the queue
+                    // unread, so the cell is held back instead of its chunks pushed out.
+                    let waits =
+                        self.waits_for_a_slot() || lifecycle.awaits_design(sample.user_header());
+                    if waits && !lifecycle.is_ready_for(sample.user_header()) {
+                        self.chunk = Some(sample);
                         break;
                     }
-                },
-            };
-            if !lifecycle.is_ready_for(sample.user_header()) {
-                any |= drain_control(ports, lifecycle, out, held);
-                // A station waiting for a slot or for its printed design: leave the queue
-                // unread, so the cell is held back instead of its chunks pushed out.
-                let waits =
-                    held.waits_for_a_slot() || lifecycle.awaits_design(sample.user_header());
-                if waits && !lifecycle.is_ready_for(sample.user_header()) {
-                    held.chunk = Some(sample);
-                    break;
+                }
+                any = true;
+                if let Some(r) = &mut out.recorder {
+                    r.chunk(sample.user_header(), sample.payload());
+                }
+                let now = Instant::now();
+                lifecycle.on_chunk(sample, now, out);
+                if SignalHandler::termination_requested() {
+                    return Drained::Stop;
+                }
+                if now >= deadline {
+                    return Drained::More;
                 }
             }
-            any = true;
-            if let Some(r) = &mut out.recorder {
-                r.chunk(sample.user_header(), sample.payload());
-            }
-            let now = Instant::now();
-            lifecycle.on_chunk(sample, now, out);
-            if SignalHandler::termination_requested() {
-                return Drained::Stop;
-            }
-            if now >= deadline {
-                return Drained::More;
+            if !any {
+                break;
             }
         }
-        if !any {
-            break;
-        }
+        lifecycle.on_idle(Instant::now(), out);
+        Drained::Empty
     }
-    lifecycle.on_idle(Instant::now(), out);
-    Drained::Empty
-}
 
-fn drain_control(
-    ports: &AgentPorts,
-    lifecycle: &mut Lifecycle<ChunkSample>,
-    out: &mut IpcOutputs<'_>,
-    held: &mut HeldControl,
-) -> bool {
-    let mut any = false;
-    while let Some(ev) = held
-        .event
-        .take()
-        .or_else(|| next(&ports.stations, "station events"))
-    {
-        let begins = ev.kind() == Some(StationEventKind::Begin);
-        if begins && !lifecycle.has_room_for(ev.job, ev.station) {
-            held.event = Some(ev);
-            break;
+    /// Reads station events, then poses, until their queues are empty or a new station finds
+    /// no slot; whether anything was read.
+    fn drain_control(
+        &mut self,
+        lifecycle: &mut Lifecycle<ChunkSample>,
+        out: &mut IpcOutputs<'_>,
+    ) -> bool {
+        let ports = out.ports;
+        let mut any = false;
+        while let Some(ev) = self
+            .event
+            .take()
+            .or_else(|| next(&ports.stations, "station events"))
+        {
+            let begins = ev.kind() == Some(StationEventKind::Begin);
+            if begins && !lifecycle.has_room_for(ev.job, ev.station) {
+                self.event = Some(ev);
+                break;
+            }
+            any = true;
+            if let Some(r) = &out.recorder {
+                r.event(&ev);
+            }
+            lifecycle.on_event(&ev, Instant::now(), out);
         }
-        any = true;
-        if let Some(r) = &out.recorder {
-            r.event(&ev);
+        while let Some(p) = self.pose.take().or_else(|| next(&ports.poses, "poses")) {
+            if !lifecycle.has_room_for(p.job, p.station) {
+                self.pose = Some(p);
+                break;
+            }
+            any = true;
+            if let Some(r) = &out.recorder {
+                r.pose(&p);
+            }
+            if let (Some(v), Ok(t)) = (&out.viewer, out.frames.t_design_scanner(&p)) {
+                v.show(View::Station {
+                    index: p.station,
+                    name: view_name(p.job, p.station),
+                    layer: lifecycle.layer_of(p.job, p.station),
+                    pose: t,
+                    time_ns: p.timestamp_ns,
+                });
+            }
+            lifecycle.on_pose(&p, Instant::now(), out);
         }
-        lifecycle.on_event(&ev, Instant::now(), out);
+        any
     }
-    while let Some(p) = held.pose.take().or_else(|| next(&ports.poses, "poses")) {
-        if !lifecycle.has_room_for(p.job, p.station) {
-            held.pose = Some(p);
-            break;
-        }
-        any = true;
-        if let Some(r) = &out.recorder {
-            r.pose(&p);
-        }
-        if let (Some(v), Ok(t)) = (&out.viewer, out.frames.t_design_scanner(&p)) {
-            v.show(View::Station {
-                index: p.station,
-                name: view_name(p.job, p.station),
-                layer: lifecycle.layer_of(p.job, p.station),
-                pose: t,
-                time_ns: p.timestamp_ns,
-            });
-        }
-        lifecycle.on_pose(&p, Instant::now(), out);
-    }
-    any
 }
 
 /// The next message of a queue, copied out of shared memory.

@@ -174,13 +174,7 @@ where
         let chunk = if points.len() >= SORT_MIN && !in_spatial_order(points) {
             self.process_sorted(points, out)
         } else {
-            inspect_in_parallel(
-                &*self.index,
-                &self.t_design_scanner,
-                &self.config,
-                points,
-                out,
-            )
+            self.inspection().in_parallel(points, out)
         };
         let Some(chunk) = chunk else {
             return ChunkOutcome::default();
@@ -196,22 +190,22 @@ where
         points: &[ScanPoint],
         out: &mut [PointDeviation],
     ) -> Option<Tally> {
-        let (sorted_points, sorted_out) = self.sorted.get_or_insert_with(|| {
+        // The buffers are kept across chunks, taken out while the inspection borrows the rest.
+        let (mut sorted_points, mut sorted_out) = self.sorted.take().unwrap_or_else(|| {
             (
                 Vec::with_capacity(SORT_BLOCK),
                 Vec::with_capacity(SORT_BLOCK),
             )
         });
+        let inspection = self.inspection();
         let mut total: Option<Tally> = None;
         for (ps, os) in points.chunks(SORT_BLOCK).zip(out.chunks_mut(SORT_BLOCK)) {
             let order = morton_order(ps);
-            order::gather(ps, &order, sorted_points);
+            order::gather(ps, &order, &mut sorted_points);
             sorted_out.clear();
             sorted_out.resize(ps.len(), PointDeviation::default());
-            let t = &self.t_design_scanner;
-            let block =
-                inspect_in_parallel(&*self.index, t, &self.config, sorted_points, sorted_out);
-            order::put_back(sorted_out, &order, os);
+            let block = inspection.in_parallel(&sorted_points, &mut sorted_out);
+            order::put_back(&sorted_out, &order, os);
             if let Some(b) = block {
                 match &mut total {
                     Some(t) => t.merge(&b),
@@ -219,7 +213,16 @@ where
                 }
             }
         }
+        self.sorted = Some((sorted_points, sorted_out));
         total
+    }
+
+    fn inspection(&self) -> Inspection<'_, I::Target> {
+        Inspection {
+            index: &*self.index,
+            t_design_scanner: &self.t_design_scanner,
+            config: &self.config,
+        }
     }
 
     /// What the station has counted so far.
@@ -235,21 +238,98 @@ where
     }
 }
 
-fn inspect_in_parallel<S: Surface + ?Sized>(
-    index: &S,
-    t: &Isometry3<f64>,
-    config: &InspectParams,
-    points: &[ScanPoint],
-    out: &mut [PointDeviation],
-) -> Option<Tally> {
-    points
-        .par_chunks(TASK_POINTS)
-        .zip(out.par_chunks_mut(TASK_POINTS))
-        .map(|(ps, os)| inspect_task(index, t, config, ps, os))
-        .reduce_with(|mut a, b| {
-            a.merge(&b);
-            a
-        })
+/// What every point of a chunk is inspected with: the design, the station's pose, the settings.
+struct Inspection<'a, S: ?Sized> {
+    index: &'a S,
+    t_design_scanner: &'a Isometry3<f64>,
+    config: &'a InspectParams,
+}
+
+impl<S: Surface + ?Sized> Inspection<'_, S> {
+    /// `out[i]` receives the deviation of `points[i]`; the chunk's tally, `None` for no points.
+    fn in_parallel(&self, points: &[ScanPoint], out: &mut [PointDeviation]) -> Option<Tally> {
+        points
+            .par_chunks(TASK_POINTS)
+            .zip(out.par_chunks_mut(TASK_POINTS))
+            .map(|(ps, os)| self.task(ps, os))
+            .reduce_with(|mut a, b| {
+                a.merge(&b);
+                a
+            })
+    }
+
+    /// One task's share of a chunk, on one thread.
+    fn task(&self, points: &[ScanPoint], out: &mut [PointDeviation]) -> Tally {
+        let (index, t, config) = (self.index, self.t_design_scanner, self.config);
+        let mut tally = Tally::new(config.stats);
+        tally.points_received = points.len() as u64;
+        let mut cursor = Cursor::default();
+        let tol = config.stats.tolerance;
+        for (sp, o) in points.iter().zip(out) {
+            let [x, y, z] = sp.xyz;
+            let reject = if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+                Some(&mut tally.rejected.non_finite)
+            } else if sp.flags.is_invalid() {
+                Some(&mut tally.rejected.scanner_invalid)
+            } else if (x as f64).abs().max((y as f64).abs()).max((z as f64).abs())
+                > config.max_range
+            {
+                Some(&mut tally.rejected.out_of_range)
+            } else {
+                None
+            };
+            if let Some(counter) = reject {
+                *counter += 1;
+                *o = PointDeviation {
+                    position: [x as f64, y as f64, z as f64],
+                    distance: f64::NAN,
+                    triangle: u32::MAX,
+                    feature: Feature::None as u8,
+                    feature_index: 0,
+                    flags: DeviationFlags(DeviationFlags::REJECTED),
+                    _reserved: 0,
+                };
+                continue;
+            }
+            let p = t * Point3::new(x as f64, y as f64, z as f64);
+            *o = match index.closest(&p, &mut cursor) {
+                None => {
+                    tally.no_match += 1;
+                    PointDeviation {
+                        position: p.into(),
+                        distance: f64::NAN,
+                        triangle: u32::MAX,
+                        feature: Feature::None as u8,
+                        feature_index: 0,
+                        flags: DeviationFlags(DeviationFlags::NO_MATCH),
+                        _reserved: 0,
+                    }
+                }
+                Some(c) => {
+                    tally.stats.push(c.distance);
+                    let mut flags = 0;
+                    if c.distance.abs() > tol {
+                        flags |= DeviationFlags::OUT_OF_TOLERANCE;
+                    }
+                    let (feature, feature_index) = match c.region {
+                        Region::Face => (Feature::Face, 0),
+                        Region::Edge(i) => (Feature::Edge, i),
+                        Region::Vertex(i) => (Feature::Vertex, i),
+                    };
+                    PointDeviation {
+                        position: p.into(),
+                        distance: c.distance,
+                        triangle: c.triangle,
+                        feature: feature as u8,
+                        feature_index,
+                        flags: DeviationFlags(flags),
+                        _reserved: 0,
+                    }
+                }
+            };
+        }
+        tally
+    }
 }
 
 /// A scan point's position (scanner frame) for the order of a chunk; `None` when not finite.
@@ -266,81 +346,6 @@ fn in_spatial_order(points: &[ScanPoint]) -> bool {
 
 fn morton_order(points: &[ScanPoint]) -> Vec<u32> {
     order::morton_order(points, scan_position)
-}
-
-fn inspect_task<S: Surface + ?Sized>(
-    index: &S,
-    t: &Isometry3<f64>,
-    config: &InspectParams,
-    points: &[ScanPoint],
-    out: &mut [PointDeviation],
-) -> Tally {
-    let mut tally = Tally::new(config.stats);
-    tally.points_received = points.len() as u64;
-    let mut cursor = Cursor::default();
-    let tol = config.stats.tolerance;
-    for (sp, o) in points.iter().zip(out) {
-        let [x, y, z] = sp.xyz;
-        let reject = if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-            Some(&mut tally.rejected.non_finite)
-        } else if sp.flags.is_invalid() {
-            Some(&mut tally.rejected.scanner_invalid)
-        } else if (x as f64).abs().max((y as f64).abs()).max((z as f64).abs()) > config.max_range {
-            Some(&mut tally.rejected.out_of_range)
-        } else {
-            None
-        };
-        if let Some(counter) = reject {
-            *counter += 1;
-            *o = PointDeviation {
-                position: [x as f64, y as f64, z as f64],
-                distance: f64::NAN,
-                triangle: u32::MAX,
-                feature: Feature::None as u8,
-                feature_index: 0,
-                flags: DeviationFlags(DeviationFlags::REJECTED),
-                _reserved: 0,
-            };
-            continue;
-        }
-        let p = t * Point3::new(x as f64, y as f64, z as f64);
-        *o = match index.closest(&p, &mut cursor) {
-            None => {
-                tally.no_match += 1;
-                PointDeviation {
-                    position: p.into(),
-                    distance: f64::NAN,
-                    triangle: u32::MAX,
-                    feature: Feature::None as u8,
-                    feature_index: 0,
-                    flags: DeviationFlags(DeviationFlags::NO_MATCH),
-                    _reserved: 0,
-                }
-            }
-            Some(c) => {
-                tally.stats.push(c.distance);
-                let mut flags = 0;
-                if c.distance.abs() > tol {
-                    flags |= DeviationFlags::OUT_OF_TOLERANCE;
-                }
-                let (feature, feature_index) = match c.region {
-                    Region::Face => (Feature::Face, 0),
-                    Region::Edge(i) => (Feature::Edge, i),
-                    Region::Vertex(i) => (Feature::Vertex, i),
-                };
-                PointDeviation {
-                    position: p.into(),
-                    distance: c.distance,
-                    triangle: c.triangle,
-                    feature: feature as u8,
-                    feature_index,
-                    flags: DeviationFlags(flags),
-                    _reserved: 0,
-                }
-            }
-        };
-    }
-    tally
 }
 
 #[cfg(test)]

@@ -400,7 +400,10 @@ fn open_ports(config: &AgentConfig) -> Result<(Node<Ipc>, AgentPorts, u64), Agen
 }
 
 /// The station lifecycle over `designs`, with the findings stage when `[findings]` is on.
-fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> Lifecycle<ChunkSample> {
+/// The lifecycle of stations over chunks still in shared memory.
+type AgentLifecycle = Lifecycle<ChunkSample>;
+
+fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecycle {
     let limits = &config.limits;
     let mut inspect = InspectParams::with_tolerance(config.inspect.tolerance);
     inspect.max_range = config.inspect.max_range;
@@ -409,7 +412,7 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> Lifecycle<Ch
         // not on the event loop (a printed height's are found where it is prepared).
         designs.full().sharp_edges();
     }
-    let mut lifecycle: Lifecycle<ChunkSample> =
+    let mut lifecycle: AgentLifecycle =
         Lifecycle::new(designs, config.frames.clone(), inspect, limits.lifecycle());
     if config.findings.enabled {
         let f = &config.findings;
@@ -507,7 +510,7 @@ fn start_viewer(
 /// Closes every open station with a partial report, says so, and closes the view and the
 /// recorder, publishing the reports that waited for the disk.
 fn shut_down(
-    mut lifecycle: Lifecycle<ChunkSample>,
+    mut lifecycle: AgentLifecycle,
     mut out: IpcOutputs<'_>,
     mut held: HeldControl,
     status: &mut StatusReporter,
@@ -593,11 +596,7 @@ impl HeldControl {
     /// and poses go first, and again before any chunk whose station is not ready, because the
     /// cell sends a station's Begin and pose before its chunks but on other services. What
     /// cannot be taken yet is held here.
-    fn drain(
-        &mut self,
-        lifecycle: &mut Lifecycle<ChunkSample>,
-        out: &mut IpcOutputs<'_>,
-    ) -> Drained {
+    fn drain(&mut self, lifecycle: &mut AgentLifecycle, out: &mut IpcOutputs<'_>) -> Drained {
         let ports = out.ports;
         let deadline = Instant::now() + DRAIN_SLICE;
         loop {
@@ -648,11 +647,7 @@ impl HeldControl {
 
     /// Reads station events, then poses, until their queues are empty or a new station finds
     /// no slot; whether anything was read.
-    fn drain_control(
-        &mut self,
-        lifecycle: &mut Lifecycle<ChunkSample>,
-        out: &mut IpcOutputs<'_>,
-    ) -> bool {
+    fn drain_control(&mut self, lifecycle: &mut AgentLifecycle, out: &mut IpcOutputs<'_>) -> bool {
         let ports = out.ports;
         let mut any = false;
         while let Some(ev) = self
@@ -742,7 +737,7 @@ impl StatusReporter {
     fn publish(
         &mut self,
         ports: &AgentPorts,
-        lifecycle: &Lifecycle<ChunkSample>,
+        lifecycle: &AgentLifecycle,
         out: &IpcOutputs<'_>,
         state: AgentState,
     ) {

@@ -1012,11 +1012,22 @@ mod tests {
         e
     }
 
+    /// Station `station`'s Begin, announcing `chunks` chunks, and its pose.
+    fn begin_with_pose(
+        lc: &mut Lifecycle<Owned>,
+        out: &mut Collect,
+        t: Instant,
+        station: u32,
+        chunks: u32,
+    ) {
+        lc.on_event(&event(StationEventKind::Begin, station, chunks), t, out);
+        lc.on_pose(&pose(station), t, out);
+    }
+
     #[test]
     fn a_clean_station_reports_complete_when_its_last_chunk_is_in() {
         let (mut lc, mut out, t) = setup();
-        lc.on_event(&event(StationEventKind::Begin, 7, 0), t, &mut out);
-        lc.on_pose(&pose(7), t, &mut out);
+        begin_with_pose(&mut lc, &mut out, t, 7, 0);
         for s in 0..3 {
             lc.on_chunk(chunk(7, s, 50), t, &mut out);
         }
@@ -1073,8 +1084,7 @@ mod tests {
     #[test]
     fn an_end_that_overtakes_its_last_chunks_waits_for_them() {
         let (mut lc, mut out, t) = setup();
-        lc.on_event(&event(StationEventKind::Begin, 2, 3), t, &mut out);
-        lc.on_pose(&pose(2), t, &mut out);
+        begin_with_pose(&mut lc, &mut out, t, 2, 3);
         lc.on_chunk(chunk(2, 0, 10), t, &mut out);
         lc.on_event(&event(StationEventKind::End, 2, 3), t, &mut out);
         // The queues run empty before the last chunks, sent by another process, are seen.
@@ -1086,8 +1096,7 @@ mod tests {
         assert_eq!(out.reports[0].stats.count, 30);
 
         // A chunk that never comes: the station is reported incomplete after the grace.
-        lc.on_event(&event(StationEventKind::Begin, 3, 2), t, &mut out);
-        lc.on_pose(&pose(3), t, &mut out);
+        begin_with_pose(&mut lc, &mut out, t, 3, 2);
         lc.on_chunk(chunk(3, 0, 10), t, &mut out);
         lc.on_event(&event(StationEventKind::End, 3, 2), t, &mut out);
         lc.on_idle(t + END_GRACE / 2, &mut out);
@@ -1119,8 +1128,7 @@ mod tests {
     #[test]
     fn bad_chunks_are_counted_by_reason_and_good_points_kept() {
         let (mut lc, mut out, t) = setup();
-        lc.on_event(&event(StationEventKind::Begin, 1, 0), t, &mut out);
-        lc.on_pose(&pose(1), t, &mut out);
+        begin_with_pose(&mut lc, &mut out, t, 1, 0);
         let mut c = chunk(1, 0, 10);
         c.1[0].xyz[0] = f32::NAN;
         c.1[1].flags = ScanPointFlags(ScanPointFlags::INVALID);
@@ -1164,8 +1172,7 @@ mod tests {
     #[test]
     fn silence_closes_a_station_as_timed_out_and_late_chunks_are_counted() {
         let (mut lc, mut out, t) = setup();
-        lc.on_event(&event(StationEventKind::Begin, 2, 0), t, &mut out);
-        lc.on_pose(&pose(2), t, &mut out);
+        begin_with_pose(&mut lc, &mut out, t, 2, 0);
         lc.on_chunk(chunk(2, 0, 10), t, &mut out);
         lc.on_chunk(chunk(9, 0, 10), t, &mut out); // never begins
         lc.on_tick(t + Duration::from_secs(5), &mut out);

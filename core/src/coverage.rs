@@ -287,22 +287,15 @@ impl Coverage {
     pub fn ingest(&mut self, points: &[Point3<f64>]) {
         let reach2 = self.params.reach * self.params.reach;
         let t2 = self.params.threshold * self.params.threshold;
-        self.grid.offer(
-            &mut self.scratch,
-            &mut self.station,
-            points,
-            |s, n, st, pts| {
-                for p in pts {
-                    let v = p - s;
-                    let d2 = v.norm_squared();
-                    if d2 <= reach2 {
-                        let along = v.dot(n);
-                        st.offer(d2, along);
-                        st.buried |= along > 0.0 && d2 - along * along <= t2;
-                    }
+        self.grid
+            .offer(&mut self.scratch, &mut self.station, points, |v, n, st| {
+                let d2 = v.norm_squared();
+                if d2 <= reach2 {
+                    let along = v.dot(n);
+                    st.offer(d2, along);
+                    st.buried |= along > 0.0 && d2 - along * along <= t2;
                 }
-            },
-        );
+            });
     }
 
     /// Closes the station scanned from `origin` (design frame): classifies every sample by this

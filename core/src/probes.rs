@@ -182,9 +182,9 @@ impl ProbeGrid {
         })
     }
 
-    /// Offers `chunk` to every probe: `visit(probe, normal, state, points)` runs once for each
-    /// occupied point cell next to the probe's cell, with the points of that cell (some beyond
-    /// the reach: the visitor applies its own test). `state` holds one entry per probe in grid
+    /// Offers `chunk` to every probe: `visit(offset, normal, state)` runs for each point in the
+    /// probe's cell and its neighbours, with the point's offset from the probe (some beyond the
+    /// reach: the visitor applies its own test). `state` holds one entry per probe in grid
     /// order. Non-finite points and points far outside the design are never offered.
     pub fn offer<S, F>(
         &self,
@@ -194,7 +194,7 @@ impl ProbeGrid {
         visit: F,
     ) where
         S: Send,
-        F: Fn(&Point3<f64>, &Vector3<f64>, &mut S, &[Point3<f64>]) + Sync,
+        F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
     {
         assert_eq!(state.len(), self.points.len(), "one state per probe");
         let Scratch {
@@ -269,7 +269,9 @@ impl ProbeGrid {
                     .zip(&self.normals[range])
                     .zip(states.iter_mut())
                 {
-                    visit(p, n, st, pts);
+                    for q in pts {
+                        visit(q - p, n, st);
+                    }
                 }
             }
         });
@@ -313,8 +315,8 @@ mod tests {
         let mut state = vec![0u32; grid.len()];
         let mut scratch = Scratch::default();
         for chunk in points.chunks(700) {
-            grid.offer(&mut scratch, &mut state, chunk, |p, _, s, pts| {
-                *s += pts.iter().filter(|q| (*q - p).norm() <= reach).count() as u32;
+            grid.offer(&mut scratch, &mut state, chunk, |v, _, s| {
+                *s += u32::from(v.norm() <= reach);
             });
         }
         for (i, &id) in grid.ids().iter().enumerate() {

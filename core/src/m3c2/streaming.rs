@@ -138,20 +138,13 @@ impl StreamingM3c2 {
     pub fn ingest(&mut self, points: &[Point3<f64>]) {
         let r = 0.5 * self.params.projection_diameter;
         let (r2, h) = (r * r, self.params.max_depth);
-        self.grid.offer(
-            &mut self.scratch,
-            &mut self.station,
-            points,
-            |c, n, st, pts| {
-                for p in pts {
-                    let v = p - c;
-                    let a = v.dot(n);
-                    if a.abs() <= h && v.norm_squared() - a * a <= r2 {
-                        st.push(a);
-                    }
+        self.grid
+            .offer(&mut self.scratch, &mut self.station, points, |v, n, st| {
+                let a = v.dot(n);
+                if a.abs() <= h && v.norm_squared() - a * a <= r2 {
+                    st.push(a);
                 }
-            },
-        );
+            });
     }
 
     /// Closes a station: adds its cylinders to the job's and summarises the station alone.

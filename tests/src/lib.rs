@@ -268,14 +268,31 @@ pub fn bunny_agent_config(extra: &str) -> String {
     )
 }
 
-/// `asbuilt publish` of the ten bunny stations (examples/bunny) to `prefix`, 10,000 points per
-/// chunk; `asbuilt` is the command to run.
-pub fn publish_bunny(asbuilt: &str, prefix: &str) -> std::process::Output {
-    Command::new(asbuilt)
-        .arg("publish")
+/// The repository's root.
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The bunny job's stations file (examples/bunny).
+pub fn bunny_stations() -> PathBuf {
+    repo().join("examples/bunny/stations.toml")
+}
+
+/// `asbuilt publish` (`asbuilt` is the command to run) of a stations file to the agent under
+/// `prefix`; the caller adds its own options.
+pub fn publish_command(asbuilt: &str, stations: &Path, prefix: &str) -> Command {
+    let mut c = Command::new(asbuilt);
+    c.arg("publish")
         .arg("--stations")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/bunny/stations.toml"))
-        .args(["--prefix", prefix, "--chunk-points", "10000"])
+        .arg(stations)
+        .args(["--prefix", prefix]);
+    c
+}
+
+/// `asbuilt publish` of the ten bunny stations to `prefix`, 10,000 points per chunk.
+pub fn publish_bunny(asbuilt: &str, prefix: &str) -> std::process::Output {
+    publish_command(asbuilt, &bunny_stations(), prefix)
+        .args(["--chunk-points", "10000"])
         .output()
         .unwrap()
 }

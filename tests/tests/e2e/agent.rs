@@ -9,15 +9,14 @@ use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent,
     StationEventKind, StationReport, StationSender, StationStatus,
 };
-use asbuilt_tests::{Agent, Cell, memory_kib, shared_data, unique_prefix, write_box_stl};
+use asbuilt_tests::{
+    Agent, Cell, bunny_agent_config, bunny_stations, memory_kib, publish_bunny, publish_command,
+    shared_data, unique_prefix, write_box_stl,
+};
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
 const LONG: Duration = Duration::from_secs(60);
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 /// A 1 m box from the origin; the scanner frame is the design frame (pose mode 2, identity).
 fn box_config(dir: &Path, extra: &str) -> String {
@@ -80,26 +79,11 @@ fn report_of(reports: &[StationReport], job: u64, station: u32) -> StationReport
 #[test]
 fn a_clean_bunny_job_reports_what_inspect_reports_bit_for_bit() {
     let design = shared_data().join("stanford-bunny/bun_zipper.ply");
-    let stations = repo().join("examples/bunny/stations.toml");
+    let stations = bunny_stations();
     let prefix = unique_prefix("bunny");
-    let agent = Agent::start(
-        AGENT,
-        &prefix,
-        &format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-             max_distance = 0.005\n",
-            design.display().to_string()
-        ),
-    );
+    let agent = Agent::start(AGENT, &prefix, &bunny_agent_config(""));
     let cell = Cell::open(&prefix, 16);
-    let publish = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(&stations)
-        .args(["--prefix", &prefix, "--chunk-points", "10000"])
-        .output()
-        .unwrap();
-    agent.assert_fed(&publish);
+    agent.assert_fed(&publish_bunny(ASBUILT, &prefix));
     let reports = cell.reports(10, LONG);
     assert_eq!(reports.len(), 10, "agent log:\n{}", agent.log());
 
@@ -314,19 +298,8 @@ fn a_killed_publisher_times_out_and_a_restarted_one_is_served() {
     let agent = Agent::start_in(AGENT, &prefix, &config, dir);
     let cell = Cell::open(&prefix, 16);
 
-    let mut slow = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(&stations)
-        .args([
-            "--prefix",
-            &prefix,
-            "--chunk-points",
-            "1000",
-            "--rate",
-            "20000",
-        ])
-        .args(["--job", "1"])
+    let mut slow = publish_command(ASBUILT, &stations, &prefix)
+        .args(["--chunk-points", "1000", "--rate", "20000", "--job", "1"])
         .stderr(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
         .spawn()
@@ -351,11 +324,8 @@ fn a_killed_publisher_times_out_and_a_restarted_one_is_served() {
     assert!(partial.stats.count >= 5000 && partial.stats.count < 100_000);
     assert_eq!(partial.stats.count, partial.points_received);
 
-    let again = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(&stations)
-        .args(["--prefix", &prefix, "--job", "2"])
+    let again = publish_command(ASBUILT, &stations, &prefix)
+        .args(["--job", "2"])
         .output()
         .unwrap();
     agent.assert_fed(&again);

@@ -9,15 +9,14 @@ use std::process::Command;
 use asbuilt_protocol::recording::RecordingWriter;
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{StationEventKind, StationReport};
-use asbuilt_tests::{Agent, agent_after_bunny_job, bunny_agent_config, shared_data, unique_prefix};
+use asbuilt_tests::{
+    Agent, agent_after_bunny_job, bunny_agent_config, bunny_stations, publish_command, repo,
+    shared_data, unique_prefix,
+};
 use serde_json::Value;
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 fn run(args: &[&str]) -> std::process::Output {
     let o = Command::new(ASBUILT).args(args).output().unwrap();
@@ -36,7 +35,7 @@ fn pack_bunny(out: &Path) {
 
 fn pack_bunny_with(out: &Path, extra: &[&str]) {
     let design = shared_data().join("stanford-bunny/bun_zipper.ply");
-    let stations = repo().join("examples/bunny/stations.toml");
+    let stations = bunny_stations();
     let mut args = vec![
         "pack",
         "--stations",
@@ -659,18 +658,8 @@ fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
     let mut agent = Agent::start(AGENT, &prefix, &config);
     let cell = asbuilt_tests::Cell::open(&prefix, 16);
     // Paced, so that the kill lands while stations are still coming.
-    let mut publish = Command::new(ASBUILT)
-        .arg("publish")
-        .arg("--stations")
-        .arg(repo().join("examples/bunny/stations.toml"))
-        .args([
-            "--prefix",
-            &prefix,
-            "--chunk-points",
-            "10000",
-            "--rate",
-            "150000",
-        ])
+    let mut publish = publish_command(ASBUILT, &bunny_stations(), &prefix)
+        .args(["--chunk-points", "10000", "--rate", "150000"])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()

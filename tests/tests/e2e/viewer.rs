@@ -3,19 +3,15 @@
 //! verify` checks the file too.
 
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-use asbuilt_tests::{agent_after_bunny_job, bunny_agent_config, shared_data};
+use asbuilt_tests::{agent_after_bunny_job, bunny_agent_config, bunny_stations, shared_data};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::LogMsg;
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 /// Entity paths (and the number of chunks) in a `.rrd` file.
 fn entities(rrd: &Path) -> (BTreeSet<String>, usize) {
@@ -62,7 +58,7 @@ fn inspect_writes_a_view_of_the_bunny() {
         .arg("inspect")
         .args(["--design", design.to_str().unwrap(), "--units", "m"])
         .arg("--stations")
-        .arg(repo().join("examples/bunny/stations.toml"))
+        .arg(bunny_stations())
         .args([
             "--max-distance",
             "0.005",

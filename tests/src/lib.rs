@@ -337,3 +337,37 @@ pub fn small_demo(asbuilt: &str, out: &Path) -> std::process::Output {
         .output()
         .unwrap()
 }
+
+/// Asserts that a station of a report.json says, to the bit, what the agent's report `r` says:
+/// its points, its signed distances and its histogram. `what` names the station in a failure.
+pub fn assert_section_matches(section: &serde_json::Value, r: &StationReport, what: &str) {
+    let s = &r.stats;
+    for (key, v) in [
+        ("mean", s.mean),
+        ("std", s.std),
+        ("rms", s.rms),
+        ("min", s.min),
+        ("max", s.max),
+        ("median_abs", s.median_abs),
+        ("p95_abs", s.p95_abs),
+    ] {
+        let written = section[key].as_f64().unwrap();
+        assert_eq!(
+            written.to_bits(),
+            v.to_bits(),
+            "{what} {key}: report.json {written}, agent {v}"
+        );
+    }
+    for (key, v) in [
+        ("points", r.points_received),
+        ("matched", s.count),
+        ("no_match", r.no_match),
+        ("within_tolerance", s.within),
+        ("above_tolerance", s.above),
+        ("below_tolerance", s.below),
+    ] {
+        assert_eq!(section[key].as_u64().unwrap(), v, "{what} {key}");
+    }
+    let bins: Vec<u64> = serde_json::from_value(section["histogram"]["bins"].clone()).unwrap();
+    assert_eq!(bins, r.histogram.bins, "{what} histogram");
+}

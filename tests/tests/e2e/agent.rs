@@ -10,8 +10,8 @@ use asbuilt_protocol::{
     StationEventKind, StationReport, StationSender, StationStatus,
 };
 use asbuilt_tests::{
-    Agent, Cell, bunny_agent_config, bunny_stations, memory_kib, publish_bunny, publish_command,
-    shared_data, unique_prefix, write_box_stl,
+    Agent, Cell, assert_section_matches, bunny_agent_config, bunny_stations, memory_kib,
+    publish_bunny, publish_command, shared_data, unique_prefix, write_box_stl,
 };
 
 const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
@@ -108,41 +108,7 @@ fn a_clean_bunny_job_reports_what_inspect_reports_bit_for_bit() {
         let r = report_of(&reports, 1, i as u32);
         assert_eq!(r.status(), Some(StationStatus::Complete));
         assert_eq!(st["id"].as_str().unwrap(), r.name.as_str());
-        let s = &r.stats;
-        for (key, v) in [
-            ("mean", s.mean),
-            ("std", s.std),
-            ("rms", s.rms),
-            ("min", s.min),
-            ("max", s.max),
-            ("median_abs", s.median_abs),
-            ("p95_abs", s.p95_abs),
-        ] {
-            let expected = st[key].as_f64().unwrap();
-            assert_eq!(
-                expected.to_bits(),
-                v.to_bits(),
-                "station {} {key}: inspect {expected} agent {v}",
-                r.name.as_str()
-            );
-        }
-        for (key, v) in [
-            ("points", r.points_received),
-            ("matched", s.count),
-            ("no_match", r.no_match),
-            ("within_tolerance", s.within),
-            ("above_tolerance", s.above),
-            ("below_tolerance", s.below),
-        ] {
-            assert_eq!(st[key].as_u64().unwrap(), v, "station {i} {key}");
-        }
-        let bins: Vec<u64> = st["histogram"]["bins"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|b| b.as_u64().unwrap())
-            .collect();
-        assert_eq!(bins, r.histogram.bins, "station {i} histogram");
+        assert_section_matches(st, &r, &format!("station {}", r.name.as_str()));
         assert_eq!(r.chunks.missing, 0);
     }
 }

@@ -10,8 +10,8 @@ use asbuilt_protocol::recording::RecordingWriter;
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{StationEventKind, StationReport};
 use asbuilt_tests::{
-    Agent, agent_after_bunny_job, bunny_agent_config, bunny_stations, publish_command, repo,
-    shared_data, unique_prefix,
+    Agent, agent_after_bunny_job, assert_section_matches, bunny_agent_config, bunny_stations,
+    publish_command, repo, shared_data, unique_prefix,
 };
 use serde_json::Value;
 
@@ -624,26 +624,7 @@ fn a_recording_reports_the_live_reports_wherever_a_station_end_is_recorded() {
         assert_eq!(stations.len(), 10, "End {place} its chunks");
         for s in &stations {
             let r = &live[s["id"].as_str().unwrap()];
-            let what = format!("End {place} the chunks of {}", s["id"]);
-            assert_eq!(s["points"], r.points_received, "{what}");
-            assert_eq!(s["matched"], r.stats.count, "{what}");
-            assert_eq!(
-                s["mean"].as_f64().unwrap().to_bits(),
-                r.stats.mean.to_bits(),
-                "{what}"
-            );
-            assert_eq!(
-                s["std"].as_f64().unwrap().to_bits(),
-                r.stats.std.to_bits(),
-                "{what}"
-            );
-            assert_eq!(
-                s["median_abs"].as_f64().unwrap().to_bits(),
-                r.stats.median_abs.to_bits(),
-                "{what}"
-            );
-            let bins: Vec<u64> = serde_json::from_value(s["histogram"]["bins"].clone()).unwrap();
-            assert_eq!(bins, r.histogram.bins.to_vec(), "{what}");
+            assert_section_matches(s, r, &format!("End {place} the chunks of {}", s["id"]));
         }
     }
 }
@@ -694,15 +675,7 @@ fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
             .iter()
             .find(|s| s["id"] == name)
             .unwrap_or_else(|| panic!("station {name}, reported live, is not in {stations:#?}"));
-        assert_eq!(s["points"], r.points_received, "{name}");
-        assert_eq!(s["matched"], r.stats.count, "{name}");
-        assert_eq!(
-            s["mean"].as_f64().unwrap().to_bits(),
-            r.stats.mean.to_bits(),
-            "{name}"
-        );
-        let bins: Vec<u64> = serde_json::from_value(s["histogram"]["bins"].clone()).unwrap();
-        assert_eq!(bins, r.histogram.bins.to_vec(), "{name}");
+        assert_section_matches(s, r, name);
     }
 }
 

@@ -271,18 +271,10 @@ impl CoverageSection {
 /// M3C2 at the design samples, along the design's normals. Metres.
 #[derive(Debug, Serialize)]
 pub struct M3c2Section {
-    /// Design samples used as core points.
-    pub core_points: u64,
-    /// Core points with scan points in their cylinder.
-    pub with_points: u64,
-    /// Core points whose distance exceeds their level of detection.
-    pub significant: u64,
-    /// Mean distance over the core points with one.
-    pub mean_distance: Option<f64>,
-    /// Smallest distance.
-    pub min_distance: Option<f64>,
-    /// Largest distance.
-    pub max_distance: Option<f64>,
+    /// Core points, those with scan points in their cylinder, the significant ones, and the
+    /// mean and extremes of their distances.
+    #[serde(flatten)]
+    pub summary: StreamingSummary,
     /// The registration error in the level of detection: the stations' pose sigma.
     pub registration_sigma_m: f64,
 }
@@ -290,12 +282,7 @@ pub struct M3c2Section {
 impl M3c2Section {
     fn new(s: &StreamingSummary, sigma: f64) -> Self {
         Self {
-            core_points: s.core_points,
-            with_points: s.with_points,
-            significant: s.significant,
-            mean_distance: s.mean_distance,
-            min_distance: s.min_distance,
-            max_distance: s.max_distance,
+            summary: s.clone(),
             registration_sigma_m: sigma,
         }
     }

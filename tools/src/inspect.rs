@@ -876,7 +876,7 @@ fn method_line(s: &suite::SuiteSection) -> String {
     if let Some(m) = &s.m3c2 {
         parts.push(format!(
             "M3C2: {} of {} core points measured, {} significant",
-            m.with_points, m.core_points, m.significant
+            m.summary.with_points, m.summary.core_points, m.summary.significant
         ));
     }
     if let Some(a) = s.above_printed_height {

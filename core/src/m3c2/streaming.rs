@@ -59,6 +59,7 @@ pub struct CoreResult {
 
 /// M3C2 over a station, or over the job so far.
 #[derive(Debug, Clone, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct StreamingSummary {
     /// Core points.
     pub core_points: u64,

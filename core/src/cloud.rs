@@ -107,20 +107,16 @@ impl CloudIndex {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
+    use crate::test_points::{random_points, seeded};
 
     #[test]
     fn queries_match_brute_force() {
-        let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let pts: Vec<Point3<f64>> = (0..2000)
-            .map(|_| Point3::new(rng.random(), rng.random(), rng.random()))
-            .collect();
+        let mut rng = seeded(5);
+        let pts = random_points(&mut rng, 2000, 0.0..1.0);
         let ix = CloudIndex::new(&pts).unwrap();
         let mut buf = Vec::new();
         let mut ibuf = Vec::new();
-        for _ in 0..200 {
-            let q = Point3::new(rng.random(), rng.random(), rng.random());
+        for q in random_points(&mut rng, 200, 0.0..1.0) {
             let mut d: Vec<(f64, u32)> = pts
                 .iter()
                 .enumerate()

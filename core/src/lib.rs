@@ -24,4 +24,6 @@ pub mod printed;
 pub mod probes;
 pub mod sampling;
 pub mod scan_layer;
+#[cfg(test)]
+mod test_points;
 pub mod verdict;

@@ -290,26 +290,17 @@ fn runs_of(keyed: &[(u64, u32)]) -> impl Iterator<Item = (u64, u32, u32)> + '_ {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
+    use crate::test_points::{random_points, seeded};
 
     #[test]
     fn every_point_within_reach_is_offered_to_every_probe_exactly_once() {
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let probes: Vec<Point3<f64>> = (0..500)
-            .map(|_| Point3::new(rng.random(), rng.random(), rng.random()))
-            .collect();
+        let mut rng = seeded(3);
+        let probes = random_points(&mut rng, 500, 0.0..1.0);
         let normals = vec![Vector3::z(); probes.len()];
         let reach = 0.15;
         let grid = ProbeGrid::new(&probes, &normals, reach);
-        let points: Vec<Point3<f64>> = (0..3000)
-            .map(|_| {
-                Point3::new(
-                    rng.random_range(-0.2..1.2),
-                    rng.random_range(-0.2..1.2),
-                    rng.random_range(-0.2..1.2),
-                )
-            })
+        let points: Vec<Point3<f64>> = random_points(&mut rng, 3000, -0.2..1.2)
+            .into_iter()
             .chain([Point3::new(f64::NAN, 0.0, 0.0), Point3::new(1e12, 0.0, 0.0)])
             .collect();
         let mut state = vec![0u32; grid.len()];

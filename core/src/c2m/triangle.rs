@@ -359,15 +359,8 @@ mod tests {
     /// and for triangles without area.
     #[test]
     fn lanes_measure_as_the_closest_point_does() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let mut r = |s: f64| {
-            Point3::new(
-                rng.random_range(-s..s),
-                rng.random_range(-s..s),
-                rng.random_range(-s..s),
-            )
-        };
+        let mut rng = crate::test_points::seeded(3);
+        let mut r = |s: f64| crate::test_points::random_point(&mut rng, -s..s);
         for k in 0..20_000 {
             let (a, b) = (r(1.0), r(1.0));
             // Every fifth triangle without area: a repeated vertex or three in a row.

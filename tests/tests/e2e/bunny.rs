@@ -57,6 +57,24 @@ fn c2m_index(design: &Design, max_distance: f64) -> C2mIndex {
     C2mIndex::build(design, C2mParams::within(max_distance)).unwrap()
 }
 
+/// The index of a bunny mesh within 5 mm, the maximum distance of every test here.
+fn bunny_index(file: &str) -> C2mIndex {
+    c2m_index(&bunny_mesh(file), 0.005)
+}
+
+/// The first station of the scans, or the last: its name, its pose and its points.
+fn end_station(last: bool) -> (String, Isometry3<f64>, Vec<ScanPoint>) {
+    let mut all = stations();
+    let (name, t) = if last {
+        all.pop()
+    } else {
+        all.into_iter().next()
+    }
+    .unwrap();
+    let points = read_scan(&name);
+    (name, t, points)
+}
+
 fn inspect(
     index: &C2mIndex,
     t: Isometry3<f64>,
@@ -101,10 +119,8 @@ fn every_no_match_point_is_truly_beyond_the_maximum_distance() {
 
 #[test]
 fn station_reports_do_not_depend_on_chunking() {
-    let design = bunny_mesh("bun_zipper_res2.ply");
-    let index = c2m_index(&design, 0.005);
-    let (name, t) = stations().into_iter().last().unwrap();
-    let points = read_scan(&name);
+    let index = bunny_index("bun_zipper_res2.ply");
+    let (_, t, points) = end_station(true);
     let (a, da) = inspect(&index, t, &points, 65_536);
     let (b, db) = inspect(&index, t, &points, 997);
     let (c, _) = inspect(&index, t, &points, 1);
@@ -125,10 +141,8 @@ fn station_reports_do_not_depend_on_chunking() {
 /// it gets in scan order, and the station's report is the same.
 #[test]
 fn a_shuffled_station_gives_the_bits_of_its_scan_order() {
-    let design = bunny_mesh("bun_zipper.ply");
-    let index = c2m_index(&design, 0.005);
-    let (name, t) = stations().into_iter().next().unwrap();
-    let points = read_scan(&name);
+    let index = bunny_index("bun_zipper.ply");
+    let (name, t, points) = end_station(false);
     // A fixed permutation: multiplying by a number prime to the length visits every index.
     let n = points.len();
     let step = (1..)
@@ -161,8 +175,7 @@ fn gcd(a: usize, b: usize) -> usize {
 
 #[test]
 fn every_station_of_the_full_bunny_gives_the_same_bits_in_any_chunking() {
-    let design = bunny_mesh("bun_zipper.ply");
-    let index = c2m_index(&design, 0.005);
+    let index = bunny_index("bun_zipper.ply");
     for (name, t) in stations() {
         let points = read_scan(&name);
         let (ra, a) = inspect(&index, t, &points, 1 << 16);

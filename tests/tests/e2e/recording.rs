@@ -303,15 +303,11 @@ fn an_independent_mcap_reader_reads_the_recording() {
 /// bit for bit, as the ones recorded.
 #[test]
 fn a_recorded_job_replays_to_identical_reports() {
-    let config = bunny_agent_config("[recorder]\ndir = \"rec\"\n");
-    let agent = agent_after_bunny_job(AGENT, ASBUILT, "record", &config);
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "record", "[recorder]\ndir = \"rec\"\n");
     let log = agent.log();
     assert!(log.contains("recorder: closed"), "{log}");
     assert!(log.contains("43 scan chunks recorded, 0 left out"), "{log}");
-    let files: Vec<PathBuf> = std::fs::read_dir(agent.dir.path().join("rec"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
+    let files = recordings(&agent);
     assert_eq!(files.len(), 1, "{files:?}");
     let bytes = std::fs::read(&files[0]).unwrap();
     let recorded: Vec<Vec<u8>> = recording::messages(&bytes)
@@ -329,11 +325,7 @@ fn a_recorded_job_replays_to_identical_reports() {
 
     // A fresh agent, without a recorder, fed the recording.
     let prefix2 = unique_prefix("replayed");
-    let fresh = Agent::start(
-        AGENT,
-        &prefix2,
-        &config.replace("[recorder]\ndir = \"rec\"\n", ""),
-    );
+    let fresh = Agent::start(AGENT, &prefix2, &bunny_agent_config(""));
     let cell = asbuilt_tests::Cell::open(&prefix2, 16);
     replay(&files[0], &fresh, &[]);
     let replayed: Vec<Vec<u8>> = cell
@@ -400,18 +392,23 @@ fn a_recording_reports_what_inspect_reports() {
     );
 }
 
-/// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their
-/// messages, and the agent's log.
-fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
-    let config = bunny_agent_config(&format!("[recorder]\ndir = \"rec\"\n{recorder}\n"));
-    let agent = agent_after_bunny_job(AGENT, ASBUILT, "rec-limits", &config);
-    let log = agent.log();
+/// The recordings an agent wrote into its `rec` folder, in name order.
+fn recordings(agent: &Agent) -> Vec<PathBuf> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(agent.dir.path().join("rec"))
         .unwrap()
         .map(|e| e.unwrap().path())
         .collect();
     files.sort();
-    let msgs = files
+    files
+}
+
+/// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their
+/// messages, and the agent's log.
+fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
+    let recorder = format!("[recorder]\ndir = \"rec\"\n{recorder}\n");
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "rec-limits", &recorder);
+    let log = agent.log();
+    let msgs = recordings(&agent)
         .iter()
         .map(|f| {
             let b = std::fs::read(f).unwrap();
@@ -436,11 +433,7 @@ fn a_recording_with_foxglove_channels_shows_the_design_stations_and_points() {
 
     let (agent, msgs, log) = record_bunny("foxglove = true");
     assert!(log.contains("recorder: job"), "{log}");
-    let file = std::fs::read_dir(agent.dir.path().join("rec"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .next()
-        .unwrap();
+    let file = recordings(&agent).remove(0);
     let (by_topic, schemas) = by_topic(&std::fs::read(&file).unwrap());
     assert_eq!(schemas[fx::TOPIC_DESIGN], "foxglove.SceneUpdate");
     assert_eq!(schemas[fx::TOPIC_STATIONS], "foxglove.FrameTransform");
@@ -575,12 +568,7 @@ fn a_recording_reports_the_live_reports_wherever_a_station_end_is_recorded() {
         })
         .collect();
     assert_eq!(live.len(), 10);
-    let path = std::fs::read_dir(agent.dir.path().join("rec"))
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+    let path = recordings(&agent).remove(0);
     let (meta, attachments) = recording::job(&std::fs::read(path).unwrap()).unwrap();
     let (name, design) = &attachments[0];
 
@@ -659,12 +647,7 @@ fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
         live.len()
     );
 
-    let broken = std::fs::read_dir(agent.dir.path().join("rec"))
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+    let broken = recordings(&agent).remove(0);
     let dir = tempfile::tempdir().unwrap();
     let fixed = dir.path().join("fixed.mcap");
     run(&["recover", broken.to_str().unwrap(), fixed.to_str().unwrap()]);

@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use std::path::Path;
 use std::process::Command;
 
-use asbuilt_tests::{agent_after_bunny_job, bunny_agent_config, bunny_stations, shared_data};
+use asbuilt_tests::{agent_after_bunny_job, bunny_stations, shared_data};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::LogMsg;
 
@@ -93,8 +93,8 @@ fn inspect_writes_a_view_of_the_bunny() {
 
 #[test]
 fn the_agent_writes_a_view_of_a_job() {
-    let config = bunny_agent_config("[viewer]\nrrd = \"job.rrd\"\nmax_points_per_station = 4000\n");
-    let agent = agent_after_bunny_job(AGENT, ASBUILT, "viewer", &config);
+    let viewer = "[viewer]\nrrd = \"job.rrd\"\nmax_points_per_station = 4000\n";
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "viewer", viewer);
     let log = agent.log();
     assert!(log.contains("viewer: closed (0 item(s) dropped"), "{log}");
     let rrd = agent.dir.path().join("job.rrd");

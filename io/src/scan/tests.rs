@@ -97,9 +97,15 @@ fn every_shared_e57_file_loads_with_its_count_and_pose_or_fails_clearly() {
     );
     // Not an E57 file at all.
     let dir = tempfile::tempdir().unwrap();
-    let fake = dir.path().join("fake.e57");
-    std::fs::write(&fake, b"not an e57 file").unwrap();
+    let fake = written(&dir, "fake.e57", "not an e57 file");
     assert!(err(&fake).contains("as E57"));
+}
+
+/// `contents` written to the file `name` in `dir`; its path.
+fn written(dir: &tempfile::TempDir, name: &str, contents: impl AsRef<[u8]>) -> PathBuf {
+    let path = dir.path().join(name);
+    std::fs::write(&path, contents).unwrap();
+    path
 }
 
 fn sample_scan(n: usize, seed: u32) -> Vec<ScanPoint> {
@@ -249,9 +255,8 @@ fn las_ply_and_ascii_round_trip_placed_points() {
 #[test]
 fn ptx_headers_and_lines_that_cannot_be_read_are_reported_with_their_line() {
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("bad.ptx");
     let header = "2\n1\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n5 6 7 1\n";
-    std::fs::write(&path, format!("{header}1 2 3 0.5\nnot a point\n")).unwrap();
+    let path = written(&dir, "bad.ptx", format!("{header}1 2 3 0.5\nnot a point\n"));
     let f = ScanFile::open(&path).unwrap();
     assert_eq!(
         f.scans[0].pose.unwrap().0.translation.vector,
@@ -280,15 +285,14 @@ fn ptx_headers_and_lines_that_cannot_be_read_are_reported_with_their_line() {
 #[test]
 fn ply_skips_elements_before_the_vertices_and_reads_every_encoding() {
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("a.ply");
-    std::fs::write(
-        &path,
+    let path = written(
+        &dir,
+        "a.ply",
         "ply\nformat ascii 1.0\nelement camera 1\nproperty float f\nelement vertex 3\n\
          property float x\nproperty float y\nproperty float z\nproperty float intensity\n\
          element face 0\nproperty list uchar int vertex_indices\nend_header\n\
          9\n1 2 3 0.5\n4 5 6 0.25\nbad line\n",
-    )
-    .unwrap();
+    );
     let (pts, notes) = ScanFile::open(&path).unwrap().read_all(0).unwrap();
     assert_eq!(pts.len(), 2);
     assert_eq!(pts[1].xyz, [4.0, 5.0, 6.0]);

@@ -61,6 +61,15 @@ fn write_scan(path: &Path) -> Vec<[f64; 3]> {
     written
 }
 
+/// A fresh folder with the design, the box 0.4 × 0.3 × 0.2 m (`box.stl`), and its as-built
+/// scan (`scan.xyz`); returns the folder and the scan's points in the design frame.
+fn box_job() -> (tempfile::TempDir, Vec<[f64; 3]>) {
+    let dir = tempfile::tempdir().unwrap();
+    write_box_stl(&dir.path().join("box.stl"), [0.0; 3], [0.4, 0.3, 0.2]);
+    let scan = write_scan(&dir.path().join("scan.xyz"));
+    (dir, scan)
+}
+
 fn inspect(dir: &Path, extra: &[&str]) -> (Value, std::path::PathBuf) {
     let out = dir.join(extra.join("_").replace(['-', '.', ','], ""));
     let status = Command::new(env!("CARGO_BIN_EXE_e2e-asbuilt"))
@@ -143,9 +152,8 @@ fn assert_findings_at_the_pit(r: &serde_json::Value, truth: f64) {
 
 #[test]
 fn every_method_reports_the_raised_top_and_the_pit() {
-    let dir = tempfile::tempdir().unwrap();
-    write_box_stl(&dir.path().join("box.stl"), [0.0; 3], [0.4, 0.3, 0.2]);
-    let points = write_scan(&dir.path().join("scan.xyz")).len();
+    let (dir, scan) = box_job();
+    let points = scan.len();
     let (r, out) = inspect(
         dir.path(),
         &[
@@ -244,9 +252,7 @@ fn every_method_reports_the_raised_top_and_the_pit() {
 
 #[test]
 fn the_design_cut_at_the_printed_height_is_compared_and_what_stands_above_is_excess() {
-    let dir = tempfile::tempdir().unwrap();
-    write_box_stl(&dir.path().join("box.stl"), [0.0; 3], [0.4, 0.3, 0.2]);
-    let scan = write_scan(&dir.path().join("scan.xyz"));
+    let (dir, scan) = box_job();
     let (r, _) = inspect(
         dir.path(),
         &["--printed-height", "0.1", "--layer-height", "0.02"],
@@ -268,9 +274,7 @@ fn the_design_cut_at_the_printed_height_is_compared_and_what_stands_above_is_exc
 /// the scan is −1 mm along the top's +z normal.
 #[test]
 fn a_reference_cloud_drives_c2c_and_two_cloud_m3c2() {
-    let dir = tempfile::tempdir().unwrap();
-    write_box_stl(&dir.path().join("box.stl"), [0.0; 3], [0.4, 0.3, 0.2]);
-    let scan = write_scan(&dir.path().join("scan.xyz"));
+    let (dir, scan) = box_job();
     let reference = dir.path().join("reference.xyz");
     let mut f = std::io::BufWriter::new(std::fs::File::create(&reference).unwrap());
     writeln!(f, "X Y Z").unwrap();

@@ -78,9 +78,10 @@ fn truth_of(job: &SimJob) -> Truth {
     t[0].1.clone()
 }
 
-/// A wall printed `layers` high with one `defect`, scanned and inspected: the defect's truth
-/// and what the agent found.
-fn found(test: &str, layers: u32, defect: Defect) -> (Truth, StationFindings) {
+/// A wall printed `layers` high with one defect, spelled as `asbuilt demo --defect` takes it,
+/// scanned and inspected: the defect's truth and what the agent found.
+fn found(test: &str, layers: u32, defect: &str) -> (Truth, StationFindings) {
+    let defect = Defect::parse(defect, &Part::wall()).unwrap();
     let job = wall_job(layers, vec![defect]);
     let t = truth_of(&job);
     let (_, f) = run(test, &job);
@@ -117,27 +118,25 @@ fn a_defect_free_print_raises_nothing_at_5_mm() {
 
 #[test]
 fn over_and_under_extrusion_are_found_per_layer_with_their_sign() {
-    for (test, width) in [("sim_over", 0.012), ("sim_under", -0.010)] {
-        let (t, f) = found(
-            test,
-            10,
-            Defect::Extrusion {
-                first: 3,
-                last: 5,
-                width,
-            },
-        );
+    for (test, defect, kind) in [
+        (
+            "sim_over",
+            "over-extrusion:layers=3-5,width=12mm",
+            RegionKind::Excess,
+        ),
+        (
+            "sim_under",
+            "under-extrusion:layers=3-5,width=10mm",
+            RegionKind::Deficit,
+        ),
+    ] {
+        let (t, f) = found(test, 10, defect);
         for layer in 3..=5 {
             let row = f.layers.iter().find(|l| l.layer == layer).unwrap();
             assert!(within(row.width_deviation, t.magnitude), "{row:?} vs {t:?}");
         }
         let flagged: Vec<u32> = f.layers_out_of_tolerance().map(|l| l.layer).collect();
         assert_eq!(flagged, [3, 4, 5], "{:#?}", f.layers);
-        let kind = if width > 0.0 {
-            RegionKind::Excess
-        } else {
-            RegionKind::Deficit
-        };
         // One band all around the wall (faces and ends), in those layers, each face out by
         // half the width.
         let big: Vec<_> = f
@@ -155,7 +154,7 @@ fn over_and_under_extrusion_are_found_per_layer_with_their_sign() {
 
 /// Runs a 12-layer wall with one defect that moves the top; the top's height deviation must
 /// match the injected truth.
-fn top_moved_by(test: &str, defect: Defect) -> StationFindings {
+fn top_moved_by(test: &str, defect: &str) -> StationFindings {
     let (t, f) = found(test, 12, defect);
     assert!(
         within(f.top_height_deviation, t.magnitude),
@@ -167,32 +166,19 @@ fn top_moved_by(test: &str, defect: Defect) -> StationFindings {
 
 #[test]
 fn height_drift_shows_as_the_top_too_high() {
-    let drift = Defect::HeightDrift {
-        from: 4,
-        per_layer: 0.001,
-    };
+    let drift = "height-drift:from=4,per-layer=1mm";
     assert!(top_moved_by("sim_drift", drift).count() >= 1);
 }
 
 #[test]
 fn sag_shows_as_the_top_too_low() {
-    let sag = Defect::Sag {
-        layers: 3,
-        depth: 0.008,
-    };
+    let sag = "sag:layers=3,depth=8mm";
     assert!(top_moved_by("sim_sag", sag).top_height_deviation < -TOLERANCE);
 }
 
 #[test]
 fn a_lateral_shift_is_found_from_the_layer_it_starts() {
-    let (t, f) = found(
-        "sim_shift",
-        12,
-        Defect::LateralShift {
-            from: 6,
-            offset: [0.0, 0.008],
-        },
-    );
+    let (t, f) = found("sim_shift", 12, "lateral-shift:from=6,dx=0,dy=8mm");
     for l in &f.layers {
         let shift = l.shift[1];
         if l.layer >= 7 && l.layer <= 10 {
@@ -215,16 +201,8 @@ fn a_lateral_shift_is_found_from_the_layer_it_starts() {
 
 #[test]
 fn a_missing_segment_is_found_where_it_is_missing() {
-    let (t, f) = found(
-        "sim_gap",
-        12,
-        Defect::MissingSegment {
-            layer: 8,
-            centre: [0.3, 0.0],
-            direction: [1.0, 0.0],
-            length: 0.25,
-        },
-    );
+    let gap = "missing-segment:layer=8,x=0.3,y=0,along=x,length=0.25";
+    let (t, f) = found("sim_gap", 12, gap);
     assert!(!f.missing.is_empty(), "{f:#?}");
     let m = &f.missing[0];
     assert!(
@@ -242,15 +220,8 @@ fn a_missing_segment_is_found_where_it_is_missing() {
 
 #[test]
 fn a_bulge_is_found_with_its_peak_and_place() {
-    let (t, f) = found(
-        "sim_bulge",
-        14,
-        Defect::Bulge {
-            centre: [-0.4, -0.0867, 0.14],
-            radius: 0.1,
-            height: 0.015,
-        },
-    );
+    let bulge = "bulge:x=-0.4,y=-0.0867,z=0.14,radius=0.1,height=15mm";
+    let (t, f) = found("sim_bulge", 14, bulge);
     let r = f
         .regions
         .iter()

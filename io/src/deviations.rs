@@ -9,12 +9,10 @@ use std::path::Path;
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 
 use crate::IoError;
-use crate::ply::{PlyWriter, Property, Scalar};
+use crate::ply::{PlyWriter, Property, Scalar, point_columns};
 
-const POINT: [Property; 8] = [
-    Property::new("x", Scalar::F64),
-    Property::new("y", Scalar::F64),
-    Property::new("z", Scalar::F64),
+/// The columns after the point's.
+const DEVIATION: [Property; 5] = [
     Property::new("c2m", Scalar::F32),
     Property::new("triangle", Scalar::U32),
     Property::new("station", Scalar::U16),
@@ -38,7 +36,7 @@ impl DeviationsPly {
             path,
             "asbuilt deviations: design frame, metres; c2m is the signed distance (NaN: no \
              match within the maximum distance)",
-            &POINT,
+            &point_columns(&DEVIATION),
             None,
         )?;
         let ascii = if ascii {

@@ -64,6 +64,13 @@ impl Property {
     }
 }
 
+/// A point table's columns: x, y and z in metres as doubles, so a point keeps its full
+/// precision however far it is from the origin, then `rest`.
+pub fn point_columns(rest: &[Property]) -> Vec<Property> {
+    let xyz = ["x", "y", "z"].map(|axis| Property::new(axis, Scalar::F64));
+    [&xyz[..], rest].concat()
+}
+
 /// Where the rows go until the count is known.
 enum Body {
     /// The header is written: rows go straight after it, and exactly `announced` must come.

@@ -23,7 +23,7 @@ use crate::sections::DistanceSection;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
-use asbuilt_io::ply::{Property, Scalar, write_table};
+use asbuilt_io::ply::{Property, Scalar, point_columns, write_table};
 
 /// A comparison `--method` can ask for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -901,10 +901,8 @@ fn write_missing(
 
 /// A sample table's columns: the point (metres, f64), its unit normal, then `rest`.
 fn with_position_and_normal(rest: &[Property]) -> Vec<Property> {
-    let axes = [("x", "nx"), ("y", "ny"), ("z", "nz")];
-    let point = axes.map(|(p, _)| Property::new(p, Scalar::F64));
-    let normal = axes.map(|(_, n)| Property::new(n, Scalar::F32));
-    [&point[..], &normal, rest].concat()
+    let normal = ["nx", "ny", "nz"].map(|n| Property::new(n, Scalar::F32));
+    point_columns(&[&normal[..], rest].concat())
 }
 
 fn two_cloud(
@@ -945,14 +943,11 @@ fn two_cloud(
         &out.join("m3c2_two_cloud.ply"),
         "asbuilt two-cloud M3C2 from the reference to the scans: core points subsampled from the \
          reference, distance along the normal (NaN where a cylinder is empty)",
-        &[
-            Property::new("x", Scalar::F64),
-            Property::new("y", Scalar::F64),
-            Property::new("z", Scalar::F64),
+        &point_columns(&[
             Property::new("distance", Scalar::F32),
             Property::new("lod95", Scalar::F32),
             Property::new("significant", Scalar::F32),
-        ],
+        ]),
         cores.iter().zip(&results).map(|(p, r)| {
             vec![
                 p.x,

@@ -12,7 +12,7 @@ use asbuilt_protocol::ScanPoint;
 use nalgebra::{Isometry3, Point3};
 
 use super::{Format, Sink};
-use crate::ply::{PlyWriter, Property, Scalar};
+use crate::ply::{PlyWriter, Property, Scalar, point_columns};
 
 /// A scan to write: its name, pose (`p_file = pose · p_scan`) and point count.
 #[derive(Debug, Clone)]
@@ -163,10 +163,8 @@ struct Ply {
     scan: u16,
 }
 
-const PLY_POINT: [Property; 5] = [
-    Property::new("x", Scalar::F64),
-    Property::new("y", Scalar::F64),
-    Property::new("z", Scalar::F64),
+/// The columns after the point's.
+const PLY_MEASUREMENT: [Property; 2] = [
     Property::new("intensity", Scalar::F32),
     Property::new("scan", Scalar::U16),
 ];
@@ -176,7 +174,7 @@ impl Ply {
         let out = PlyWriter::create(
             path,
             "asbuilt point cloud, metres; NaN coordinates mark points the scanner flagged invalid",
-            &PLY_POINT,
+            &point_columns(&PLY_MEASUREMENT),
             Some(total),
         )?;
         Ok(Self { out, scan: 0 })

@@ -30,6 +30,19 @@ fn start(test: &str, job: &SimJob, config: &str) -> (Agent, Cell) {
     (agent, cell)
 }
 
+/// Sends `job` to `agent` through `cell`, waiting up to a minute for its reports (and its
+/// findings, when `expect_findings`); a failure shows the agent's log.
+fn send(job: &SimJob, agent: &Agent, cell: &Cell, expect_findings: bool) -> SimOutcome {
+    sim::run(
+        job,
+        &cell.ports,
+        expect_findings,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()))
+}
+
 /// Runs `job` through a fresh agent with findings on; returns the findings of the last scan
 /// layer, after all its stations.
 fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
@@ -39,8 +52,7 @@ fn run(test: &str, job: &SimJob) -> (SimOutcome, StationFindings) {
         job.chunk_points, job.part.layer_height
     );
     let (agent, cell) = start(test, job, &config);
-    let out = sim::run(job, &cell.ports, true, Duration::from_secs(60), &mut |_| {})
-        .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()));
+    let out = send(job, &agent, &cell, true);
     let n = job.plan().len();
     assert_eq!(out.reports.len(), n, "agent log:\n{}", agent.log());
     assert!(
@@ -319,14 +331,7 @@ fn a_cell_running_far_ahead_of_the_agent_loses_no_point() {
         "[limits]\nmax_points_per_chunk = 4096\nopen_stations = 2\npending_chunks = 2\n\
          [findings]\nenabled = true\nlayer_height = 0.02\n",
     );
-    let out = sim::run(
-        &job,
-        &cell.ports,
-        false,
-        Duration::from_secs(60),
-        &mut |_| {},
-    )
-    .unwrap();
+    let out = send(&job, &agent, &cell, false);
     assert_eq!(out.reports.len(), 12, "agent log:\n{}", agent.log());
     let received: u64 = out.reports.iter().map(|r| r.points_received).sum();
     assert_eq!(received, out.points_sent, "{}", agent.log());
@@ -359,14 +364,7 @@ fn the_agent_keeps_its_status_period_while_a_new_printed_height_is_prepared() {
         job.chunk_points
     );
     let (agent, cell) = start("sim_height_switch", &job, &config);
-    let out = sim::run(
-        &job,
-        &cell.ports,
-        false,
-        Duration::from_secs(60),
-        &mut |_| {},
-    )
-    .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()));
+    let out = send(&job, &agent, &cell, false);
     assert_eq!(out.reports.len(), 2, "agent log:\n{}", agent.log());
     for r in &out.reports {
         assert_eq!(r.status(), Some(StationStatus::Complete), "{}", agent.log());

@@ -1,7 +1,8 @@
 //! Every file format asbuilt reads or writes, in one place: design meshes (STL, OBJ, PLY), read
 //! from a path or from bytes (a design attached to a recording), and scans (E57, LAS/LAZ, PTX,
 //! PLY, XYZ), streamed in chunks and written back out. Nothing here computes: files become
-//! `asbuilt-core` designs and `asbuilt-protocol` scan points.
+//! `asbuilt-core` designs and `asbuilt-protocol` scan points; a stations file becomes the
+//! scans to inspect with their poses.
 //!
 //! A design file's units are declared by the caller, never guessed. Every error names the file,
 //! the line or record where it can, and what to do.
@@ -13,6 +14,7 @@ mod error;
 mod mesh;
 pub mod ply;
 pub mod scan;
+pub mod stations;
 
 pub use deviations::DeviationsPly;
 pub use error::IoError;

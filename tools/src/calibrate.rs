@@ -12,7 +12,7 @@ use clap::{Args, ValueEnum};
 use nalgebra::{Point3, UnitQuaternion};
 use serde::Deserialize;
 
-use crate::stations::{self, Station};
+use asbuilt_io::stations::{self, Station};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Solve {

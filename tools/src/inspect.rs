@@ -13,9 +13,9 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Point3;
 
-use crate::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
+use asbuilt_io::stations::{self, DEFAULT_POSITION_SIGMA, Station};
 use asbuilt_report::maps::MapCollector;
 use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
@@ -833,7 +833,11 @@ fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Stat
             ..stations::StationEntry::of_file(scan)
         }],
     };
-    stations::resolve(file, std::path::Path::new("."), "--scan")
+    Ok(stations::resolve(
+        file,
+        std::path::Path::new("."),
+        "--scan",
+    )?)
 }
 
 fn format_ratio(r: f64) -> String {

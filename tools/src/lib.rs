@@ -16,7 +16,6 @@ mod recover;
 mod replay;
 pub mod report_cmd;
 pub mod sim_cmd;
-mod stations;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -120,7 +119,7 @@ fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(std::path::Path::new("."));
     std::fs::create_dir_all(dir)?;
-    let file = stations::from_conf(conf, dir)?;
+    let file = asbuilt_io::stations::from_conf(conf, dir)?;
     let text = format!(
         "# Stations converted from {} by `asbuilt import-conf`.\n\
          # p_design = R(rotation_xyzw) * p_scan + translation (metres); scan paths are relative \

@@ -17,7 +17,7 @@ use asbuilt_protocol::{
 use clap::Args;
 use sha2::{Digest, Sha256};
 
-use crate::stations;
+use asbuilt_io::stations;
 
 #[derive(Args)]
 pub struct PackArgs {

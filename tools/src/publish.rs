@@ -14,8 +14,8 @@ use asbuilt_protocol::{
 use clap::Args;
 use iceoryx2::prelude::*;
 
-use crate::stations;
 use asbuilt_io::scan::ScanFile;
+use asbuilt_io::stations;
 
 /// `asbuilt publish`'s arguments.
 #[derive(Args)]

@@ -1,21 +1,43 @@
-//! `stations.toml`: which scan was taken where. `p_design = R(rotation_xyzw) · p_scan + translation`.
+//! `stations.toml`: which scan was taken where, `p_design = R(rotation_xyzw) · p_scan +
+//! translation`; and Stanford's Scanalyze `.conf` turned into one.
 
 use std::path::{Component, Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
-use asbuilt_io::scan::ScanFile;
 use nalgebra::{Isometry3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
+use crate::IoError;
+use crate::scan::ScanFile;
+
+/// Why stations could not be read: the file itself, or what its entries say.
+#[derive(Debug, thiserror::Error)]
+pub enum StationsError {
+    /// The stations file (or the `.conf`) cannot be read, or is not what its format says.
+    #[error(transparent)]
+    File(#[from] IoError),
+    /// Entries with problems, every one listed, each saying what to change.
+    #[error("{origin}:\n  - {}", problems.join("\n  - "))]
+    Entries {
+        /// The stations file, or the flags the stations came from.
+        origin: String,
+        /// One line per problem.
+        problems: Vec<String>,
+    },
+}
+
+/// A stations file as written: its `[[station]]` tables.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StationsFile {
+    /// One entry per scan position.
     pub station: Vec<StationEntry>,
 }
 
+/// One `[[station]]` table.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StationEntry {
+    /// The station's name in reports.
     pub id: String,
     /// A scan file (E57, LAS/LAZ, PTX, PLY, XYZ); relative paths are relative to the stations
     /// file.
@@ -53,31 +75,37 @@ impl StationEntry {
 /// A station ready to inspect.
 #[derive(Debug, Clone)]
 pub struct Station {
+    /// Its name in reports: the entry's id, with the scan's name for a file of several scans.
     pub id: String,
+    /// The scan file, resolved against the stations file's folder.
     pub scan: PathBuf,
     /// Which scan of the file.
     pub scan_index: usize,
     /// Where the pose came from, for the log.
     pub pose_source: String,
+    /// The scanner's pose in the design frame.
     pub t_design_scanner: Isometry3<f64>,
     /// The pose as written, so a publisher sends exactly the numbers `inspect` used.
     pub translation: [f64; 3],
+    /// The rotation as written, scalar last.
     pub rotation_xyzw: [f64; 4],
+    /// One-sigma position uncertainty, metres.
     pub position_sigma: f64,
 }
 
+/// A station's position uncertainty when its entry gives none: the robot's pose accuracy.
 pub const DEFAULT_POSITION_SIGMA: f64 = 1e-3;
 
 /// Reads and checks a stations file, listing every problem at once.
-pub fn load(path: &Path) -> Result<Vec<Station>> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read stations file {}", path.display()))?;
-    let file: StationsFile = toml::from_str(&text).map_err(|e| {
-        anyhow::anyhow!(
-            "stations file {} is not valid: {e}\nexpected [[station]] tables with id, scan, \
-             translation = [x, y, z] and rotation_xyzw = [x, y, z, w]",
-            path.display()
-        )
+pub fn load(path: &Path) -> Result<Vec<Station>, StationsError> {
+    let text = read_text(path, "stations")?;
+    let file: StationsFile = toml::from_str(&text).map_err(|e| IoError::Malformed {
+        path: path.to_path_buf(),
+        format: "a stations file",
+        what: format!(
+            "{e}\nexpected [[station]] tables with id, scan, translation = [x, y, z] and \
+             rotation_xyzw = [x, y, z, w]"
+        ),
     })?;
     let base = path.parent().unwrap_or(Path::new("."));
     resolve(file, base, &path.display().to_string())
@@ -126,7 +154,7 @@ fn check_entry(s: &StationEntry, base: &Path, problems: &mut Vec<String>) -> Opt
     let file = match ScanFile::open(&scan) {
         Ok(f) => f,
         Err(e) => {
-            problems.push(format!("station {:?}: {}", s.id, crate::error_message(&e)));
+            problems.push(format!("station {:?}: {e}", s.id));
             return None;
         }
     };
@@ -163,7 +191,13 @@ fn check_entry(s: &StationEntry, base: &Path, problems: &mut Vec<String>) -> Opt
     })
 }
 
-pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Station>> {
+/// The stations of `file`, scan paths resolved against `base`; `origin` names where they came
+/// from in an error, which lists every problem at once.
+pub fn resolve(
+    file: StationsFile,
+    base: &Path,
+    origin: &str,
+) -> Result<Vec<Station>, StationsError> {
     let mut problems = Vec::new();
     let mut out = Vec::new();
     let mut seen = std::collections::HashSet::new();
@@ -232,13 +266,16 @@ pub fn resolve(file: StationsFile, base: &Path, origin: &str) -> Result<Vec<Stat
         }
     }
     if !problems.is_empty() {
-        bail!("{origin}:\n  - {}", problems.join("\n  - "));
+        return Err(StationsError::Entries {
+            origin: origin.to_string(),
+            problems,
+        });
     }
     Ok(out)
 }
 
 /// Stations from scan files that hold their poses: every scan of every file, in order.
-pub fn from_files(files: &[PathBuf]) -> Result<Vec<Station>> {
+pub fn from_files(files: &[PathBuf]) -> Result<Vec<Station>, StationsError> {
     let file = StationsFile {
         station: files.iter().map(|f| StationEntry::of_file(f)).collect(),
     };
@@ -247,9 +284,13 @@ pub fn from_files(files: &[PathBuf]) -> Result<Vec<Station>> {
 
 /// Converts a Stanford/Scanalyze `.conf` (`bmesh FILE tx ty tz qx qy qz qw`, where
 /// `p_mesh = R(q)ᵀ · p_scan + t`) into stations. Scan paths are written relative to `out_dir`.
-pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
-    let text =
-        std::fs::read_to_string(conf).with_context(|| format!("cannot read {}", conf.display()))?;
+pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile, IoError> {
+    let text = read_text(conf, "Scanalyze .conf")?;
+    let malformed = |what: String| IoError::Malformed {
+        path: conf.to_path_buf(),
+        format: "a Scanalyze .conf",
+        what,
+    };
     let dir = conf.parent().unwrap_or(Path::new("."));
     let mut station = Vec::new();
     for (n, line) in text.lines().enumerate() {
@@ -258,17 +299,16 @@ pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
             continue; // `camera` lines are a viewpoint, not a station
         }
         if f.len() != 9 {
-            bail!(
-                "{} line {}: expected `bmesh FILE tx ty tz qx qy qz qw`",
-                conf.display(),
+            return Err(malformed(format!(
+                "line {}: expected `bmesh FILE tx ty tz qx qy qz qw`",
                 n + 1
-            );
+            )));
         }
         let nums: Vec<f64> = f[2..]
             .iter()
             .map(|s| s.parse::<f64>())
             .collect::<Result<_, _>>()
-            .with_context(|| format!("{} line {}: bad number", conf.display(), n + 1))?;
+            .map_err(|e| malformed(format!("line {}: {e}", n + 1)))?;
         // The file's rotation maps mesh to scan; the station needs scan to mesh: its conjugate.
         let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             nums[6], nums[3], nums[4], nums[5],
@@ -289,9 +329,23 @@ pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile> {
         });
     }
     if station.is_empty() {
-        bail!("{} has no `bmesh` lines", conf.display());
+        return Err(malformed("no `bmesh` lines".into()));
     }
     Ok(StationsFile { station })
+}
+
+/// A text file read whole; `kind` names it when it is not there.
+fn read_text(path: &Path, kind: &'static str) -> Result<String, IoError> {
+    if !path.is_file() {
+        return Err(IoError::NotFound {
+            path: path.to_path_buf(),
+            kind,
+        });
+    }
+    std::fs::read_to_string(path).map_err(|source| IoError::Open {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// `target` as seen from `dir`, when both can be resolved; otherwise `target` unchanged.
@@ -310,4 +364,76 @@ fn relative_to(target: &Path, dir: &Path) -> PathBuf {
         out.push(c);
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_problem_of_a_stations_file_is_listed_at_once() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("a.xyz"), "0 0 0\n1 0 0\n").unwrap();
+        let path = dir.path().join("stations.toml");
+        std::fs::write(
+            &path,
+            "[[station]]\nid = \"a\"\nscan = \"a.xyz\"\ntranslation = [0, 0, 0]\n\
+             [[station]]\nid = \"a\"\nscan = \"a.xyz\"\nposition_sigma = -1\n\
+             [[station]]\nid = \"b\"\nscan = \"gone.xyz\"\n",
+        )
+        .unwrap();
+        let Err(StationsError::Entries { origin, problems }) = load(&path) else {
+            panic!("a stations file with five problems was accepted");
+        };
+        assert_eq!(origin, path.display().to_string());
+        let expected = [
+            "station \"a\": give both translation",
+            "station \"a\" is listed twice",
+            "station \"a\": position_sigma must be >= 0",
+            "station \"a\" has no pose",
+            "station \"b\": cannot open scan file",
+        ];
+        assert_eq!(problems.len(), expected.len(), "{problems:#?}");
+        for (problem, start) in problems.iter().zip(expected) {
+            assert!(problem.starts_with(start), "{problem}");
+        }
+        let e = load(&dir.path().join("nowhere.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("stations file") && e.contains("does not exist"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_conf_becomes_stations_with_the_inverse_rotation_and_relative_scans() {
+        let dir = tempfile::tempdir().unwrap();
+        let conf = dir.path().join("scans").join("bun.conf");
+        std::fs::create_dir(conf.parent().unwrap()).unwrap();
+        // A quarter turn about z that takes mesh to scan; a station takes scan to mesh.
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        std::fs::write(
+            &conf,
+            format!("camera 0 0 1 0 0 0 1\nbmesh bun000.ply 0.1 0.2 0.3 0 0 {h} {h}\n"),
+        )
+        .unwrap();
+        std::fs::write(dir.path().join("scans/bun000.ply"), "").unwrap();
+        let file = from_conf(&conf, dir.path()).unwrap();
+        assert_eq!(file.station.len(), 1);
+        let s = &file.station[0];
+        assert_eq!(s.id, "bun000");
+        assert_eq!(s.scan, Path::new("scans/bun000.ply"));
+        assert_eq!(s.translation, Some([0.1, 0.2, 0.3]));
+        let [x, y, z, w] = s.rotation_xyzw.unwrap();
+        assert_eq!([x, y], [0.0, 0.0]);
+        assert!((z + h).abs() < 1e-15 && (w - h).abs() < 1e-15, "{z} {w}");
+
+        std::fs::write(&conf, "bmesh bun000.ply 0.1 0.2 0.3\n").unwrap();
+        let e = from_conf(&conf, dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("bun.conf") && e.contains("line 1: expected `bmesh"),
+            "{e}"
+        );
+    }
 }

@@ -4,20 +4,29 @@
 //! scans, about 600 k points each). Reported: each agent's sustained points/s (median over
 //! rounds), the ratio, and how long after a station's report its findings arrive.
 //!
-//! `cargo bench -p asbuilt-agent --bench findings` (add `-- --quick` for one round)
+//! `cargo bench -p asbuilt-tests --bench findings` (add `-- --quick` for one round). It lives
+//! here, beside the end-to-end tests' agent process and cell, because it needs the simulator,
+//! which the agent's own crate does not depend on, not even for its benchmarks.
 
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::{CellPorts, Ipc};
+use asbuilt_agent::ipc::CellPorts;
 use asbuilt_protocol::{
     ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationStatus,
 };
 use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
-use iceoryx2::prelude::*;
+use asbuilt_tests::{Agent, Cell};
 use nalgebra::Isometry3;
 
-mod support;
-use support::{AgentSetup, CHUNK, cell_ports, median};
+/// Points per chunk sent, at most.
+const CHUNK: usize = 65_536;
+
+const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
 
 /// Sends one scan layer; returns points/s from the first send to the last report, and the
 /// delays from each report to its findings (ms), when findings come.
@@ -103,40 +112,25 @@ fn main() {
 
     let dir = tempfile::tempdir().unwrap();
     let stl = dir.path().join("wall.stl");
-    let mut text = String::from("solid wall\n");
-    for t in &part.design.triangles {
-        let [a, b, c] = t.map(|i| part.design.vertices[i as usize]);
-        let n = (b - a).cross(&(c - a)).normalize();
-        text += &format!("facet normal {} {} {}\nouter loop\n", n.x, n.y, n.z);
-        for p in [a, b, c] {
-            text += &format!("vertex {} {} {}\n", p.x, p.y, p.z);
-        }
-        text += "endloop\nendfacet\n";
-    }
-    std::fs::write(&stl, text + "endsolid wall\n").unwrap();
-    let base = format!("asbuilt-bench-findings/{}", std::process::id());
-    let setup = AgentSetup {
-        dir: dir.path(),
-        design: &stl,
-        max_distance: 0.03,
-    };
+    asbuilt_sim::write_stl(&stl, &part.design).unwrap();
     let start_agent = |name: &str, extra: &str| {
-        let prefix = format!("{base}-{name}");
-        (setup.start(name, &prefix, extra, false), prefix)
+        let prefix = asbuilt_tests::unique_prefix(&format!("bench-findings-{name}"));
+        let config = format!(
+            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+             max_distance = 0.03\n{extra}",
+            stl.display().to_string()
+        );
+        let agent = Agent::start(AGENT, &prefix, &config);
+        let cell = Cell::open(&prefix, CHUNK);
+        (agent, cell)
     };
-    let (_off_agent, off_prefix) = start_agent("off", "");
-    let (_on_agent, on_prefix) =
-        start_agent("on", "[findings]\nenabled = true\nlayer_height = 0.02\n");
-    set_log_level_from_env_or(LogLevel::Error);
-    let node = NodeBuilder::new().create::<Ipc>().unwrap();
-    let (off, on) = (
-        cell_ports(&node, &off_prefix),
-        cell_ports(&node, &on_prefix),
-    );
+    let (_off_agent, off) = start_agent("off", "");
+    let (_on_agent, on) = start_agent("on", "[findings]\nenabled = true\nlayer_height = 0.02\n");
+    let (off, on) = (&off.ports, &on.ports);
     let h = part.layer_span(23).1;
     // Warm-up: page in the pools, build the cut and the findings state.
-    scan_layer(&off, 0, h, &stations, false);
-    scan_layer(&on, 0, h, &stations, true);
+    scan_layer(off, 0, h, &stations, false);
+    scan_layer(on, 0, h, &stations, true);
     println!(
         "findings cost, study wall after 24 layers, {} stations, {total} points per round, \
          {rounds} round(s)",
@@ -145,8 +139,8 @@ fn main() {
     let (mut r_off, mut r_on, mut delays) = (Vec::new(), Vec::new(), Vec::new());
     for round in 1..=rounds as u32 {
         let first = round * 10;
-        r_off.push(scan_layer(&off, first, h, &stations, false).0);
-        let (rate, d) = scan_layer(&on, first, h, &stations, true);
+        r_off.push(scan_layer(off, first, h, &stations, false).0);
+        let (rate, d) = scan_layer(on, first, h, &stations, true);
         r_on.push(rate);
         delays.extend(d);
     }

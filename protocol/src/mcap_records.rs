@@ -117,6 +117,10 @@ impl Records<'_> {
 
 /// Every record of a chunk (its body `body`, checked), or the first error.
 fn open_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, RecordError> {
+    // Only up to the end of its records: mcap bounds a record inside an uncompressed chunk by
+    // the bytes it is given, not by the records' length, so a damaged record that ran past
+    // them into bytes after them underflowed its count of what is left.
+    let body = &body[..check(op::CHUNK, body)?];
     let uncompressed = u64::from_le_bytes(body[16..24].try_into().expect("checked"));
     let limit = (body.len() as u64)
         .saturating_mul(MAX_RATIO)
@@ -243,7 +247,9 @@ impl<'a> Fields<'a> {
 }
 
 /// Checks every length in a record against what is left of it.
-fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
+/// Checks that every length inside a record fits in what is left of it; returns how many bytes
+/// of `body` its fields span (bytes after them are fields of a later version).
+fn check(opcode: u8, body: &[u8]) -> Result<usize, Damaged> {
     let name = match opcode {
         op::HEADER => "header",
         op::SCHEMA => "schema",
@@ -257,7 +263,7 @@ fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
         op::METADATA => "metadata",
         op::METADATA_INDEX => "metadata index",
         // Fixed-size records, messages and records of later versions: nothing to check.
-        _ => return Ok(()),
+        _ => return Ok(body.len()),
     };
     let mut f = Fields {
         record: name,
@@ -324,7 +330,7 @@ fn check(opcode: u8, body: &[u8]) -> Result<(), Damaged> {
         }
         _ => {}
     }
-    Ok(())
+    Ok(body.len() - f.rest.len())
 }
 
 #[cfg(test)]
@@ -356,5 +362,34 @@ mod tests {
         body.push(b'v');
         check(op::METADATA, &body).unwrap();
         assert!(mcap::parse_record(op::METADATA, &body).is_ok());
+    }
+
+    /// An uncompressed chunk of one message record, with `after` bytes behind its records;
+    /// `claimed` is the records' length as the chunk states it.
+    fn chunk(claimed: u64, after: &[u8]) -> Vec<u8> {
+        let mut message = 1u16.to_le_bytes().to_vec();
+        message.extend_from_slice(&[0; 4 + 8 + 8]);
+        message.extend_from_slice(b"hi");
+        let mut records = vec![op::MESSAGE];
+        records.extend_from_slice(&(message.len() as u64).to_le_bytes());
+        records.extend_from_slice(&message);
+        let mut body = [0u8; 16].to_vec();
+        body.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        body.extend_from_slice(&[0; 4 + 4]); // no checksum, no compression
+        body.extend_from_slice(&claimed.to_le_bytes());
+        body.extend_from_slice(&records);
+        body.extend_from_slice(after);
+        body
+    }
+
+    #[test]
+    fn a_record_that_runs_past_its_chunks_records_is_an_error() {
+        let whole = 9 + 24;
+        assert_eq!(open_chunk(&chunk(whole, b"")).unwrap().len(), 1);
+        // Bytes after the records are skipped, as a later version's fields.
+        assert_eq!(open_chunk(&chunk(whole, b"later")).unwrap().len(), 1);
+        // The records' length cuts the message short, and bytes follow the records.
+        assert!(open_chunk(&chunk(whole - 5, b"")).is_err());
+        assert!(open_chunk(&chunk(whole - 5, &[7; 64])).is_err());
     }
 }

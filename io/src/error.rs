@@ -77,6 +77,18 @@ pub enum IoError {
 }
 
 impl IoError {
+    /// Nothing when `path` is a file; otherwise that the `kind` of file ("scan", "design",
+    /// "stations"...) is not there, which every reader says before it opens anything.
+    pub(crate) fn require_file(path: &std::path::Path, kind: &'static str) -> Result<(), IoError> {
+        if path.is_file() {
+            return Ok(());
+        }
+        Err(IoError::NotFound {
+            path: path.to_path_buf(),
+            kind,
+        })
+    }
+
     /// The file the error is about.
     pub fn path(&self) -> &std::path::Path {
         match self {

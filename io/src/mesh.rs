@@ -50,12 +50,7 @@ impl MeshFormat {
 /// and degenerate triangles dropped (the design's report counts both).
 pub fn read_design(path: &Path, units: Units) -> Result<Design, IoError> {
     let format = format_of(path)?;
-    if !path.is_file() {
-        return Err(IoError::NotFound {
-            path: path.to_path_buf(),
-            kind: "design",
-        });
-    }
+    IoError::require_file(path, "design")?;
     let file = File::open(path).map_err(|source| IoError::Open {
         path: path.to_path_buf(),
         source,

@@ -336,12 +336,7 @@ pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile, IoError> {
 
 /// A text file read whole; `kind` names it when it is not there.
 fn read_text(path: &Path, kind: &'static str) -> Result<String, IoError> {
-    if !path.is_file() {
-        return Err(IoError::NotFound {
-            path: path.to_path_buf(),
-            kind,
-        });
-    }
+    IoError::require_file(path, kind)?;
     std::fs::read_to_string(path).map_err(|source| IoError::Open {
         path: path.to_path_buf(),
         source,

@@ -95,8 +95,14 @@ impl Records<'_> {
                 Ok(LinearReadEvent::Record { data, opcode }) => (opcode, data),
                 Err(e) => return Some(Err(e.into())),
             };
-            if let Err(e) = check(opcode, data) {
-                return Some(Err(e.into()));
+            // Every record is checked once: an opened chunk by `open_chunk`, which also cuts
+            // it at the end of its records.
+            let checked = match (opcode, self.chunks) {
+                (op::CHUNK, Chunks::Open) => open_chunk(data).map(|r| self.opened = r.into()),
+                _ => check(opcode, data).map(|_| ()).map_err(RecordError::from),
+            };
+            if let Err(e) = checked {
+                return Some(Err(e));
             }
             if opcode != op::CHUNK {
                 return Some(
@@ -105,17 +111,11 @@ impl Records<'_> {
                         .map_err(RecordError::from),
                 );
             }
-            if self.chunks == Chunks::Open {
-                match open_chunk(data) {
-                    Ok(records) => self.opened = records.into(),
-                    Err(e) => return Some(Err(e)),
-                }
-            }
         }
     }
 }
 
-/// Every record of a chunk (its body `body`, checked), or the first error.
+/// Every record of a chunk (its body `body`, checked here), or the first error.
 fn open_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, RecordError> {
     // Only up to the end of its records: mcap bounds a record inside an uncompressed chunk by
     // the bytes it is given, not by the records' length, so a damaged record that ran past
@@ -246,7 +246,6 @@ impl<'a> Fields<'a> {
     }
 }
 
-/// Checks every length in a record against what is left of it.
 /// Checks that every length inside a record fits in what is left of it; returns how many bytes
 /// of `body` its fields span (bytes after them are fields of a later version).
 fn check(opcode: u8, body: &[u8]) -> Result<usize, Damaged> {

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use asbuilt_agent::ipc::CellPorts;
 use asbuilt_protocol::{
-    ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationStatus,
+    PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationSender, StationStatus,
 };
 use asbuilt_sim::{Defect, Part, ScannerModel, as_built, scan, stations_around};
 use asbuilt_tests::{Agent, Cell};
@@ -42,21 +42,19 @@ fn scan_layer(
     let mut delays = Vec::new();
     for (k, (pose, pts)) in stations.iter().enumerate() {
         let station = first + k as u32;
-        let chunks = pts.len().div_ceil(CHUNK);
         let mut begin = StationEvent::new(StationEventKind::Begin, 1, station);
-        begin.expected_chunks = chunks as u32;
+        begin.expected_chunks = pts.len().div_ceil(CHUNK) as u32;
         begin.printed_height = height;
         begin.layer = 23;
-        cell.send_event(&begin).unwrap();
         let mut p = PoseSnapshot::new(1, station, PoseMode::DesignScanner);
         p.translation = pose.translation.vector.into();
-        cell.send_pose(&p).unwrap();
-        for (seq, c) in pts.chunks(CHUNK).enumerate() {
-            let mut h = ChunkHeader::new(1, station, seq as u64, c.len() as u32);
-            h.last = u8::from(seq + 1 == chunks);
-            cell.send_chunk(&h, c).unwrap();
+        let mut sink = cell;
+        let mut sender = StationSender::start(begin, p, &mut sink).unwrap();
+        for c in pts.chunks(CHUNK) {
+            sender.chunk(c, &mut sink).unwrap();
             while let Ok(Some(_)) = cell.deviations.receive() {}
         }
+        sender.finish(&mut sink).unwrap();
         points += pts.len();
         // One station at a time, as the robot carries the scanner.
         let mut reported = None;

@@ -150,12 +150,7 @@ pub const DEFAULT_CHUNK: usize = 1 << 16;
 impl ScanFile {
     /// Reads the file's headers: which scans it holds, their sizes and poses.
     pub fn open(path: &Path) -> Result<Self, IoError> {
-        if !path.is_file() {
-            return Err(IoError::NotFound {
-                path: path.to_path_buf(),
-                kind: "scan",
-            });
-        }
+        IoError::require_file(path, "scan")?;
         let format = Format::from_path(path)?;
         let scans = match format {
             Format::E57 => e57::scans(path),

@@ -315,7 +315,7 @@ fn a_recorded_job_replays_to_identical_reports() {
         .map(Result::unwrap)
         .filter_map(|(_, m)| matches!(m, Recorded::Report(_)).then(|| m.encode()))
         .collect();
-    assert_eq!(recorded.len(), 10);
+    assert_eq!(recorded.len(), 10, "{log}");
     let (meta, attachments) = recording::job(&bytes).unwrap();
     let meta = meta.unwrap();
     assert_eq!(meta.writer, "asbuilt-agent");
@@ -337,7 +337,21 @@ fn a_recorded_job_replays_to_identical_reports() {
         v.sort();
         v
     };
-    assert_eq!(sorted(replayed), sorted(recorded));
+    let (replayed, recorded) = (sorted(replayed), sorted(recorded));
+    if replayed != recorded {
+        let show = |v: &[Vec<u8>]| {
+            v.iter()
+                .map(|b| format!("{:?}", Recorded::decode(recording::Channel::Reports, b)))
+                .collect::<Vec<_>>()
+                .join("\n")
+        };
+        panic!(
+            "replayed:\n{}\nrecorded:\n{}\nrecording agent:\n{log}\nreplayed agent:\n{}",
+            show(&replayed),
+            show(&recorded),
+            fresh.log()
+        );
+    }
 }
 
 /// `asbuilt report` on the packed bunny writes the report.json `inspect` writes (every station

@@ -310,10 +310,13 @@ fn a_recorded_job_replays_to_identical_reports() {
     let files = recordings(&agent);
     assert_eq!(files.len(), 1, "{files:?}");
     let bytes = std::fs::read(&files[0]).unwrap();
-    let recorded: Vec<Vec<u8>> = recording::messages(&bytes)
+    let recorded: Vec<StationReport> = recording::messages(&bytes)
         .unwrap()
         .map(Result::unwrap)
-        .filter_map(|(_, m)| matches!(m, Recorded::Report(_)).then(|| m.encode()))
+        .filter_map(|(_, m)| match m {
+            Recorded::Report(r) => Some(*r),
+            _ => None,
+        })
         .collect();
     assert_eq!(recorded.len(), 10, "{log}");
     let (meta, attachments) = recording::job(&bytes).unwrap();
@@ -328,30 +331,22 @@ fn a_recorded_job_replays_to_identical_reports() {
     let fresh = Agent::start(AGENT, &prefix2, &bunny_agent_config(""));
     let cell = asbuilt_tests::Cell::open(&prefix2, 16);
     replay(&files[0], &fresh, &[]);
-    let replayed: Vec<Vec<u8>> = cell
-        .reports(10, std::time::Duration::from_secs(30))
-        .iter()
-        .map(|r| Recorded::Report(Box::new(*r)).encode())
-        .collect();
-    let sorted = |mut v: Vec<Vec<u8>>| {
-        v.sort();
-        v
+    let replayed = cell.reports(10, std::time::Duration::from_secs(30));
+    // Compared bit for bit, as encoded; in any order.
+    let encoded = |v: &[StationReport]| {
+        let mut e: Vec<Vec<u8>> = v
+            .iter()
+            .map(|r| Recorded::Report(Box::new(*r)).encode())
+            .collect();
+        e.sort();
+        e
     };
-    let (replayed, recorded) = (sorted(replayed), sorted(recorded));
-    if replayed != recorded {
-        let show = |v: &[Vec<u8>]| {
-            v.iter()
-                .map(|b| format!("{:?}", Recorded::decode(recording::Channel::Reports, b)))
-                .collect::<Vec<_>>()
-                .join("\n")
-        };
-        panic!(
-            "replayed:\n{}\nrecorded:\n{}\nrecording agent:\n{log}\nreplayed agent:\n{}",
-            show(&replayed),
-            show(&recorded),
-            fresh.log()
-        );
-    }
+    assert!(
+        encoded(&replayed) == encoded(&recorded),
+        "replayed:\n{replayed:#?}\nrecorded:\n{recorded:#?}\nrecording agent:\n{log}\n\
+         replayed agent:\n{}",
+        fresh.log()
+    );
 }
 
 /// `asbuilt report` on the packed bunny writes the report.json `inspect` writes (every station

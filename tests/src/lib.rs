@@ -273,9 +273,9 @@ pub fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The bunny job's stations file (examples/bunny).
+/// The bunny job's stations file (tools/examples/bunny).
 pub fn bunny_stations() -> PathBuf {
-    repo().join("examples/bunny/stations.toml")
+    repo().join("tools/examples/bunny/stations.toml")
 }
 
 /// `asbuilt publish` (`asbuilt` is the command to run) of a stations file to the agent under

@@ -145,7 +145,7 @@ fn inspect_bunny(out: &Path) -> Value {
         "m",
         "--stations",
         repo()
-            .join("examples/bunny/stations.toml")
+            .join("tools/examples/bunny/stations.toml")
             .to_str()
             .unwrap(),
         "--max-distance",

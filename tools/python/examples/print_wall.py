@@ -1,8 +1,8 @@
 """Print a wall layer by layer with the simulated cell, scan it between layers through a real
 asbuilt agent, and react to what the agent finds.
 
-    pip install ./python
-    python python/examples/print_wall.py [--out out/print_wall] [--prefix asbuilt]
+    pip install ./tools/python
+    python tools/python/examples/print_wall.py [--out out/print_wall] [--prefix asbuilt]
 
 Without --prefix the script starts its own agent (this package's `asbuilt agent`) in a child
 process; with it, it talks to an agent already serving that prefix. This is the loop a COMPAS

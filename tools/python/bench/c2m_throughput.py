@@ -1,8 +1,8 @@
 """C2M from Python next to the command line on the same files, in one run.
 
     tools/bench/c2m_vs_cloudcompare.sh          # makes out/c2m-bench/bunny_{scan,shuffled}.ply
-    pip install ./python                        # a release build of the package
-    python python/bench/c2m_throughput.py [--inputs out/c2m-bench] [--runs 5]
+    pip install ./tools/python                  # a release build of the package
+    python tools/python/bench/c2m_throughput.py [--inputs out/c2m-bench] [--runs 5]
 
 For each point file: `Design.c2m` on the points already in memory (points/s, median of runs,
 the index built before), the whole Python job (read the PLY with NumPy, load the design, build

@@ -8,7 +8,7 @@ use super::*;
 
 fn e57(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/e57")
+        .join("../../../shared/data/e57")
         .join(name)
 }
 
@@ -329,7 +329,7 @@ fn ply_skips_elements_before_the_vertices_and_reads_every_encoding() {
 #[test]
 fn the_stanford_scans_stream_in_chunks_as_they_read_whole() {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/stanford-bunny/scans/bun000.ply");
+        .join("../../../shared/data/stanford-bunny/scans/bun000.ply");
     let f = ScanFile::open(&path).unwrap();
     assert_eq!(f.scans[0].points, Some(40_256));
     let mut chunks = Vec::new();

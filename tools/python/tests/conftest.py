@@ -7,10 +7,10 @@ import pathlib
 import numpy as np
 import pytest
 
-REPO = pathlib.Path(__file__).resolve().parents[2]
+REPO = pathlib.Path(__file__).resolve().parents[3]
 DATA = REPO.parent / "shared" / "data"
 BUNNY = DATA / "stanford-bunny" / "bun_zipper.ply"
-BUNNY_STATIONS = REPO / "examples" / "bunny" / "stations.toml"
+BUNNY_STATIONS = REPO / "tools" / "examples" / "bunny" / "stations.toml"
 
 @pytest.fixture(scope="session")
 def bunny_path():

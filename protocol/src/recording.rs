@@ -621,63 +621,110 @@ pub fn job(bytes: &[u8]) -> Result<(Option<JobMetadata>, Vec<DesignAttachment>),
 }
 
 /// Every complete record of a file whose writer died (no summary, no footer, a chunk cut off),
-/// rewritten into a valid recording. Returns the messages, metadata and attachments saved.
+/// rewritten into a valid recording. Every channel is kept: asbuilt's own are written as the
+/// recorder writes them, any other (Foxglove's, a channel a newer build added) with its schema
+/// and messages as they are. Returns the messages, metadata and attachments saved.
 pub fn recover<W: Write + Seek>(
     broken: &[u8],
     out: W,
 ) -> Result<(W, RecoverCounts), mcap::McapError> {
-    let mut w = RecordingWriter::new(out)?;
-    let mut counts = RecoverCounts::default();
-    let mut topics: BTreeMap<u16, Channel> = BTreeMap::new();
-    let take = |record: mcap::records::Record<'_>,
-                w: &mut RecordingWriter<W>,
-                topics: &mut BTreeMap<u16, Channel>,
-                counts: &mut RecoverCounts|
-     -> Result<(), mcap::McapError> {
+    let mut r = Recovery {
+        w: RecordingWriter::new(out)?,
+        counts: RecoverCounts::default(),
+        ours: BTreeMap::new(),
+        schemas: BTreeMap::new(),
+        others: BTreeMap::new(),
+    };
+    // Chunks are opened one at a time and all or nothing: a chunk's checksum is checked before
+    // any of its records is kept.
+    for record in Records::new(broken, Chunks::Open, false) {
         match record {
-            mcap::records::Record::Channel(c) => {
-                if let Some(ch) = Channel::from_topic(&c.topic) {
-                    topics.insert(c.id, ch);
-                }
+            Ok(record) => r.take(record)?,
+            Err(_) => {
+                r.counts.truncated = true;
+                break;
             }
-            mcap::records::Record::Message { header, data } => {
-                if let Some(&ch) = topics.get(&header.channel_id) {
-                    w.write_raw(ch, header.log_time, header.publish_time, &data)?;
-                    counts.messages += 1;
+        }
+    }
+    Ok((r.w.finish()?, r.counts))
+}
+
+/// A recovery under way: the file being written, and how the broken file's channels map to it.
+struct Recovery<W: Write + Seek> {
+    w: RecordingWriter<W>,
+    counts: RecoverCounts,
+    /// The broken file's ids of asbuilt's own channels.
+    ours: BTreeMap<u16, Channel>,
+    /// The broken file's schemas by id: name, encoding, data.
+    schemas: BTreeMap<u16, (String, String, Vec<u8>)>,
+    /// The broken file's other channels, by id, to their ids in the new file.
+    others: BTreeMap<u16, u16>,
+}
+
+impl<W: Write + Seek> Recovery<W> {
+    fn take(&mut self, record: mcap::records::Record<'_>) -> Result<(), mcap::McapError> {
+        use mcap::records::Record;
+        match record {
+            Record::Schema { header, data } => {
+                self.schemas
+                    .insert(header.id, (header.name, header.encoding, data.into_owned()));
+            }
+            Record::Channel(c) => match Channel::from_topic(&c.topic) {
+                Some(ch) => {
+                    self.ours.insert(c.id, ch);
+                }
+                None => {
+                    // Schema 0 is "no schema"; a schema record lost with its chunk leaves the
+                    // channel without one rather than dropping its messages.
+                    let schema = match self.schemas.get(&c.schema_id) {
+                        Some((name, encoding, data)) => {
+                            self.w.mcap.add_schema(name, encoding, data)?
+                        }
+                        None => 0,
+                    };
+                    let id = self.w.mcap.add_channel(
+                        schema,
+                        &c.topic,
+                        &c.message_encoding,
+                        &c.metadata,
+                    )?;
+                    self.others.insert(c.id, id);
+                }
+            },
+            Record::Message { header, data } => {
+                if let Some(&ch) = self.ours.get(&header.channel_id) {
+                    self.w
+                        .write_raw(ch, header.log_time, header.publish_time, &data)?;
+                    self.counts.messages += 1;
+                } else if let Some(&id) = self.others.get(&header.channel_id) {
+                    let header = mcap::records::MessageHeader {
+                        channel_id: id,
+                        ..header
+                    };
+                    self.w.mcap.write_to_known_channel(&header, &data)?;
+                    self.counts.messages += 1;
                 } else {
-                    counts.skipped += 1;
+                    self.counts.skipped += 1;
                 }
             }
-            mcap::records::Record::Metadata(m) => {
-                w.mcap.write_metadata(&m)?;
-                counts.metadata += 1;
+            Record::Metadata(m) => {
+                self.w.mcap.write_metadata(&m)?;
+                self.counts.metadata += 1;
             }
-            mcap::records::Record::Attachment { header, data, .. } => {
-                w.mcap.attach(&mcap::Attachment {
+            Record::Attachment { header, data, .. } => {
+                self.w.mcap.attach(&mcap::Attachment {
                     log_time: header.log_time,
                     create_time: header.create_time,
                     name: header.name.clone(),
                     media_type: header.media_type.clone(),
                     data,
                 })?;
-                counts.attachments += 1;
+                self.counts.attachments += 1;
             }
             _ => {}
         }
         Ok(())
-    };
-    // Chunks are opened one at a time and all or nothing: a chunk's checksum is checked before
-    // any of its records is kept.
-    for record in Records::new(broken, Chunks::Open, false) {
-        match record {
-            Ok(r) => take(r, &mut w, &mut topics, &mut counts)?,
-            Err(_) => {
-                counts.truncated = true;
-                break;
-            }
-        }
     }
-    Ok((w.finish()?, counts))
 }
 
 /// What a recovery kept.
@@ -689,7 +736,7 @@ pub struct RecoverCounts {
     pub metadata: u64,
     /// Attachments copied.
     pub attachments: u64,
-    /// Messages on channels this build does not know.
+    /// Messages whose channel record was lost with the end of the file.
     pub skipped: u64,
     /// The file ended inside a record (its writer died); everything before was kept.
     pub truncated: bool,
@@ -855,5 +902,54 @@ mod tests {
         for ((_, m), w) in read.iter().zip(&want) {
             assert_eq!(m.encode(), w.encode());
         }
+    }
+
+    /// Every message of every channel, by topic: what a reader that knows no asbuilt channel
+    /// sees.
+    fn topics(bytes: &[u8]) -> BTreeMap<String, usize> {
+        let mut out = BTreeMap::new();
+        for m in mcap::MessageStream::new(bytes).unwrap() {
+            *out.entry(m.unwrap().channel.topic.clone()).or_insert(0) += 1;
+        }
+        out
+    }
+
+    #[test]
+    fn recovery_keeps_foxglove_and_unknown_channels_as_they_are() {
+        let mut w = RecordingWriter::new(std::io::Cursor::new(Vec::new()))
+            .unwrap()
+            .with_foxglove(Box::new(|_| [0, 0, 0]))
+            .unwrap();
+        let schema = w
+            .mcap
+            .add_schema("future.Thing", "jsonschema", b"{}")
+            .unwrap();
+        let future = w
+            .mcap
+            .add_channel(schema, "/future/thing", "json", &BTreeMap::new())
+            .unwrap();
+        for (i, m) in job_messages().iter().enumerate() {
+            w.write(i as u64, m).unwrap();
+            let header = mcap::records::MessageHeader {
+                channel_id: future,
+                sequence: i as u32,
+                log_time: i as u64,
+                publish_time: i as u64,
+            };
+            w.mcap
+                .write_to_known_channel(&header, b"{\"n\":1}")
+                .unwrap();
+        }
+        let bytes = w.finish().unwrap().into_inner();
+        let want = topics(&bytes);
+        assert!(want.keys().any(|t| t.starts_with("/foxglove")), "{want:?}");
+        let (fixed, counts) = recover(&bytes, std::io::Cursor::new(Vec::new())).unwrap();
+        let fixed = fixed.into_inner();
+        assert_eq!(topics(&fixed), want);
+        assert_eq!(counts.messages as usize, want.values().sum::<usize>());
+        assert_eq!(counts.skipped, 0);
+        // asbuilt's own channels still read back message for message.
+        let read: Vec<(u64, Recorded)> = messages(&fixed).unwrap().map(Result::unwrap).collect();
+        assert_eq!(read.len(), job_messages().len());
     }
 }

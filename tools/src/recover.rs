@@ -43,7 +43,7 @@ pub fn run(args: RecoverArgs) -> Result<ExitCode> {
     );
     if counts.skipped > 0 {
         println!(
-            "{} messages on channels this build does not know were left out",
+            "{} messages whose channel was not in the file (its record was lost) were left out",
             counts.skipped
         );
     }

@@ -23,8 +23,8 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::{CellPorts, Ipc};
 use asbuilt_core::{Design, Units};
+use asbuilt_protocol::ipc::{CellPorts, Ipc};
 use asbuilt_protocol::{
     ChunkHeader, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationReport,
     StationStatus,

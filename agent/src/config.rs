@@ -592,7 +592,7 @@ impl TolerancesConfig {
         &self,
         tolerance: f64,
         extra: &[asbuilt_core::verdict::LayerLimit],
-    ) -> Result<asbuilt_core::verdict::Limits, String> {
+    ) -> Result<asbuilt_core::verdict::Limits, asbuilt_core::verdict::LimitError> {
         use asbuilt_core::verdict::Limits;
         let mut l = Limits::from_tolerance(tolerance);
         let given = [
@@ -620,7 +620,10 @@ impl TolerancesConfig {
     }
 
     /// The limits for a job whose tolerance is `tolerance`.
-    pub fn limits(&self, tolerance: f64) -> Result<asbuilt_core::verdict::Limits, String> {
+    pub fn limits(
+        &self,
+        tolerance: f64,
+    ) -> Result<asbuilt_core::verdict::Limits, asbuilt_core::verdict::LimitError> {
         self.limits_with(tolerance, &[])
     }
 }

@@ -19,10 +19,10 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 
 use crate::config::AgentConfig;
 use crate::findings::FindingsStage;
-use crate::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::Recorder;
 use crate::{error, info, warn};
+use asbuilt_protocol::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
 /// Station timeouts are checked this often at least.
@@ -53,7 +53,7 @@ pub enum AgentError {
     Viewer(#[from] asbuilt_viewer::ViewerError),
     /// The cell's services: a node, a port or the wait set could not be made.
     #[error(transparent)]
-    Ipc(#[from] crate::ipc::IpcError),
+    Ipc(#[from] asbuilt_protocol::ipc::IpcError),
 }
 
 /// What a run did, for the exit message.
@@ -269,13 +269,13 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let tick = config.status.period().min(MAX_TICK);
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
-        .map_err(|e| IpcError(format!("cannot create the wait set: {e:?}")))?;
+        .map_err(|e| IpcError::iceoryx("cannot create the wait set", e))?;
     let _inbox_guard = waitset
         .attach_notification(&ports.inbox)
-        .map_err(|e| IpcError(format!("cannot wait on the inbox: {e:?}")))?;
+        .map_err(|e| IpcError::iceoryx("cannot wait on the inbox", e))?;
     let _tick_guard = waitset
         .attach_interval(tick)
-        .map_err(|e| IpcError(format!("cannot attach the tick: {e:?}")))?;
+        .map_err(|e| IpcError::iceoryx("cannot attach the tick", e))?;
 
     info!(
         "serving {}/… (chunks up to {} points, {} queued, {} held for a pose; station timeout \
@@ -380,7 +380,7 @@ fn open_ports(config: &AgentConfig) -> Result<(Node<Ipc>, AgentPorts, u64), Agen
     let node = NodeBuilder::new()
         .name(&"asbuilt-agent".try_into().expect("valid node name"))
         .create::<Ipc>()
-        .map_err(|e| IpcError(format!("cannot create the iceoryx2 node: {e:?}")))?;
+        .map_err(|e| IpcError::iceoryx("cannot create the iceoryx2 node", e))?;
     let dead_nodes = node.try_cleanup_dead_nodes().cleanups;
     if dead_nodes > 0 {
         info!("removed the resources of {dead_nodes} dead iceoryx2 node(s) from an earlier run");

@@ -1,7 +1,8 @@
 //! The asbuilt edge agent: it serves scan chunks, poses and station events over iceoryx2, turns
 //! every chunk into deviations as it arrives, and closes each station with a report.
 //!
-//! Layers, from the outside in: [`daemon`] runs the event loop over [`ipc`] ports; [`lifecycle`]
+//! Layers, from the outside in: [`daemon`] runs the event loop over the cell's services
+//! ([`asbuilt_protocol::ipc`]); [`lifecycle`]
 //! decides what each message means for its station, with [`sequence`] doing the chunk
 //! bookkeeping, and [`findings`] turning each scan layer's stations into findings a crew can act
 //! on; [`recorder`] writes everything to MCAP on a thread of its own; the geometry is
@@ -12,7 +13,6 @@
 pub mod config;
 pub mod daemon;
 pub mod findings;
-pub mod ipc;
 pub mod lifecycle;
 pub mod log;
 pub mod recorder;

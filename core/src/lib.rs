@@ -1,5 +1,5 @@
 //! Pure, synchronous geometry and statistics for asbuilt, shared by the agent and the offline
-//! tools. No I/O beyond reading design files; no logging.
+//! tools. No file I/O (design and scan files are `asbuilt-io`'s, in `core/io`); no logging.
 
 #![warn(missing_docs)]
 

@@ -9,8 +9,13 @@
 use std::fmt;
 use std::str::FromStr;
 
-/// How a value stands against its limit, worst last.
+/// How a value stands against its limit, worst last. Serialised as [`Verdict::as_str`] spells it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize),
+    serde(rename_all = "lowercase")
+)]
 pub enum Verdict {
     /// Within the warning fraction of the limit.
     Pass,
@@ -84,19 +89,67 @@ impl LimitKind {
     }
 }
 
+/// A limit that cannot be used: what was given and what is wrong with it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LimitError {
+    /// Not one of [`LimitKind::ALL`].
+    #[error("unknown kind {0:?}: use one of {kinds}", kinds = LimitKind::ALL.map(LimitKind::as_str).join(", "))]
+    UnknownKind(String),
+    /// Not `KIND=VALUE[@FIRST-LAST]`.
+    #[error("{0:?}: expected KIND=VALUE or KIND=VALUE@FIRST-LAST")]
+    Syntax(String),
+    /// A layer that is not a number.
+    #[error("layer {0:?} is not a layer number (0 is the first layer)")]
+    NotALayer(String),
+    /// A range whose first layer is above its last.
+    #[error("layers {first}-{last}: the first is above the last")]
+    LayersReversed {
+        /// The first layer given.
+        first: u32,
+        /// The last layer given.
+        last: u32,
+    },
+    /// An amount that is not a number in a known unit.
+    #[error("{given:?} is not {}", if *area { "an area (m², or with cm2)" } else { "a length (metres, or with mm)" })]
+    NotAnAmount {
+        /// The amount given.
+        given: String,
+        /// Whether an area was expected.
+        area: bool,
+    },
+    /// An amount of zero or less, or not finite.
+    #[error("{0:?} must be positive")]
+    NotPositive(String),
+    /// A `KIND=VALUE@LAYERS` limit with a bad part.
+    #[error("{given:?}: {source}")]
+    InLimit {
+        /// The limit as given.
+        given: String,
+        /// What is wrong in it.
+        #[source]
+        source: Box<LimitError>,
+    },
+    /// A job's limit of a kind that is zero or less, or not finite.
+    #[error("the {} limit must be positive, not {value}", kind.as_str())]
+    KindNotPositive {
+        /// The kind.
+        kind: LimitKind,
+        /// Its limit.
+        value: f64,
+    },
+    /// A warn fraction outside (0, 1].
+    #[error("warn_fraction must be in (0, 1], not {0}")]
+    WarnFraction(f64),
+}
+
 impl FromStr for LimitKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = LimitError;
+    fn from_str(s: &str) -> Result<Self, LimitError> {
         let s = s.trim().replace('-', "_");
         LimitKind::ALL
             .into_iter()
             .find(|k| k.as_str() == s)
-            .ok_or_else(|| {
-                format!(
-                    "unknown kind {s:?}: use one of {}",
-                    LimitKind::ALL.map(LimitKind::as_str).join(", ")
-                )
-            })
+            .ok_or(LimitError::UnknownKind(s))
     }
 }
 
@@ -116,21 +169,24 @@ pub struct LayerLimit {
 /// `KIND=VALUE` or `KIND=VALUE@A-B` (layers A to B, or `@A` for one layer). Lengths in metres or
 /// with `mm`/`cm`/`m`; the missing area in m² or with `cm2`/`m2`.
 impl FromStr for LayerLimit {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = LimitError;
+    fn from_str(s: &str) -> Result<Self, LimitError> {
         let (kind, rest) = s
             .split_once('=')
-            .ok_or_else(|| format!("{s:?}: expected KIND=VALUE or KIND=VALUE@FIRST-LAST"))?;
+            .ok_or_else(|| LimitError::Syntax(s.to_string()))?;
         let kind: LimitKind = kind.parse()?;
         let (value, layers) = match rest.split_once('@') {
             Some((v, l)) => (v, Some(l)),
             None => (rest, None),
         };
-        let value =
-            parse_amount(value.trim(), kind.is_area()).map_err(|e| format!("{s:?}: {e}"))?;
+        let in_limit = |e| LimitError::InLimit {
+            given: s.to_string(),
+            source: Box::new(e),
+        };
+        let value = parse_amount(value.trim(), kind.is_area()).map_err(in_limit)?;
         let (first, last) = match layers {
             None => (0, u32::MAX),
-            Some(l) => parse_layers(l).map_err(|e| format!("{s:?}: {e}"))?,
+            Some(l) => parse_layers(l).map_err(in_limit)?,
         };
         Ok(LayerLimit {
             kind,
@@ -141,24 +197,24 @@ impl FromStr for LayerLimit {
     }
 }
 
-fn parse_layers(l: &str) -> Result<(u32, u32), String> {
+fn parse_layers(l: &str) -> Result<(u32, u32), LimitError> {
     let number = |t: &str| {
         t.trim()
             .parse::<u32>()
-            .map_err(|_| format!("layer {t:?} is not a layer number (0 is the first layer)"))
+            .map_err(|_| LimitError::NotALayer(t.to_string()))
     };
     let (a, b) = match l.split_once('-') {
         Some((a, b)) => (number(a)?, number(b)?),
         None => (number(l)?, number(l)?),
     };
     if a > b {
-        return Err(format!("layers {a}-{b}: the first is above the last"));
+        return Err(LimitError::LayersReversed { first: a, last: b });
     }
     Ok((a, b))
 }
 
 /// A positive amount with an optional unit.
-fn parse_amount(v: &str, area: bool) -> Result<f64, String> {
+fn parse_amount(v: &str, area: bool) -> Result<f64, LimitError> {
     let units: &[(&str, f64)] = if area {
         &[
             ("cm2", 1e-4),
@@ -175,21 +231,15 @@ fn parse_amount(v: &str, area: bool) -> Result<f64, String> {
         .iter()
         .find_map(|(u, s)| v.strip_suffix(u).map(|n| (n, *s)))
         .unwrap_or((v, 1.0));
-    let x: f64 = number.trim().parse().map_err(|_| {
-        format!(
-            "{v:?} is not {}",
-            if area {
-                "an area (m², or with cm2)"
-            } else {
-                "a length (metres, or with mm)"
-            }
-        )
+    let x: f64 = number.trim().parse().map_err(|_| LimitError::NotAnAmount {
+        given: v.to_string(),
+        area,
     })?;
     let x = x * scale;
     if x.is_finite() && x > 0.0 {
         Ok(x)
     } else {
-        Err(format!("{v:?} must be positive"))
+        Err(LimitError::NotPositive(v.to_string()))
     }
 }
 
@@ -323,21 +373,15 @@ impl Limits {
     }
 
     /// Problems that make the limits meaningless.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), LimitError> {
         for kind in LimitKind::ALL {
             let v = self.whole_part(kind);
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!(
-                    "the {} limit must be positive, not {v}",
-                    kind.as_str()
-                ));
+                return Err(LimitError::KindNotPositive { kind, value: v });
             }
         }
         if !(self.warn_fraction > 0.0 && self.warn_fraction <= 1.0) {
-            return Err(format!(
-                "warn_fraction must be in (0, 1], not {}",
-                self.warn_fraction
-            ));
+            return Err(LimitError::WarnFraction(self.warn_fraction));
         }
         Ok(())
     }
@@ -370,7 +414,7 @@ mod tests {
             assert!(bad.parse::<LayerLimit>().is_err(), "{bad}");
         }
         let e = "depth=5mm".parse::<LayerLimit>().unwrap_err();
-        assert!(e.contains("width, top_height"), "{e}");
+        assert!(e.to_string().contains("width, top_height"), "{e}");
     }
 
     #[test]

@@ -296,12 +296,14 @@ impl AgentPorts {
             .enable_safe_overflow(true)
             .open_or_create()
             .map_err(|e| exists(&names.status, e.into()))?;
-        let status = status_service.publisher_builder().create().map_err(|e| {
-            IpcError::AlreadyServed {
-                prefix: names.prefix.clone(),
-                source: e.into(),
-            }
-        })?;
+        let status =
+            status_service
+                .publisher_builder()
+                .create()
+                .map_err(|e| IpcError::AlreadyServed {
+                    prefix: names.prefix.clone(),
+                    source: e.into(),
+                })?;
 
         let chunks = node
             .service_builder(&service_name(&names.chunks)?)

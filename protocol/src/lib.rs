@@ -15,6 +15,7 @@ pub mod codec;
 mod deviation;
 mod findings;
 pub mod foxglove;
+pub mod ipc;
 mod mcap_records;
 mod pose;
 pub mod recording;

@@ -10,7 +10,7 @@
 
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::CellPorts;
+use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
     PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationSender, StationStatus,
 };

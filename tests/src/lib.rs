@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_protocol::{AgentStatus, StationReport};
 use iceoryx2::prelude::*;
 

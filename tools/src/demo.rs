@@ -8,7 +8,7 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_sim::{SimJob, SimOutcome};
 use clap::Args;
 use iceoryx2::prelude::*;
@@ -163,7 +163,9 @@ fn talk_to_agent(job: &SimJob, prefix: &str, agent: &mut Child, log: &Path) -> R
                     );
                 }
                 if started.elapsed() > Duration::from_secs(60) {
-                    bail!("the agent did not come up within 60 s: {e}");
+                    return Err(
+                        anyhow::Error::new(e).context("the agent did not come up within 60 s")
+                    );
                 }
             }
         }

@@ -704,19 +704,18 @@ fn findings_message(
             ", a row per layer band"
         }
     );
-    // The layer printed when the scans were taken, counted from the design's base.
-    let layer = match (args.printed_height, args.layer_height) {
-        (Some(h), Some(lh)) => ((h - lowest) / lh).round().max(0.0) as u32,
-        _ => 0,
-    };
-    let last = stations.saturating_sub(1);
-    let printed = args.printed_height.unwrap_or(f64::NAN);
-    f.to_message((0, last), stations, args.tolerance, (layer, printed))
+    suite::findings_message(
+        f,
+        stations,
+        args.tolerance,
+        (args.printed_height, args.layer_height),
+        lowest,
+    )
 }
 
 /// The job-level layers of the view (missing samples, M3C2 core points, per-band means), then
 /// the view closed.
-fn finish_viewer(mut v: Viewer, totals: &suite::SuiteTotals, args: &InspectArgs) {
+fn finish_viewer(mut v: Viewer, totals: &asbuilt_report::SuiteTotals, args: &InspectArgs) {
     for (path, samples) in [
         ("missing", &totals.missing_view),
         ("m3c2", &totals.m3c2_view),
@@ -856,7 +855,7 @@ fn describe_spacing(s: ScanSpacing) -> String {
     }
 }
 
-fn method_line(s: &suite::SuiteSection) -> String {
+fn method_line(s: &asbuilt_report::SuiteSection) -> String {
     let mut parts = Vec::new();
     if let Some(c) = &s.c2c {
         parts.push(format!(

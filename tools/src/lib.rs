@@ -93,25 +93,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// What to tell the user of `e`: the error and its causes joined by `: `, each said once. Many
-/// errors already end their own message with their cause (`cannot write F: No space left on
-/// device`), and the chain then repeats it; a cause the message so far ends with is left out.
-pub fn error_message(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut message = String::new();
-    let mut cause = Some(e);
-    while let Some(c) = cause {
-        cause = c.source();
-        let text = c.to_string();
-        if message.ends_with(&text) {
-            continue;
-        }
-        if !message.is_empty() {
-            message.push_str(": ");
-        }
-        message.push_str(&text);
-    }
-    message
-}
+pub use asbuilt_agent::log::error_message;
 
 fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
     let dir = out

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
     StationReport, StationSender, StationSink, StationStatus, unix_time_ns,
@@ -211,7 +211,7 @@ struct Paced<'p> {
 }
 
 impl StationSink for Paced<'_> {
-    type Error = asbuilt_agent::ipc::IpcError;
+    type Error = asbuilt_protocol::ipc::IpcError;
     fn now_ns(&mut self, _points_sent: u64) -> u64 {
         unix_time_ns()
     }

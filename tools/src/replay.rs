@@ -8,8 +8,8 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::ServiceNames;
 use asbuilt_protocol::StationReport;
+use asbuilt_protocol::ipc::ServiceNames;
 use asbuilt_protocol::recording::{self, Channel, Recorded};
 use clap::Args;
 

@@ -6,11 +6,9 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::{CellPorts, ServiceNames};
-use asbuilt_core::Units;
+use asbuilt_protocol::ipc::{CellPorts, ServiceNames};
 use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
-use asbuilt_sim::{Defect, Part};
-use asbuilt_sim::{SimEvent, SimJob, SimOutcome};
+use asbuilt_sim::{JobSpec, PartSpec, SimEvent, SimJob, SimOutcome};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -61,76 +59,48 @@ pub struct JobArgs {
 }
 
 impl JobArgs {
-    /// The part `--part` names, sliced in `--layer-height` layers.
-    pub fn part(&self) -> Result<Part> {
-        match self.part.as_str() {
-            "wall" => Ok(Part::wall()),
-            "column" => Ok(Part::column()),
-            file => {
-                let units: Units = self
+    /// The job the flags describe, as the simulator takes it: strings parsed, nothing checked
+    /// that [`JobSpec::build`] checks.
+    pub fn spec(&self) -> Result<JobSpec> {
+        let part = match self.part.as_str() {
+            "wall" => PartSpec::Wall,
+            "column" => PartSpec::Column,
+            file => PartSpec::File {
+                path: PathBuf::from(file),
+                units: self
                     .units
                     .as_deref()
                     .context(
                         "--units m|mm is required with a design file: units are never guessed",
                     )?
                     .parse()
-                    .map_err(|e| anyhow::anyhow!("--units: {e}"))?;
-                let h = self
+                    .map_err(|e| anyhow::anyhow!("--units: {e}"))?,
+                layer_height: self
                     .layer_height
-                    .context("--layer-height METRES is required with a design file")?;
-                let design = asbuilt_io::read_design(Path::new(file), units)?;
-                let name = Path::new(file)
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| "part".into());
-                Ok(Part::from_design(&name, design, h)?)
-            }
-        }
+                    .context("--layer-height METRES is required with a design file")?,
+            },
+        };
+        Ok(JobSpec {
+            part,
+            scan_after: self.scan_after.clone(),
+            stations: self.stations,
+            defects: self.defects.clone(),
+            seed: self.seed,
+            pose_mode: match self.pose_mode.as_str() {
+                "fixed" => PoseMode::FixedOrientation,
+                "6dof" => PoseMode::SixDof,
+                other => bail!("--pose-mode {other:?}: give fixed or 6dof"),
+            },
+            pose_sigma: self.pose_sigma,
+            rate: crate::publish::parse_rate(&self.rate)?,
+            step_deg: self.step_deg,
+            job: self.job,
+        })
     }
 
     /// The whole job the arguments describe: part, defects, scan layers, stations, scanner.
     pub fn job(&self) -> Result<SimJob> {
-        let part = self.part()?;
-        let mut job = SimJob::new(part);
-        let layers = job.part.layers();
-        if self.scan_after.is_empty() || self.scan_after.iter().any(|&k| k == 0 || k > layers) {
-            bail!(
-                "--scan-after {:?}: give layer counts from 1 to {layers} (the {} has {layers} \
-                 layers of {} mm)",
-                self.scan_after,
-                job.part.name,
-                job.part.layer_height * 1e3
-            );
-        }
-        job.scan_after = self.scan_after.clone();
-        job.scan_after.sort_unstable();
-        job.scan_after.dedup();
-        if self.stations == 0 {
-            bail!("--stations must be at least 1");
-        }
-        job.stations_per_scan = self.stations;
-        job.defects = self
-            .defects
-            .iter()
-            .map(|d| Defect::parse(d, &job.part).map_err(|e| anyhow::anyhow!("--defect {e}")))
-            .collect::<Result<_>>()?;
-        job.seed = self.seed;
-        job.job = self.job;
-        job.pose_mode = match self.pose_mode.as_str() {
-            "fixed" => PoseMode::FixedOrientation,
-            "6dof" => PoseMode::SixDof,
-            other => bail!("--pose-mode {other:?}: give fixed or 6dof"),
-        };
-        if !(self.pose_sigma >= 0.0 && self.pose_sigma < 0.1) {
-            bail!("--pose-sigma {}: give metres in [0, 0.1)", self.pose_sigma);
-        }
-        job.position_sigma = self.pose_sigma;
-        if !(self.step_deg >= 0.005 && self.step_deg <= 2.0) {
-            bail!("--step-deg {}: give degrees in [0.005, 2]", self.step_deg);
-        }
-        job.scanner.step_deg = self.step_deg;
-        job.rate = crate::publish::parse_rate(&self.rate)?;
-        Ok(job)
+        Ok(self.spec()?.build()?)
     }
 }
 

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
 use iceoryx2::prelude::*;
 
 /// Points per chunk the benchmarks send, at most.

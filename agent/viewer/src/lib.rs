@@ -125,29 +125,59 @@ pub struct Viewer {
 
 /// The view could not start: a file that cannot be written, a URL that is not a viewer's.
 #[derive(Debug, thiserror::Error)]
-#[error("cannot start the rerun view: {0}")]
-pub struct ViewerError(String);
+pub enum ViewerError {
+    /// Neither a file nor a viewer was named.
+    #[error("cannot start the rerun view: give a .rrd file or a viewer URL")]
+    NoSink,
+    /// The .rrd file cannot be written.
+    #[error("cannot start the rerun view: cannot write {path}")]
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// rerun's error.
+        #[source]
+        source: rerun::sink::FileSinkError,
+    },
+    /// The viewer URL is not one (`rerun+http://HOST:PORT/proxy`).
+    #[error(
+        "cannot start the rerun view: {url:?} is not a viewer URL (rerun+http://HOST:PORT/proxy)"
+    )]
+    Url {
+        /// The URL given.
+        url: String,
+        /// rerun's error.
+        #[source]
+        source: rerun::external::re_uri::Error,
+    },
+    /// The recording stream could not be made.
+    #[error("cannot start the rerun view")]
+    Stream(#[source] rerun::RecordingStreamError),
+}
 
 impl Viewer {
     /// Opens the sinks the settings name; at least one is needed.
     pub fn start(settings: ViewerParams) -> Result<Self, ViewerError> {
         let builder = rerun::RecordingStreamBuilder::new("asbuilt");
-        let err = |e: &dyn std::fmt::Display| ViewerError(e.to_string());
         let rec = match (&settings.rrd, &settings.url) {
             (Some(path), Some(url)) => {
-                let file = rerun::sink::FileSink::new(path).map_err(|e| err(&e))?;
-                let uri = url
-                    .parse()
-                    .map_err(|e: rerun::external::re_uri::Error| err(&e))?;
+                let sink =
+                    rerun::sink::FileSink::new(path).map_err(|source| ViewerError::File {
+                        path: path.clone(),
+                        source,
+                    })?;
+                let uri = url.parse().map_err(|source| ViewerError::Url {
+                    url: url.clone(),
+                    source,
+                })?;
                 builder
-                    .set_sinks((file, rerun::sink::GrpcSink::new(uri)))
-                    .map_err(|e| err(&e))?
+                    .set_sinks((sink, rerun::sink::GrpcSink::new(uri)))
+                    .map_err(ViewerError::Stream)?
             }
-            (Some(path), None) => builder.save(path).map_err(|e| err(&e))?,
+            (Some(path), None) => builder.save(path).map_err(ViewerError::Stream)?,
             (None, Some(url)) => builder
                 .connect_grpc_opts(url.clone())
-                .map_err(|e| err(&e))?,
-            (None, None) => return Err(ViewerError("give a .rrd file or a viewer URL".into())),
+                .map_err(ViewerError::Stream)?,
+            (None, None) => return Err(ViewerError::NoSink),
         };
         Ok(Self::with_stream(rec, settings))
     }

@@ -185,11 +185,12 @@ class Cell:
 class SimulatedJob(_SimulatedJob):
     """A simulated print job, as `asbuilt sim` runs it: `SimulatedJob(part="wall",
     scan_after=[8, 16], defect=["bulge:x=0,y=-0.5,z=0.3,radius=0.1,height=8mm"], seed=1)`.
-    Keywords are `asbuilt sim`'s job flags. `stations()` is the robot's plan, `scan(i)` what
+    Keywords are `asbuilt sim`'s job flags, typed (`rate` is points per second or "max"); one
+    left out takes `asbuilt sim`'s default. `stations()` is the robot's plan, `scan(i)` what
     the scanner sees at station i, `design` the part."""
 
     def __new__(cls, **options: Any):
-        return super().__new__(cls, argv(**options))
+        return super().__new__(cls, **options)
 
     def send(self, cell: "Cell", station: Dict[str, Any]) -> int:
         """Scans `station` (an entry of `stations()`) and sends it through `cell` as the robot

@@ -6,13 +6,12 @@
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use asbuilt_agent::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::ipc::{CellPorts, Ipc, IpcError, ServiceNames};
 use asbuilt_protocol::{
     FixedText, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent, StationEventKind,
     StationFindings, StationReport, StationSender, codec,
 };
-use asbuilt_sim::{AsBuilt, SimJob};
-use clap::Parser;
+use asbuilt_sim::{AsBuilt, JobSpec, PartSpec, SimJob};
 use iceoryx2::prelude::*;
 use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -194,13 +193,14 @@ impl Cell {
 
 impl Cell {
     fn drain(&self, py: Python<'_>, out: &Bound<'_, PyList>) -> PyResult<()> {
-        let bad =
-            |e: &dyn std::fmt::Debug| runtime(format!("cannot read the agent's outputs: {e:?}"));
-        while let Some(r) = self.ports.reports.receive().map_err(|e| bad(&e))? {
+        let bad = |e: iceoryx2::port::ReceiveError| {
+            runtime(IpcError::iceoryx("cannot read the agent's outputs", e))
+        };
+        while let Some(r) = self.ports.reports.receive().map_err(bad)? {
             let r: StationReport = *r.payload();
             out.append(tagged(py, "report", &r)?)?;
         }
-        while let Some(s) = self.ports.findings.receive().map_err(|e| bad(&e))? {
+        while let Some(s) = self.ports.findings.receive().map_err(bad)? {
             let f: StationFindings = codec::decode(s.payload()).map_err(runtime)?;
             out.append(tagged(py, "findings", &f)?)?;
         }
@@ -220,16 +220,10 @@ fn tagged<'py>(
     Ok(v)
 }
 
-#[derive(Parser)]
-struct JobCli {
-    #[command(flatten)]
-    job: asbuilt_tools::sim_cmd::JobArgs,
-}
-
 /// A simulated print job, as `asbuilt sim` runs it: the part, its defects, where the robot
-/// scans and what the scanner sees. Keywords are `asbuilt sim`'s job flags as a list of
-/// strings (`SimulatedJob(["--part", "wall", "--scan-after", "8,16"])`; the Python wrapper
-/// takes keywords).
+/// scans and what the scanner sees. Keywords are `asbuilt sim`'s job flags, typed
+/// (`SimulatedJob(part="wall", scan_after=[8, 16], defect=["bulge:..."])`); a keyword left out
+/// takes `asbuilt sim`'s default.
 #[pyclass(frozen, subclass, module = "asbuilt")]
 pub struct SimulatedJob {
     job: SimJob,
@@ -237,18 +231,95 @@ pub struct SimulatedJob {
     built: Mutex<Option<(u32, std::sync::Arc<AsBuilt>)>>,
 }
 
+/// `part`: `wall`, `column` or a design file (with `units` and `layer_height`).
+fn part_spec(
+    part: std::path::PathBuf,
+    units: Option<&str>,
+    layer_height: Option<f64>,
+) -> PyResult<PartSpec> {
+    Ok(match part.to_str() {
+        Some("wall") => PartSpec::Wall,
+        Some("column") => PartSpec::Column,
+        _ => PartSpec::File {
+            path: part,
+            units: units
+                .ok_or_else(|| {
+                    PyValueError::new_err(
+                        "units='m' or 'mm' is required with a design file: units are never guessed",
+                    )
+                })?
+                .parse()
+                .map_err(|e| PyValueError::new_err(format!("units: {e}")))?,
+            layer_height: layer_height.ok_or_else(|| {
+                PyValueError::new_err("layer_height (metres) is required with a design file")
+            })?,
+        },
+    })
+}
+
+/// `rate`: points per second, or `"max"` for as fast as the agent takes them.
+fn rate(value: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
+    if let Ok(text) = value.extract::<String>() {
+        return match text.as_str() {
+            "max" => Ok(None),
+            _ => Err(PyValueError::new_err(format!(
+                "rate {text:?}: give points per second or \"max\""
+            ))),
+        };
+    }
+    Ok(Some(value.extract::<f64>()?))
+}
+
 #[pymethods]
 impl SimulatedJob {
     #[new]
-    fn new(args: Vec<String>) -> PyResult<Self> {
-        let argv = std::iter::once("sim".to_string()).chain(args);
-        let cli = JobCli::try_parse_from(argv)
-            .map_err(|e| PyValueError::new_err(e.render().to_string()))?;
+    #[pyo3(signature = (
+        *, part = None, units = None, layer_height = None, scan_after = None, stations = None,
+        defect = None, seed = None, pose_mode = "fixed", pose_sigma = None, rate = None,
+        step_deg = None, job = None
+    ))]
+    #[allow(clippy::too_many_arguments)] // Python's keywords, one per `asbuilt sim` flag
+    fn new(
+        part: Option<std::path::PathBuf>,
+        units: Option<&str>,
+        layer_height: Option<f64>,
+        scan_after: Option<Vec<u32>>,
+        stations: Option<u32>,
+        defect: Option<Vec<String>>,
+        seed: Option<u64>,
+        pose_mode: &str,
+        pose_sigma: Option<f64>,
+        rate: Option<Bound<'_, PyAny>>,
+        step_deg: Option<f64>,
+        job: Option<u64>,
+    ) -> PyResult<Self> {
+        let d = JobSpec::default();
+        let spec = JobSpec {
+            part: part_spec(part.unwrap_or_else(|| "wall".into()), units, layer_height)?,
+            scan_after: scan_after.unwrap_or(d.scan_after),
+            stations: stations.unwrap_or(d.stations),
+            defects: defect.unwrap_or(d.defects),
+            seed: seed.unwrap_or(d.seed),
+            pose_mode: match self::pose_mode(pose_mode)? {
+                PoseMode::DesignScanner => {
+                    return Err(PyValueError::new_err(
+                        "pose_mode: a simulated job's robot reports fixed or 6dof poses",
+                    ));
+                }
+                m => m,
+            },
+            pose_sigma: pose_sigma.unwrap_or(d.pose_sigma),
+            rate: match rate {
+                Some(r) => self::rate(&r)?,
+                None => d.rate,
+            },
+            step_deg: step_deg.unwrap_or(d.step_deg),
+            job: job.unwrap_or(d.job),
+        };
         Ok(Self {
-            job: cli
-                .job
-                .job()
-                .map_err(|e| PyValueError::new_err(format!("{e:#}")))?,
+            job: spec
+                .build()
+                .map_err(|e| PyValueError::new_err(asbuilt_tools::error_message(&e)))?,
             built: Mutex::new(None),
         })
     }

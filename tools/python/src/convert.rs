@@ -12,8 +12,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// An error with every cause, as the command line prints it.
-pub fn runtime(e: impl std::fmt::Display) -> PyErr {
-    PyRuntimeError::new_err(format!("{e:#}"))
+pub fn runtime(e: impl std::error::Error + 'static) -> PyErr {
+    PyRuntimeError::new_err(asbuilt_tools::error_message(&e))
 }
 
 pub fn anyhow_err(e: anyhow::Error) -> PyErr {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use asbuilt_core::coverage::SampleClass;
 use asbuilt_core::scan_layer::{SampleState, defaults};
-use asbuilt_report::suite::{Suite, SuiteOptions, parse_methods};
+use asbuilt_report::suite::{Suite, SuiteOptions, findings_message, parse_methods};
 use nalgebra::Point3;
 use numpy::{IntoPyArray, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -88,7 +88,7 @@ pub fn suite<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let config = SuiteOptions {
         methods: parse_methods(&methods.join(","))
-            .map_err(PyValueError::new_err)?
+            .map_err(|e| PyValueError::new_err(e.to_string()))?
             .0,
         tolerance,
         max_distance,
@@ -153,12 +153,7 @@ pub fn suite<'py>(
     result.set_item("total", convert::to_json(py, &totals)?)?;
     let findings = match &totals.findings {
         Some((f, n)) => {
-            let layer = match (printed_height, layer_height) {
-                (Some(h), Some(lh)) => ((h - lowest) / lh).round().max(0.0) as u32,
-                _ => 0,
-            };
-            let printed = printed_height.unwrap_or(f64::NAN);
-            let m = f.to_message((0, n.saturating_sub(1)), *n, tolerance, (layer, printed));
+            let m = findings_message(f, *n, tolerance, (printed_height, layer_height), lowest);
             convert::to_json(py, &m)?
         }
         None => py.None(),

@@ -74,9 +74,11 @@ def test_send_station_checks_its_arrays(tmp_path):
     assert job.layers == 49 and job.layer_height == pytest.approx(0.02)
     with pytest.raises(ValueError, match="no station 5"):
         job.scan(5)
-    with pytest.raises(ValueError, match="scan-after"):
+    with pytest.raises(ValueError, match="scan after"):
         asbuilt.SimulatedJob(part="wall", scan_after=[99])
-    with pytest.raises(ValueError, match="unexpected argument"):
+    with pytest.raises(ValueError, match="give fixed or 6dof|fixed or 6dof"):
+        asbuilt.SimulatedJob(part="wall", pose_mode="design_scanner")
+    with pytest.raises(TypeError, match="unexpected keyword argument"):
         asbuilt.SimulatedJob(part="wall", colour="red")
 
 

@@ -25,7 +25,7 @@ pub struct Assessment {
     /// The limits everything was held to.
     pub limits: LimitsSection,
     /// The worst verdict of each job's latest scan layer.
-    pub verdict: &'static str,
+    pub verdict: Verdict,
     /// What the page opens with: what is out of tolerance, where, since when, what changed.
     pub summary: Vec<String>,
     /// Per scan layer, in print order: its findings with their verdicts.
@@ -89,6 +89,89 @@ pub struct VerdictCounts {
     pub fail: u32,
 }
 
+/// What a finding measures; report.json spells it as [`ItemKind::as_str`] does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ItemKind {
+    /// A layer band's width deviation.
+    Width,
+    /// A layer band's shift in the plan.
+    Position,
+    /// A layer band's width change since first scanned.
+    Creep,
+    /// The top of the print against the printed height.
+    TopHeight,
+    /// An area with material outside the design.
+    Excess,
+    /// An area whose surface lies inside the design.
+    Deficit,
+    /// Missing material.
+    Missing,
+}
+
+impl ItemKind {
+    /// `width`, `position`, `creep`, `top_height`, `excess`, `deficit` or `missing`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ItemKind::Width => "width",
+            ItemKind::Position => "position",
+            ItemKind::Creep => "creep",
+            ItemKind::TopHeight => "top_height",
+            ItemKind::Excess => "excess",
+            ItemKind::Deficit => "deficit",
+            ItemKind::Missing => "missing",
+        }
+    }
+}
+
+impl From<RegionKind> for ItemKind {
+    fn from(k: RegionKind) -> Self {
+        match k {
+            RegionKind::Excess => ItemKind::Excess,
+            RegionKind::Deficit => ItemKind::Deficit,
+            RegionKind::Missing => ItemKind::Missing,
+        }
+    }
+}
+
+impl std::fmt::Display for ItemKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// How a finding changed since the previous scan layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Change {
+    /// The previous scan layer did not show it.
+    New,
+    /// Larger by more than the step (the limit beyond the warning fraction, or a tenth).
+    Grown,
+    /// Smaller by more than the step.
+    Shrunk,
+    /// Within the step.
+    Steady,
+}
+
+impl Change {
+    /// `new`, `grown`, `shrunk` or `steady`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Change::New => "new",
+            Change::Grown => "grown",
+            Change::Shrunk => "shrunk",
+            Change::Steady => "steady",
+        }
+    }
+}
+
+impl std::fmt::Display for Change {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 impl ScanLayerVerdicts {
     /// "After 24 layers (printed 0.480 m)", or "All stations" for a job not scanned while
     /// printing.
@@ -121,8 +204,8 @@ pub struct ScanLayerVerdicts {
     pub printed_height: Option<f64>,
     /// Stations whose points went into its findings.
     pub stations: u32,
-    /// The worst verdict of its findings: `pass`, `warn` or `fail`.
-    pub verdict: &'static str,
+    /// The worst verdict of its findings.
+    pub verdict: Verdict,
     /// Over the findings below.
     pub counts: VerdictCounts,
     /// Warnings and failures, failures first; `label` marks them on the maps.
@@ -139,7 +222,7 @@ pub struct LayerVerdict {
     /// The band's layer, from 0.
     pub layer: u32,
     /// The worst verdict of what touches it.
-    pub verdict: &'static str,
+    pub verdict: Verdict,
 }
 
 /// One finding with its verdict.
@@ -147,10 +230,10 @@ pub struct LayerVerdict {
 pub struct Item {
     /// "1", "2", … within the scan layer, as drawn on its maps.
     pub label: String,
-    /// width, position, top_height, creep, excess, deficit or missing.
-    pub kind: &'static str,
-    /// `pass`, `warn` or `fail`.
-    pub verdict: &'static str,
+    /// What was measured.
+    pub kind: ItemKind,
+    /// Against its limit.
+    pub verdict: Verdict,
     /// Signed metres (m² for missing material).
     pub value: f64,
     /// The limit it was held to, in the value's unit.
@@ -165,8 +248,8 @@ pub struct Item {
     pub extent: Option<[[f64; 3]; 2]>,
     /// The scan layer that first showed it (and every one since).
     pub since: u32,
-    /// new, grown, shrunk or steady, against the previous scan layer.
-    pub change: &'static str,
+    /// Against the previous scan layer.
+    pub change: Change,
     /// Its value in the previous scan layer, when that one showed it.
     pub previous: Option<f64>,
     /// One line a person reads.
@@ -190,7 +273,7 @@ pub struct LayerHistory {
     /// the first, metres: creep or sag under the layers above.
     pub width_change: Option<f64>,
     /// The creep's verdict against its limit, once two scan layers saw the band.
-    pub creep_verdict: Option<&'static str>,
+    pub creep_verdict: Option<Verdict>,
 }
 
 /// A layer band's measures in one scan layer.
@@ -220,8 +303,8 @@ pub struct LayerScan {
 pub struct StationVerdict {
     /// The station's id.
     pub id: String,
-    /// `pass`, `warn` or `fail`.
-    pub verdict: &'static str,
+    /// Against the surface limit.
+    pub verdict: Verdict,
     /// Why, in one line.
     pub reason: String,
 }
@@ -270,37 +353,27 @@ pub fn assess(
                 format!(
                     "No findings (they need coverage and M3C2): judged by all points together, \
                      {}: {}.",
-                    o.verdict.to_uppercase(),
+                    o.verdict.as_str().to_uppercase(),
                     o.reason
                 ),
             );
         }
-        overall
-            .as_ref()
-            .map_or(Verdict::Pass, |o| verdict_of(o.verdict))
+        overall.as_ref().map_or(Verdict::Pass, |o| o.verdict)
     } else {
         latest
             .iter()
-            .map(|s| verdict_of(s.verdict))
+            .map(|s| s.verdict)
             .max()
             .unwrap_or(Verdict::Pass)
     };
     Assessment {
         limits: limits.into(),
-        verdict: verdict.as_str(),
+        verdict,
         summary,
         scan_layers,
         layer_history,
         stations,
         overall,
-    }
-}
-
-fn verdict_of(s: &str) -> Verdict {
-    match s {
-        "fail" => Verdict::Fail,
-        "warn" => Verdict::Warn,
-        _ => Verdict::Pass,
     }
 }
 
@@ -339,7 +412,7 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
         if let Some(change) = creep_at(h, u32::MAX) {
             h.width_change = Some(change);
             let (v, _) = limits.judge(LimitKind::Creep, change, Some((h.layer, h.layer)));
-            h.creep_verdict = Some(v.as_str());
+            h.creep_verdict = Some(v);
         }
     }
     bands.into_values().collect()
@@ -390,7 +463,7 @@ fn layers_text(l: Option<[u32; 2]>) -> String {
 
 /// A finding before it is compared with the previous scan layer.
 struct Raw {
-    kind: &'static str,
+    kind: ItemKind,
     limit_kind: LimitKind,
     value: f64,
     layers: Option<[u32; 2]>,
@@ -417,21 +490,21 @@ fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
                 });
             }
         };
-        push("width", LimitKind::Width, r.width_deviation);
+        push(ItemKind::Width, LimitKind::Width, r.width_deviation);
         push(
-            "position",
+            ItemKind::Position,
             LimitKind::Position,
             r.shift[0].hypot(r.shift[1]),
         );
         let band_history = history.iter().find(|h| h.layer == r.layer);
         if let Some(c) = band_history.and_then(|h| creep_at(h, f.layer)) {
-            push("creep", LimitKind::Creep, c);
+            push(ItemKind::Creep, LimitKind::Creep, c);
         }
     }
     if f.top_height_deviation.is_finite() {
         let h = f.printed_height;
         out.push(Raw {
-            kind: "top_height",
+            kind: ItemKind::TopHeight,
             limit_kind: LimitKind::TopHeight,
             value: f.top_height_deviation,
             layers: Some([f.layer, f.layer]),
@@ -449,7 +522,7 @@ fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
 fn area(g: &RegionFinding) -> Raw {
     let missing = g.kind == RegionKind::Missing;
     Raw {
-        kind: g.kind.as_str(),
+        kind: g.kind.into(),
         limit_kind: if missing {
             LimitKind::MissingArea
         } else {
@@ -471,27 +544,27 @@ fn same_finding(a: &Raw, b: &Item) -> bool {
         (Some([lo, hi]), Some([blo, bhi])) => (0..3)
             .all(|i| lo[i] <= bhi[i] + AREA_MATCH_MARGIN && blo[i] <= hi[i] + AREA_MATCH_MARGIN),
         // Layer rows by their band, the top by itself.
-        _ => a.kind == "top_height" || a.layers == b.layers,
+        _ => a.kind == ItemKind::TopHeight || a.layers == b.layers,
     }
 }
 
-fn describe(kind: &str, value: f64, layers: Option<[u32; 2]>, at: Option<[f64; 3]>) -> String {
+fn describe(kind: ItemKind, value: f64, layers: Option<[u32; 2]>, at: Option<[f64; 3]>) -> String {
     match kind {
-        "width" => format!("{} width {}", layers_text(layers), mm(value)),
-        "position" => format!("{} shifted {:.1} mm", layers_text(layers), value * 1e3),
-        "creep" => format!(
+        ItemKind::Width => format!("{} width {}", layers_text(layers), mm(value)),
+        ItemKind::Position => format!("{} shifted {:.1} mm", layers_text(layers), value * 1e3),
+        ItemKind::Creep => format!(
             "{} width changed {} since first scanned (beyond the scan layer's common change)",
             layers_text(layers),
             mm(value)
         ),
-        "top_height" => format!("top of the print {}", mm(value)),
-        "missing" => format!(
+        ItemKind::TopHeight => format!("top of the print {}", mm(value)),
+        ItemKind::Missing => format!(
             "missing material, {:.0} cm², {} at {}",
             value * 1e4,
             layers_text(layers),
             at.map_or_else(String::new, xyz)
         ),
-        _ => format!(
+        ItemKind::Excess | ItemKind::Deficit => format!(
             "{kind} {}, {} at {}",
             mm(value),
             layers_text(layers),
@@ -529,16 +602,16 @@ fn scan_layer(
             Some(&p.items[i])
         });
         let change = match before {
-            None => "new",
+            None => Change::New,
             Some(b) => {
                 let d = raw.value.abs() - b.value.abs();
                 let step = (1.0 - limits.warn_fraction).max(0.1) * limit;
                 if d > step {
-                    "grown"
+                    Change::Grown
                 } else if d < -step {
-                    "shrunk"
+                    Change::Shrunk
                 } else {
-                    "steady"
+                    Change::Steady
                 }
             }
         };
@@ -547,7 +620,7 @@ fn scan_layer(
             Item {
                 label: String::new(),
                 kind: raw.kind,
-                verdict: verdict.as_str(),
+                verdict,
                 value: raw.value,
                 limit,
                 layers: raw.layers,
@@ -583,7 +656,7 @@ fn scan_layer(
         .unwrap_or_default();
     let verdict = items
         .iter()
-        .map(|i| verdict_of(i.verdict))
+        .map(|i| i.verdict)
         .max()
         .unwrap_or(Verdict::Pass);
     ScanLayerVerdicts {
@@ -591,15 +664,12 @@ fn scan_layer(
         layer: f.layer,
         printed_height: finite(f.printed_height),
         stations: f.stations,
-        verdict: verdict.as_str(),
+        verdict,
         counts,
         items,
         layers: band_verdicts
             .into_iter()
-            .map(|(layer, v)| LayerVerdict {
-                layer,
-                verdict: v.as_str(),
-            })
+            .map(|(layer, verdict)| LayerVerdict { layer, verdict })
             .collect(),
         resolved,
     }
@@ -645,7 +715,7 @@ fn station(s: &Section, limits: &Limits) -> StationVerdict {
     };
     StationVerdict {
         id: s.id.clone(),
-        verdict: verdict.as_str(),
+        verdict,
         reason,
     }
 }
@@ -660,19 +730,19 @@ fn summary(
         out.push(format!(
             "{}: {}: {} out of tolerance, {} to watch.",
             s.title(),
-            s.verdict.to_uppercase(),
+            s.verdict.as_str().to_uppercase(),
             s.counts.fail,
             s.counts.warn
         ));
-        for it in s.items.iter().filter(|i| i.verdict == "fail") {
+        for it in s.items.iter().filter(|i| i.verdict == Verdict::Fail) {
             // Offline, without a printed height, there is one scan layer and no "since".
             let since = match (s.printed_height, it.change) {
                 (None, _) => String::new(),
-                (Some(_), "new") => ", new".to_string(),
+                (Some(_), Change::New) => ", new".to_string(),
                 (Some(_), c) => format!(
                     ", since the scan after {} layers{}",
                     it.since + 1,
-                    if c == "steady" {
+                    if c == Change::Steady {
                         String::new()
                     } else {
                         format!(", {c} since the last scan")
@@ -688,8 +758,8 @@ fn summary(
         }
         let previous = all.iter().rfind(|p| p.job == s.job && p.layer < s.layer);
         if let Some(p) = previous {
-            let new: Vec<&Item> = s.items.iter().filter(|i| i.change == "new").collect();
-            let grown = s.items.iter().filter(|i| i.change == "grown").count();
+            let new: Vec<&Item> = s.items.iter().filter(|i| i.change == Change::New).collect();
+            let grown = s.items.iter().filter(|i| i.change == Change::Grown).count();
             out.push(format!(
                 "Since the scan after {} layers: {} new, {} grown, {} resolved.",
                 p.layer + 1,
@@ -701,7 +771,7 @@ fn summary(
     }
     let failed: Vec<&str> = stations
         .iter()
-        .filter(|s| s.verdict == "fail")
+        .filter(|s| s.verdict == Verdict::Fail)
         .map(|s| s.id.as_str())
         .collect();
     if !failed.is_empty() {
@@ -716,7 +786,7 @@ fn summary(
 impl Item {
     /// "±5.0 mm", or "20 cm²" for missing material.
     pub fn limit_text(&self) -> String {
-        if self.kind == "missing" {
+        if self.kind == ItemKind::Missing {
             format!("{:.0} cm²", self.limit * 1e4)
         } else {
             format!("±{:.1} mm", self.limit * 1e3)
@@ -780,27 +850,35 @@ mod tests {
         let a = assess(&[first, second], &[], None, &Limits::from_tolerance(T));
         let band1 = &a.layer_history[1];
         assert!((band1.width_change.unwrap() - 0.006).abs() < 1e-12);
-        assert_eq!(band1.creep_verdict, Some("fail"));
+        assert_eq!(band1.creep_verdict, Some(Verdict::Fail));
         for h in a
             .layer_history
             .iter()
             .filter(|h| h.layer != 1 && h.layer < 10)
         {
             assert!(h.width_change.unwrap().abs() < 1e-12, "{h:?}");
-            assert_eq!(h.creep_verdict, Some("pass"));
+            assert_eq!(h.creep_verdict, Some(Verdict::Pass));
         }
         // Seen once: no change to tell.
         assert_eq!(a.layer_history[15].width_change, None);
         let s = &a.scan_layers[1];
-        let creep: Vec<_> = s.items.iter().filter(|i| i.kind == "creep").collect();
+        let creep: Vec<_> = s
+            .items
+            .iter()
+            .filter(|i| i.kind == ItemKind::Creep)
+            .collect();
         assert_eq!(creep.len(), 1);
         assert_eq!(creep[0].layers, Some([1, 1]));
         // Band 1 is 9 mm wide: the width fails too; the others at 3 mm pass (warn from 3.75).
-        let widths: Vec<_> = s.items.iter().filter(|i| i.kind == "width").collect();
+        let widths: Vec<_> = s
+            .items
+            .iter()
+            .filter(|i| i.kind == ItemKind::Width)
+            .collect();
         assert_eq!(widths.len(), 1);
-        assert_eq!(s.layers[1].verdict, "fail");
-        assert_eq!(s.layers[2].verdict, "pass");
-        assert_eq!(a.verdict, "fail");
+        assert_eq!(s.layers[1].verdict, Verdict::Fail);
+        assert_eq!(s.layers[2].verdict, Verdict::Pass);
+        assert_eq!(a.verdict, Verdict::Fail);
     }
 
     #[test]
@@ -815,14 +893,14 @@ mod tests {
         let a = assess(&[a1, a2, a3], &[], None, &Limits::from_tolerance(T));
         let s2 = &a.scan_layers[1];
         let old = s2.items.iter().find(|i| i.at.unwrap()[0] > 0.0).unwrap();
-        assert_eq!((old.since, old.change), (9, "grown"));
+        assert_eq!((old.since, old.change), (9, Change::Grown));
         assert_eq!(old.previous, Some(0.008));
         let new = s2.items.iter().find(|i| i.at.unwrap()[0] < 0.0).unwrap();
-        assert_eq!((new.since, new.change), (19, "new"));
+        assert_eq!((new.since, new.change), (19, Change::New));
         let s3 = &a.scan_layers[2];
-        assert_eq!(s3.verdict, "pass");
+        assert_eq!(s3.verdict, Verdict::Pass);
         assert_eq!(s3.resolved.len(), 2);
-        assert_eq!(a.verdict, "pass");
+        assert_eq!(a.verdict, Verdict::Pass);
         assert!(
             a.summary[0].starts_with("After 30 layers"),
             "{:?}",
@@ -840,7 +918,7 @@ mod tests {
         limits.set("width=20mm@2-4".parse().unwrap());
         let lenient = assess(&[f], &[], None, &limits);
         assert_eq!(lenient.scan_layers[0].counts.fail, 0);
-        assert_eq!(lenient.scan_layers[0].verdict, "pass");
+        assert_eq!(lenient.scan_layers[0].verdict, Verdict::Pass);
         assert_eq!(lenient.limits.ranges, vec!["width=0.02@2-4".to_string()]);
     }
 }

@@ -4,6 +4,8 @@
 
 use std::fmt::Write;
 
+use asbuilt_core::verdict::Verdict;
+
 use crate::Assessment;
 use crate::html::{Margins, esc};
 
@@ -211,9 +213,9 @@ pub fn charts(a: &Assessment) -> String {
     let changed: String = a
         .layer_history
         .iter()
-        .filter(|h| h.creep_verdict.is_some_and(|v| v != "pass"))
+        .filter(|h| h.creep_verdict.is_some_and(|v| v != Verdict::Pass))
         .map(|h| {
-            let v = h.creep_verdict.unwrap_or("pass");
+            let v = h.creep_verdict.unwrap_or(Verdict::Pass);
             format!(
                 "<tr><td>{}</td><td>{:.3}–{:.3}</td><td>{}</td><td class=\"{v}\">{}</td></tr>",
                 h.layer,
@@ -221,7 +223,7 @@ pub fn charts(a: &Assessment) -> String {
                 h.z_max,
                 h.width_change
                     .map_or("–".into(), |c| format!("{:+.1}", c * 1e3)),
-                v.to_uppercase()
+                v.as_str().to_uppercase()
             )
         })
         .collect();

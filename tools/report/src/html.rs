@@ -8,6 +8,8 @@ use std::fmt::Write;
 use rayon::prelude::*;
 
 use crate::maps::{MapKind, ScanLayerMaps, Side};
+use asbuilt_core::verdict::Verdict;
+
 use crate::{Assessment, Item, Report, ScanLayerVerdicts, Section};
 
 /// The room around a chart's or a map's plot for its axes, labels and legend, screen pixels.
@@ -160,10 +162,10 @@ fn items(texts: &[String]) -> String {
         .collect()
 }
 
-fn badge(verdict: &str) -> String {
+fn badge(verdict: Verdict) -> String {
     format!(
         "<span class=\"verdict {verdict}\">{}</span>",
-        verdict.to_uppercase()
+        verdict.as_str().to_uppercase()
     )
 }
 
@@ -246,7 +248,7 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
                     it.change,
                     l = it.label,
                     v = it.verdict,
-                    V = it.verdict.to_uppercase()
+                    V = it.verdict.as_str().to_uppercase()
                 )
             })
             .collect();
@@ -284,9 +286,9 @@ fn layer_strip(s: &ScanLayerVerdicts) -> String {
     );
     for (k, l) in s.layers.iter().enumerate() {
         let fill = match l.verdict {
-            "fail" => "#c00",
-            "warn" => "#d80",
-            _ => "#4a8",
+            Verdict::Fail => "#c00",
+            Verdict::Warn => "#d80",
+            Verdict::Pass => "#4a8",
         };
         let _ = write!(
             svg,
@@ -382,8 +384,8 @@ fn stations(r: &Report) -> String {
             s.distances
                 .in_tolerance_percent()
                 .map_or("–".into(), |p| format!("{p:.1}")),
-            v.map_or("", |v| v.verdict),
-            v.map_or_else(String::new, |v| v.verdict.to_uppercase()),
+            v.map_or("", |v| v.verdict.as_str()),
+            v.map_or_else(String::new, |v| v.verdict.as_str().to_uppercase()),
             v.map_or_else(String::new, |v| esc(&v.reason)),
         );
         let _ = write!(

@@ -15,7 +15,7 @@ mod sections;
 pub mod suite;
 
 pub use assessment::{
-    Assessment, Item, LayerHistory, LayerScan, LayerVerdict, LimitsSection, ScanLayerVerdicts,
-    StationVerdict, VerdictCounts, assess,
+    Assessment, Change, Item, ItemKind, LayerHistory, LayerScan, LayerVerdict, LimitsSection,
+    ScanLayerVerdicts, StationVerdict, VerdictCounts, assess,
 };
 pub use sections::*;

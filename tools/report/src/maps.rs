@@ -15,6 +15,7 @@ use asbuilt_core::Design;
 use asbuilt_core::colour::deviation_colour;
 use asbuilt_core::coverage::SampleClass;
 use asbuilt_core::scan_layer::SampleState;
+use asbuilt_core::verdict::Verdict;
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 use base64::Engine;
 use rayon::prelude::*;
@@ -755,7 +756,11 @@ impl ScanLayerMaps {
     /// An area's box and numbered circle where it shows; a layer band's bar at the left, its
     /// number at `label_y`.
     fn callout(&self, svg: &mut String, side: Side, it: &Item, label_y: Option<f64>) {
-        let colour = if it.verdict == "fail" { "#c00" } else { "#d80" };
+        let colour = if it.verdict == Verdict::Fail {
+            "#c00"
+        } else {
+            "#d80"
+        };
         match (it.at, it.extent) {
             (Some(at), Some([lo, hi])) => {
                 let shows = self.shows_on(at);
@@ -937,8 +942,8 @@ mod tests {
         let m = &layers.finish()[0];
         let band = |k: u32| Item {
             label: (k + 1).to_string(),
-            kind: "width",
-            verdict: "fail",
+            kind: crate::ItemKind::Width,
+            verdict: Verdict::Fail,
             value: 0.01,
             limit: 0.005,
             layers: Some([k, k]),
@@ -946,7 +951,7 @@ mod tests {
             at: None,
             extent: None,
             since: 0,
-            change: "new",
+            change: crate::Change::New,
             previous: None,
             text: String::new(),
         };

@@ -3,7 +3,11 @@
 use asbuilt_protocol::{DeviationStats, Histogram, RejectCounts, StationReport};
 use serde::Serialize;
 
-use crate::suite::{BandMethods, SuiteSection, TwoCloudSection};
+use asbuilt_core::coverage::CoverageSummary;
+use asbuilt_core::findings::Findings;
+use asbuilt_core::layers::BandRow;
+use asbuilt_core::m3c2::streaming::StreamingSummary;
+use nalgebra::Point3;
 
 /// `report.json`: the design, the parameters, every station and all of them together, the
 /// findings and their verdicts.
@@ -275,7 +279,7 @@ pub fn verdict_text(report: &Report) -> String {
     let Some(a) = &report.assessment else {
         return String::new();
     };
-    let mut out = format!("verdict: {}\n", a.verdict.to_uppercase());
+    let mut out = format!("verdict: {}\n", a.verdict.as_str().to_uppercase());
     for line in &a.summary {
         out.push_str("  ");
         out.push_str(line);
@@ -327,4 +331,178 @@ pub fn summary_table(report: &Report) -> String {
         ));
     }
     out
+}
+
+/// Coverage: which design samples the scan observed. Counts of design samples.
+#[derive(Debug, Serialize)]
+pub struct CoverageSection {
+    /// Design samples, each standing for `area_per_sample_m2`.
+    pub observed: u64,
+    /// Facing a station in range with a clear view, and no scan point near: missing material.
+    pub missing: u64,
+    /// Facing a station in range, but the design itself blocks the view.
+    pub occluded: u64,
+    /// No station could have seen it (out of range, facing away, grazing).
+    pub not_scanned: u64,
+    /// The design surface the missing samples stand for, m².
+    pub missing_area_m2: f64,
+    /// The design surface one sample stands for, m².
+    pub area_per_sample_m2: f64,
+    /// The scanner's angular step the threshold was raised by, mrad (given or measured);
+    /// absent with a fixed threshold.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub angular_step_mrad: Option<f64>,
+    /// Signed distance from each design sample to the nearest scan point within reach
+    /// (negative: the scan lies inside the design). Overall only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reverse_c2c: Option<DistanceSection>,
+}
+
+impl CoverageSection {
+    pub(crate) fn new(s: &CoverageSummary, area: f64) -> Self {
+        Self {
+            observed: s.observed,
+            missing: s.missing,
+            occluded: s.occluded,
+            not_scanned: s.not_scanned,
+            missing_area_m2: s.missing_area_m2,
+            area_per_sample_m2: area,
+            angular_step_mrad: s.angular_step.map(|a| a * 1e3),
+            reverse_c2c: None,
+        }
+    }
+}
+
+/// M3C2 at the design samples, along the design's normals. Metres.
+#[derive(Debug, Serialize)]
+pub struct M3c2Section {
+    /// Core points, those with scan points in their cylinder, the significant ones, and the
+    /// mean and extremes of their distances.
+    #[serde(flatten)]
+    pub summary: StreamingSummary,
+    /// The registration error in the level of detection: the stations' pose sigma.
+    pub registration_sigma_m: f64,
+}
+
+impl M3c2Section {
+    pub(crate) fn new(s: &StreamingSummary, sigma: f64) -> Self {
+        Self {
+            summary: s.clone(),
+            registration_sigma_m: sigma,
+        }
+    }
+}
+
+/// What the suite adds to one station's (or the job's) section.
+#[derive(Debug, Default, Serialize)]
+pub struct SuiteSection {
+    /// C2C, with `--method c2c`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c2c: Option<DistanceSection>,
+    /// Coverage, with `--method coverage`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<CoverageSection>,
+    /// M3C2, with `--method m3c2`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2: Option<M3c2Section>,
+    /// Points more than the tolerance above the printed height: excess material, or layers
+    /// printed after the height was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub above_printed_height: Option<u64>,
+}
+
+/// One method's distances in a layer band. Metres.
+#[derive(Debug, Serialize)]
+pub struct BandStats {
+    /// Points (or core points) in the band.
+    pub count: u32,
+    /// Mean distance.
+    pub mean: f64,
+    /// Standard deviation; `None` for fewer than two.
+    pub std: Option<f64>,
+}
+
+impl From<&BandRow> for BandStats {
+    fn from(r: &BandRow) -> Self {
+        Self {
+            count: r.count,
+            mean: r.mean,
+            std: r.std,
+        }
+    }
+}
+
+/// One layer band in `inspect --layer-height`'s table: what each method measured there
+/// (not the findings' width and shift rows, which are `core::findings::LayerRow`).
+#[derive(Debug, Serialize)]
+pub struct BandMethods {
+    /// The band's layer, from 0.
+    pub layer: u32,
+    /// The band's bottom, metres.
+    pub z_min: f64,
+    /// The band's top, metres.
+    pub z_max: f64,
+    /// Where the scan's points in this band top out (98th percentile of their heights).
+    pub top_m: Option<f64>,
+    /// C2M in the band.
+    pub c2m: Option<BandStats>,
+    /// C2C in the band.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c2c: Option<BandStats>,
+    /// M3C2 in the band.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2: Option<BandStats>,
+    /// Missing material in the band, m².
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub missing_area_m2: Option<f64>,
+}
+
+/// Two-cloud M3C2 between `--reference` and the scans, at core points subsampled from the
+/// reference.
+#[derive(Debug, Serialize)]
+pub struct TwoCloudSection {
+    /// The reference cloud file.
+    pub reference: String,
+    /// Its points.
+    pub reference_points: usize,
+    /// Scan points compared.
+    pub scan_points: usize,
+    /// Core points subsampled from the reference.
+    pub core_points: usize,
+    /// Core points with a distance.
+    pub with_distance: usize,
+    /// Core points whose distance exceeds their level of detection.
+    pub significant: usize,
+    /// Mean distance, metres.
+    pub mean_distance: Option<f64>,
+    /// Neighbourhood diameter for the normals, metres.
+    pub normal_diameter_m: f64,
+}
+
+/// The job-level additions.
+#[derive(Debug, Default, Serialize)]
+pub struct SuiteTotals {
+    /// The section's methods over every station.
+    #[serde(flatten)]
+    pub section: SuiteSection,
+    /// Per layer band, lowest first, with `--layer-height`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub layers: Option<Vec<BandMethods>>,
+    /// Two-cloud M3C2 against `--reference`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub m3c2_two_cloud: Option<TwoCloudSection>,
+    /// For the rerun view: missing samples with their reverse distance, and M3C2 core points
+    /// with distance and significance.
+    #[serde(skip)]
+    pub missing_view: Vec<(Point3<f64>, f32, bool)>,
+    /// M3C2 core points with distance and significance, for the rerun view.
+    #[serde(skip)]
+    pub m3c2_view: Vec<(Point3<f64>, f32, bool)>,
+    /// With M3C2 and coverage: the job's findings, as the agent draws them for a scan layer,
+    /// and the stations they come from.
+    #[serde(skip)]
+    pub findings: Option<(Findings, u32)>,
+    /// With the findings: every design sample's state behind them, for the maps.
+    #[serde(skip)]
+    pub samples: Vec<asbuilt_core::scan_layer::SampleState>,
 }

@@ -8,20 +8,22 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
-use asbuilt_core::coverage::{CoverageParams, CoverageSummary, SampleClass, ScanSpacing};
+use asbuilt_core::coverage::{CoverageParams, SampleClass, ScanSpacing};
 use asbuilt_core::findings::{FindingParams, Findings};
 use asbuilt_core::layers::{BandRow, LayerBands};
 use asbuilt_core::m3c2::classic::{self, ClassicParams};
-use asbuilt_core::m3c2::streaming::{StreamingParams, StreamingSummary};
+use asbuilt_core::m3c2::streaming::StreamingParams;
 use asbuilt_core::sampling::DesignSamples;
 use asbuilt_core::scan_layer::{ScanLayer, ScanLayerParams, defaults};
 use asbuilt_core::stats::{DeviationAccumulator, StatsConfig};
 use asbuilt_core::{C2mIndex, Design};
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 
-use crate::sections::DistanceSection;
+use crate::sections::{
+    BandMethods, BandStats, CoverageSection, DistanceSection, M3c2Section, SuiteSection,
+    SuiteTotals, TwoCloudSection,
+};
 use nalgebra::{Point3, Vector3};
-use serde::Serialize;
 
 use asbuilt_io::ply::{Property, Scalar, point_columns, write_table};
 
@@ -57,8 +59,19 @@ impl Method {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Methods(pub Vec<Method>);
 
+/// A `--method` list that names no method, or one this build does not know.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum MethodsError {
+    /// A word that is not a method.
+    #[error("unknown method {0:?}: use any of c2m, c2c, coverage, m3c2, or all")]
+    Unknown(String),
+    /// No method at all.
+    #[error("no method given: use any of c2m, c2c, coverage, m3c2, or all")]
+    Empty,
+}
+
 /// `c2m,c2c,coverage,m3c2` in any subset, or `all`.
-pub fn parse_methods(text: &str) -> Result<Methods, String> {
+pub fn parse_methods(text: &str) -> Result<Methods, MethodsError> {
     let mut out = Vec::new();
     for word in text.split(',').map(str::trim).filter(|w| !w.is_empty()) {
         if word.eq_ignore_ascii_case("all") {
@@ -70,19 +83,43 @@ pub fn parse_methods(text: &str) -> Result<Methods, String> {
             .find(|m| m.name().eq_ignore_ascii_case(word))
         {
             Some(m) => out.push(*m),
-            None => {
-                return Err(format!(
-                    "unknown method {word:?}: use any of c2m, c2c, coverage, m3c2, or all"
-                ));
-            }
+            None => return Err(MethodsError::Unknown(word.to_string())),
         }
     }
     if out.is_empty() {
-        return Err("no method given: use any of c2m, c2c, coverage, m3c2, or all".into());
+        return Err(MethodsError::Empty);
     }
     out.sort();
     out.dedup();
     Ok(Methods(out))
+}
+
+/// The layer printed when the scans were taken, counted from the design's base (`lowest`):
+/// 0 without a printed height and a layer height.
+pub fn printed_layer(printed_height: Option<f64>, layer_height: Option<f64>, lowest: f64) -> u32 {
+    match (printed_height, layer_height) {
+        (Some(h), Some(lh)) => ((h - lowest) / lh).round().max(0.0) as u32,
+        _ => 0,
+    }
+}
+
+/// A job's findings as the message the agent sends for a scan layer: offline there is one,
+/// drawn from all `stations`, at the layer [`printed_layer`] counts.
+pub fn findings_message(
+    f: &Findings,
+    stations: u32,
+    tolerance: f64,
+    (printed_height, layer_height): (Option<f64>, Option<f64>),
+    lowest: f64,
+) -> asbuilt_protocol::StationFindings {
+    let layer = printed_layer(printed_height, layer_height, lowest);
+    let printed = printed_height.unwrap_or(f64::NAN);
+    f.to_message(
+        (0, stations.saturating_sub(1)),
+        stations,
+        tolerance,
+        (layer, printed),
+    )
 }
 
 /// The suite's parameters, checked and with every default resolved ([`SuiteOptions::resolve`]).
@@ -226,180 +263,6 @@ impl SuiteOptions {
             seed: defaults::SAMPLE_SEED,
         })
     }
-}
-
-/// Coverage: which design samples the scan observed. Counts of design samples.
-#[derive(Debug, Serialize)]
-pub struct CoverageSection {
-    /// Design samples, each standing for `area_per_sample_m2`.
-    pub observed: u64,
-    /// Facing a station in range with a clear view, and no scan point near: missing material.
-    pub missing: u64,
-    /// Facing a station in range, but the design itself blocks the view.
-    pub occluded: u64,
-    /// No station could have seen it (out of range, facing away, grazing).
-    pub not_scanned: u64,
-    /// The design surface the missing samples stand for, m².
-    pub missing_area_m2: f64,
-    /// The design surface one sample stands for, m².
-    pub area_per_sample_m2: f64,
-    /// The scanner's angular step the threshold was raised by, mrad (given or measured);
-    /// absent with a fixed threshold.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub angular_step_mrad: Option<f64>,
-    /// Signed distance from each design sample to the nearest scan point within reach
-    /// (negative: the scan lies inside the design). Overall only.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub reverse_c2c: Option<DistanceSection>,
-}
-
-impl CoverageSection {
-    fn new(s: &CoverageSummary, area: f64) -> Self {
-        Self {
-            observed: s.observed,
-            missing: s.missing,
-            occluded: s.occluded,
-            not_scanned: s.not_scanned,
-            missing_area_m2: s.missing_area_m2,
-            area_per_sample_m2: area,
-            angular_step_mrad: s.angular_step.map(|a| a * 1e3),
-            reverse_c2c: None,
-        }
-    }
-}
-
-/// M3C2 at the design samples, along the design's normals. Metres.
-#[derive(Debug, Serialize)]
-pub struct M3c2Section {
-    /// Core points, those with scan points in their cylinder, the significant ones, and the
-    /// mean and extremes of their distances.
-    #[serde(flatten)]
-    pub summary: StreamingSummary,
-    /// The registration error in the level of detection: the stations' pose sigma.
-    pub registration_sigma_m: f64,
-}
-
-impl M3c2Section {
-    fn new(s: &StreamingSummary, sigma: f64) -> Self {
-        Self {
-            summary: s.clone(),
-            registration_sigma_m: sigma,
-        }
-    }
-}
-
-/// What the suite adds to one station's (or the job's) section.
-#[derive(Debug, Default, Serialize)]
-pub struct SuiteSection {
-    /// C2C, with `--method c2c`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub c2c: Option<DistanceSection>,
-    /// Coverage, with `--method coverage`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub coverage: Option<CoverageSection>,
-    /// M3C2, with `--method m3c2`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub m3c2: Option<M3c2Section>,
-    /// Points more than the tolerance above the printed height: excess material, or layers
-    /// printed after the height was given.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub above_printed_height: Option<u64>,
-}
-
-/// One method's distances in a layer band. Metres.
-#[derive(Debug, Serialize)]
-pub struct BandStats {
-    /// Points (or core points) in the band.
-    pub count: u32,
-    /// Mean distance.
-    pub mean: f64,
-    /// Standard deviation; `None` for fewer than two.
-    pub std: Option<f64>,
-}
-
-impl From<&BandRow> for BandStats {
-    fn from(r: &BandRow) -> Self {
-        Self {
-            count: r.count,
-            mean: r.mean,
-            std: r.std,
-        }
-    }
-}
-
-/// One layer band in `inspect --layer-height`'s table: what each method measured there
-/// (not the findings' width and shift rows, which are `core::findings::LayerRow`).
-#[derive(Debug, Serialize)]
-pub struct BandMethods {
-    /// The band's layer, from 0.
-    pub layer: u32,
-    /// The band's bottom, metres.
-    pub z_min: f64,
-    /// The band's top, metres.
-    pub z_max: f64,
-    /// Where the scan's points in this band top out (98th percentile of their heights).
-    pub top_m: Option<f64>,
-    /// C2M in the band.
-    pub c2m: Option<BandStats>,
-    /// C2C in the band.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub c2c: Option<BandStats>,
-    /// M3C2 in the band.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub m3c2: Option<BandStats>,
-    /// Missing material in the band, m².
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub missing_area_m2: Option<f64>,
-}
-
-/// Two-cloud M3C2 between `--reference` and the scans, at core points subsampled from the
-/// reference.
-#[derive(Debug, Serialize)]
-pub struct TwoCloudSection {
-    /// The reference cloud file.
-    pub reference: String,
-    /// Its points.
-    pub reference_points: usize,
-    /// Scan points compared.
-    pub scan_points: usize,
-    /// Core points subsampled from the reference.
-    pub core_points: usize,
-    /// Core points with a distance.
-    pub with_distance: usize,
-    /// Core points whose distance exceeds their level of detection.
-    pub significant: usize,
-    /// Mean distance, metres.
-    pub mean_distance: Option<f64>,
-    /// Neighbourhood diameter for the normals, metres.
-    pub normal_diameter_m: f64,
-}
-
-/// The job-level additions.
-#[derive(Debug, Default, Serialize)]
-pub struct SuiteTotals {
-    /// The section's methods over every station.
-    #[serde(flatten)]
-    pub section: SuiteSection,
-    /// Per layer band, lowest first, with `--layer-height`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub layers: Option<Vec<BandMethods>>,
-    /// Two-cloud M3C2 against `--reference`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub m3c2_two_cloud: Option<TwoCloudSection>,
-    /// For the rerun view: missing samples with their reverse distance, and M3C2 core points
-    /// with distance and significance.
-    #[serde(skip)]
-    pub missing_view: Vec<(Point3<f64>, f32, bool)>,
-    /// M3C2 core points with distance and significance, for the rerun view.
-    #[serde(skip)]
-    pub m3c2_view: Vec<(Point3<f64>, f32, bool)>,
-    /// With M3C2 and coverage: the job's findings, as the agent draws them for a scan layer,
-    /// and the stations they come from.
-    #[serde(skip)]
-    pub findings: Option<(Findings, u32)>,
-    /// With the findings: every design sample's state behind them, for the maps.
-    #[serde(skip)]
-    pub samples: Vec<asbuilt_core::scan_layer::SampleState>,
 }
 
 struct C2cRun {
@@ -983,7 +846,10 @@ mod tests {
             vec![Method::C2c, Method::M3c2]
         );
         assert_eq!(parse_methods("all").unwrap().0, Method::ALL.to_vec());
-        assert!(parse_methods("icp").unwrap_err().contains("unknown method"));
-        assert!(parse_methods("").is_err());
+        assert_eq!(
+            parse_methods("icp").unwrap_err(),
+            MethodsError::Unknown("icp".into())
+        );
+        assert_eq!(parse_methods("").unwrap_err(), MethodsError::Empty);
     }
 }

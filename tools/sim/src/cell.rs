@@ -10,7 +10,7 @@ use crate::{
     AsBuilt, Defect, Part, Scan, ScannerModel, Truth, as_built, perturb, scan, stations_around,
 };
 use anyhow::{Context, Result, bail};
-use asbuilt_agent::ipc::CellPorts;
+use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
     StationFindings, StationReport, StationSender, StationSink, codec, unix_time_ns,

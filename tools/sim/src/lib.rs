@@ -13,6 +13,7 @@ mod defect_spec;
 mod defects;
 mod part;
 mod scanner;
+mod spec;
 
 pub use asbuilt::{AsBuilt, as_built};
 pub use cell::{PlannedStation, SimEvent, SimJob, SimOutcome, run, write_stl};
@@ -20,3 +21,4 @@ pub use defect_spec::DefectSpecError;
 pub use defects::{Defect, Truth};
 pub use part::{OUTLINE_SPACING, Part, PartError, Ring, resample, signed_area2};
 pub use scanner::{Scan, ScannerModel, perturb, scan, stations_around};
+pub use spec::{JobSpec, JobSpecError, PartSpec};

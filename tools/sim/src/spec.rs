@@ -1,0 +1,214 @@
+//! A simulated job as a person describes it (`asbuilt sim`'s flags, the Python
+//! `SimulatedJob`'s keywords), checked once into a [`SimJob`].
+
+use std::path::PathBuf;
+
+use asbuilt_core::Units;
+use asbuilt_protocol::PoseMode;
+
+use crate::{Defect, DefectSpecError, Part, PartError, SimJob};
+
+/// The part to print.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PartSpec {
+    /// The source study's 2 m shotcrete wall, in 20 mm layers.
+    Wall,
+    /// A twisted elliptical column, in 20 mm layers.
+    Column,
+    /// A closed design file (STL, OBJ, PLY) standing on z = 0, sliced in `layer_height` layers.
+    File {
+        /// The design file.
+        path: PathBuf,
+        /// Its units, declared: they are never guessed.
+        units: Units,
+        /// Layer height, metres.
+        layer_height: f64,
+    },
+}
+
+/// What to print and how to scan it; [`JobSpec::default`] is `asbuilt sim`'s default job.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobSpec {
+    /// The part.
+    pub part: PartSpec,
+    /// Layer counts after which the robot scans.
+    pub scan_after: Vec<u32>,
+    /// Stations per scan layer.
+    pub stations: u32,
+    /// Defects, as `KIND[:key=value,...]` ([`Defect::parse`]).
+    pub defects: Vec<String>,
+    /// Seed of pose and scanner noise.
+    pub seed: u64,
+    /// Fixed orientation (the Z+F mounting) or six-DoF.
+    pub pose_mode: PoseMode,
+    /// Pose error σ, metres.
+    pub pose_sigma: f64,
+    /// Points per second the scanner sends; `None` for as fast as the agent takes them.
+    pub rate: Option<f64>,
+    /// Angle between rays, degrees.
+    pub step_deg: f64,
+    /// Job number.
+    pub job: u64,
+}
+
+impl Default for JobSpec {
+    fn default() -> Self {
+        Self {
+            part: PartSpec::Wall,
+            scan_after: vec![8, 16, 24, 32, 40, 48],
+            stations: 4,
+            defects: Vec::new(),
+            seed: 1,
+            pose_mode: PoseMode::FixedOrientation,
+            pose_sigma: 0.001,
+            rate: Some(1.0e6),
+            step_deg: 0.036,
+            job: 1,
+        }
+    }
+}
+
+/// A job that cannot be simulated; each case names the setting and what it takes.
+#[derive(Debug, thiserror::Error)]
+pub enum JobSpecError {
+    /// The design file cannot be read.
+    #[error("the part's design")]
+    Design(#[source] asbuilt_io::IoError),
+    /// The part cannot be printed in layers.
+    #[error("the part cannot be printed in layers")]
+    Part(#[source] PartError),
+    /// Scan layers outside the part's layers.
+    #[error(
+        "scan after {given:?}: give layer counts from 1 to {layers} (the {part} has {layers} \
+         layers of {layer_mm} mm)"
+    )]
+    ScanAfter {
+        /// The layer counts given.
+        given: Vec<u32>,
+        /// The part's name.
+        part: String,
+        /// Its layers.
+        layers: u32,
+        /// Its layer height, mm.
+        layer_mm: f64,
+    },
+    /// No station per scan layer.
+    #[error("stations must be at least 1")]
+    NoStations,
+    /// A defect that does not parse or does not fit the part.
+    #[error(transparent)]
+    Defect(#[from] DefectSpecError),
+    /// A pose σ outside [0, 0.1) m.
+    #[error("pose sigma {0}: give metres in [0, 0.1)")]
+    PoseSigma(f64),
+    /// An angular step outside [0.005, 2] degrees.
+    #[error("step {0}°: give degrees in [0.005, 2]")]
+    StepDeg(f64),
+    /// A rate that is not a positive number of points per second.
+    #[error("rate {0}: give points per second above 0")]
+    Rate(f64),
+}
+
+impl PartSpec {
+    /// The part, sliced in its layers.
+    pub fn part(&self) -> Result<Part, JobSpecError> {
+        match self {
+            PartSpec::Wall => Ok(Part::wall()),
+            PartSpec::Column => Ok(Part::column()),
+            PartSpec::File {
+                path,
+                units,
+                layer_height,
+            } => {
+                let design = asbuilt_io::read_design(path, *units).map_err(JobSpecError::Design)?;
+                let name = path
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "part".into());
+                Part::from_design(&name, design, *layer_height).map_err(JobSpecError::Part)
+            }
+        }
+    }
+}
+
+impl JobSpec {
+    /// The job: part, defects, scan layers, stations, scanner, every value checked.
+    pub fn build(&self) -> Result<SimJob, JobSpecError> {
+        let mut job = SimJob::new(self.part.part()?);
+        let layers = job.part.layers();
+        if self.scan_after.is_empty() || self.scan_after.iter().any(|&k| k == 0 || k > layers) {
+            return Err(JobSpecError::ScanAfter {
+                given: self.scan_after.clone(),
+                part: job.part.name.clone(),
+                layers,
+                layer_mm: job.part.layer_height * 1e3,
+            });
+        }
+        job.scan_after = self.scan_after.clone();
+        job.scan_after.sort_unstable();
+        job.scan_after.dedup();
+        if self.stations == 0 {
+            return Err(JobSpecError::NoStations);
+        }
+        job.stations_per_scan = self.stations;
+        job.defects = self
+            .defects
+            .iter()
+            .map(|d| Defect::parse(d, &job.part))
+            .collect::<Result<_, _>>()?;
+        job.seed = self.seed;
+        job.job = self.job;
+        job.pose_mode = self.pose_mode;
+        if !(self.pose_sigma >= 0.0 && self.pose_sigma < 0.1) {
+            return Err(JobSpecError::PoseSigma(self.pose_sigma));
+        }
+        job.position_sigma = self.pose_sigma;
+        if !(self.step_deg >= 0.005 && self.step_deg <= 2.0) {
+            return Err(JobSpecError::StepDeg(self.step_deg));
+        }
+        job.scanner.step_deg = self.step_deg;
+        if let Some(r) = self.rate
+            && !(r > 0.0 && r.is_finite())
+        {
+            return Err(JobSpecError::Rate(r));
+        }
+        job.rate = self.rate;
+        Ok(job)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_spec_is_the_default_job_and_bad_values_say_which() {
+        let job = JobSpec::default().build().unwrap();
+        assert_eq!(job.scan_after, vec![8, 16, 24, 32, 40, 48]);
+        assert_eq!((job.stations_per_scan, job.seed, job.job), (4, 1, 1));
+        assert_eq!(job.rate, Some(1.0e6));
+        let bad = |f: fn(&mut JobSpec)| {
+            let mut s = JobSpec::default();
+            f(&mut s);
+            s.build().unwrap_err()
+        };
+        assert!(matches!(
+            bad(|s| s.scan_after = vec![50]),
+            JobSpecError::ScanAfter { layers: 49, .. }
+        ));
+        assert!(matches!(bad(|s| s.stations = 0), JobSpecError::NoStations));
+        assert!(matches!(
+            bad(|s| s.defects = vec!["wobble".into()]),
+            JobSpecError::Defect(_)
+        ));
+        assert!(matches!(
+            bad(|s| s.pose_sigma = 0.2),
+            JobSpecError::PoseSigma(_)
+        ));
+        assert!(matches!(
+            bad(|s| s.step_deg = 5.0),
+            JobSpecError::StepDeg(_)
+        ));
+        assert!(matches!(bad(|s| s.rate = Some(0.0)), JobSpecError::Rate(_)));
+    }
+}

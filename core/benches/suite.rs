@@ -3,7 +3,9 @@
 //! them, into
 //! - streaming M3C2 with 100 k core points on the design (10 mm cylinders, 20 mm deep);
 //! - reverse C2C and coverage state over the same 100 k samples, at 20 mm and 50 mm reach;
-//! - C2C to the design samples with a local plane (k-d tree).
+//! - C2C to the design samples with a local plane (k-d tree);
+//! - the findings drawn from the M3C2 and coverage (20 mm reach) states that stream leaves:
+//!   one pass over the 100 k samples (layer rows every 20 mm, the top, regions, missing areas).
 //!
 //! The goal for M3C2 is ≥ 5 M points/s on 2 cores (py4dgeo: 9.3 k core points/s on 1 M points).
 //! Memory held by each method is printed before and after the stream: it must not grow.
@@ -16,8 +18,10 @@ use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
 use asbuilt_core::coverage::{Coverage, CoverageParams};
 use asbuilt_core::design::shapes;
+use asbuilt_core::findings::{FindingParams, find};
 use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams};
 use asbuilt_core::sampling::DesignSamples;
+use asbuilt_core::{C2mIndex, C2mParams};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::Point3;
 
@@ -95,6 +99,35 @@ fn bench(c: &mut Criterion) {
             cov.bytes() as f64 / 1e6
         );
     }
+
+    // The findings over what one stream leaves: M3C2 above, coverage at 20 mm reach.
+    let mut cov = Coverage::new(&samples, CoverageParams::with_threshold(0.003, 0.02)).unwrap();
+    for chunk in scan.chunks(CHUNK) {
+        cov.ingest(chunk);
+    }
+    let index = C2mIndex::build(&wall, C2mParams::within(0.05)).unwrap();
+    let (results, outcomes) = (m3c2.results(0.001), cov.outcomes(&index));
+    let sharp = wall.sharp_edges(30.0);
+    let area_per_sample = wall.surface_area() / samples.len() as f64;
+    let params = FindingParams {
+        tolerance: 0.005,
+        layer_height: Some(0.02),
+        printed_height: 0.98,
+        spacing,
+        radius: 0.005,
+        min_region_samples: 5,
+        coverage_threshold: 0.003,
+        min_missing_area_m2: 0.001,
+    };
+    g.throughput(Throughput::Elements(samples.len() as u64));
+    g.bench_function("findings_100k_samples", |b| {
+        b.iter(|| {
+            find(&results, &outcomes, &sharp, area_per_sample, &params)
+                .layers
+                .len()
+        })
+    });
+    g.throughput(Throughput::Elements(scan.len() as u64));
 
     let reference = CloudIndex::new(&samples.points).unwrap();
     let params = C2cParams {

@@ -109,7 +109,6 @@ const SIDE_MAX_NZ: f64 = 0.5;
 const TOP_MIN_NZ: f64 = 0.9;
 
 /// `sharp_edges`: the design's, from [`crate::Design::sharp_edges`].
-#[allow(clippy::too_many_lines)] // numeric kernel: the findings' one pass over the samples, in the order of the method
 pub fn find(
     m3c2: &[CoreResult],
     coverage: &[SampleOutcome],
@@ -124,122 +123,37 @@ pub fn find(
         .chain(coverage.iter().map(|o| o.sample))
         .max()
         .map_or(0, |m| m as usize + 1);
-    let mut m3c2_of = vec![None; samples];
-    for (i, r) in m3c2.iter().enumerate() {
-        m3c2_of[r.sample as usize] = Some(i);
-    }
-    // Only what a station could see counts: a cylinder on a face no station faces holds
-    // nothing but stray points (mixed pixels behind an edge).
-    let mut seen = vec![coverage.is_empty(); samples];
-    for o in coverage {
-        seen[o.sample as usize] = matches!(o.class, SampleClass::Observed | SampleClass::Missing);
-    }
-    let mut clean = off_edges(m3c2, sharp_edges, p.radius);
-    for (c, r) in clean.iter_mut().zip(m3c2) {
-        *c &= seen[r.sample as usize];
-    }
+    let usable = usable_core_points(m3c2, coverage, sharp_edges, samples, p.radius);
     let band_of = |z: f64| p.layer_height.map(|h| (z / h).floor().max(0.0) as u32);
-    let usable = |i: usize| clean[i] && m3c2[i].distance.is_some();
-
-    let mut out = Findings::default();
-    if let Some(h) = p.layer_height {
-        let mut bands: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
-        for (i, r) in m3c2.iter().enumerate() {
-            if usable(i) && r.normal.z.abs() < SIDE_MAX_NZ {
-                bands
-                    .entry((r.position.z / h).floor().max(0.0) as u32)
-                    .or_default()
-                    .push(i);
-            }
-        }
-        let mut keys: Vec<u32> = bands.keys().copied().collect();
-        keys.sort_unstable();
-        for layer in keys {
-            let idx = &bands[&layer];
-            let d = |i: usize| m3c2[i].distance.unwrap_or(0.0);
-            let mean = idx.iter().map(|&i| d(i)).sum::<f64>() / idx.len() as f64;
-            let fit = fit_width(m3c2, idx);
-            out.layers.push(LayerRow {
-                layer,
-                z_min: layer as f64 * h,
-                z_max: (layer + 1) as f64 * h,
-                samples: idx.len() as u32,
-                mean,
-                width_deviation: fit.map_or(f64::NAN, |f| 2.0 * f.0),
-                shift: fit.map_or([f64::NAN; 2], |f| [f.1, f.2]),
-            });
-        }
-    }
-    if p.printed_height.is_finite() {
-        let band = p.layer_height.unwrap_or(p.spacing).max(p.spacing);
-        let top: Vec<f64> = (0..m3c2.len())
-            .filter(|&i| {
-                usable(i)
-                    && m3c2[i].normal.z > TOP_MIN_NZ
-                    && (m3c2[i].position.z - p.printed_height).abs() < 0.5 * band
-            })
-            .filter_map(|i| m3c2[i].distance)
-            .collect();
-        if !top.is_empty() {
-            out.top = Some(TopRow {
-                height_deviation: top.iter().sum::<f64>() / top.len() as f64,
-                samples: top.len() as u32,
-            });
-        }
-    }
-
+    let mut out = Findings {
+        layers: p
+            .layer_height
+            .map_or_else(Vec::new, |h| layer_rows(m3c2, &usable, h)),
+        top: top_row(m3c2, &usable, p),
+        ..Findings::default()
+    };
     // Samples are random, so a thin strip (the top of a sagging layer) needs a generous link to
     // stay one region.
     let link = 4.0 * p.spacing;
     for (kind, sign) in [(RegionKind::Excess, 1.0), (RegionKind::Deficit, -1.0)] {
         let members: Vec<usize> = (0..m3c2.len())
             .filter(|&i| {
-                usable(i)
+                usable[i]
                     && m3c2[i].significant
                     && sign * m3c2[i].distance.unwrap_or(0.0) > p.tolerance
             })
             .collect();
-        let pos: Vec<Point3<f64>> = members.iter().map(|&i| m3c2[i].position).collect();
-        for group in components(&pos, link) {
-            if group.len() < p.min_region_samples {
-                continue;
-            }
-            let ids: Vec<usize> = group.iter().map(|&g| members[g]).collect();
-            let d: Vec<f64> = ids
-                .iter()
-                .map(|&i| m3c2[i].distance.unwrap_or(0.0))
-                .collect();
-            let peak_k = (0..d.len())
-                .max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs()))
-                .unwrap_or(0);
-            let pts: Vec<Point3<f64>> = ids.iter().map(|&i| m3c2[i].position).collect();
-            let mut r = region(kind, &pts, area_per_sample, &band_of);
-            r.peak = d[peak_k];
-            r.peak_at = pts[peak_k];
-            r.mean = d.iter().sum::<f64>() / d.len() as f64;
-            out.regions.push(r);
+        for ids in components_of(m3c2, &members, link, p.min_region_samples) {
+            out.regions.push(out_of_tolerance(
+                kind,
+                m3c2,
+                &ids,
+                area_per_sample,
+                &band_of,
+            ));
         }
     }
-    // Coverage calls a sample missing when no scan point lies within its threshold. Where M3C2
-    // finds a coherent surface beyond the threshold, the material is there, only out of place
-    // (excess buries the sample, under-extrusion hides it inside): that is a region, not missing
-    // material. A gap leaves at most a mix of its neighbours' and its floor's points, with a
-    // spread no surface has.
-    let t = p.coverage_threshold;
-    let out_of_place = |o: &SampleOutcome| {
-        m3c2_of[o.sample as usize].is_some_and(|i| {
-            let r = &m3c2[i];
-            match (r.distance, r.spread) {
-                (Some(d), Some(s)) if r.count >= 5 => d > t || (d < -t && s < t),
-                _ => false,
-            }
-        })
-    };
-    let missing: Vec<Point3<f64>> = coverage
-        .iter()
-        .filter(|o| o.class == SampleClass::Missing && !out_of_place(o))
-        .map(|o| o.position)
-        .collect();
+    let missing = missing_positions(m3c2, coverage, samples, p.coverage_threshold);
     let min_missing = p
         .min_region_samples
         .max((p.min_missing_area_m2 / area_per_sample).ceil() as usize);
@@ -253,6 +167,146 @@ pub fn find(
     out.regions.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out.missing.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out
+}
+
+/// The core points whose distance counts: with a distance, away from the design's sharp
+/// edges, and on a sample a station could see (a cylinder on a face no station faces holds
+/// nothing but stray points: mixed pixels behind an edge).
+fn usable_core_points(
+    m3c2: &[CoreResult],
+    coverage: &[SampleOutcome],
+    sharp_edges: &[[Point3<f64>; 2]],
+    samples: usize,
+    radius: f64,
+) -> Vec<bool> {
+    let mut seen = vec![coverage.is_empty(); samples];
+    for o in coverage {
+        seen[o.sample as usize] = matches!(o.class, SampleClass::Observed | SampleClass::Missing);
+    }
+    let mut usable = off_edges(m3c2, sharp_edges, radius);
+    for (c, r) in usable.iter_mut().zip(m3c2) {
+        *c &= seen[r.sample as usize] && r.distance.is_some();
+    }
+    usable
+}
+
+/// Per layer band of height `h`, lowest first: the mean distance on its sides and the width
+/// and shift fitted to them.
+fn layer_rows(m3c2: &[CoreResult], usable: &[bool], h: f64) -> Vec<LayerRow> {
+    let mut bands: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
+    for (i, r) in m3c2.iter().enumerate() {
+        if usable[i] && r.normal.z.abs() < SIDE_MAX_NZ {
+            bands
+                .entry((r.position.z / h).floor().max(0.0) as u32)
+                .or_default()
+                .push(i);
+        }
+    }
+    let mut keys: Vec<u32> = bands.keys().copied().collect();
+    keys.sort_unstable();
+    keys.into_iter()
+        .map(|layer| {
+            let idx = &bands[&layer];
+            let d = |i: usize| m3c2[i].distance.unwrap_or(0.0);
+            let mean = idx.iter().map(|&i| d(i)).sum::<f64>() / idx.len() as f64;
+            let fit = fit_width(m3c2, idx);
+            LayerRow {
+                layer,
+                z_min: layer as f64 * h,
+                z_max: (layer + 1) as f64 * h,
+                samples: idx.len() as u32,
+                mean,
+                width_deviation: fit.map_or(f64::NAN, |f| 2.0 * f.0),
+                shift: fit.map_or([f64::NAN; 2], |f| [f.1, f.2]),
+            }
+        })
+        .collect()
+}
+
+/// The top of the print against the printed height: the mean distance on the cap within half a
+/// band of it; `None` without a printed height or samples there.
+fn top_row(m3c2: &[CoreResult], usable: &[bool], p: &FindingParams) -> Option<TopRow> {
+    if !p.printed_height.is_finite() {
+        return None;
+    }
+    let band = p.layer_height.unwrap_or(p.spacing).max(p.spacing);
+    let top: Vec<f64> = (0..m3c2.len())
+        .filter(|&i| {
+            usable[i]
+                && m3c2[i].normal.z > TOP_MIN_NZ
+                && (m3c2[i].position.z - p.printed_height).abs() < 0.5 * band
+        })
+        .filter_map(|i| m3c2[i].distance)
+        .collect();
+    (!top.is_empty()).then(|| TopRow {
+        height_deviation: top.iter().sum::<f64>() / top.len() as f64,
+        samples: top.len() as u32,
+    })
+}
+
+/// The connected groups (within `link`) of core points `members`, as core point indices, that
+/// hold at least `min` of them.
+fn components_of(m3c2: &[CoreResult], members: &[usize], link: f64, min: usize) -> Vec<Vec<usize>> {
+    let pos: Vec<Point3<f64>> = members.iter().map(|&i| m3c2[i].position).collect();
+    components(&pos, link)
+        .into_iter()
+        .filter(|g| g.len() >= min)
+        .map(|g| g.iter().map(|&k| members[k]).collect())
+        .collect()
+}
+
+/// An area out of tolerance from its core points `ids`: extent, peak and mean distance.
+fn out_of_tolerance(
+    kind: RegionKind,
+    m3c2: &[CoreResult],
+    ids: &[usize],
+    area_per_sample: f64,
+    band_of: &dyn Fn(f64) -> Option<u32>,
+) -> Region {
+    let d: Vec<f64> = ids
+        .iter()
+        .map(|&i| m3c2[i].distance.unwrap_or(0.0))
+        .collect();
+    let peak_k = (0..d.len())
+        .max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs()))
+        .unwrap_or(0);
+    let pts: Vec<Point3<f64>> = ids.iter().map(|&i| m3c2[i].position).collect();
+    let mut r = region(kind, &pts, area_per_sample, band_of);
+    r.peak = d[peak_k];
+    r.peak_at = pts[peak_k];
+    r.mean = d.iter().sum::<f64>() / d.len() as f64;
+    r
+}
+
+/// The positions of the samples missing material. Coverage calls a sample missing when no scan
+/// point lies within its threshold `t`. Where M3C2 finds a coherent surface beyond the
+/// threshold, the material is there, only out of place (excess buries the sample,
+/// under-extrusion hides it inside): that is a region, not missing material. A gap leaves at
+/// most a mix of its neighbours' and its floor's points, with a spread no surface has.
+fn missing_positions(
+    m3c2: &[CoreResult],
+    coverage: &[SampleOutcome],
+    samples: usize,
+    t: f64,
+) -> Vec<Point3<f64>> {
+    let mut m3c2_of = vec![None; samples];
+    for (i, r) in m3c2.iter().enumerate() {
+        m3c2_of[r.sample as usize] = Some(i);
+    }
+    let out_of_place = |o: &SampleOutcome| {
+        m3c2_of[o.sample as usize].is_some_and(|i: usize| {
+            let r = &m3c2[i];
+            match (r.distance, r.spread) {
+                (Some(d), Some(s)) if r.count >= 5 => d > t || (d < -t && s < t),
+                _ => false,
+            }
+        })
+    };
+    coverage
+        .iter()
+        .filter(|o| o.class == SampleClass::Missing && !out_of_place(o))
+        .map(|o| o.position)
+        .collect()
 }
 
 fn region(

@@ -165,13 +165,33 @@ pub(crate) fn clip_below(
 }
 
 /// Closes the outlines formed by `segments` with triangles facing +z.
-#[allow(clippy::too_many_lines)] // numeric kernel: the cut, its outlines and the cap, one pass that reads as the algorithm
 pub(crate) fn cap(
     vertices: &mut Vec<Point3<f64>>,
     segments: &[(u32, u32)],
     triangles: &mut Vec<[u32; 3]>,
     report: &mut CutReport,
 ) {
+    let loops = outline_loops(segments, report);
+    report.loops = loops.len();
+    let (outers, holes_of) = holes_by_outer(vertices, &loops);
+    let mut earcut = Earcut::new();
+    for &o in &outers {
+        // The outer ring, then its holes, each a range of `ring`.
+        let mut ring: Vec<u32> = loops[o].clone();
+        let mut rings: Vec<std::ops::Range<usize>> = Vec::with_capacity(1 + holes_of.len());
+        rings.push(0..ring.len());
+        for &h in holes_of.get(&o).map(Vec::as_slice).unwrap_or(&[]) {
+            let start = ring.len();
+            ring.extend(&loops[h]);
+            rings.push(start..ring.len());
+        }
+        cap_ring(vertices, (&ring, &rings), &mut earcut, triangles, report);
+    }
+}
+
+/// The closed loops `segments` form, each at least a triangle; a chain that does not close is
+/// counted in `report`.
+fn outline_loops(segments: &[(u32, u32)], report: &mut CutReport) -> Vec<Vec<u32>> {
     let mut next: HashMap<u32, u32> = segments.iter().copied().collect();
     let mut loops: Vec<Vec<u32>> = Vec::new();
     let starts: Vec<u32> = segments.iter().map(|s| s.0).collect();
@@ -196,129 +216,149 @@ pub(crate) fn cap(
             report.open_chains += 1;
         }
     }
-    report.loops = loops.len();
-    let area = |ring: &[u32]| -> f64 {
-        let mut a = 0.0;
-        for k in 0..ring.len() {
-            let (p, q) = (
-                vertices[ring[k] as usize],
-                vertices[ring[(k + 1) % ring.len()] as usize],
-            );
-            a += p.x * q.y - q.x * p.y;
+    loops
+}
+
+/// The signed area of `ring` in the plan (shoelace): positive counter-clockwise.
+fn plan_area(vertices: &[Point3<f64>], ring: &[u32]) -> f64 {
+    let mut a = 0.0;
+    for k in 0..ring.len() {
+        let (p, q) = (
+            vertices[ring[k] as usize],
+            vertices[ring[(k + 1) % ring.len()] as usize],
+        );
+        a += p.x * q.y - q.x * p.y;
+    }
+    0.5 * a
+}
+
+/// Whether `pt` lies inside `ring` in the plan (even-odd crossings).
+fn inside_in_plan(vertices: &[Point3<f64>], pt: &Point3<f64>, ring: &[u32]) -> bool {
+    let mut c = false;
+    for k in 0..ring.len() {
+        let (p, q) = (
+            vertices[ring[k] as usize],
+            vertices[ring[(k + 1) % ring.len()] as usize],
+        );
+        if (p.y > pt.y) != (q.y > pt.y) && pt.x < p.x + (pt.y - p.y) / (q.y - p.y) * (q.x - p.x) {
+            c = !c;
         }
-        0.5 * a
-    };
-    let inside = |pt: &Point3<f64>, ring: &[u32]| -> bool {
-        let mut c = false;
-        for k in 0..ring.len() {
-            let (p, q) = (
-                vertices[ring[k] as usize],
-                vertices[ring[(k + 1) % ring.len()] as usize],
-            );
-            if (p.y > pt.y) != (q.y > pt.y) && pt.x < p.x + (pt.y - p.y) / (q.y - p.y) * (q.x - p.x)
-            {
-                c = !c;
-            }
-        }
-        c
-    };
-    // Counter-clockwise rings bound material; clockwise rings are holes in the smallest
-    // counter-clockwise ring that holds them.
-    let areas: Vec<f64> = loops.iter().map(|r| area(r)).collect();
+    }
+    c
+}
+
+/// Counter-clockwise loops bound material; clockwise loops are holes in the smallest
+/// counter-clockwise loop that holds them. Returns the outer loops and each one's holes.
+fn holes_by_outer(
+    vertices: &[Point3<f64>],
+    loops: &[Vec<u32>],
+) -> (Vec<usize>, HashMap<usize, Vec<usize>>) {
+    let areas: Vec<f64> = loops.iter().map(|r| plan_area(vertices, r)).collect();
     let outers: Vec<usize> = (0..loops.len()).filter(|&i| areas[i] > 0.0).collect();
     let mut holes_of: HashMap<usize, Vec<usize>> = HashMap::new();
     for h in (0..loops.len()).filter(|&i| areas[i] < 0.0) {
         let probe = vertices[loops[h][0] as usize];
         if let Some(&o) = outers
             .iter()
-            .filter(|&&o| inside(&probe, &loops[o]))
+            .filter(|&&o| inside_in_plan(vertices, &probe, &loops[o]))
             .min_by(|&&a, &&b| areas[a].total_cmp(&areas[b]))
         {
             holes_of.entry(o).or_default().push(h);
         }
     }
-    let mut earcut = Earcut::new();
+    (outers, holes_of)
+}
+
+/// One outer loop with its holes (`ring`, split in `rings`), ear-cut into triangles facing +z.
+fn cap_ring(
+    vertices: &mut Vec<Point3<f64>>,
+    (ring, rings): (&[u32], &[std::ops::Range<usize>]),
+    earcut: &mut Earcut<f64>,
+    triangles: &mut Vec<[u32; 3]>,
+    report: &mut CutReport,
+) {
     let mut out: Vec<u32> = Vec::new();
-    for &o in &outers {
-        let mut ring: Vec<u32> = loops[o].clone();
-        let mut rings: Vec<std::ops::Range<usize>> = Vec::with_capacity(1 + holes_of.len());
-        rings.push(0..ring.len());
-        for &h in holes_of.get(&o).map(Vec::as_slice).unwrap_or(&[]) {
-            let start = ring.len();
-            ring.extend(&loops[h]);
-            rings.push(start..ring.len());
-        }
-        let hole_starts: Vec<u32> = rings[1..].iter().map(|r| r.start as u32).collect();
-        earcut.earcut(
-            ring.iter()
-                .map(|&i| [vertices[i as usize].x, vertices[i as usize].y]),
-            &hole_starts,
-            &mut out,
+    let hole_starts: Vec<u32> = rings[1..].iter().map(|r| r.start as u32).collect();
+    earcut.earcut(
+        ring.iter()
+            .map(|&i| [vertices[i as usize].x, vertices[i as usize].y]),
+        &hole_starts,
+        &mut out,
+    );
+    let on_edge = dropped_points(&out, ring, rings);
+    for t in out.chunks_exact(3) {
+        let [a, b, c] = [
+            ring[t[0] as usize],
+            ring[t[1] as usize],
+            ring[t[2] as usize],
+        ];
+        let (pa, pb, pc) = (
+            vertices[a as usize],
+            vertices[b as usize],
+            vertices[c as usize],
         );
-        // Earcut drops collinear outline points, but the walls below end on them: put them
-        // back on the cap edge they lie on, or the cap and walls would meet in T-junctions.
-        let mut used = vec![false; ring.len()];
-        out.iter().for_each(|&k| used[k as usize] = true);
-        let mut on_edge: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
-        for r in &rings {
-            let len = r.len();
-            let Some(first) = (0..len).find(|&k| used[r.start + k]) else {
-                continue;
-            };
-            let mut run = Vec::new();
-            let mut from = ring[r.start + first];
-            for step in 1..=len {
-                let k = r.start + (first + step) % len;
-                if used[k] {
-                    if !run.is_empty() {
-                        on_edge.insert((from, ring[k]), std::mem::take(&mut run));
-                    }
-                    from = ring[k];
-                } else {
-                    run.push(ring[k]);
-                }
+        let tri = if (pb - pa).cross(&(pc - pa)).z >= 0.0 {
+            [a, b, c]
+        } else {
+            [a, c, b]
+        };
+        let mut outline = Vec::with_capacity(3);
+        for k in 0..3 {
+            let (x, y) = (tri[k], tri[(k + 1) % 3]);
+            outline.push(x);
+            if let Some(mid) = on_edge.get(&(x, y)) {
+                outline.extend(mid);
+            } else if let Some(mid) = on_edge.get(&(y, x)) {
+                outline.extend(mid.iter().rev());
             }
         }
-        for t in out.chunks_exact(3) {
-            let [a, b, c] = [
-                ring[t[0] as usize],
-                ring[t[1] as usize],
-                ring[t[2] as usize],
-            ];
-            let (pa, pb, pc) = (
-                vertices[a as usize],
-                vertices[b as usize],
-                vertices[c as usize],
-            );
-            let tri = if (pb - pa).cross(&(pc - pa)).z >= 0.0 {
-                [a, b, c]
-            } else {
-                [a, c, b]
-            };
-            let mut outline = Vec::with_capacity(3);
-            for k in 0..3 {
-                let (x, y) = (tri[k], tri[(k + 1) % 3]);
-                outline.push(x);
-                if let Some(mid) = on_edge.get(&(x, y)) {
-                    outline.extend(mid);
-                } else if let Some(mid) = on_edge.get(&(y, x)) {
-                    outline.extend(mid.iter().rev());
+        if outline.len() == 3 {
+            triangles.push(tri);
+            report.cap_triangles += 1;
+            continue;
+        }
+        // A fan from the triangle's centre keeps the outline points on its edges.
+        let centre = Point3::from((pa.coords + pb.coords + pc.coords) / 3.0);
+        vertices.push(centre);
+        let m = (vertices.len() - 1) as u32;
+        for k in 0..outline.len() {
+            triangles.push([m, outline[k], outline[(k + 1) % outline.len()]]);
+            report.cap_triangles += 1;
+        }
+    }
+}
+
+/// Earcut drops collinear outline points, but the walls below end on them: the points it left
+/// out of its triangles `out`, by the edge (from, to) of kept points they lie on, so the cap
+/// can put them back and the cap and walls do not meet in T-junctions.
+fn dropped_points(
+    out: &[u32],
+    ring: &[u32],
+    rings: &[std::ops::Range<usize>],
+) -> HashMap<(u32, u32), Vec<u32>> {
+    let mut used = vec![false; ring.len()];
+    out.iter().for_each(|&k| used[k as usize] = true);
+    let mut on_edge: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
+    for r in rings {
+        let len = r.len();
+        let Some(first) = (0..len).find(|&k| used[r.start + k]) else {
+            continue;
+        };
+        let mut run = Vec::new();
+        let mut from = ring[r.start + first];
+        for step in 1..=len {
+            let k = r.start + (first + step) % len;
+            if used[k] {
+                if !run.is_empty() {
+                    on_edge.insert((from, ring[k]), std::mem::take(&mut run));
                 }
-            }
-            if outline.len() == 3 {
-                triangles.push(tri);
-                report.cap_triangles += 1;
-                continue;
-            }
-            let centre = Point3::from((pa.coords + pb.coords + pc.coords) / 3.0);
-            vertices.push(centre);
-            let m = (vertices.len() - 1) as u32;
-            for k in 0..outline.len() {
-                triangles.push([m, outline[k], outline[(k + 1) % outline.len()]]);
-                report.cap_triangles += 1;
+                from = ring[k];
+            } else {
+                run.push(ring[k]);
             }
         }
     }
+    on_edge
 }
 
 /// Statistics of one quantity per layer band, with an estimate of each band's top from the

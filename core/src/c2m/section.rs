@@ -130,7 +130,6 @@ impl C2mIndex {
     /// Prepares queries against the design cut at `height` and closed by a cap, in time and
     /// memory proportional to the section. A height at or above the design's top leaves the
     /// design whole (an empty section).
-    #[allow(clippy::too_many_lines)] // numeric kernel: the clipping of the crossing triangles and the cap, one pass that reads as the algorithm
     pub fn section(&self, height: f64) -> Result<Section, CutError> {
         if !height.is_finite() {
             return Err(CutError::Height { height });
@@ -141,9 +140,31 @@ impl C2mIndex {
                 lowest: self.lowest,
             });
         }
+        let (crossing, ring) = self.crossing_and_ring(height);
+        let mut local = self.clip(&ring, &crossing, height);
+        let mut vertices = std::mem::take(&mut local.vertices.vertices);
+        let mut report = CutReport::default();
+        let before = local.triangles.len();
+        cap(
+            &mut vertices,
+            &local.segments,
+            &mut local.triangles,
+            &mut report,
+        );
+        let n = self.mesh.len() as u32;
+        let capped = (local.triangles.len() - before) as u32;
+        local
+            .reported
+            .extend((0..capped).map(|k| n.saturating_add(k)));
+        Ok(self.index_section(height, local, vertices, report))
+    }
+
+    /// The triangles crossing `height` (some vertex below it and some not, as `cut_at` tells
+    /// them) and the whole triangles below it around them, which share the pieces' lower edges
+    /// and corners; each in design order, as `cut_at` visits them.
+    fn crossing_and_ring(&self, height: f64) -> (Vec<u32>, Vec<u32>) {
         let mesh = &self.mesh;
         let below = |i: u32| mesh.vertices[i as usize].z < height;
-        // Crossing: some vertex below and some not, as cut_at tells them.
         let mut found = Vec::new();
         self.bvh.crossing(height, &mut found);
         let mut crossing: Vec<u32> = found
@@ -153,9 +174,7 @@ impl C2mIndex {
                 n == 1 || n == 2
             })
             .collect();
-        // In design order, as cut_at visits them.
         crossing.sort_unstable_by_key(|&t| mesh.ids[t as usize]);
-        // The whole triangles around them share the pieces' lower edges and corners.
         let mut ring: Vec<u32> = Vec::new();
         let mut corners: Vec<u32> = crossing
             .iter()
@@ -175,11 +194,16 @@ impl C2mIndex {
         }
         ring.sort_unstable_by_key(|&t| mesh.ids[t as usize]);
         ring.dedup();
+        (crossing, ring)
+    }
 
-        // A local mesh: the ring whole, the crossing triangles clipped, then the cap.
+    /// A local mesh: the ring whole, then the crossing triangles clipped below `height`, each
+    /// piece with the design triangle it reports, and the cut's segments for the cap.
+    fn clip(&self, ring: &[u32], crossing: &[u32], height: f64) -> Clipped {
+        let mesh = &self.mesh;
         let mut local = LocalVertices::default();
         let mut triangles: Vec<[u32; 3]> = Vec::new();
-        for &t in &ring {
+        for &t in ring {
             let f = mesh.faces[t as usize].map(|i| local.id(i, mesh.vertices[i as usize]));
             triangles.push(f);
         }
@@ -187,7 +211,7 @@ impl C2mIndex {
         let mut reported: Vec<u32> = Vec::new();
         let mut cut_ids: HashMap<CutVertex, u32> = HashMap::new();
         let mut segments: Vec<(u32, u32)> = Vec::new();
-        for &t in &crossing {
+        for &t in crossing {
             let before = triangles.len();
             let mut id = |cv: ClipVertex| match cv {
                 ClipVertex::Keep(i) => local.id(i, mesh.vertices[i as usize]),
@@ -212,33 +236,39 @@ impl C2mIndex {
                 triangles.len() - before,
             ));
         }
-        let mut vertices = std::mem::take(&mut local.vertices);
-        let mut report = CutReport::default();
-        let before = triangles.len();
-        cap(&mut vertices, &segments, &mut triangles, &mut report);
-        let n = self.mesh.len() as u32;
-        reported.extend((0..(triangles.len() - before) as u32).map(|k| n.saturating_add(k)));
+        Clipped {
+            vertices: local,
+            triangles,
+            ring_len,
+            reported,
+            segments,
+        }
+    }
 
-        // Pieces without area are dropped, as Design::from_indexed drops them from the cut.
-        let keep: Vec<bool> = triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| vertices[i as usize]);
-                let area2 = (b - a).cross(&(c - a)).norm();
-                !(t[0] == t[1]
-                    || t[1] == t[2]
-                    || t[0] == t[2]
-                    || area2 <= 0.0
-                    || !area2.is_finite())
-            })
-            .collect();
+    /// The section's own index over its pieces and cap (the ring only lends them normals);
+    /// pieces without area are dropped, as `Design::from_indexed` drops them from the cut.
+    fn index_section(
+        &self,
+        height: f64,
+        local: Clipped,
+        vertices: Vec<Point3<f64>>,
+        report: CutReport,
+    ) -> Section {
+        let Clipped {
+            vertices: ids,
+            triangles,
+            ring_len,
+            reported,
+            ..
+        } = local;
+        let keep: Vec<bool> = triangles.iter().map(|t| has_area(*t, &vertices)).collect();
         let kept: Vec<[u32; 3]> = (0..triangles.len())
             .filter(|&k| keep[k])
             .map(|k| triangles[k])
             .collect();
         let normals = PseudoNormals::new(&vertices, &kept);
         let mut design_vertex = vec![u32::MAX; vertices.len()];
-        for (&g, &l) in &local.ids {
+        for (&g, &l) in &ids.ids {
             design_vertex[l as usize] = g;
         }
         let ring_kept = keep[..ring_len].iter().filter(|&&k| k).count();
@@ -255,9 +285,7 @@ impl C2mIndex {
             edge.push(normals.edge[k]);
             k += 1;
         }
-        let index = if section_tris.is_empty() {
-            None
-        } else {
+        let index = (!section_tris.is_empty()).then(|| {
             let given = PseudoNormals {
                 edge,
                 vertex: normals.vertex,
@@ -267,19 +295,17 @@ impl C2mIndex {
             // time of a grid of eight design cells and answers faster (1.9 against 1.5 M
             // points/s a thread on the bunny cut at mid height, the same on a twisted column).
             let params = C2mParams::within(self.max_distance);
-            Some(
-                C2mIndex::build_mesh(
-                    vertices,
-                    section_tris.into(),
-                    NormalSource::Given(given),
-                    params,
-                    GridUse::BvhOnly,
-                )
-                .expect("the design's own parameters were valid"),
+            C2mIndex::build_mesh(
+                vertices,
+                section_tris.into(),
+                NormalSource::Given(given),
+                params,
+                GridUse::BvhOnly,
             )
-        };
+            .expect("the design's own parameters were valid")
+        });
         let has_index = index.is_some();
-        Ok(Section {
+        Section {
             height,
             index,
             reported: section_reported,
@@ -288,8 +314,29 @@ impl C2mIndex {
             local: if has_index { kept } else { Vec::new() },
             ring: if has_index { ring_kept } else { 0 },
             design_vertex,
-        })
+        }
     }
+}
+
+/// Whether triangle `t` of `vertices` has an area: three distinct corners, a finite non-zero
+/// cross product.
+fn has_area(t: [u32; 3], vertices: &[Point3<f64>]) -> bool {
+    let [a, b, c] = t.map(|i| vertices[i as usize]);
+    let area2 = (b - a).cross(&(c - a)).norm();
+    !(t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || area2 <= 0.0 || !area2.is_finite())
+}
+
+/// The local mesh before its cap: the ring whole, then the crossing triangles' pieces.
+struct Clipped {
+    /// Design vertices renumbered, and the points the cut adds.
+    vertices: LocalVertices,
+    triangles: Vec<[u32; 3]>,
+    /// Triangles of the ring, first in `triangles`.
+    ring_len: usize,
+    /// Each piece's (and then cap triangle's) reported id.
+    reported: Vec<u32>,
+    /// The cut's segments, in local vertices.
+    segments: Vec<(u32, u32)>,
 }
 
 /// Design vertices renumbered for a local mesh, with the points the cut adds.

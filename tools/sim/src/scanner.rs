@@ -87,7 +87,6 @@ struct Tri {
 }
 
 /// Scans `part` from `t_design_scanner` (the true pose). `seed` makes noise repeatable.
-#[allow(clippy::too_many_lines)] // numeric kernel: the scanner's rasterisation of every triangle into its angular grid
 pub fn scan(
     part: &AsBuilt,
     t_design_scanner: &Isometry3<f64>,
@@ -102,6 +101,23 @@ pub fn scan(
     let step = model.step_deg.to_radians();
     let centre: Vector3<f64> = v.iter().sum::<Vector3<f64>>() / v.len() as f64;
     let az0 = centre.y.atan2(centre.x);
+    let tris = facing_triangles(part, &v, az0, step, model);
+    let Some(grid) = Grid::around(&tris, az0, step) else {
+        return Scan::default();
+    };
+    let (range, hit) = depth_buffer(&tris, &grid, model);
+    returns(&tris, &grid, (&range, &hit), model, seed)
+}
+
+/// The triangles facing the scanner inside its elevation window, each with the box of
+/// pixels it covers in the angular grid (azimuth from `az0`, `step` radians a pixel).
+fn facing_triangles(
+    part: &AsBuilt,
+    v: &[Vector3<f64>],
+    az0: f64,
+    step: f64,
+    model: &ScannerModel,
+) -> Vec<Tri> {
     let wrap = |a: f64| {
         let mut d = a - az0;
         while d > std::f64::consts::PI {
@@ -117,9 +133,7 @@ pub fn scan(
         model.min_elevation_deg.to_radians(),
         model.max_elevation_deg.to_radians(),
     );
-
-    let tris: Vec<Tri> = part
-        .triangles
+    part.triangles
         .par_iter()
         .filter_map(|t| {
             let [a, b, c] = t.map(|i| v[i as usize]);
@@ -161,43 +175,73 @@ pub fn scan(
                 ),
             })
         })
-        .collect();
-    let (mut c_lo, mut c_hi, mut r_lo, mut r_hi) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
-    for t in &tris {
-        c_lo = c_lo.min(t.cols.0);
-        c_hi = c_hi.max(t.cols.1);
-        r_lo = r_lo.min(t.rows.0);
-        r_hi = r_hi.max(t.rows.1);
-    }
-    if tris.is_empty() {
-        return Scan::default();
-    }
-    let ncols = (c_hi - c_lo + 1) as usize;
-    let nrows = (r_hi - r_lo + 1) as usize;
-    let col_dir: Vec<(f64, f64)> = (0..ncols)
-        .map(|c| (az0 + (c_lo + c as i64) as f64 * step).sin_cos())
-        .collect();
-    let row_dir: Vec<(f64, f64)> = (0..nrows)
-        .map(|r| ((r_lo + r as i64) as f64 * step).sin_cos())
-        .collect();
-    let dir = |c: usize, r: usize| {
-        let ((sa, ca), (se, ce)) = (col_dir[c], row_dir[r]);
-        Vector3::new(ce * ca, ce * sa, se)
-    };
+        .collect()
+}
 
-    // Column-major depth buffer: range and triangle per pixel.
+/// The pixels the part can cover: columns `c_lo..` and rows `r_lo..`, with each column's and
+/// row's direction (sine, cosine) computed once.
+struct Grid {
+    step: f64,
+    c_lo: i64,
+    r_lo: i64,
+    ncols: usize,
+    nrows: usize,
+    col_dir: Vec<(f64, f64)>,
+    row_dir: Vec<(f64, f64)>,
+}
+
+impl Grid {
+    /// The grid over every triangle's box; `None` without triangles.
+    fn around(tris: &[Tri], az0: f64, step: f64) -> Option<Self> {
+        if tris.is_empty() {
+            return None;
+        }
+        let (mut c_lo, mut c_hi, mut r_lo, mut r_hi) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+        for t in tris {
+            c_lo = c_lo.min(t.cols.0);
+            c_hi = c_hi.max(t.cols.1);
+            r_lo = r_lo.min(t.rows.0);
+            r_hi = r_hi.max(t.rows.1);
+        }
+        let ncols = (c_hi - c_lo + 1) as usize;
+        let nrows = (r_hi - r_lo + 1) as usize;
+        Some(Self {
+            step,
+            c_lo,
+            r_lo,
+            ncols,
+            nrows,
+            col_dir: (0..ncols)
+                .map(|c| (az0 + (c_lo + c as i64) as f64 * step).sin_cos())
+                .collect(),
+            row_dir: (0..nrows)
+                .map(|r| ((r_lo + r as i64) as f64 * step).sin_cos())
+                .collect(),
+        })
+    }
+
+    /// The ray of pixel (column, row), a unit vector in the scanner frame.
+    fn dir(&self, c: usize, r: usize) -> Vector3<f64> {
+        let ((sa, ca), (se, ce)) = (self.col_dir[c], self.row_dir[r]);
+        Vector3::new(ce * ca, ce * sa, se)
+    }
+}
+
+/// The nearest hit per pixel, column-major: its range (∞ for none) and its triangle. Column
+/// strips run in parallel, each over the triangles whose box reaches it.
+fn depth_buffer(tris: &[Tri], grid: &Grid, model: &ScannerModel) -> (Vec<f32>, Vec<u32>) {
+    let (ncols, nrows) = (grid.ncols, grid.nrows);
     let mut range = vec![f32::INFINITY; ncols * nrows];
     let mut hit = vec![u32::MAX; ncols * nrows];
     let nstrips = ncols.div_ceil(STRIP);
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nstrips];
     for (i, t) in tris.iter().enumerate() {
-        let s0 = ((t.cols.0 - c_lo).max(0) as usize) / STRIP;
-        let s1 = (((t.cols.1 - c_lo) as usize).min(ncols - 1)) / STRIP;
+        let s0 = ((t.cols.0 - grid.c_lo).max(0) as usize) / STRIP;
+        let s1 = (((t.cols.1 - grid.c_lo) as usize).min(ncols - 1)) / STRIP;
         for b in &mut bins[s0..=s1] {
             b.push(i as u32);
         }
     }
-    let (min_r, max_r) = (model.min_range, model.max_range);
     range
         .par_chunks_mut(STRIP * nrows)
         .zip(hit.par_chunks_mut(STRIP * nrows))
@@ -208,77 +252,107 @@ pub fn scan(
             let width = rng_buf.len() / nrows;
             for &ti in bin {
                 let t = &tris[ti as usize];
-                let c0 = ((t.cols.0 - c_lo).max(first as i64) as usize).max(first);
-                let c1 = ((t.cols.1 - c_lo) as usize).min(first + width - 1);
-                let r0 = (t.rows.0 - r_lo).max(0) as usize;
-                let r1 = ((t.rows.1 - r_lo) as usize).min(nrows - 1);
-                for (c, &(sa, ca)) in col_dir.iter().enumerate().take(c1 + 1).skip(c0) {
-                    let col = (c - first) * nrows;
-                    // The column's rays lie in one vertical plane: the triangle meets it in a
-                    // segment, whose ends bound the rows worth testing.
-                    let m = Vector3::new(-sa, ca, 0.0);
-                    let vs = [t.a, t.a + t.e1, t.a + t.e2];
-                    let ds = vs.map(|v| m.dot(&v));
-                    if ds.iter().all(|&d| d > 0.0) || ds.iter().all(|&d| d < 0.0) {
-                        continue;
-                    }
-                    let (mut el_a, mut el_b) = (f64::MAX, f64::MIN);
-                    for k in 0..3 {
-                        let (i, j) = (k, (k + 1) % 3);
-                        if (ds[i] <= 0.0) != (ds[j] <= 0.0) || ds[i] == 0.0 {
-                            let f = if ds[i] == ds[j] {
-                                0.0
-                            } else {
-                                ds[i] / (ds[i] - ds[j])
-                            };
-                            let p = vs[i] + (vs[j] - vs[i]) * f;
-                            let el = p.z.atan2(ca * p.x + sa * p.y);
-                            el_a = el_a.min(el);
-                            el_b = el_b.max(el);
-                        }
-                    }
-                    let lo = ((el_a / step).floor() as i64 - 1 - r_lo).max(r0 as i64) as usize;
-                    let hi = ((el_b / step).ceil() as i64 + 1 - r_lo).min(r1 as i64);
-                    if hi < lo as i64 {
-                        continue;
-                    }
-                    // A triangle is convex: down a column its pixels are one run.
-                    let mut inside = false;
-                    for r in lo..=hi as usize {
-                        let d = dir(c, r);
-                        // Möller–Trumbore, origin at the scanner.
-                        let p = d.cross(&t.e2);
-                        let det = t.e1.dot(&p);
-                        let inv_det = 1.0 / det;
-                        let s = -t.a;
-                        let u = s.dot(&p) * inv_det;
-                        let q = s.cross(&t.e1);
-                        let w = d.dot(&q) * inv_det;
-                        if det.abs() < 1e-18 || !(0.0..=1.0).contains(&u) || w < 0.0 || u + w > 1.0
-                        {
-                            if inside {
-                                break;
-                            }
-                            continue;
-                        }
-                        inside = true;
-                        let dist = t.e2.dot(&q) * inv_det;
-                        if dist > min_r && dist < max_r && (dist as f32) < rng_buf[col + r] {
-                            rng_buf[col + r] = dist as f32;
-                            hit_buf[col + r] = ti;
-                        }
-                    }
+                let c0 = ((t.cols.0 - grid.c_lo).max(first as i64) as usize).max(first);
+                let c1 = ((t.cols.1 - grid.c_lo) as usize).min(first + width - 1);
+                for c in c0..=c1 {
+                    let col = &mut rng_buf[(c - first) * nrows..(c - first + 1) * nrows];
+                    let hits = &mut hit_buf[(c - first) * nrows..(c - first + 1) * nrows];
+                    raster_column(
+                        t,
+                        ti,
+                        grid,
+                        c,
+                        (model.min_range, model.max_range),
+                        col,
+                        hits,
+                    );
                 }
             }
         });
+    (range, hit)
+}
 
-    // Noise, dropout and mixed pixels, column by column with a generator per column so the
-    // result does not depend on how rayon splits the work.
-    let (dropout_lo, dropout_hi) = (
-        model.dropout_start_deg.to_radians().cos(),
-        model.dropout_end_deg.to_radians().cos(),
-    );
-    let range_at = |c: usize, r: usize| range[c * nrows + r];
+/// Triangle `t` (number `ti`) down column `c`: an exact ray test at every row it may cover,
+/// keeping the nearest hit within `ranges` in the column's `range` and `hit`.
+fn raster_column(
+    t: &Tri,
+    ti: u32,
+    grid: &Grid,
+    c: usize,
+    (min_r, max_r): (f64, f64),
+    range: &mut [f32],
+    hit: &mut [u32],
+) {
+    let (sa, ca) = grid.col_dir[c];
+    let step = grid.step;
+    let r0 = (t.rows.0 - grid.r_lo).max(0) as usize;
+    let r1 = ((t.rows.1 - grid.r_lo) as usize).min(grid.nrows - 1);
+    // The column's rays lie in one vertical plane: the triangle meets it in a segment, whose
+    // ends bound the rows worth testing.
+    let m = Vector3::new(-sa, ca, 0.0);
+    let vs = [t.a, t.a + t.e1, t.a + t.e2];
+    let ds = vs.map(|v| m.dot(&v));
+    if ds.iter().all(|&d| d > 0.0) || ds.iter().all(|&d| d < 0.0) {
+        return;
+    }
+    let (mut el_a, mut el_b) = (f64::MAX, f64::MIN);
+    for k in 0..3 {
+        let (i, j) = (k, (k + 1) % 3);
+        if (ds[i] <= 0.0) != (ds[j] <= 0.0) || ds[i] == 0.0 {
+            let f = if ds[i] == ds[j] {
+                0.0
+            } else {
+                ds[i] / (ds[i] - ds[j])
+            };
+            let p = vs[i] + (vs[j] - vs[i]) * f;
+            let el = p.z.atan2(ca * p.x + sa * p.y);
+            el_a = el_a.min(el);
+            el_b = el_b.max(el);
+        }
+    }
+    let lo = ((el_a / step).floor() as i64 - 1 - grid.r_lo).max(r0 as i64) as usize;
+    let hi = ((el_b / step).ceil() as i64 + 1 - grid.r_lo).min(r1 as i64);
+    if hi < lo as i64 {
+        return;
+    }
+    // A triangle is convex: down a column its pixels are one run.
+    let mut inside = false;
+    for r in lo..=hi as usize {
+        let d = grid.dir(c, r);
+        // Möller–Trumbore, origin at the scanner.
+        let p = d.cross(&t.e2);
+        let det = t.e1.dot(&p);
+        let inv_det = 1.0 / det;
+        let s = -t.a;
+        let u = s.dot(&p) * inv_det;
+        let q = s.cross(&t.e1);
+        let w = d.dot(&q) * inv_det;
+        if det.abs() < 1e-18 || !(0.0..=1.0).contains(&u) || w < 0.0 || u + w > 1.0 {
+            if inside {
+                break;
+            }
+            continue;
+        }
+        inside = true;
+        let dist = t.e2.dot(&q) * inv_det;
+        if dist > min_r && dist < max_r && (dist as f32) < range[r] {
+            range[r] = dist as f32;
+            hit[r] = ti;
+        }
+    }
+}
+
+/// The points the scanner returns from the depth buffer: incidence dropout, mixed pixels at
+/// edges and range noise, column by column with a generator per column so the result does
+/// not depend on how rayon splits the work.
+fn returns(
+    tris: &[Tri],
+    grid: &Grid,
+    (range, hit): (&[f32], &[u32]),
+    model: &ScannerModel,
+    seed: u64,
+) -> Scan {
+    let (ncols, nrows) = (grid.ncols, grid.nrows);
     let columns: Vec<(Vec<ScanPoint>, u64, u64)> = (0..ncols)
         .into_par_iter()
         .map(|c| {
@@ -287,51 +361,18 @@ pub fn scan(
             let mut pts = Vec::new();
             let (mut dropped, mut mixed) = (0, 0);
             for r in 0..nrows {
-                let d0 = range_at(c, r);
+                let d0 = range[c * nrows + r];
                 if !d0.is_finite() {
                     continue;
                 }
                 let t = &tris[hit[c * nrows + r] as usize];
-                let d = dir(c, r);
-                let cos_i = -t.n.dot(&d);
-                if cos_i < dropout_lo {
-                    let p = ((dropout_lo - cos_i) / (dropout_lo - dropout_hi)).clamp(0.0, 1.0);
-                    if rng.random::<f64>() < p {
-                        dropped += 1;
-                        continue;
+                match one_return(t, grid, range, (c, r), d0, model, &mut rng) {
+                    Return::Dropped => dropped += 1,
+                    Return::Point(p, was_mixed) => {
+                        mixed += u64::from(was_mixed);
+                        pts.push(p);
                     }
                 }
-                let mut dist = d0 as f64;
-                let mut edge: Option<f64> = None;
-                for (dc, dr) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
-                    let (cc, rr) = (c as i64 + dc, r as i64 + dr);
-                    if cc < 0 || rr < 0 || cc >= ncols as i64 || rr >= nrows as i64 {
-                        continue;
-                    }
-                    let o = range_at(cc as usize, rr as usize) as f64;
-                    if !o.is_finite() {
-                        edge = Some(edge.unwrap_or(dist + 0.5));
-                    } else if o - dist >= model.edge_jump {
-                        edge = Some(edge.map_or(o, |e: f64| e.min(o)));
-                    }
-                }
-                if let Some(far) = edge
-                    && rng.random::<f64>() < model.mixed_pixel_probability
-                {
-                    dist += rng.random::<f64>() * (far - dist);
-                    mixed += 1;
-                }
-                let sigma = model.range_sigma + model.range_sigma_per_m * dist;
-                let z: f64 = rand_distr::StandardNormal.sample(&mut rng);
-                dist += sigma * z;
-                let p = d * dist;
-                pts.push(ScanPoint {
-                    xyz: [p.x as f32, p.y as f32, p.z as f32],
-                    intensity: (0.6 * cos_i / (1.0 + 0.01 * dist * dist)) as f32,
-                    flags: ScanPointFlags(0),
-                    returns: 0x11,
-                    _reserved: 0,
-                });
             }
             (pts, dropped, mixed)
         })
@@ -348,6 +389,76 @@ pub fn scan(
         out.mixed += mixed;
     }
     out
+}
+
+/// What one pixel with a hit returns.
+enum Return {
+    /// Nothing: the incidence was too grazing.
+    Dropped,
+    /// A point, and whether it is a mixed pixel.
+    Point(ScanPoint, bool),
+}
+
+/// Pixel (column, row) whose nearest hit is `t` at range `d0`: dropout by incidence, a mixed
+/// range towards a farther neighbour at an edge, then range noise. Draws from `rng` in this
+/// order, which fixes the points a seed gives.
+fn one_return(
+    t: &Tri,
+    grid: &Grid,
+    range: &[f32],
+    (c, r): (usize, usize),
+    d0: f32,
+    model: &ScannerModel,
+    rng: &mut ChaCha8Rng,
+) -> Return {
+    let (ncols, nrows) = (grid.ncols, grid.nrows);
+    let (dropout_lo, dropout_hi) = (
+        model.dropout_start_deg.to_radians().cos(),
+        model.dropout_end_deg.to_radians().cos(),
+    );
+    let d = grid.dir(c, r);
+    let cos_i = -t.n.dot(&d);
+    if cos_i < dropout_lo {
+        let p = ((dropout_lo - cos_i) / (dropout_lo - dropout_hi)).clamp(0.0, 1.0);
+        if rng.random::<f64>() < p {
+            return Return::Dropped;
+        }
+    }
+    let mut dist = d0 as f64;
+    let mut edge: Option<f64> = None;
+    for (dc, dr) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
+        let (cc, rr) = (c as i64 + dc, r as i64 + dr);
+        if cc < 0 || rr < 0 || cc >= ncols as i64 || rr >= nrows as i64 {
+            continue;
+        }
+        let o = range[cc as usize * nrows + rr as usize] as f64;
+        if !o.is_finite() {
+            edge = Some(edge.unwrap_or(dist + 0.5));
+        } else if o - dist >= model.edge_jump {
+            edge = Some(edge.map_or(o, |e: f64| e.min(o)));
+        }
+    }
+    let mut mixed = false;
+    if let Some(far) = edge
+        && rng.random::<f64>() < model.mixed_pixel_probability
+    {
+        dist += rng.random::<f64>() * (far - dist);
+        mixed = true;
+    }
+    let sigma = model.range_sigma + model.range_sigma_per_m * dist;
+    let z: f64 = rand_distr::StandardNormal.sample(rng);
+    dist += sigma * z;
+    let p = d * dist;
+    Return::Point(
+        ScanPoint {
+            xyz: [p.x as f32, p.y as f32, p.z as f32],
+            intensity: (0.6 * cos_i / (1.0 + 0.01 * dist * dist)) as f32,
+            flags: ScanPointFlags(0),
+            returns: 0x11,
+            _reserved: 0,
+        },
+        mixed,
+    )
 }
 
 /// Where the robot takes the scanner after printing up to `top` (metres): `count` stations on

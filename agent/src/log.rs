@@ -33,25 +33,7 @@ pub fn set_min_level(level: Level) -> Level {
     }
 }
 
-/// What to tell the user of `e`: the error and its causes joined by `: `, each said once. Many
-/// errors already end their own message with their cause (`cannot write F: No space left on
-/// device`), and the chain then repeats it; a cause the message so far ends with is left out.
-pub fn error_message(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut message = String::new();
-    let mut cause = Some(e);
-    while let Some(c) = cause {
-        cause = c.source();
-        let text = c.to_string();
-        if message.ends_with(&text) {
-            continue;
-        }
-        if !message.is_empty() {
-            message.push_str(": ");
-        }
-        message.push_str(&text);
-    }
-    message
-}
+pub use asbuilt_io::error_message;
 
 /// Writes one line at `level`, timestamped.
 pub fn line(level: Level, args: Arguments<'_>) {

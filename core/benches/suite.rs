@@ -14,6 +14,7 @@
 
 use std::num::NonZeroUsize;
 
+use asbuilt_core::Design;
 use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
 use asbuilt_core::coverage::{Coverage, CoverageParams};
@@ -22,7 +23,8 @@ use asbuilt_core::findings::{FindingParams, find};
 use asbuilt_core::m3c2::streaming::{StreamingM3c2, StreamingParams};
 use asbuilt_core::sampling::DesignSamples;
 use asbuilt_core::{C2mIndex, C2mParams};
-use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use criterion::measurement::WallTime;
+use criterion::{BenchmarkGroup, Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::Point3;
 
 #[path = "support/points.rs"]
@@ -100,12 +102,38 @@ fn bench(c: &mut Criterion) {
         );
     }
 
-    // The findings over what one stream leaves: M3C2 above, coverage at 20 mm reach.
-    let mut cov = Coverage::new(&samples, CoverageParams::with_threshold(0.003, 0.02)).unwrap();
+    bench_findings(&mut g, (&wall, &samples, spacing), &scan, &m3c2);
+    g.throughput(Throughput::Elements(scan.len() as u64));
+
+    let reference = CloudIndex::new(&samples.points).unwrap();
+    let params = C2cParams {
+        max_distance: 0.05,
+        local_plane_k: NonZeroUsize::new(6),
+    };
+    let mut out = vec![None; CHUNK];
+    g.bench_function("c2c_local_plane_to_samples", |b| {
+        b.iter(|| {
+            for chunk in scan.chunks(CHUNK) {
+                c2c::distances(&reference, chunk, &params, &mut out[..chunk.len()]);
+            }
+        })
+    });
+    g.finish();
+}
+
+/// The findings over what one stream leaves: M3C2 as streamed, coverage at 20 mm reach; per
+/// design sample.
+fn bench_findings(
+    g: &mut BenchmarkGroup<'_, WallTime>,
+    (wall, samples, spacing): (&Design, &DesignSamples, f64),
+    scan: &[Point3<f64>],
+    m3c2: &StreamingM3c2,
+) {
+    let mut cov = Coverage::new(samples, CoverageParams::with_threshold(0.003, 0.02)).unwrap();
     for chunk in scan.chunks(CHUNK) {
         cov.ingest(chunk);
     }
-    let index = C2mIndex::build(&wall, C2mParams::within(0.05)).unwrap();
+    let index = C2mIndex::build(wall, C2mParams::within(0.05)).unwrap();
     let (results, outcomes) = (m3c2.results(0.001), cov.outcomes(&index));
     let sharp = wall.sharp_edges(30.0);
     let area_per_sample = wall.surface_area() / samples.len() as f64;
@@ -127,22 +155,6 @@ fn bench(c: &mut Criterion) {
                 .len()
         })
     });
-    g.throughput(Throughput::Elements(scan.len() as u64));
-
-    let reference = CloudIndex::new(&samples.points).unwrap();
-    let params = C2cParams {
-        max_distance: 0.05,
-        local_plane_k: NonZeroUsize::new(6),
-    };
-    let mut out = vec![None; CHUNK];
-    g.bench_function("c2c_local_plane_to_samples", |b| {
-        b.iter(|| {
-            for chunk in scan.chunks(CHUNK) {
-                c2c::distances(&reference, chunk, &params, &mut out[..chunk.len()]);
-            }
-        })
-    });
-    g.finish();
 }
 
 /// The wall with its faces split into triangles of about `edge` metres, so that points spread

@@ -564,7 +564,7 @@ fn stream_station(
             // Every deviation is written by the inspector: only a longer chunk adds any.
             devs.resize(chunk.len(), PointDeviation::default());
             inspector.process(chunk, &mut devs);
-            full_tx.send(devs).map_err(|_| stopped())
+            Ok(full_tx.send(devs).map_err(|_| stopped())?)
         });
         drop(full_tx);
         let written = writer.join();

@@ -116,7 +116,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         };
         let mut sender = StationSender::start(begin, pose, &mut sink)?;
         scan.stream(st.scan_index, args.chunk_points, &mut |chunk| {
-            sender.chunk(chunk, &mut sink)
+            Ok(sender.chunk(chunk, &mut sink)?)
         })?;
         sent += sender.points_sent();
         sender.finish(&mut sink)?;

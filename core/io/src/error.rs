@@ -72,7 +72,7 @@ pub enum IoError {
         /// The file as given.
         path: PathBuf,
         /// The reader's error with its causes.
-        cause: anyhow::Error,
+        cause: crate::scan::ScanError,
     },
 }
 
@@ -105,11 +105,31 @@ impl IoError {
 
 /// A scan reader's message mostly names the file already; those of the libraries beneath it
 /// (a UTF-8 or I/O error) get the path in front.
-fn scan_message(path: &std::path::Path, e: &anyhow::Error) -> String {
-    let message = format!("{e:#}");
+fn scan_message(path: &std::path::Path, e: &crate::scan::ScanError) -> String {
+    let message = crate::error_message(e);
     if message.contains(&path.display().to_string()) {
         message
     } else {
         format!("cannot read {}: {message}", path.display())
     }
+}
+
+/// What to tell the user of `e`: the error and its causes joined by `: `, each said once. Many
+/// errors already end their own message with their cause (`cannot write F: No space left on
+/// device`), and the chain then repeats it; a cause the message so far ends with is left out.
+pub fn error_message(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut message = String::new();
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        cause = c.source();
+        let text = c.to_string();
+        if message.ends_with(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
 }

@@ -17,7 +17,7 @@ pub mod scan;
 pub mod stations;
 
 pub use deviations::DeviationsPly;
-pub use error::IoError;
+pub use error::{IoError, error_message};
 pub use mesh::{MeshFormat, ply_scalar, read_design, read_design_bytes};
 pub use scan::{
     DEFAULT_CHUNK, Format, PoseSource, ReadNotes, ScanFile, ScanInfo, Sink, read_cloud,

@@ -143,7 +143,7 @@ fn write_cloud(path: &Path, n: u64, scans: usize) -> Result<()> {
         let pts = points(n, s);
         w.write_scan(&scan, &mut |sink| sink(&pts))?;
     }
-    w.finish()
+    Ok(w.finish()?)
 }
 
 fn box_corners() -> [[f32; 3]; 8] {

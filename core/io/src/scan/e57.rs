@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use super::error::{Context, Result, ScanError, bail};
 use asbuilt_protocol::{ScanPoint, ScanPointFlags};
 use e57::{CartesianCoordinate, E57Reader};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
@@ -12,11 +12,11 @@ use super::{Batcher, PoseSource, ReadNotes, ScanInfo, Sink};
 
 fn open(path: &Path) -> Result<E57Reader<std::io::BufReader<std::fs::File>>> {
     E57Reader::from_file(path).map_err(|e| {
-        anyhow::anyhow!(
+        ScanError::Content(format!(
             "cannot read {} as E57: {e}. The file may be damaged (a CRC error means corrupt \
              pages) or not an E57 file",
             path.display()
-        )
+        ))
     })
 }
 
@@ -24,7 +24,7 @@ pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
     let reader = open(path)?;
     let clouds = reader.pointclouds();
     if clouds.is_empty() {
-        anyhow::bail!(
+        bail!(
             "{} is a valid E57 file with no point cloud in it",
             path.display()
         );
@@ -114,7 +114,7 @@ pub fn stream(path: &Path, info: &ScanInfo, chunk: usize, sink: &mut Sink) -> Re
     }
     out.finish()?;
     if info.points.is_some_and(|n| n > 0) && notes.invalid == info.points.unwrap_or(0) {
-        anyhow::bail!(
+        bail!(
             "{} scan {:?}: none of its {} points is a measurement (every one is flagged invalid \
              or sits at the scanner's centre): the point data is damaged or was never filled",
             path.display(),

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::Result;
+use super::error::{Result, ScanError, bail};
 use asbuilt_protocol::ScanPoint;
 use nalgebra::{Isometry3, Vector3};
 
@@ -15,8 +15,9 @@ fn open(path: &Path) -> Result<(las::Reader, u64)> {
     let mut raw = Raw::open(path)?;
     check_evlrs(path, &mut raw)?;
     check_laz_chunk_table(path, &mut raw)?;
-    let reader = contain(path, || las::Reader::from_path(path))?
-        .map_err(|e| anyhow::anyhow!("cannot read {} as LAS/LAZ: {e}", path.display()))?;
+    let reader = contain(path, || las::Reader::from_path(path))?.map_err(|e| {
+        ScanError::Content(format!("cannot read {} as LAS/LAZ: {e}", path.display()))
+    })?;
     check_point_count(path, reader.header(), &raw)?;
     Ok((reader, raw.size))
 }
@@ -33,7 +34,7 @@ impl Raw {
     fn open(path: &Path) -> Result<Self> {
         use std::io::Read;
         let file = std::fs::File::open(path)
-            .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
+            .map_err(|e| ScanError::Content(format!("cannot open {}: {e}", path.display())))?;
         let size = file.metadata()?.len();
         let mut head = Vec::with_capacity(375);
         (&file).take(375).read_to_end(&mut head)?;
@@ -67,7 +68,7 @@ fn check_point_count(path: &Path, header: &las::Header, raw: &Raw) -> Result<()>
         data / record
     };
     if claimed > room {
-        anyhow::bail!(
+        bail!(
             "{}: the header claims {claimed} points, more than its {data} bytes of point data can \
              hold; the file is damaged or cut short",
             path.display()
@@ -80,10 +81,10 @@ fn check_point_count(path: &Path, header: &las::Header, raw: &Raw) -> Result<()>
 /// error naming the file.
 fn contain<T>(path: &Path, f: impl FnOnce() -> T) -> Result<T> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|_| {
-        anyhow::anyhow!(
+        ScanError::Content(format!(
             "{}: the LAZ decoder failed on corrupt compressed data; the file is damaged",
             path.display()
-        )
+        ))
     })
 }
 
@@ -92,7 +93,8 @@ fn contain<T>(path: &Path, f: impl FnOnce() -> T) -> Result<T> {
 /// the file's size first.
 fn check_evlrs(path: &Path, raw: &mut Raw) -> Result<()> {
     use std::io::{Read, Seek, SeekFrom};
-    let damaged = |what: String| anyhow::anyhow!("{}: damaged LAS file: {what}", path.display());
+    let damaged =
+        |what: String| ScanError::Content(format!("{}: damaged LAS file: {what}", path.display()));
     let size = raw.size;
     let Some(header) = raw.las_header(247).filter(|h| h[25] >= 4) else {
         return Ok(());
@@ -130,7 +132,8 @@ fn check_evlrs(path: &Path, raw: &mut Raw) -> Result<()> {
 /// the reader's own errors.
 fn check_laz_chunk_table(path: &Path, raw: &mut Raw) -> Result<()> {
     use std::io::{Read, Seek, SeekFrom};
-    let damaged = |what: String| anyhow::anyhow!("{}: damaged LAZ file: {what}", path.display());
+    let damaged =
+        |what: String| ScanError::Content(format!("{}: damaged LAZ file: {what}", path.display()));
     let size = raw.size;
     // Point data format with bit 7 (or 6) set: compressed.
     let Some(header) = raw.las_header(105).filter(|h| h[104] & 0xc0 != 0) else {
@@ -217,13 +220,15 @@ pub fn stream(path: &Path, _info: &ScanInfo, chunk: usize, sink: &mut Sink) -> R
     let record = u64::from(reader.header().point_format().len()).max(1);
     let batch = (chunk as u64).min((size / record).max(1));
     loop {
-        let n = contain(path, || reader.fill_points(batch, &mut data))?
-            .map_err(|e| anyhow::anyhow!("cannot read the points of {}: {e}", path.display()))?;
+        let n = contain(path, || reader.fill_points(batch, &mut data))?.map_err(|e| {
+            ScanError::Content(format!("cannot read the points of {}: {e}", path.display()))
+        })?;
         if n == 0 {
             break;
         }
         for p in data.points() {
-            let p = p.map_err(|e| anyhow::anyhow!("{}: bad point: {e}", path.display()))?;
+            let p =
+                p.map_err(|e| ScanError::Content(format!("{}: bad point: {e}", path.display())))?;
             let mut sp = ScanPoint::new((p.x - o.x) as f32, (p.y - o.y) as f32, (p.z - o.z) as f32);
             sp.intensity = p.intensity as f32 / 65535.0;
             let (r, n) = (p.return_number.min(15), p.number_of_returns.min(15));

@@ -18,8 +18,10 @@ mod xyz;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+mod error;
+
 use asbuilt_protocol::ScanPoint;
+pub use error::{ScanError, SinkError};
 use nalgebra::Isometry3;
 
 use crate::IoError;
@@ -134,7 +136,7 @@ pub struct ScanFile {
 }
 
 /// A reader's error, with the file it is about.
-fn naming(path: &Path, cause: anyhow::Error) -> IoError {
+fn naming(path: &Path, cause: ScanError) -> IoError {
     IoError::Scan {
         path: path.to_path_buf(),
         cause,
@@ -142,7 +144,7 @@ fn naming(path: &Path, cause: anyhow::Error) -> IoError {
 }
 
 /// Where a reader hands each chunk of points; an error it returns ends the read.
-pub type Sink<'s> = dyn FnMut(&[ScanPoint]) -> Result<()> + 's;
+pub type Sink<'s> = dyn FnMut(&[ScanPoint]) -> Result<(), SinkError> + 's;
 
 /// The chunk size used when a caller has no reason to pick another.
 pub const DEFAULT_CHUNK: usize = 1 << 16;
@@ -179,11 +181,11 @@ impl ScanFile {
         let Some(info) = self.scans.get(index) else {
             return Err(naming(
                 &self.path,
-                anyhow::anyhow!(
+                ScanError::Content(format!(
                     "{} holds {} scan(s); there is no scan {index}",
                     self.path.display(),
                     self.scans.len()
-                ),
+                )),
             ));
         };
         match self.format {
@@ -218,7 +220,7 @@ impl ScanFile {
                     // The receiver is gone only when the sink failed: stop reading.
                     full_tx
                         .send(v)
-                        .map_err(|_| anyhow::anyhow!("the reading was stopped"))
+                        .map_err(|_| ScanError::Content("the reading was stopped".into()).into())
                 })
             });
             let mut failed = None;
@@ -235,11 +237,11 @@ impl ScanFile {
             let read = reader.join().map_err(|_| {
                 naming(
                     &self.path,
-                    anyhow::anyhow!("the reader stopped unexpectedly"),
+                    ScanError::Content("the reader stopped unexpectedly".into()),
                 )
             });
             match failed {
-                Some(e) => Err(naming(&self.path, e)),
+                Some(e) => Err(naming(&self.path, ScanError::Sink(e))),
                 None => read?,
             }
         })
@@ -288,7 +290,7 @@ pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes)
     if out.is_empty() {
         return Err(naming(
             path,
-            anyhow::anyhow!("cloud {} has no valid point", path.display()),
+            ScanError::Content(format!("cloud {} has no valid point", path.display())),
         ));
     }
     Ok((out, notes))
@@ -318,7 +320,7 @@ impl<'a> Batcher<'a> {
     }
 
     #[inline]
-    fn push(&mut self, p: ScanPoint) -> Result<()> {
+    fn push(&mut self, p: ScanPoint) -> error::Result<()> {
         self.buf.push(p);
         if self.buf.len() == self.chunk {
             (self.sink)(&self.buf)?;
@@ -327,7 +329,7 @@ impl<'a> Batcher<'a> {
         Ok(())
     }
 
-    fn finish(mut self) -> Result<()> {
+    fn finish(mut self) -> error::Result<()> {
         if !self.buf.is_empty() {
             (self.sink)(&self.buf)?;
             self.buf.clear();

@@ -6,7 +6,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use super::error::{Context, Result, ScanError, bail};
 use asbuilt_protocol::ScanPoint;
 
 use super::{Batcher, ReadNotes, ScanInfo, Sink};
@@ -247,11 +247,11 @@ pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
     let mut buf = [0u8; 8];
     let mut text = String::new();
     let truncated = |n: u64| {
-        anyhow::anyhow!(
+        ScanError::Content(format!(
             "{}: the file ends after {n} of {} vertices (truncated?)",
             path.display(),
             vertex.count
-        )
+        ))
     };
     // Skip what comes before the vertices.
     for e in &h.elements[..vi] {

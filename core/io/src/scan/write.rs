@@ -7,7 +7,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use super::error::{Context, Result, ScanError, SinkError, bail};
 use asbuilt_protocol::ScanPoint;
 use nalgebra::{Isometry3, Point3};
 
@@ -26,7 +26,7 @@ pub struct OutScan {
 }
 
 /// Calls its argument with every chunk of the scan.
-pub type Feed<'f> = &'f mut dyn FnMut(&mut Sink) -> Result<()>;
+pub type Feed<'f> = &'f mut dyn FnMut(&mut Sink) -> Result<(), SinkError>;
 
 /// A scan file being written, scan after scan.
 pub trait CloudWriter {
@@ -59,7 +59,7 @@ pub fn create(path: &Path, total: u64) -> Result<Box<dyn CloudWriter>> {
         }),
         Format::E57 => Box::new(E57 {
             writer: e57::E57Writer::from_file(path, &guid(path, "file"))
-                .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?,
+                .map_err(|e| ScanError::Content(format!("cannot write {}: {e}", path.display())))?,
             scans: 0,
             path: path.to_path_buf(),
         }),
@@ -242,10 +242,9 @@ impl CloudWriter for Las {
                 },
             };
             let header = b.into_header()?;
-            self.writer = Some(
-                las::Writer::from_path(&self.path, header)
-                    .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))?,
-            );
+            self.writer = Some(las::Writer::from_path(&self.path, header).map_err(|e| {
+                ScanError::Content(format!("cannot write {}: {e}", self.path.display()))
+            })?);
         }
         let w = self.writer.as_mut().expect("created above");
         let mut n = 0u64;
@@ -322,7 +321,7 @@ impl CloudWriter for E57 {
         let mut pc = self
             .writer
             .add_pointcloud(&guid, prototype)
-            .map_err(|e| anyhow::anyhow!("E57 {}: {e}", scan.name))?;
+            .map_err(|e| ScanError::Content(format!("E57 {}: {e}", scan.name)))?;
         pc.set_name(Some(scan.name.clone()));
         let q = scan.pose.rotation.quaternion();
         let t = scan.pose.translation.vector;
@@ -350,13 +349,13 @@ impl CloudWriter for E57 {
                     RecordValue::Integer(if invalid { 2 } else { 0 }),
                     RecordValue::Single(p.intensity.clamp(0.0, 1.0)),
                 ])
-                .map_err(|e| anyhow::anyhow!("E57 {}: {e}", scan.name))?;
+                .map_err(|e| ScanError::Content(format!("E57 {}: {e}", scan.name)))?;
             }
             n += chunk.len() as u64;
             Ok(())
         })?;
         pc.finalize()
-            .map_err(|e| anyhow::anyhow!("E57 {}: {e}", scan.name))?;
+            .map_err(|e| ScanError::Content(format!("E57 {}: {e}", scan.name)))?;
         self.scans += 1;
         Ok(n)
     }
@@ -364,6 +363,6 @@ impl CloudWriter for E57 {
     fn finish(mut self: Box<Self>) -> Result<()> {
         self.writer
             .finalize()
-            .map_err(|e| anyhow::anyhow!("cannot finish {}: {e}", self.path.display()))
+            .map_err(|e| ScanError::Content(format!("cannot finish {}: {e}", self.path.display())))
     }
 }

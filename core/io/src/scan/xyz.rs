@@ -7,7 +7,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use super::error::{Context, Result, bail};
 use asbuilt_protocol::ScanPoint;
 
 use super::{Batcher, ReadNotes, ScanInfo, Sink};

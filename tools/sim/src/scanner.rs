@@ -353,6 +353,11 @@ fn returns(
     seed: u64,
 ) -> Scan {
     let (ncols, nrows) = (grid.ncols, grid.nrows);
+    let optics = Optics {
+        model,
+        dropout_lo: model.dropout_start_deg.to_radians().cos(),
+        dropout_hi: model.dropout_end_deg.to_radians().cos(),
+    };
     let columns: Vec<(Vec<ScanPoint>, u64, u64)> = (0..ncols)
         .into_par_iter()
         .map(|c| {
@@ -366,7 +371,7 @@ fn returns(
                     continue;
                 }
                 let t = &tris[hit[c * nrows + r] as usize];
-                match one_return(t, grid, range, (c, r), d0, model, &mut rng) {
+                match one_return(t, grid, range, (c, r), d0, &optics, &mut rng) {
                     Return::Dropped => dropped += 1,
                     Return::Point(p, was_mixed) => {
                         mixed += u64::from(was_mixed);
@@ -399,6 +404,13 @@ enum Return {
     Point(ScanPoint, bool),
 }
 
+/// The scanner's model, with its dropout bounds as the cosines of their incidence angles.
+struct Optics<'m> {
+    model: &'m ScannerModel,
+    dropout_lo: f64,
+    dropout_hi: f64,
+}
+
 /// Pixel (column, row) whose nearest hit is `t` at range `d0`: dropout by incidence, a mixed
 /// range towards a farther neighbour at an edge, then range noise. Draws from `rng` in this
 /// order, which fixes the points a seed gives.
@@ -408,14 +420,11 @@ fn one_return(
     range: &[f32],
     (c, r): (usize, usize),
     d0: f32,
-    model: &ScannerModel,
+    optics: &Optics<'_>,
     rng: &mut ChaCha8Rng,
 ) -> Return {
     let (ncols, nrows) = (grid.ncols, grid.nrows);
-    let (dropout_lo, dropout_hi) = (
-        model.dropout_start_deg.to_radians().cos(),
-        model.dropout_end_deg.to_radians().cos(),
-    );
+    let (model, dropout_lo, dropout_hi) = (optics.model, optics.dropout_lo, optics.dropout_hi);
     let d = grid.dir(c, r);
     let cos_i = -t.n.dot(&d);
     if cos_i < dropout_lo {

@@ -1,30 +1,18 @@
-//! C2M against analytic ground truth, against brute force, and against an independent
-//! implementation (parry's pseudo-normal inside test).
+//! C2M on shapes made in code, against analytic ground truth and brute force. The same checks
+//! on a real scanned design (the bunny, read through asbuilt-io), and against parry, are the
+//! cross-crate tests' (`tests/tests/c2m_real_data.rs`).
+
+#[path = "support/c2m_checks.rs"]
+mod c2m_checks;
 
 use asbuilt_core::c2m::triangle::Region;
 use asbuilt_core::design::shapes::{cuboid, icosphere, sheet};
-use asbuilt_core::{C2mIndex, C2mParams, Closest, Cursor, Design, Units};
+use asbuilt_core::{C2mIndex, C2mParams, Cursor, Design};
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-fn index(design: &Design, max_distance: f64) -> C2mIndex {
-    C2mIndex::build(design, C2mParams::within(max_distance)).unwrap()
-}
-
-fn q(index: &C2mIndex, p: [f64; 3]) -> Option<Closest> {
-    index.query(&Point3::from(p), &mut Cursor::default())
-}
-
-fn shared_data() -> std::path::PathBuf {
-    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    assert!(
-        p.is_dir(),
-        "test data not found at {}: clone the repository next to `shared/`",
-        p.display()
-    );
-    p
-}
+use c2m_checks::*;
 
 #[test]
 fn unit_cube_faces_edges_corners_inside_and_outside() {
@@ -159,87 +147,6 @@ fn sphere_vertices_and_faces() {
     assert!(q(&idx, center.into()).is_none(), "centre is 0.95+ m deep");
 }
 
-/// A uniform offset of up to `s` per axis.
-fn jitter(rng: &mut ChaCha8Rng, s: f64) -> Vector3<f64> {
-    Vector3::new(
-        rng.random_range(-s..s),
-        rng.random_range(-s..s),
-        rng.random_range(-s..s),
-    )
-}
-
-/// Random points of four kinds: near the surface, next to vertices, next to edges, and far.
-fn probe_points(design: &Design, n: usize, scale: f64, seed: u64) -> Vec<Point3<f64>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let (lo, hi) = design.bounds();
-    (0..n)
-        .map(|i| {
-            let t = design.triangles[rng.random_range(0..design.triangles.len())];
-            let [a, b, c] = t.map(|k| design.vertices[k as usize]);
-            match i % 4 {
-                0 => {
-                    let (u, v): (f64, f64) = (rng.random(), rng.random());
-                    let (u, v) = if u + v > 1.0 {
-                        (1.0 - u, 1.0 - v)
-                    } else {
-                        (u, v)
-                    };
-                    a + (b - a) * u + (c - a) * v + jitter(&mut rng, scale)
-                }
-                1 => a + jitter(&mut rng, scale * 0.1),
-                2 => a + (b - a) * rng.random::<f64>() + jitter(&mut rng, scale * 0.1),
-                _ => {
-                    let m = (hi - lo) * 0.3;
-                    Point3::new(
-                        rng.random_range(lo.x - m.x..hi.x + m.x),
-                        rng.random_range(lo.y - m.y..hi.y + m.y),
-                        rng.random_range(lo.z - m.z..hi.z + m.z),
-                    )
-                }
-            }
-        })
-        .collect()
-}
-
-/// Each point's query, from a fresh cursor, answers as brute force does.
-fn assert_queries_equal_brute_force<'a>(
-    idx: &C2mIndex,
-    points: impl Iterator<Item = &'a Point3<f64>>,
-) {
-    for p in points {
-        assert_eq!(
-            idx.query(p, &mut Cursor::default()),
-            idx.brute_force(p),
-            "{p:?}"
-        );
-    }
-}
-
-fn assert_equals_brute_force(design: &Design, max_distance: f64, points: &[Point3<f64>]) {
-    let idx = index(design, max_distance);
-    let mut fast = vec![None; points.len()];
-    idx.query_batch(points, &mut fast);
-    let mut matched = 0;
-    for (p, f) in points.iter().zip(&fast) {
-        let b = idx.brute_force(p);
-        match (f, &b) {
-            (Some(f), Some(b)) => {
-                matched += 1;
-                // Same triangle, same bits: the fast path is exact, ties included.
-                assert_eq!(f, b, "at {p:?}");
-            }
-            (None, None) => {}
-            _ => panic!("at {p:?}: fast {f:?}, brute force {b:?}"),
-        }
-    }
-    assert!(matched > points.len() / 2, "only {matched} matched");
-    // A different chunking (single cursor, sequential) gives the same answers.
-    let mut cursor = Cursor::default();
-    for (p, f) in points.iter().zip(&fast).step_by(13) {
-        assert_eq!(&idx.query(p, &mut cursor), f);
-    }
-}
-
 #[test]
 fn equals_brute_force_on_a_sphere_100k_points() {
     let sphere = icosphere(Point3::new(1.0, 2.0, 3.0), 0.5, 3);
@@ -253,60 +160,6 @@ fn equals_brute_force_on_a_cube_100k_points_with_far_band() {
     let cube = cuboid(Point3::new(-0.3, 0.0, 0.1), Point3::new(0.7, 2.0, 0.5));
     let points = probe_points(&cube, 100_000, 0.2, 12);
     assert_equals_brute_force(&cube, 0.4, &points);
-}
-
-#[test]
-fn equals_brute_force_on_the_bunny() {
-    let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
-    let points = probe_points(&bunny, 12_000, 0.004, 13);
-    assert_equals_brute_force(&bunny, 0.005, &points);
-    // With a cell size forced small, a band far narrower than the maximum distance.
-    let idx = C2mIndex::build(
-        &bunny,
-        C2mParams {
-            max_distance: 0.02,
-            cell_size: Some(0.0007),
-        },
-    )
-    .unwrap();
-    assert_queries_equal_brute_force(&idx, points.iter().step_by(5));
-}
-
-/// Points just beyond the grid's band, where a list's best is taken as the closest only when
-/// the point lies deep enough in its cell: every answer is brute force's, on a smooth sphere
-/// and on the bunny's small features.
-#[test]
-fn just_beyond_the_band_equals_brute_force() {
-    let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
-    let sphere = asbuilt_core::design::shapes::icosphere(Point3::new(0.3, -0.2, 1.0), 0.5, 5);
-    for (design, seed) in [(bunny, 21), (sphere, 22)] {
-        let idx = index(&design, 0.05);
-        let s = idx.stats();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let points: Vec<Point3<f64>> = (0..10_000)
-            .map(|_| {
-                let t = design.triangles[rng.random_range(0..design.triangles.len())];
-                let [a, b, c] = t.map(|k| design.vertices[k as usize]);
-                let (u, v): (f64, f64) = (rng.random(), rng.random());
-                let (u, v) = if u + v > 1.0 {
-                    (1.0 - u, 1.0 - v)
-                } else {
-                    (u, v)
-                };
-                let n = (b - a).cross(&(c - a)).normalize();
-                let off = s.band + rng.random::<f64>() * s.cell_size;
-                let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
-                a + (b - a) * u + (c - a) * v + n * (side * off)
-            })
-            .collect();
-        let mut fast = vec![None; points.len()];
-        idx.query_batch(&points, &mut fast);
-        for (p, f) in points.iter().zip(&fast) {
-            assert_eq!(f, &idx.brute_force(p), "at {p:?}");
-        }
-    }
 }
 
 /// A batch in no spatial order is answered block by block along a Morton curve; every answer
@@ -336,149 +189,11 @@ fn a_shuffled_batch_answers_as_in_scan_order() {
 }
 
 #[test]
-fn signs_agree_with_parry_on_the_bunny() {
-    use parry3d_f64::math::Vector as PV;
-    use parry3d_f64::query::PointQuery;
-    use parry3d_f64::shape::{TriMesh, TriMeshFlags};
-
-    let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
-    let mesh = TriMesh::with_flags(
-        bunny
-            .vertices
-            .iter()
-            .map(|v| PV::new(v.x, v.y, v.z))
-            .collect(),
-        bunny.triangles.clone(),
-        TriMeshFlags::ORIENTED,
-    )
-    .unwrap();
-    let idx = index(&bunny, 0.01);
-    let points = probe_points(&bunny, 6_000, 0.003, 14);
-    let (mut judged, mut ours_wrong, mut parry_wrong) = (0, 0, 0);
-    for p in &points {
-        let Some(c) = q(&idx, (*p).into()) else {
-            continue;
-        };
-        let proj = mesh.project_local_point(PV::new(p.x, p.y, p.z), false);
-        let d = (PV::new(p.x, p.y, p.z) - proj.point).length();
-        assert!(
-            (d - c.distance.abs()).abs() < 1e-9,
-            "{p:?}: {d} vs {}",
-            c.distance
-        );
-        // The generalised winding number is the referee: ~1 inside, ~0 outside, even near the
-        // holes of this scanned mesh. Points it cannot decide are skipped.
-        let w = winding(&bunny, p);
-        if d < 1e-7 || (w - 0.5).abs() < 0.4 {
-            continue;
-        }
-        judged += 1;
-        let inside = w > 0.5;
-        ours_wrong += usize::from((c.distance < 0.0) != inside);
-        parry_wrong += usize::from(proj.is_inside != inside);
-    }
-    assert!(judged > 4_000, "{judged}");
-    // res2 has open boundaries and non-manifold edges, where a pseudo-normal sign can be wrong.
-    assert!(
-        ours_wrong * 1000 <= judged,
-        "{ours_wrong} of {judged} signs wrong"
-    );
-    assert!(
-        ours_wrong <= parry_wrong,
-        "ours {ours_wrong} vs parry {parry_wrong}"
-    );
-}
-
-fn winding(design: &Design, p: &Point3<f64>) -> f64 {
-    let mut w = 0.0;
-    for t in &design.triangles {
-        let [a, b, c] = t.map(|i| design.vertices[i as usize] - p);
-        let (la, lb, lc) = (a.norm(), b.norm(), c.norm());
-        let num = a.dot(&b.cross(&c));
-        let den = la * lb * lc + a.dot(&b) * lc + b.dot(&c) * la + c.dot(&a) * lb;
-        w += 2.0 * num.atan2(den);
-    }
-    w / (4.0 * std::f64::consts::PI)
-}
-
-#[test]
 fn non_finite_points_have_no_match() {
     let idx = index(&cuboid(Point3::origin(), Point3::new(1.0, 1.0, 1.0)), 1.0);
     assert_eq!(q(&idx, [f64::NAN, 0.0, 0.0]), None);
     assert_eq!(q(&idx, [f64::INFINITY, 0.0, 0.0]), None);
     assert_eq!(idx.brute_force(&Point3::new(0.0, f64::NAN, 0.0)), None);
-}
-
-/// Points for a cut at `h`: near the surface below the cut, on and around the cap's rim, on the
-/// cap, above it within and beyond reach, and far.
-fn cut_probe_points(design: &Design, h: f64, n: usize, scale: f64, seed: u64) -> Vec<Point3<f64>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut pts = probe_points(design, n / 2, scale, seed);
-    let (lo, hi) = design.bounds();
-    while pts.len() < n {
-        // A point of an edge that crosses the cut, where the rim is.
-        let t = design.triangles[rng.random_range(0..design.triangles.len())];
-        let [a, b, _] = t.map(|k| design.vertices[k as usize]);
-        if (a.z - h) * (b.z - h) < 0.0 {
-            let s = (h - a.z) / (b.z - a.z);
-            let rim = a + (b - a) * s;
-            pts.push(rim + jitter(&mut rng, scale * 0.2));
-            pts.push(rim + jitter(&mut rng, 1e-6));
-        } else if rng.random_bool(0.05) {
-            pts.push(Point3::new(
-                rng.random_range(lo.x..hi.x),
-                rng.random_range(lo.y..hi.y),
-                h + rng.random_range(-scale..scale),
-            ));
-        }
-    }
-    pts
-}
-
-fn assert_cut_equals_brute_force(design: &Design, max_distance: f64, heights: &[f64], n: usize) {
-    let idx = index(design, max_distance);
-    for (k, &h) in heights.iter().enumerate() {
-        let (cut, _) = asbuilt_core::layers::cut_at(design, h).unwrap();
-        let reference = index(&cut, max_distance);
-        let section = idx.section(h).unwrap();
-        let points = cut_probe_points(design, h, n, max_distance, 100 + k as u64);
-        let mut cursor = Cursor::default();
-        let (mut matched, mut on_cap) = (0, 0);
-        for p in &points {
-            let fast = idx.query_cut(p, &mut cursor, &section);
-            let slow = reference.brute_force(p);
-            match (fast, slow) {
-                (Some(f), Some(s)) => {
-                    matched += 1;
-                    on_cap += usize::from(f.triangle as usize >= idx.triangles());
-                    assert!(
-                        (f.distance.abs() - s.distance.abs()).abs() <= 1e-9,
-                        "height {h} at {p:?}: {f:?} vs {s:?}"
-                    );
-                    if s.distance.abs() > 1e-9 {
-                        assert_eq!(
-                            f.distance < 0.0,
-                            s.distance < 0.0,
-                            "sign at height {h}, {p:?}: {f:?} vs {s:?}"
-                        );
-                    }
-                }
-                (None, None) => {}
-                (f, s) => {
-                    let d = f.or(s).unwrap().distance.abs();
-                    assert!(
-                        (d - max_distance).abs() <= 1e-9,
-                        "height {h} at {p:?}: fast {f:?}, brute force {s:?}"
-                    );
-                }
-            }
-        }
-        assert!(matched > n / 4, "only {matched} of {n} matched at {h}");
-        if section.report().cap_triangles > 0 {
-            assert!(on_cap > 0, "no point found the cap at {h}");
-        }
-    }
 }
 
 #[test]
@@ -494,15 +209,6 @@ fn a_cut_from_the_one_index_equals_brute_force_over_the_cut_mesh() {
     assert_cut_equals_brute_force(&cube, 0.2, &[0.3, 0.49], 20_000);
     let sphere = icosphere(Point3::new(1.0, 2.0, 3.0), 0.5, 3);
     assert_cut_equals_brute_force(&sphere, 0.1, &[2.7, 3.0, 3.41], 20_000);
-}
-
-#[test]
-fn a_cut_of_the_bunny_equals_brute_force_over_the_cut_mesh() {
-    let path = shared_data().join("stanford-bunny/bun_zipper_res2.ply");
-    let bunny = asbuilt_io::read_design(&path, Units::Metres).unwrap();
-    let (lo, hi) = bunny.bounds();
-    let heights = [lo.z + 0.3 * (hi.z - lo.z), lo.z + 0.71 * (hi.z - lo.z)];
-    assert_cut_equals_brute_force(&bunny, 0.005, &heights, 20_000);
 }
 
 #[test]

@@ -33,8 +33,6 @@ pub fn set_min_level(level: Level) -> Level {
     }
 }
 
-pub use asbuilt_io::error_message;
-
 /// Writes one line at `level`, timestamped.
 pub fn line(level: Level, args: Arguments<'_>) {
     if (level as u8) < MIN_LEVEL.load(Ordering::Relaxed) {

@@ -28,7 +28,7 @@ fn main() -> ExitCode {
     let config = match AgentConfig::load(&cli.config) {
         Ok(c) => c,
         Err(e) => {
-            error!("{}", asbuilt_agent::log::error_message(&e));
+            error!("{}", asbuilt_io::error_message(&e));
             return ExitCode::from(2);
         }
     };
@@ -57,7 +57,7 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            error!("{}", asbuilt_agent::log::error_message(&e));
+            error!("{}", asbuilt_io::error_message(&e));
             ExitCode::from(1)
         }
     }

@@ -146,10 +146,6 @@ impl IpcError {
     }
 }
 
-fn err(what: impl std::fmt::Display, e: impl Into<IceoryxCause>) -> IpcError {
-    IpcError::iceoryx(what, e)
-}
-
 /// The names of a cell's services.
 #[derive(Debug, Clone)]
 pub struct ServiceNames {
@@ -195,7 +191,8 @@ impl ServiceNames {
 }
 
 fn service_name(s: &str) -> Result<ServiceName, IpcError> {
-    ServiceName::new(s).map_err(|e| err(format!("{s:?} is not a valid service name"), e))
+    ServiceName::new(s)
+        .map_err(|e| IpcError::iceoryx(format!("{s:?} is not a valid service name"), e))
 }
 
 /// Sizes of the agent's queues and samples.
@@ -239,7 +236,7 @@ fn control_subscriber<T: std::fmt::Debug + ZeroCopySend>(
         .subscriber_builder()
         .buffer_size(SMALL_QUEUE)
         .create()
-        .map_err(|e| err(format!("cannot subscribe to {name}"), e))
+        .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
 }
 
 /// The agent's side: it owns the services.
@@ -321,7 +318,7 @@ impl AgentPorts {
             .subscriber_builder()
             .buffer_size(q.chunk_queue)
             .create()
-            .map_err(|e| err("cannot subscribe to scan chunks", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot subscribe to scan chunks", e))?;
         let poses = control_subscriber::<PoseSnapshot>(node, &names.poses, &exists)?;
         let stations = control_subscriber::<StationEvent>(node, &names.stations, &exists)?;
         let inbox = node
@@ -334,7 +331,7 @@ impl AgentPorts {
             .map_err(|e| exists(&names.inbox, e.into()))?
             .listener_builder()
             .create()
-            .map_err(|e| err("cannot listen on the agent inbox", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot listen on the agent inbox", e))?;
 
         let deviation_drops = Arc::new(AtomicU64::new(0));
         let report_drops = Arc::new(AtomicU64::new(0));
@@ -354,7 +351,7 @@ impl AgentPorts {
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .set_backpressure_handler(counting_handler(report_drops.clone()))
             .create()
-            .map_err(|e| err("cannot publish reports", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot publish reports", e))?;
         let findings = findings_publisher(node, names, &report_drops, &exists)?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
@@ -366,7 +363,7 @@ impl AgentPorts {
             .map_err(|e| exists(&names.outbox, e.into()))?
             .notifier_builder()
             .create()
-            .map_err(|e| err("cannot notify on the agent outbox", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot notify on the agent outbox", e))?;
         Ok(Self {
             poses,
             chunks,
@@ -440,7 +437,7 @@ fn deviation_publisher(
         .backpressure_strategy(BackpressureStrategy::DiscardData)
         .set_backpressure_handler(counting_handler(drops.clone()))
         .create()
-        .map_err(|e| err("cannot publish deviations", e))
+        .map_err(|e| IpcError::iceoryx("cannot publish deviations", e))
 }
 
 /// The agent's findings publisher (encoded `StationFindings`), dropping and counting in `drops`
@@ -468,7 +465,7 @@ fn findings_publisher(
         .backpressure_strategy(BackpressureStrategy::DiscardData)
         .set_backpressure_handler(counting_handler(drops.clone()))
         .create()
-        .map_err(|e| err("cannot publish findings", e))
+        .map_err(|e| IpcError::iceoryx("cannot publish findings", e))
 }
 
 /// Inputs wait for a full agent queue, but not forever: a stuck agent becomes an error.
@@ -489,12 +486,12 @@ fn control_publisher<T: std::fmt::Debug + ZeroCopySend>(
     node.service_builder(&service_name(name)?)
         .publish_subscribe::<T>()
         .open()
-        .map_err(|e| err(name, e))?
+        .map_err(|e| IpcError::iceoryx(name, e))?
         .publisher_builder()
         .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
         .set_backpressure_handler(deliver_or_fail)
         .create()
-        .map_err(|e| err(format!("cannot publish on {name}"), e))
+        .map_err(|e| IpcError::iceoryx(format!("cannot publish on {name}"), e))
 }
 
 type PubSub<T, H> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, T, H>;
@@ -516,10 +513,10 @@ where
     H: std::fmt::Debug + ZeroCopySend,
 {
     open(node.service_builder(&service_name(name)?))
-        .map_err(|e| err(name, e))?
+        .map_err(|e| IpcError::iceoryx(name, e))?
         .subscriber_builder()
         .create()
-        .map_err(|e| err(format!("cannot subscribe to {name}"), e))
+        .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
 }
 
 impl CellPorts {
@@ -558,20 +555,20 @@ impl CellPorts {
             .service_builder(&service_name(&names.status)?)
             .publish_subscribe::<AgentStatus>()
             .open()
-            .map_err(|e| err(&names.status, e))?;
+            .map_err(|e| IpcError::iceoryx(&names.status, e))?;
         if status_service.dynamic_config().number_of_publishers() == 0 {
             return Err(IpcError::AgentNotUp);
         }
         let status = status_service
             .subscriber_builder()
             .create()
-            .map_err(|e| err("cannot subscribe to agent status", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot subscribe to agent status", e))?;
         let chunk_service = node
             .service_builder(&service_name(&names.chunks)?)
             .publish_subscribe::<[ScanPoint]>()
             .user_header::<ChunkHeader>()
             .open()
-            .map_err(|e| err(&names.chunks, e))?;
+            .map_err(|e| IpcError::iceoryx(&names.chunks, e))?;
         let chunks = chunk_service
             .publisher_builder()
             .initial_max_slice_len(max_points_per_chunk)
@@ -579,17 +576,17 @@ impl CellPorts {
             .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
             .set_backpressure_handler(deliver_or_fail)
             .create()
-            .map_err(|e| err("cannot publish scan chunks", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot publish scan chunks", e))?;
         let poses = control_publisher::<PoseSnapshot>(node, &names.poses)?;
         let stations = control_publisher::<StationEvent>(node, &names.stations)?;
         let inbox = node
             .service_builder(&service_name(&names.inbox)?)
             .event()
             .open()
-            .map_err(|e| err(&names.inbox, e))?
+            .map_err(|e| IpcError::iceoryx(&names.inbox, e))?
             .notifier_builder()
             .create()
-            .map_err(|e| err("cannot notify the agent", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot notify the agent", e))?;
         let deviations = output_subscriber(node, &names.deviations, |b| {
             b.publish_subscribe::<[PointDeviation]>()
                 .user_header::<DeviationHeader>()
@@ -607,10 +604,10 @@ impl CellPorts {
             .service_builder(&service_name(&names.outbox)?)
             .event()
             .open()
-            .map_err(|e| err(&names.outbox, e))?
+            .map_err(|e| IpcError::iceoryx(&names.outbox, e))?
             .listener_builder()
             .create()
-            .map_err(|e| err("cannot listen on the agent outbox", e))?;
+            .map_err(|e| IpcError::iceoryx("cannot listen on the agent outbox", e))?;
         Ok(Self {
             poses,
             chunks,
@@ -634,7 +631,7 @@ impl CellPorts {
         self.inbox
             .notify()
             .map(|_| ())
-            .map_err(|e| err("cannot notify the agent", e))
+            .map_err(|e| IpcError::iceoryx("cannot notify the agent", e))
     }
 
     /// Sends a pose and wakes the agent.
@@ -703,7 +700,7 @@ impl CellPorts {
         self.outbox
             .timed_wait(|_| {}, timeout)
             .map(|_| ())
-            .map_err(|e| err("waiting for the agent", e))
+            .map_err(|e| IpcError::iceoryx("waiting for the agent", e))
     }
 }
 

@@ -93,7 +93,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-pub use asbuilt_agent::log::error_message;
+pub use asbuilt_io::error_message;
 
 fn import_conf(conf: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
     let dir = out

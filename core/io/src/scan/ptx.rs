@@ -105,6 +105,13 @@ fn read_header(
         }
     };
     let (columns, rows) = (count(&cols, "column count")?, count(&rows, "row count")?);
+    // Both uses multiply them: a count no file can hold must not overflow there.
+    if columns.checked_mul(rows).is_none() {
+        bail!(
+            "{} line {header_line}: {columns} × {rows} points is more than any file holds",
+            path.display()
+        );
+    }
     // Row-vector convention: p_world = p · M, so R is the transpose of M's upper 3 × 3.
     let r = Matrix3::new(
         m[0][0], m[1][0], m[2][0], m[0][1], m[1][1], m[2][1], m[0][2], m[1][2], m[2][2],

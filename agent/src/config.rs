@@ -210,6 +210,10 @@ pub struct RecorderConfig {
     /// deviation-coloured points, reports and findings as JSON), so Foxglove opens the file as
     /// it is. Deviation chunks are then taken to the writer even without `deviations`.
     pub foxglove: bool,
+    /// At start, take up the newest job recorded in `dir`: recover files whose writer died,
+    /// replay the current scan layer so its findings go on, report the stations that were open
+    /// as interrupted and publish the recorded reports again.
+    pub resume: bool,
 }
 
 impl Default for RecorderConfig {
@@ -223,6 +227,7 @@ impl Default for RecorderConfig {
             deviations: false,
             compress: false,
             foxglove: false,
+            resume: true,
         }
     }
 }

@@ -21,6 +21,7 @@ use crate::config::AgentConfig;
 use crate::findings::FindingsStage;
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::Recorder;
+use crate::resume::Resumed;
 use crate::{error, info, warn};
 use asbuilt_protocol::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
@@ -65,12 +66,33 @@ pub struct RunSummary {
     pub points_processed: u64,
 }
 
-impl ChunkSource for ChunkSample {
+/// A chunk the agent takes: live, still in shared memory, or read back from its recording
+/// when it resumes a job.
+pub enum AgentChunk {
+    /// Received from the scanner's service.
+    Live(ChunkSample),
+    /// Read back from the recording.
+    Recorded(ChunkHeader, Vec<ScanPoint>),
+}
+
+impl From<(ChunkHeader, Vec<ScanPoint>)> for AgentChunk {
+    fn from((h, p): (ChunkHeader, Vec<ScanPoint>)) -> Self {
+        Self::Recorded(h, p)
+    }
+}
+
+impl ChunkSource for AgentChunk {
     fn header(&self) -> &ChunkHeader {
-        self.user_header()
+        match self {
+            Self::Live(s) => s.user_header(),
+            Self::Recorded(h, _) => h,
+        }
     }
     fn points(&self) -> &[ScanPoint] {
-        self.payload()
+        match self {
+            Self::Live(s) => s.payload(),
+            Self::Recorded(_, p) => p,
+        }
     }
 }
 
@@ -255,6 +277,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let limits = &config.limits;
     let design = designs.whole_design().clone();
     let mut lifecycle = make_lifecycle(config, designs);
+    let resumed = resume(config, &mut lifecycle);
     let mut out = IpcOutputs {
         ports: &ports,
         recorder: start_recorder(config, design)?,
@@ -265,6 +288,9 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         unloaned: 0,
         unpublished: std::collections::VecDeque::new(),
     };
+    if let Some(r) = &resumed {
+        finish_resume(r, &mut lifecycle, &mut out);
+    }
 
     let tick = config.status.period().min(MAX_TICK);
     let waitset = WaitSetBuilder::new()
@@ -279,12 +305,13 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
 
     info!(
         "serving {}/… (chunks up to {} points, {} queued, {} held for a pose; station timeout \
-         {:.0} s)",
+         {:.0} s), {:.2} s after start",
         config.services.prefix,
         limits.max_points_per_chunk,
         limits.chunk_queue,
         limits.pending_chunks,
-        limits.station_timeout_s
+        limits.station_timeout_s,
+        started.elapsed().as_secs_f64()
     );
     let mut status = StatusReporter {
         started,
@@ -294,6 +321,8 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         last_at: Instant::now(),
         dead_nodes,
     };
+    // At once, not after a period: a cell learns that this agent (a new process id) serves.
+    status.publish(&ports, &lifecycle, &out, AgentState::Serving);
     let mut terminated = false;
     let mut held = HeldControl::default();
     let mut more = false;
@@ -399,9 +428,71 @@ fn open_ports(config: &AgentConfig) -> Result<(Node<Ipc>, AgentPorts, u64), Agen
     Ok((node, ports, dead_nodes))
 }
 
-/// The station lifecycle over `designs`, with the findings stage when `[findings]` is on.
-/// The lifecycle of stations over chunks still in shared memory.
-type AgentLifecycle = Lifecycle<ChunkSample>;
+/// The lifecycle of stations over chunks still in shared memory (or read back on resuming).
+type AgentLifecycle = Lifecycle<AgentChunk>;
+
+/// Takes up the newest recorded job (`[recorder] resume`): see [`crate::resume`].
+fn resume(config: &AgentConfig, lifecycle: &mut AgentLifecycle) -> Option<Resumed> {
+    let dir = config
+        .recorder
+        .dir
+        .as_ref()
+        .filter(|_| config.recorder.resume)?;
+    let started = Instant::now();
+    let files = crate::resume::recover_folder(dir);
+    let resumed = crate::resume::replay_job(&files, lifecycle)?;
+    for u in &resumed.unreadable {
+        warn!("resume: {u}");
+    }
+    if config.recorder.scan_every != 1 {
+        warn!(
+            "resume: recorder.scan_every = {}: the recording holds part of the scan chunks, so \
+             the current scan layer's findings go on from part of its points",
+            config.recorder.scan_every
+        );
+    }
+    info!(
+        "resume: job {} from {} file(s): {} report(s) recorded; {} station(s) of the current \
+         scan layer replayed ({} points) in {:.2} s",
+        resumed.job,
+        resumed.files,
+        resumed.recorded.len(),
+        resumed.stations_replayed,
+        resumed.points_replayed,
+        started.elapsed().as_secs_f64()
+    );
+    // The replay's counts are not this run's work.
+    lifecycle.counters = Default::default();
+    Some(resumed)
+}
+
+/// Reports, with the real outputs, what the agent before left undone: the reports it never had
+/// on disk, the stations it had open (interrupted: the cell sends them again), and every
+/// recorded report once more, since the cell may not have had them.
+fn finish_resume(r: &Resumed, lifecycle: &mut AgentLifecycle, out: &mut IpcOutputs<'_>) {
+    for report in &r.unrecorded {
+        info!(
+            "resume: job {} station {} attempt {} was closed but its report never recorded; \
+             reporting it now",
+            report.job, report.station, report.attempt
+        );
+        out.report(report);
+    }
+    for (job, station) in lifecycle.interrupt_open(out) {
+        warn!(
+            "resume: job {job} station {station} was open when the agent before stopped; \
+             reported interrupted, for the cell to send it again"
+        );
+    }
+    // The reports' service keeps a short history; the latest are the ones a cell may lack.
+    let skip = r.recorded.len().saturating_sub(REPUBLISHED);
+    for report in &r.recorded[skip..] {
+        out.publish_report(report);
+    }
+}
+
+/// How many of the latest recorded reports are published again on resuming.
+const REPUBLISHED: usize = 32;
 
 fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecycle {
     let limits = &config.limits;
@@ -519,7 +610,7 @@ fn shut_down(
     let ports = out.ports;
     info!("stop requested: closing open stations with partial reports");
     if let Some(c) = held.chunk.take() {
-        lifecycle.on_chunk(c, Instant::now(), &mut out);
+        lifecycle.on_chunk(AgentChunk::Live(c), Instant::now(), &mut out);
     }
     lifecycle.shutdown(&mut out);
     status.publish(ports, &lifecycle, &out, AgentState::ShuttingDown);
@@ -629,7 +720,7 @@ impl HeldControl {
                     r.chunk(sample.user_header(), sample.payload());
                 }
                 let now = Instant::now();
-                lifecycle.on_chunk(sample, now, out);
+                lifecycle.on_chunk(AgentChunk::Live(sample), now, out);
                 if SignalHandler::termination_requested() {
                     return Drained::Stop;
                 }

@@ -199,6 +199,14 @@ impl FindingsStage {
         e.layer.ingest(&self.scratch);
     }
 
+    /// Leaves out what a station sent so far: it was interrupted, and its next attempt sends
+    /// it all again.
+    pub fn abandon(&mut self, key: StationKey) {
+        if let Some(e) = active(&mut self.epochs, key) {
+            e.active = None;
+        }
+    }
+
     /// Closes a station scanned from `origin` and returns the findings of its scan layer so
     /// far; `None` when the station was not part of any (left out, or never began).
     pub fn end(

@@ -10,12 +10,15 @@
 
 #![warn(missing_docs)]
 
+pub mod attempts;
 pub mod config;
 pub mod daemon;
 pub mod findings;
 pub mod lifecycle;
 pub mod log;
 pub mod recorder;
+pub mod replay;
+pub mod resume;
 pub mod sequence;
 
 pub use config::AgentConfig;

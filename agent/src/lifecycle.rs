@@ -23,6 +23,7 @@ use asbuilt_protocol::{
     StationStatus,
 };
 
+use crate::attempts::{ClosedStations, StationKey, attempt_of};
 use crate::findings::FindingsStage;
 
 use crate::sequence::{ChunkVerdict, SequenceTracker};
@@ -95,10 +96,10 @@ const CLOSED_MEMORY: usize = 64;
 /// incomplete station is reported within about half a second of its End.
 pub const END_GRACE: Duration = Duration::from_millis(200);
 
-type StationKey = (u64, u32);
-
 struct OpenStation {
     key: StationKey,
+    /// Which try at the station this is (1 the first).
+    attempt: u16,
     begin: Option<StationEvent>,
     end: Option<StationEvent>,
     pose: Option<PoseSnapshot>,
@@ -210,7 +211,7 @@ pub struct Lifecycle<C> {
     limits: LifecycleLimits,
     open: Vec<OpenStation>,
     pending: VecDeque<Pending<C>>,
-    closed: VecDeque<StationKey>,
+    closed: ClosedStations,
     /// Counters for the status message.
     pub counters: Counters,
 }
@@ -233,7 +234,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             limits,
             open: Vec::with_capacity(limits.open_stations),
             pending: VecDeque::with_capacity(limits.pending_chunks),
-            closed: VecDeque::with_capacity(CLOSED_MEMORY),
+            closed: ClosedStations::new(CLOSED_MEMORY),
             counters: Counters::default(),
         }
     }
@@ -280,7 +281,7 @@ impl<C: ChunkSource> Lifecycle<C> {
     pub fn has_room_for(&self, job: u64, station: u32) -> bool {
         let key = (job, station);
         self.find(&key).is_some()
-            || self.closed.contains(&key)
+            || self.closed.last_attempt(key).is_some()
             || self.open.len() < self.limits.open_stations
     }
 
@@ -413,9 +414,21 @@ impl<C: ChunkSource> Lifecycle<C> {
             return;
         }
         let key = (ev.job, ev.station);
+        let attempt = attempt_of(ev.attempt.into());
+        if self.is_over(key, attempt, out) {
+            // An End after a chunk flagged last closed the station is the usual order.
+            if ev.kind() != Some(StationEventKind::End) {
+                info!(
+                    "job {} station {} attempt {attempt}: Begin of an attempt already reported \
+                     or given up (a repeat, or the service's history), ignored",
+                    key.0, key.1
+                );
+            }
+            return;
+        }
         match ev.kind() {
             Some(StationEventKind::Begin) => {
-                let i = self.open_slot(key, now, out);
+                let i = self.open_slot(key, attempt, now, out);
                 self.print_height(i, ev.printed_height, now);
                 let s = &mut self.open[i];
                 if s.begin.is_some() {
@@ -424,11 +437,12 @@ impl<C: ChunkSource> Lifecycle<C> {
                 s.begin = Some(*ev);
                 s.last_activity = now;
                 info!(
-                    "job {} station {} ({}) begins, layer {}",
+                    "job {} station {} ({}) begins, layer {}{}",
                     key.0,
                     key.1,
                     s.name(),
-                    ev.layer
+                    ev.layer,
+                    attempt_text(attempt)
                 );
                 self.release_pending(key, now, out);
             }
@@ -440,7 +454,7 @@ impl<C: ChunkSource> Lifecycle<C> {
                     s.finished_at.get_or_insert(now);
                     self.close_if_complete(i, out);
                 }
-                None if self.closed.contains(&key) => {
+                None if self.closed.last_attempt(key).is_some() => {
                     // Closed already by a chunk flagged last: nothing to add.
                 }
                 None => {
@@ -467,10 +481,11 @@ impl<C: ChunkSource> Lifecycle<C> {
             return;
         }
         let key = (pose.job, pose.station);
-        if self.closed.contains(&key) {
-            self.counters.input.poses_invalid += 1;
-            warn!(
-                "job {} station {}: pose for a station already reported, ignored",
+        let attempt = attempt_of(pose.attempt.into());
+        if self.is_over(key, attempt, out) {
+            info!(
+                "job {} station {} attempt {attempt}: pose for an attempt already reported or \
+                 given up, ignored",
                 key.0, key.1
             );
             return;
@@ -483,7 +498,7 @@ impl<C: ChunkSource> Lifecycle<C> {
                 return;
             }
         };
-        let i = self.open_slot(key, now, out);
+        let i = self.open_slot(key, attempt, now, out);
         let s = &mut self.open[i];
         if s.pose.is_some() {
             warn!(
@@ -505,23 +520,129 @@ impl<C: ChunkSource> Lifecycle<C> {
             return;
         }
         let key = (h.job, h.station);
+        let attempt = attempt_of(h.attempt);
+        if self.is_over(key, attempt, out) {
+            self.counters.input.chunks_after_close += 1;
+            warn!(
+                "job {} station {} attempt {attempt}: chunk {} arrived after the attempt's \
+                 report, dropped ({} points)",
+                key.0,
+                key.1,
+                h.sequence,
+                chunk.points().len()
+            );
+            return;
+        }
         match self.find(&key) {
             Some(i) if self.ready(i) => {
                 self.process(i, &chunk, now, out);
                 self.close_if_complete(i, out);
             }
-            None if self.closed.contains(&key) => {
-                self.counters.input.chunks_after_close += 1;
-                warn!(
-                    "job {} station {}: chunk {} arrived after the station's report, dropped ({} \
-                     points)",
-                    key.0,
-                    key.1,
-                    h.sequence,
-                    chunk.points().len()
-                );
+            None if h.sequence > 0 && !self.holds_any_of(key) => {
+                self.began_before_us(chunk, attempt, out)
             }
             _ => self.hold(chunk, now),
+        }
+    }
+
+    /// Whether a message of `attempt` of `key` comes too late: that attempt (or a later one)
+    /// was reported, or a later one is open. A message of a later attempt than the open one
+    /// means the cell gave up on the open one: it closes as interrupted.
+    fn is_over(&mut self, key: StationKey, attempt: u16, out: &mut impl Outputs) -> bool {
+        if self.closed.covers(key, attempt) {
+            return true;
+        }
+        match self.find(&key) {
+            Some(i) if self.open[i].attempt > attempt => true,
+            Some(i) if self.open[i].attempt < attempt => {
+                info!(
+                    "job {} station {}: attempt {attempt} begins while attempt {} is open; the \
+                     cell gave that one up",
+                    key.0, key.1, self.open[i].attempt
+                );
+                self.close(i, Some(StationStatus::Interrupted), out);
+                false
+            }
+            _ => false,
+        }
+    }
+
+    /// Whether a chunk of `key` waits for its station's pose.
+    fn holds_any_of(&self, key: StationKey) -> bool {
+        self.pending.iter().any(|p| {
+            let h = p.chunk.header();
+            (h.job, h.station) == key
+        })
+    }
+
+    /// A chunk past the first of a station this agent never saw begin: the station began
+    /// before this agent started (it replaced one that stopped), so its first chunks went to
+    /// the one before and are lost. Holding the chunk for a Begin that will not come would
+    /// keep the cell waiting for the station timeout: the chunk is dropped at once and counted,
+    /// and the attempt is reported interrupted so that the cell sends the station again.
+    fn began_before_us(&mut self, chunk: C, attempt: u16, out: &mut impl Outputs) {
+        let h = *chunk.header();
+        self.counters.input.chunks_unknown_station += 1;
+        warn!(
+            "job {} station {} attempt {attempt}: chunk {} arrived without its station's Begin \
+             and first chunks (the station began before this agent started); dropped, and the \
+             attempt is reported interrupted",
+            h.job, h.station, h.sequence
+        );
+        let mut report = StationReport::new(h.job, h.station);
+        report.attempt = attempt.min(u8::MAX.into()) as u8;
+        report.status = StationStatus::Interrupted as u8;
+        report.points_received = chunk.points().len() as u64;
+        report.rejected.without_pose = chunk.points().len() as u64;
+        self.counters.rejected_points += report.rejected;
+        self.counters.stations_reported += 1;
+        out.report(&report);
+        self.closed.push((h.job, h.station), attempt);
+    }
+
+    /// Closes `attempt` of `key` as interrupted: the agent that had it open stopped (a resumed
+    /// agent after replaying its recording, a reader of a recording where the resumed agent
+    /// said so). An attempt not open here is reported interrupted all the same.
+    pub fn interrupt(&mut self, key: StationKey, attempt: u16, out: &mut impl Outputs) {
+        let attempt = attempt_of(attempt);
+        if self.closed.covers(key, attempt) {
+            return;
+        }
+        match self.find(&key) {
+            Some(i) if self.open[i].attempt == attempt => {
+                self.close(i, Some(StationStatus::Interrupted), out)
+            }
+            Some(i) if self.open[i].attempt > attempt => {}
+            found => {
+                if let Some(i) = found {
+                    self.close(i, Some(StationStatus::Interrupted), out);
+                }
+                let mut report = StationReport::new(key.0, key.1);
+                report.attempt = attempt.min(u8::MAX.into()) as u8;
+                report.status = StationStatus::Interrupted as u8;
+                self.counters.stations_reported += 1;
+                out.report(&report);
+                self.closed.push(key, attempt);
+            }
+        }
+    }
+
+    /// Closes every open station as interrupted (an agent resuming from its recording: the
+    /// stations it replayed that never ended were open when the agent before it stopped).
+    pub fn interrupt_open(&mut self, out: &mut impl Outputs) -> Vec<StationKey> {
+        let mut keys = Vec::new();
+        while let Some(s) = self.open.first() {
+            keys.push(s.key);
+            self.close(0, Some(StationStatus::Interrupted), out);
+        }
+        keys
+    }
+
+    /// Remembers that `attempt` of `key` was reported by the agent before this one (from its
+    /// recording), so that its repeats and late messages change nothing.
+    pub fn remember_reported(&mut self, key: StationKey, attempt: u16) {
+        if !self.closed.covers(key, attempt) {
+            self.closed.push(key, attempt_of(attempt));
         }
     }
 
@@ -647,7 +768,13 @@ impl<C: ChunkSource> Lifecycle<C> {
         self.open.iter().position(|s| &s.key == key)
     }
 
-    fn open_slot(&mut self, key: StationKey, now: Instant, out: &mut impl Outputs) -> usize {
+    fn open_slot(
+        &mut self,
+        key: StationKey,
+        attempt: u16,
+        now: Instant,
+        out: &mut impl Outputs,
+    ) -> usize {
         if let Some(i) = self.find(&key) {
             return i;
         }
@@ -664,6 +791,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         self.open.push(OpenStation {
             key,
+            attempt,
             begin: None,
             end: None,
             pose: None,
@@ -865,6 +993,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         let s = self.open.swap_remove(i);
         let expected = s.expected_chunks();
         let mut report = s.inspector.report(key.0, key.1, &s.name());
+        report.attempt = s.attempt.min(u8::MAX.into()) as u8;
         let mut chunks = s.tracker.finish(expected);
         chunks.empty = s.empty;
         chunks.oversized = s.oversized;
@@ -887,7 +1016,14 @@ impl<C: ChunkSource> Lifecycle<C> {
         report.status = status as u8;
         out.tally(s.inspector.tally());
         out.report(&report);
-        if s.findings == Some(true)
+        let interrupted = status == StationStatus::Interrupted;
+        if interrupted
+            && s.findings == Some(true)
+            && let Some(stage) = self.findings.as_mut()
+        {
+            // An interrupted try adds nothing: its next attempt scans the station again.
+            stage.abandon(key);
+        } else if s.findings == Some(true)
             && let Some(stage) = self.findings.as_mut()
         {
             let origin = s
@@ -915,17 +1051,15 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         self.counters.stations_reported += 1;
         self.counters.rejected_points += report.rejected;
-        if self.closed.len() == CLOSED_MEMORY {
-            self.closed.pop_front();
-        }
-        self.closed.push_back(key);
+        self.closed.push(key, s.attempt);
         let st = &report.stats;
         info!(
-            "job {} station {} ({}) {:?}: {} points, {} matched, {} rejected, {} no match; chunks \
+            "job {} station {} ({}){} {:?}: {} points, {} matched, {} rejected, {} no match; chunks \
              {} received / {} expected, {} missing; median |d| {:.3} mm, p95 {:.3} mm",
             key.0,
             key.1,
             report.name.as_str(),
+            attempt_text(s.attempt),
             status,
             report.points_received,
             st.count,
@@ -937,6 +1071,15 @@ impl<C: ChunkSource> Lifecycle<C> {
             st.median_abs * 1e3,
             st.p95_abs * 1e3
         );
+    }
+}
+
+/// " attempt n" after a station's name, for a second try or later.
+fn attempt_text(attempt: u16) -> String {
+    if attempt > 1 {
+        format!(" attempt {attempt}")
+    } else {
+        String::new()
     }
 }
 
@@ -1265,5 +1408,92 @@ mod tests {
         let mut e = event(StationEventKind::Begin, station, 1);
         e.printed_height = height;
         e
+    }
+
+    fn with_attempt(mut c: Owned, attempt: u16) -> Owned {
+        c.0.attempt = attempt;
+        c
+    }
+
+    /// A Begin (from a service's history, or repeated) of a station attempt already reported
+    /// opens nothing: the attempt is reported once.
+    #[test]
+    fn a_begin_of_a_reported_attempt_opens_nothing() {
+        let (mut lc, mut out, t) = setup();
+        begin_with_pose(&mut lc, &mut out, t, 5, 1);
+        lc.on_chunk(chunk(5, 0, 10), t, &mut out);
+        lc.on_event(&event(StationEventKind::End, 5, 1), t, &mut out);
+        assert_eq!(out.reports.len(), 1);
+        begin_with_pose(&mut lc, &mut out, t, 5, 1);
+        lc.on_event(&event(StationEventKind::End, 5, 1), t, &mut out);
+        assert_eq!(lc.stations_open(), 0);
+        lc.on_tick(t + Duration::from_secs(60), &mut out);
+        lc.shutdown(&mut out);
+        assert_eq!(out.reports.len(), 1, "{:?}", out.reports);
+    }
+
+    /// The cell sends a station again as attempt 2: the open attempt 1 closes interrupted
+    /// (adding nothing to findings), attempt 2 is processed on its own, and what attempt 1
+    /// still sends is dropped and counted.
+    #[test]
+    fn a_second_attempt_replaces_the_first_and_late_chunks_of_the_first_are_dropped() {
+        let (mut lc, mut out, t) = setup();
+        begin_with_pose(&mut lc, &mut out, t, 2, 2);
+        lc.on_chunk(chunk(2, 0, 10), t, &mut out);
+        let mut begin = event(StationEventKind::Begin, 2, 2);
+        begin.attempt = 2;
+        lc.on_event(&begin, t, &mut out);
+        let mut p = pose(2);
+        p.attempt = 2;
+        lc.on_pose(&p, t, &mut out);
+        assert_eq!(out.reports.len(), 1);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::Interrupted));
+        assert_eq!(out.reports[0].attempt, 1);
+        lc.on_chunk(chunk(2, 1, 10), t, &mut out);
+        assert_eq!(lc.counters.input.chunks_after_close, 1);
+        lc.on_chunk(with_attempt(chunk(2, 0, 10), 2), t, &mut out);
+        lc.on_chunk(with_attempt(chunk(2, 1, 10), 2), t, &mut out);
+        let mut end = event(StationEventKind::End, 2, 2);
+        end.attempt = 2;
+        lc.on_event(&end, t, &mut out);
+        assert_eq!(out.reports.len(), 2);
+        let r = out.reports[1];
+        assert_eq!((r.status(), r.attempt), (Some(StationStatus::Complete), 2));
+        assert_eq!(r.stats.count, 20);
+    }
+
+    /// A chunk past the first of a station never begun: the station began before this agent
+    /// started. It is dropped at once, not held for the station timeout, and the attempt is
+    /// reported interrupted once, so the cell sends it again.
+    #[test]
+    fn a_station_that_began_before_the_agent_is_reported_interrupted_at_once() {
+        let (mut lc, mut out, t) = setup();
+        lc.on_chunk(chunk(9, 4, 10), t, &mut out);
+        lc.on_chunk(chunk(9, 5, 10), t, &mut out);
+        assert_eq!(lc.chunks_waiting(), 0);
+        assert_eq!(out.reports.len(), 1);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::Interrupted));
+        assert_eq!(lc.counters.input.chunks_unknown_station, 1);
+        assert_eq!(lc.counters.input.chunks_after_close, 1);
+        // Its End (and a Begin from history) change nothing.
+        lc.on_event(&event(StationEventKind::End, 9, 6), t, &mut out);
+        assert_eq!(out.reports.len(), 1);
+    }
+
+    /// An agent resuming its job closes what the agent before left open as interrupted; a
+    /// reader of the recording does the same where the resumed agent said so.
+    #[test]
+    fn stations_left_open_are_interrupted_once() {
+        let (mut lc, mut out, t) = setup();
+        begin_with_pose(&mut lc, &mut out, t, 1, 3);
+        lc.on_chunk(chunk(1, 0, 10), t, &mut out);
+        assert_eq!(lc.interrupt_open(&mut out), vec![(1, 1)]);
+        lc.interrupt((1, 1), 1, &mut out);
+        assert_eq!(out.reports.len(), 1);
+        assert_eq!(out.reports[0].status(), Some(StationStatus::Interrupted));
+        // An attempt reported interrupted that was never open here is reported all the same.
+        lc.interrupt((1, 4), 2, &mut out);
+        assert_eq!(out.reports.len(), 2);
+        assert_eq!((out.reports[1].station, out.reports[1].attempt), (4, 2));
     }
 }

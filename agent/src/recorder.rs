@@ -153,9 +153,14 @@ impl Recorder {
         self.small(Recorded::Pose(*p));
     }
 
-    /// Records a station event.
+    /// Records a station event; a Begin is flushed like a report, so that an agent resuming
+    /// after a crash knows the station began and reports it interrupted.
     pub fn event(&self, e: &StationEvent) {
-        self.small(Recorded::Event(*e));
+        if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin) {
+            self.flushed(Recorded::Event(*e));
+        } else {
+            self.small(Recorded::Event(*e));
+        }
     }
 
     /// Records a status.
@@ -437,14 +442,22 @@ impl Writer {
     }
 
     fn open(&mut self, job: u64, part: u32) -> Result<(), String> {
-        let stamp = unix_time_ns() / 1_000_000_000;
-        let name = if part == 1 {
-            format!("job-{job}-{stamp}.mcap")
-        } else {
-            format!("job-{job}-{stamp}-part{part}.mcap")
+        // A file is never overwritten: an agent resuming a job within the second its
+        // predecessor opened a file takes the next second, so names still sort in writing order.
+        let mut stamp = unix_time_ns() / 1_000_000_000;
+        let (path, file) = loop {
+            let name = if part == 1 {
+                format!("job-{job}-{stamp}.mcap")
+            } else {
+                format!("job-{job}-{stamp}-part{part}.mcap")
+            };
+            let path = self.dir.join(name);
+            match File::create_new(&path) {
+                Ok(f) => break (path, f),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => stamp += 1,
+                Err(e) => return Err(format!("{}: {e}", path.display())),
+            }
         };
-        let path = self.dir.join(name);
-        let file = File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
         let bytes = Arc::new(AtomicU64::new(0));
         let mut writer = RecordingWriter::with_compression(
             Counting {

@@ -8,12 +8,14 @@ use serde::de::DeserializeOwned;
 
 use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint};
 
-/// A message type with a versioned name, e.g. `asbuilt.PoseSnapshot.v1`.
+/// A message type with a versioned name, e.g. `asbuilt.PoseSnapshot.v2`.
 pub trait Message: Serialize + DeserializeOwned {
     /// The iceoryx2 type name and the MCAP schema name.
     const TYPE_NAME: &'static str;
-    /// The version this build writes and reads.
+    /// The version this build writes.
     const VERSION: u16;
+    /// The oldest version this build still reads (its layout and encoding are this one's).
+    const OLDEST: u16 = Self::VERSION;
     /// The version this instance claims (the payload's own field).
     fn version(&self) -> u16;
 }
@@ -30,6 +32,16 @@ macro_rules! message {
             }
         }
     };
+    ($ty:ty, $name:literal, $version:literal, oldest $oldest:literal) => {
+        impl $crate::codec::Message for $ty {
+            const TYPE_NAME: &'static str = $name;
+            const VERSION: u16 = $version;
+            const OLDEST: u16 = $oldest;
+            fn version(&self) -> u16 {
+                self.version
+            }
+        }
+    };
 }
 pub(crate) use message;
 
@@ -37,8 +49,8 @@ pub(crate) use message;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DecodeError {
     #[error(
-        "{message} version {found} cannot be read by this build, which reads version {expected}: \
-         use the asbuilt release that wrote it, or re-record"
+        "{message} version {found} cannot be read by this build, which reads versions {oldest} \
+         to {expected}: use the asbuilt release that wrote it, or re-record"
     )]
     /// Written by a release with another version of the message.
     VersionMismatch {
@@ -46,8 +58,10 @@ pub enum DecodeError {
         message: &'static str,
         /// The version the record claims.
         found: u16,
-        /// The version this build reads.
+        /// The newest version this build reads.
         expected: u16,
+        /// The oldest version this build reads.
+        oldest: u16,
     },
     /// Postcard could not decode the record (cut short, or not this message).
     #[error("corrupt {message} record: {reason}")]

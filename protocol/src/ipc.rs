@@ -217,6 +217,10 @@ const REPORT_HISTORY: usize = 16;
 const SMALL_QUEUE: usize = 64;
 const MAX_NODES: usize = 16;
 
+/// The latest station event and pose are kept for a subscriber that connects late: an agent
+/// started again while a station sends learns that station's Begin and pose.
+const CONTROL_HISTORY: usize = 1;
+
 /// A subscriber on a small input service (poses, station events): never overflowing, so the
 /// publisher is held back rather than a message lost.
 fn control_subscriber<T: std::fmt::Debug + ZeroCopySend>(
@@ -230,6 +234,7 @@ fn control_subscriber<T: std::fmt::Debug + ZeroCopySend>(
         .max_subscribers(MAX_INPUT_SUBSCRIBERS)
         .max_nodes(MAX_NODES)
         .subscriber_max_buffer_size(SMALL_QUEUE)
+        .history_size(CONTROL_HISTORY)
         .enable_safe_overflow(false)
         .open_or_create()
         .map_err(|e| exists(name, e.into()))?
@@ -648,6 +653,17 @@ impl CellPorts {
 
     /// Sends one chunk; `header.point_count` is the caller's to set (the agent checks it).
     pub fn send_chunk(&self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), IpcError> {
+        // An agent that started since the last event or pose gets the station's Begin and pose
+        // from their history before this chunk, not at the station's End.
+        use iceoryx2::port::update_connections::UpdateConnections;
+        for updated in [
+            self.stations.update_connections(),
+            self.poses.update_connections(),
+        ] {
+            if let Err(e) = updated {
+                return Err(IpcError::iceoryx("cannot reach a new agent", e));
+            }
+        }
         self.deliver(&format!("chunk {}", header.sequence), || {
             let sample = self
                 .chunks

@@ -3,7 +3,7 @@
 //! Each payload is `#[repr(C)]`, fixed-size and [`ZeroCopySend`](iceoryx2::prelude::ZeroCopySend),
 //! so it can travel through iceoryx2 shared memory without a copy, and the same type encodes to
 //! postcard for the MCAP recorder through [`codec`]. Type names carry the message version
-//! (`asbuilt.PoseSnapshot.v1`): iceoryx2 refuses to connect a publisher and a subscriber whose
+//! (`asbuilt.PoseSnapshot.v2`): iceoryx2 refuses to connect a publisher and a subscriber whose
 //! type names differ, and [`codec::decode`] refuses a record written by another version, so a
 //! version mismatch is always an error and never a misread.
 //!
@@ -55,13 +55,14 @@ pub fn unix_time_ns() -> u64 {
 /// Checks the version field that every payload carries, for payloads that arrive through shared
 /// memory (where the codec's check does not run).
 pub fn check_version<M: Message>(found: u16) -> Result<(), DecodeError> {
-    if found == M::VERSION {
+    if (M::OLDEST..=M::VERSION).contains(&found) {
         Ok(())
     } else {
         Err(DecodeError::VersionMismatch {
             message: M::TYPE_NAME,
             found,
             expected: M::VERSION,
+            oldest: M::OLDEST,
         })
     }
 }

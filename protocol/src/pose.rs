@@ -31,15 +31,15 @@ impl PoseMode {
 /// Where the robot held the scanner when a station was scanned: `T_base_flange` from the
 /// controller, or `T_design_scanner` directly when `mode` says so.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
-#[type_name("asbuilt.PoseSnapshot.v1")]
+#[type_name("asbuilt.PoseSnapshot.v2")]
 #[repr(C)]
 pub struct PoseSnapshot {
     /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// A [`PoseMode`] as `u8`; read it with [`PoseSnapshot::mode`].
     pub mode: u8,
-    /// Zero; keeps the layout free of padding.
-    pub _reserved: u8,
+    /// The station's attempt this pose places (see [`crate::StationEvent::attempt`]).
+    pub attempt: u8,
     /// The station this pose places, as its Begin numbered it.
     pub station: u32,
     /// The job (one print) the station belongs to.
@@ -56,7 +56,7 @@ pub struct PoseSnapshot {
     pub position_sigma: f64,
 }
 
-crate::codec::message!(PoseSnapshot, "asbuilt.PoseSnapshot.v1", 1);
+crate::codec::message!(PoseSnapshot, "asbuilt.PoseSnapshot.v2", 2, oldest 1);
 
 impl PoseSnapshot {
     /// `None` for a value no known sender writes.
@@ -69,7 +69,7 @@ impl PoseSnapshot {
         Self {
             version: Self::VERSION,
             mode: mode as u8,
-            _reserved: 0,
+            attempt: 1,
             station,
             job,
             sequence: 0,

@@ -6,7 +6,7 @@
 //!   (`/scanner/chunks`), message encoding [`MESSAGE_ENCODING`] (the `codec`
 //!   records: a postcard varint version, then the message).
 //! - Each channel's schema is named for the message type and version
-//!   (`asbuilt.ScanChunk.v1`); its data is a text that lists the fields ([`schema_text`]),
+//!   (`asbuilt.ScanChunk.v2`); its data is a text that lists the fields ([`schema_text`]),
 //!   encoding [`SCHEMA_ENCODING`].
 //! - Metadata record [`METADATA_JOB`]: agent version, configuration, design file and its
 //!   SHA-256, calibrations. The design file itself is attached as [`ATTACHMENT_DESIGN`].
@@ -91,7 +91,7 @@ impl Channel {
     pub fn schema_name(self) -> &'static str {
         match self {
             Channel::Poses => PoseSnapshot::TYPE_NAME,
-            Channel::ScanChunks => "asbuilt.ScanChunk.v1",
+            Channel::ScanChunks => "asbuilt.ScanChunk.v2",
             Channel::StationEvents => StationEvent::TYPE_NAME,
             Channel::Deviations => "asbuilt.DeviationChunk.v1",
             Channel::Reports => StationReport::TYPE_NAME,
@@ -105,21 +105,21 @@ impl Channel {
 pub fn schema_text(channel: Channel) -> &'static str {
     match channel {
         Channel::Poses => {
-            "asbuilt.PoseSnapshot v1, postcard: version u16 (varint, also first), mode u8 \
-             (0 flange in base, 1 fixed orientation, 2 scanner in design), _reserved u8, \
+            "asbuilt.PoseSnapshot v2, postcard: version u16 (varint, also first), mode u8 \
+             (0 flange in base, 1 fixed orientation, 2 scanner in design), attempt u8, \
              station u32, job u64, sequence u64, timestamp_ns u64, translation [f64; 3] m, \
              rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m"
         }
         Channel::ScanChunks => {
-            "asbuilt.ScanChunk v1, postcard: version u16 (varint), then ChunkHeader { version \
-             u16, _reserved u16, station u32, job u64, sequence u64, timestamp_ns u64, \
+            "asbuilt.ScanChunk v2, postcard: version u16 (varint), then ChunkHeader { version \
+             u16, attempt u16, station u32, job u64, sequence u64, timestamp_ns u64, \
              point_count u32, last u8, _reserved2 [u8; 3] }, then a sequence (varint length) of \
              ScanPoint { xyz [f32; 3] m scanner frame, intensity f32, flags u16 (bit 0 invalid), \
              returns u8, _reserved u8 }"
         }
         Channel::StationEvents => {
-            "asbuilt.StationEvent v1, postcard: version u16 (varint, also first), kind u8 \
-             (0 begin, 1 end), _reserved u8, station u32, job u64, timestamp_ns u64, layer u32, \
+            "asbuilt.StationEvent v2, postcard: version u16 (varint, also first), kind u8 \
+             (0 begin, 1 end), attempt u8 (1 the first try; 0 in v1), station u32, job u64, timestamp_ns u64, layer u32, \
              expected_chunks u32, expected_points u64, printed_height f64 m (NaN: not printing), \
              name [u8; 48] with length u8"
         }
@@ -130,7 +130,7 @@ pub fn schema_text(channel: Channel) -> &'static str {
              see asbuilt-protocol's deviation.rs for the header's fields"
         }
         Channel::Reports => {
-            "asbuilt.StationReport v1, postcard: the fields of asbuilt-protocol's \
+            "asbuilt.StationReport v2, postcard: the fields of asbuilt-protocol's \
              StationReport in declaration order (statistics in metres, counts, histogram)"
         }
         Channel::Status => {

@@ -135,19 +135,23 @@ pub enum StationStatus {
     TimedOut = 2,
     /// The agent shut down while the station was open.
     Partial = 3,
+    /// The agent stopped unplanned (killed, power lost) while the station was open, or it
+    /// started after the station had begun sending: the cell scans or sends the station again
+    /// as its next attempt. Reported as soon as the agent is back.
+    Interrupted = 4,
 }
 
 /// What the crew gets back when a station closes.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
-#[type_name("asbuilt.StationReport.v1")]
+#[type_name("asbuilt.StationReport.v2")]
 #[repr(C)]
 pub struct StationReport {
     /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// A [`StationStatus`] as `u8`; read it with [`StationReport::status`].
     pub status: u8,
-    /// Zero; keeps the layout free of padding.
-    pub _reserved: u8,
+    /// The station's attempt this report is about (see [`crate::StationEvent::attempt`]).
+    pub attempt: u8,
     /// The station's number within the job, as its Begin numbered it.
     pub station: u32,
     /// The job (one print) the station belongs to.
@@ -180,7 +184,7 @@ pub struct StationReport {
     pub histogram: Histogram,
 }
 
-crate::codec::message!(StationReport, "asbuilt.StationReport.v1", 1);
+crate::codec::message!(StationReport, "asbuilt.StationReport.v2", 2, oldest 1);
 
 impl StationReport {
     /// The status, or `None` for a value no known sender writes.
@@ -190,6 +194,7 @@ impl StationReport {
             1 => Some(StationStatus::Incomplete),
             2 => Some(StationStatus::TimedOut),
             3 => Some(StationStatus::Partial),
+            4 => Some(StationStatus::Interrupted),
             _ => None,
         }
     }
@@ -199,7 +204,7 @@ impl StationReport {
         Self {
             version: Self::VERSION,
             status: StationStatus::Complete as u8,
-            _reserved: 0,
+            attempt: 1,
             station,
             job,
             layer: 0,

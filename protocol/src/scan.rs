@@ -5,13 +5,14 @@ use crate::codec::Message;
 
 /// The user header of a scan chunk; the points follow as a `[ScanPoint]` slice payload.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
-#[type_name("asbuilt.ChunkHeader.v1")]
+#[type_name("asbuilt.ChunkHeader.v2")]
 #[repr(C)]
 pub struct ChunkHeader {
     /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
-    /// Zero; keeps the layout free of padding.
-    pub _reserved: u16,
+    /// The station's attempt the chunk belongs to (see [`crate::StationEvent::attempt`]); a
+    /// u16 so that a version 1 record, which had a zero here, reads the same.
+    pub attempt: u16,
     /// The station the chunk belongs to, as its Begin numbered it.
     pub station: u32,
     /// The job (one print) the station belongs to.
@@ -28,7 +29,7 @@ pub struct ChunkHeader {
     pub _reserved2: [u8; 3],
 }
 
-crate::codec::message!(ChunkHeader, "asbuilt.ChunkHeader.v1", 1);
+crate::codec::message!(ChunkHeader, "asbuilt.ChunkHeader.v2", 2, oldest 1);
 
 /// Required by iceoryx2 to loan a sample with this header; a real header comes from `new`.
 impl Default for ChunkHeader {
@@ -42,7 +43,7 @@ impl ChunkHeader {
     pub fn new(job: u64, station: u32, sequence: u64, point_count: u32) -> Self {
         Self {
             version: Self::VERSION,
-            _reserved: 0,
+            attempt: 1,
             station,
             job,
             sequence,

@@ -31,8 +31,9 @@ pub struct StationSender {
 }
 
 impl StationSender {
-    /// Sends `begin` (its kind set to Begin; name, layer, printed height and what is expected
-    /// as given) and then `pose`, both stamped now.
+    /// Sends `begin` (its kind set to Begin; name, layer, printed height, attempt and what is
+    /// expected as given) and then `pose`, both stamped now. The pose and every chunk carry
+    /// the Begin's job, station and attempt.
     pub fn start<S: StationSink>(
         mut begin: StationEvent,
         mut pose: PoseSnapshot,
@@ -43,6 +44,7 @@ impl StationSender {
         sink.event(&begin)?;
         pose.job = begin.job;
         pose.station = begin.station;
+        pose.attempt = begin.attempt;
         pose.timestamp_ns = sink.now_ns(0);
         sink.pose(&pose)?;
         Ok(Self {
@@ -92,6 +94,7 @@ impl StationSender {
         let b = &self.begin;
         let mut h = ChunkHeader::new(b.job, b.station, self.sequence, self.held.len() as u32);
         h.last = u8::from(last);
+        h.attempt = u16::from(b.attempt);
         self.points += self.held.len() as u64;
         h.timestamp_ns = sink.now_ns(self.points);
         sink.chunk(&h, &self.held)?;

@@ -16,15 +16,17 @@ pub enum StationEventKind {
 
 /// Job control opens and closes a station; `End` says how much should have arrived.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
-#[type_name("asbuilt.StationEvent.v1")]
+#[type_name("asbuilt.StationEvent.v2")]
 #[repr(C)]
 pub struct StationEvent {
     /// The message's version ([`Message::VERSION`] when written by this build).
     pub version: u16,
     /// A [`StationEventKind`] as `u8`; read it with [`StationEvent::kind`].
     pub kind: u8,
-    /// Zero; keeps the layout free of padding.
-    pub _reserved: u8,
+    /// Which try at the station this is: 1 for the first, one more each time the cell scans
+    /// or sends the station again (after an `Interrupted` or incomplete report). 0, from a
+    /// version 1 sender, reads as 1.
+    pub attempt: u8,
     /// The station's number within the job, chosen by the cell.
     pub station: u32,
     /// The job (one print) the station belongs to.
@@ -43,7 +45,7 @@ pub struct StationEvent {
     pub name: FixedText<48>,
 }
 
-crate::codec::message!(StationEvent, "asbuilt.StationEvent.v1", 1);
+crate::codec::message!(StationEvent, "asbuilt.StationEvent.v2", 2, oldest 1);
 
 impl StationEvent {
     /// The kind, or `None` for a value no known sender writes.
@@ -60,7 +62,7 @@ impl StationEvent {
         Self {
             version: Self::VERSION,
             kind: kind as u8,
-            _reserved: 0,
+            attempt: 1,
             station,
             job,
             timestamp_ns: 0,

@@ -90,17 +90,19 @@ fn every_message_round_trips_through_postcard() {
 fn a_record_of_another_version_is_refused_with_a_clear_error() {
     let pose = PoseSnapshot::new(1, 2, PoseMode::SixDof);
     let mut bytes = codec::encode(&pose);
-    bytes[0] = 2; // the leading version varint
+    bytes[0] = 3; // the leading version varint
     let err = codec::decode::<PoseSnapshot>(&bytes).unwrap_err();
     assert_eq!(
         err,
         DecodeError::VersionMismatch {
-            message: "asbuilt.PoseSnapshot.v1",
-            found: 2,
-            expected: 1
+            message: "asbuilt.PoseSnapshot.v2",
+            found: 3,
+            expected: 2,
+            oldest: 1,
         }
     );
-    assert!(err.to_string().contains("version 2"), "{err}");
+    assert!(err.to_string().contains("version 3"), "{err}");
+    assert!(err.to_string().contains("versions 1 to 2"), "{err}");
 
     // A payload that arrived through shared memory carries its version in a field.
     let mut pose = pose;
@@ -209,4 +211,24 @@ fn every_input_reject_is_named_once_and_counted_in_the_total() {
     names.dedup();
     assert_eq!(names.len(), 11);
     assert_eq!(i.total(), (1 << 11) - 1);
+}
+
+/// A version 1 record (a zero where version 2 keeps the attempt) still reads: as version 1,
+/// whose attempt 0 the agent takes as the first.
+#[test]
+fn a_version_1_record_reads_with_its_attempt_zero() {
+    let mut ev = StationEvent::new(StationEventKind::Begin, 3, 4);
+    ev.version = 1;
+    ev.attempt = 0;
+    let mut bytes = codec::encode(&ev);
+    bytes[0] = 1;
+    let back = codec::decode::<StationEvent>(&bytes).unwrap();
+    assert_eq!((back.version, back.attempt, back.station), (1, 0, 4));
+    let mut h = ChunkHeader::new(3, 4, 0, 1);
+    h.version = 1;
+    h.attempt = 0;
+    let mut bytes = codec::encode_scan_chunk(&h, &[ScanPoint::new(1.0, 2.0, 3.0)]);
+    bytes[0] = 1;
+    let (back, points) = codec::decode_scan_chunk(&bytes).unwrap();
+    assert_eq!((back.attempt, points.len()), (0, 1));
 }

@@ -76,6 +76,7 @@ pub struct Agent {
     /// Its folder: the configuration, the log, the recordings.
     pub dir: tempfile::TempDir,
     log: PathBuf,
+    exe: String,
 }
 
 impl Agent {
@@ -93,20 +94,47 @@ impl Agent {
             format!("{config}\n[services]\nprefix = \"{prefix}\"\n"),
         )
         .unwrap();
-        let log = dir.path().join(format!("agent-{}.log", rand_suffix()));
-        let child = Command::new(exe)
-            .arg("--config")
-            .arg(&path)
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .unwrap();
+        let (child, log) = spawn(exe, dir.path());
         Agent {
             child,
             prefix: prefix.to_string(),
             dir,
             log,
+            exe: exe.to_string(),
         }
+    }
+
+    /// Kills the agent with SIGKILL, as a power loss or the OOM killer would, waits `pause` and
+    /// starts it again in its folder on the same configuration, logging to a new file.
+    pub fn kill_and_restart(&mut self, pause: Duration) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        std::thread::sleep(pause);
+        let (child, log) = spawn(&self.exe, self.dir.path());
+        self.child = child;
+        self.log = log;
+    }
+
+    /// Every log of this agent's folder (one per start), oldest first.
+    pub fn logs(&self) -> String {
+        let mut logs: Vec<PathBuf> = std::fs::read_dir(self.dir.path())
+            .unwrap()
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with("agent-"))
+            })
+            .collect();
+        logs.sort_by_key(|p| std::fs::metadata(p).and_then(|m| m.modified()).ok());
+        logs.iter()
+            .map(|p| {
+                format!(
+                    "==> {} <==\n{}",
+                    p.display(),
+                    std::fs::read_to_string(p).unwrap_or_default()
+                )
+            })
+            .collect()
     }
 
     /// The agent's process id.
@@ -168,6 +196,19 @@ impl Drop for Agent {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// Starts the agent `exe` on `dir`'s agent.toml, logging to a new file there.
+fn spawn(exe: &str, dir: &Path) -> (Child, PathBuf) {
+    let log = dir.join(format!("agent-{}.log", rand_suffix()));
+    let child = Command::new(exe)
+        .arg("--config")
+        .arg(dir.join("agent.toml"))
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    (child, log)
 }
 
 fn rand_suffix() -> u32 {

@@ -77,7 +77,7 @@ pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     let outcome = outcome?;
 
     let recording = newest_mcap(&out.join("recording"))?;
-    crate::report_cmd::write(&recording, out, Default::default())?;
+    crate::report_cmd::write(&[out.join("recording")], out, Default::default())?;
     summary(&job, &outcome, out, &recording);
     Ok(if outcome.reports.len() == job.plan().len() {
         ExitCode::SUCCESS

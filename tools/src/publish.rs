@@ -42,6 +42,10 @@ pub struct PublishArgs {
     /// Seconds to wait for the agent to come up, and then for each report.
     #[arg(long, default_value_t = 30.0)]
     wait: f64,
+    /// Tries at a station: one the agent reports interrupted (it was started again while the
+    /// station was sending) is sent again, as its next attempt, up to this many times.
+    #[arg(long, default_value_t = 5)]
+    attempts: u8,
 }
 
 /// The cell's side of a running agent's services, waiting up to `wait` for it to come up. The
@@ -94,21 +98,25 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         args.rate
     );
 
+    if args.attempts == 0 {
+        bail!("--attempts must be at least 1");
+    }
     let started = Instant::now();
     let mut sent_points = 0u64;
     let mut reports = Vec::new();
-    let mut expected = Vec::new();
-    for (n, st) in stations.iter().enumerate() {
-        let station = n as u32;
+    let send = |station: u32, attempt: u8, sent_points: &mut u64| -> Result<()> {
+        let st = &stations[station as usize];
         let file = ScanFile::open(&st.scan)?;
-        eprintln!("station {}: pose from {}", st.id, st.pose_source);
+        if attempt == 1 {
+            eprintln!("station {}: pose from {}", st.id, st.pose_source);
+        }
         let declared = file.scans[st.scan_index].points;
         let chunks = declared.map_or(0, |n| n.div_ceil(args.chunk_points as u64));
-
         let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
         begin.name = FixedText::truncated(&st.id);
         begin.expected_chunks = chunks as u32;
         begin.expected_points = declared.unwrap_or(0);
+        begin.attempt = attempt;
         let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
@@ -117,23 +125,55 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
             ports: &ports,
             rate,
             started,
-            sent_before: sent_points,
+            sent_before: *sent_points,
         };
         let mut sender = StationSender::start(begin, pose, &mut sink)?;
         file.stream(st.scan_index, args.chunk_points, &mut |chunk| {
             Ok(sender.chunk(chunk, &mut sink)?)
         })?;
-        sent_points += sender.points_sent();
+        *sent_points += sender.points_sent();
         sender.finish(&mut sink)?;
-        expected.push(station);
+        Ok(())
+    };
+    for station in 0..stations.len() as u32 {
+        send(station, 1, &mut sent_points)?;
         collect_reports(&ports, args.job, &mut reports, Duration::ZERO)?;
     }
-    let deadline = Instant::now() + wait;
-    while reports.len() < expected.len() && Instant::now() < deadline {
+    let expected = stations.len();
+    // The attempt of each station sent last: reports of earlier ones (published again by an
+    // agent that resumed) no longer count.
+    let mut sent = vec![1u8; expected];
+    let mut deadline = Instant::now() + wait;
+    loop {
+        reports.retain(|r| {
+            sent.get(r.station as usize)
+                .is_some_and(|&a| r.attempt.max(1) >= a)
+        });
+        // A station reported interrupted goes again, as its next attempt.
+        let again: Vec<(u32, u8)> = reports
+            .iter()
+            .filter(|r| r.status() == Some(StationStatus::Interrupted))
+            .filter(|r| r.attempt.max(1) < args.attempts)
+            .map(|r| (r.station, r.attempt.max(1) + 1))
+            .collect();
+        for &(station, attempt) in &again {
+            eprintln!(
+                "station {} attempt {} was interrupted: sending it again as attempt {attempt}",
+                stations[station as usize].id,
+                attempt - 1
+            );
+            reports.retain(|r| r.station != station);
+            sent[station as usize] = attempt;
+            send(station, attempt, &mut sent_points)?;
+            deadline = Instant::now() + wait;
+        }
+        if reports.len() >= expected && again.is_empty() || Instant::now() >= deadline {
+            break;
+        }
         collect_reports(&ports, args.job, &mut reports, Duration::from_millis(100))?;
     }
-    tell_rate("sent", sent_points, started, reports.len(), expected.len());
-    Ok(reports_verdict(expected.len(), &reports, args.wait))
+    tell_rate("sent", sent_points, started, reports.len(), expected);
+    Ok(reports_verdict(expected, &reports, args.wait))
 }
 
 /// Prints how many points went out how fast, and how many stations have reported. Shared with
@@ -182,9 +222,16 @@ pub(crate) fn collect_reports(
         .map_err(|e| anyhow::anyhow!("cannot read reports: {e:?}"))?
     {
         let r = *r.payload();
-        if r.job != job || reports.iter().any(|x| x.station == r.station) {
+        // Reports come at least once (an agent resuming its job publishes them again); a later
+        // attempt of a station replaces an earlier one.
+        if r.job != job
+            || reports
+                .iter()
+                .any(|x| x.station == r.station && x.attempt >= r.attempt)
+        {
             continue;
         }
+        reports.retain(|x| x.station != r.station);
         println!(
             "station {:<12} {:?}: {} points, {} matched, median |d| {:.3} mm, p95 {:.3} mm",
             r.name.as_str(),

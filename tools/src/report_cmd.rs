@@ -19,7 +19,7 @@ use asbuilt_core::{C2mParams, Units};
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{
     ChunkHeader, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
-    StationFindings, StationReport,
+    StationFindings, StationReport, StationStatus,
 };
 use clap::Args;
 use std::time::{Duration, Instant};
@@ -31,8 +31,14 @@ use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 /// `asbuilt report`'s arguments.
 #[derive(Args)]
 pub struct ReportArgs {
-    /// The recording (from the agent's recorder or `asbuilt pack`).
-    recording: PathBuf,
+    /// The recording (from the agent's recorder or `asbuilt pack`); several files of one job
+    /// (a job the agent resumed after a stop, or rotated into parts); or the agent's recording
+    /// folder, for its newest job.
+    #[arg(required = true, value_name = "RECORDING")]
+    recordings: Vec<PathBuf>,
+    /// With a folder: the job to report instead of the newest.
+    #[arg(long)]
+    job: Option<u64>,
     /// Output folder for report.json and report.html.
     #[arg(long, default_value = "out/report")]
     out: PathBuf,
@@ -56,18 +62,19 @@ pub struct ReportArgs {
 /// Writes report.json and report.html for a recording and prints its summary table.
 pub fn run(args: ReportArgs) -> Result<ExitCode> {
     write(
-        &args.recording,
+        &args.recordings,
         &args.out,
         Overrides {
             tolerance: args.tolerance,
             max_distance: args.max_distance,
             limits: args.limits,
             png: args.png,
+            job: args.job,
         },
     )
     .map_err(|e| {
         // Every refusal names the recording it is about.
-        let path = args.recording.display().to_string();
+        let path = args.recordings[0].display().to_string();
         if format!("{e:#}").contains(&path) {
             e
         } else {
@@ -82,8 +89,16 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
 struct Collected {
     /// Every station's inputs and outputs, for [`read_back`]; `None` for the command.
     kept: Option<BTreeMap<(u64, u32), Kept>>,
+    /// Every station attempt's section, as reported.
     done: Vec<((u64, u32), Section)>,
     total: Tally,
+    /// The tally of the station closing now, until its report says whether it counts.
+    closing: Option<Tally>,
+    /// Each station's tally, of its latest attempt that was not interrupted: a station counts
+    /// once in the overall section, however often it was tried.
+    tallies: BTreeMap<(u64, u32), Tally>,
+    /// Station attempts reported interrupted: (job, station, attempt, name).
+    interrupted: Vec<(u64, u32, u8, String)>,
     buffer: Vec<PointDeviation>,
     /// The latest findings of each scan layer (by job and printed height).
     findings: BTreeMap<(u64, u64), StationFindings>,
@@ -96,6 +111,9 @@ impl Collected {
             kept: None,
             done: Vec::new(),
             total: Tally::new(stats),
+            closing: None,
+            tallies: BTreeMap::new(),
+            interrupted: Vec::new(),
             buffer: Vec::new(),
             findings: BTreeMap::new(),
             maps,
@@ -137,16 +155,33 @@ impl Outputs for Collected {
     }
 
     fn tally(&mut self, tally: &Tally) {
-        self.total.merge(tally);
+        self.closing = Some(tally.clone());
     }
 
     fn report(&mut self, r: &StationReport) {
-        if let Some(k) = &mut self.kept {
-            k.entry((r.job, r.station)).or_default().report = Some(*r);
+        let key = (r.job, r.station);
+        let status = r.status();
+        let closing = self.closing.take();
+        if status == Some(StationStatus::Interrupted) {
+            // Its next attempt sends the station again: what this one sent counts nowhere.
+            self.maps.station_dropped(key);
+            self.interrupted
+                .push((r.job, r.station, r.attempt, r.name.as_str().to_string()));
+        } else {
+            self.maps.station_done(key, r.printed_height);
+            if let Some(t) = closing {
+                self.tallies.insert(key, t);
+            }
         }
-        self.maps.station_done((r.job, r.station), r.printed_height);
-        self.done
-            .push(((r.job, r.station), Section::from_report(r, None, 0)));
+        if let Some(k) = &mut self.kept {
+            k.entry(key).or_default().report = Some(*r);
+        }
+        let mut section = Section::from_report(r, None, 0);
+        section.attempt = (r.attempt > 1).then_some(r.attempt);
+        section.status = status
+            .filter(|s| *s != StationStatus::Complete)
+            .map(|s| format!("{s:?}"));
+        self.done.push((key, section));
     }
 
     fn findings(&mut self, f: &StationFindings) {
@@ -173,17 +208,26 @@ pub struct Overrides {
     pub limits: Vec<asbuilt_core::verdict::LayerLimit>,
     /// Write the maps as PNG files too.
     pub png: bool,
+    /// With a recording folder, the job to read instead of the newest.
+    pub job: Option<u64>,
 }
 
-/// Writes `out/report.json` and `out/report.html` for `recording`.
-pub fn write(
-    recording_path: &std::path::Path,
-    out: &std::path::Path,
-    overrides: Overrides,
-) -> Result<()> {
+/// Writes `out/report.json` and `out/report.html` for the job `recordings` name (see
+/// [`crate::recording_file::job_files`]).
+pub fn write(recordings: &[PathBuf], out: &std::path::Path, overrides: Overrides) -> Result<()> {
     let png = overrides.png;
-    let (report, _) = read(recording_path, overrides, false)?;
-    write_outputs(recording_path, out, &report)?;
+    let files = crate::recording_file::job_files(recordings, overrides.job)?;
+    let (report, _) = read(&files, overrides, false)?;
+    let source = match files.as_slice() {
+        [one] => one.display().to_string(),
+        many => format!(
+            "{} files from {} to {}",
+            many.len(),
+            many[0].display(),
+            many[many.len() - 1].display()
+        ),
+    };
+    write_outputs(&source, out, &report)?;
     if png {
         crate::maps_png::write(&report, out)?;
     }
@@ -220,17 +264,23 @@ pub fn read_back(
     recording_path: &std::path::Path,
     overrides: Overrides,
 ) -> Result<(Report, Vec<StationReadBack>)> {
-    read(recording_path, overrides, true)
+    let files = crate::recording_file::job_files(&[recording_path.to_path_buf()], overrides.job)?;
+    read(&files, overrides, true)
 }
 
+/// The job of `files` (oldest first), read back: its settings and design from the first file,
+/// its stations from all of them in turn.
 fn read(
-    path: &std::path::Path,
+    files: &[PathBuf],
     overrides: Overrides,
     keep: bool,
 ) -> Result<(Report, Vec<StationReadBack>)> {
-    let bytes = crate::recording_file::map(path)?;
-    let (job, designs) = RecordedJob::read(path, &bytes, overrides)?;
-    let mut replayed = replay_stations(path, &bytes, &job, designs, keep)?;
+    let first = &files[0];
+    let bytes = crate::recording_file::map(first)?;
+    let (job, designs) = RecordedJob::read(first, &bytes, overrides)?;
+    same_design(files, &bytes)?;
+    drop(bytes);
+    let mut replayed = replay_stations(files, &job, designs, keep)?;
     let kept = std::mem::take(&mut replayed.kept);
     let stations = kept
         .into_iter()
@@ -356,6 +406,26 @@ impl RecordedJob {
                     .to_string(),
             );
         }
+        if !replayed.interrupted.is_empty() {
+            let names: Vec<String> = replayed
+                .interrupted
+                .iter()
+                .map(|(_, station, attempt, name)| {
+                    let name = if name.is_empty() {
+                        format!("station {station}")
+                    } else {
+                        name.clone()
+                    };
+                    format!("{name} attempt {attempt}")
+                })
+                .collect();
+            warnings.push(format!(
+                "{} station attempt(s) were interrupted (the agent stopped, or started while they \
+                 were sending) and count nowhere; each station counts its latest attempt: {}",
+                names.len(),
+                names.join(", ")
+            ));
+        }
         if replayed.unfinished > 0 {
             warnings.push(format!(
                 "{} station(s) have no end in the recording: reported as far as recorded",
@@ -418,20 +488,44 @@ struct Replayed {
     /// The findings drawn again differ from those the agent recorded.
     findings_differ: bool,
     unfinished: usize,
+    /// Station attempts the agent reported interrupted: (job, station, attempt, name).
+    interrupted: Vec<(u64, u32, u8, String)>,
     maps: Vec<ScanLayerMaps>,
     kept: BTreeMap<(u64, u32), Kept>,
 }
 
+/// Every file of a job was recorded against the design of the first: an agent started again
+/// with another design file cannot go on with the same job.
+fn same_design(files: &[PathBuf], first: &[u8]) -> Result<()> {
+    let sha = |path: &std::path::Path, bytes: &[u8]| -> Result<String> {
+        let (meta, _) =
+            recording::job(bytes).map_err(|e| crate::recording_file::unreadable(path, e))?;
+        Ok(meta.map(|m| m.design_sha256).unwrap_or_default())
+    };
+    let expected = sha(&files[0], first)?;
+    for f in &files[1..] {
+        let found = sha(f, &crate::recording_file::map(f)?)?;
+        if found != expected {
+            bail!(
+                "{} was recorded against another design (sha256 {found}) than {} ({expected}): \
+                 the files are not one job",
+                f.display(),
+                files[0].display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
-/// recording read back gives what the live agent gave, whatever order its file holds.
+/// recording read back gives what the live agent gave, whatever order its file holds. The
+/// files of a job are read in turn, as the agents that wrote them took their inputs.
 fn replay_stations(
-    path: &std::path::Path,
-    bytes: &[u8],
+    files: &[PathBuf],
     job: &RecordedJob,
     designs: PrintedDesigns,
     keep: bool,
 ) -> Result<Replayed> {
-    let bad = |e| crate::recording_file::unreadable(path, e);
     let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
         designs,
         job.frames.clone(),
@@ -463,26 +557,22 @@ fn replay_stations(
     let mut recorded = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
-    for m in recording::messages_in_agent_order(bytes).map_err(bad)? {
-        let (log_time, m) = m.map_err(bad)?;
-        // The recording's clock, so that a chunk's wait for its pose is measured as it was.
-        let t0 = *first_time.get_or_insert(log_time);
-        let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
-        out.keep_input(&m);
-        match m {
-            Recorded::Event(e) => lifecycle.on_event(&e, now, &mut out),
-            Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
-            // The latest findings of each scan layer cover all its stations so far.
-            Recorded::Findings(f) => {
-                recorded.insert(scan_layer_of(&f), *f);
-            }
-            Recorded::Chunk(h, pts) => {
-                if lifecycle.awaits_design(&h) {
-                    lifecycle.wait_designs(now, &mut out);
+    for path in files {
+        let bytes = crate::recording_file::map(path)?;
+        let bad = |e| crate::recording_file::unreadable(path, e);
+        for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
+            let (log_time, m) = m.map_err(bad)?;
+            // The recording's clock, so that a chunk's wait for its pose is measured as it was.
+            let t0 = *first_time.get_or_insert(log_time);
+            let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
+            out.keep_input(&m);
+            match m {
+                // The latest findings of each scan layer cover all its stations so far.
+                Recorded::Findings(f) => {
+                    recorded.insert(scan_layer_of(&f), *f);
                 }
-                lifecycle.on_chunk((h, pts), now, &mut out);
+                m => asbuilt_agent::replay::feed(&mut lifecycle, m, now, &mut out),
             }
-            _ => {}
         }
     }
     lifecycle.wait_designs(Instant::now(), &mut out);
@@ -495,16 +585,22 @@ fn replay_stations(
     let unfinished = lifecycle.stations_open();
     lifecycle.shutdown(&mut out);
     let Collected {
-        mut done,
-        total,
+        done,
+        mut total,
+        tallies,
+        interrupted,
         findings: drawn,
         maps,
         kept,
         ..
     } = out;
-    done.sort_by_key(|(k, _)| *k);
+    // A station counts once: its latest attempt (attempts are reported in order).
+    let done: BTreeMap<(u64, u32), Section> = done.into_iter().collect();
+    for t in tallies.values() {
+        total.merge(t);
+    }
     if done.is_empty() {
-        bail!("{} holds no station", path.display());
+        bail!("{} holds no station", files[0].display());
     }
     let (findings, findings_differ) = if job.findings.is_some() {
         // Bytes, not floats: NaN fields compare equal as bytes.
@@ -518,30 +614,24 @@ fn replay_stations(
     };
     Ok(Replayed {
         maps: maps.finish(),
-        stations: done.into_iter().map(|(_, s)| s).collect(),
+        stations: done.into_values().collect(),
         total,
         findings,
         findings_differ,
         unfinished,
+        interrupted,
         kept: kept.unwrap_or_default(),
     })
 }
 
-fn write_outputs(
-    recording: &std::path::Path,
-    out: &std::path::Path,
-    report: &Report,
-) -> Result<()> {
+fn write_outputs(source: &str, out: &std::path::Path, report: &Report) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let json = out.join("report.json");
     std::fs::write(&json, serde_json::to_string_pretty(report)?)
         .with_context(|| format!("cannot write {}", json.display()))?;
     let html = out.join("report.html");
-    std::fs::write(
-        &html,
-        asbuilt_report::html::page(report, &recording.display().to_string()),
-    )
-    .with_context(|| format!("cannot write {}", html.display()))?;
+    std::fs::write(&html, asbuilt_report::html::page(report, source))
+        .with_context(|| format!("cannot write {}", html.display()))?;
     print!("{}", summary_table(report));
     print!("{}", asbuilt_report::verdict_text(report));
     eprintln!("wrote {} and {}", json.display(), html.display());

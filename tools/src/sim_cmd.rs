@@ -56,6 +56,10 @@ pub struct JobArgs {
     /// Job number.
     #[arg(long, default_value_t = 1)]
     pub job: u64,
+    /// Tries at a station before the cell gives up on it: a station reported interrupted or
+    /// unfinished, or whose sending fails (the agent stopped), is scanned and sent again.
+    #[arg(long, default_value_t = 5)]
+    pub attempts: u8,
 }
 
 impl JobArgs {
@@ -95,6 +99,7 @@ impl JobArgs {
             rate: crate::publish::parse_rate(&self.rate)?,
             step_deg: self.step_deg,
             job: self.job,
+            attempts: self.attempts,
         })
     }
 
@@ -179,6 +184,22 @@ pub fn run_with_progress(
         SimEvent::Sent { .. } => bar.inc(1),
         SimEvent::Report(r) => say(&bar, report_line(r)),
         SimEvent::Findings(f) => say(&bar, findings_line(f)),
+        SimEvent::Retry {
+            station,
+            attempt,
+            why,
+        } => {
+            let next = if attempt < job.max_attempts {
+                bar.inc_length(1);
+                format!("sending it again as attempt {}", attempt + 1)
+            } else {
+                format!("giving up on it after {attempt} attempt(s)")
+            };
+            say(
+                &bar,
+                format!("  {:<10} attempt {attempt} {why}: {next}", station.name),
+            )
+        }
     })?;
     bar.finish_and_clear();
     eprintln!(
@@ -188,7 +209,27 @@ pub fn run_with_progress(
         outcome.reports.len(),
         outcome.findings.len()
     );
+    if !outcome.retries.is_empty() {
+        eprintln!("{}", interruptions_line(&plan, &outcome));
+    }
     Ok(outcome)
+}
+
+/// The station attempts that did not end complete, in one line: "2 interruption(s): L016-S4
+/// attempt 1 (reported Interrupted), …".
+pub fn interruptions_line(plan: &[asbuilt_sim::PlannedStation], o: &SimOutcome) -> String {
+    let items: Vec<String> = o
+        .retries
+        .iter()
+        .map(|(station, attempt, why)| {
+            let name = plan
+                .iter()
+                .find(|p| p.index == *station)
+                .map_or_else(|| format!("station {station}"), |p| p.name.clone());
+            format!("{name} attempt {attempt} ({why})")
+        })
+        .collect();
+    format!("{} interruption(s): {}", items.len(), items.join(", "))
 }
 
 /// A line above the progress bar, or on stderr when there is no terminal to draw one on.
@@ -274,6 +315,21 @@ fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {
         eprintln!(
             "error: {} of {expected} station(s) got no report",
             expected - o.reports.len()
+        );
+        return ExitCode::from(1);
+    }
+    let unfinished: Vec<String> = o
+        .reports
+        .iter()
+        .filter(|r| r.status() != Some(StationStatus::Complete))
+        .map(|r| format!("{} ({:?})", r.name.as_str(), r.status()))
+        .collect();
+    if !unfinished.is_empty() {
+        eprintln!(
+            "error: {} station(s) never ended complete in {} attempt(s): {}",
+            unfinished.len(),
+            job.max_attempts,
+            unfinished.join(", ")
         );
         return ExitCode::from(1);
     }

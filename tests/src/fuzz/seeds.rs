@@ -65,7 +65,7 @@ pub fn write_seeds(dir: &Path, shared: &Path) -> Result<()> {
     for (i, m) in wire_messages().iter().enumerate() {
         std::fs::write(d.join(format!("{i:02}-{:?}.bin", m.channel())), m.encode())?;
     }
-    for target in ["recording", "report"] {
+    for target in ["recording", "report", "resume"] {
         let d = sub(target)?;
         for compress in [false, true] {
             let path = d.join(format!(

@@ -223,7 +223,7 @@ fn every_bad_input_is_counted_logged_and_survived() {
         "declares 50 points but carries 40",
         "chunk 0 repeated",
         "more than limits.max_points_per_chunk",
-        "ChunkHeader.v1 version 9 cannot be read",
+        "ChunkHeader.v2 version 9 cannot be read",
         "pose rejected",
         "End for a station that is not open",
         "unknown kind 7",
@@ -298,9 +298,28 @@ fn a_killed_publisher_times_out_and_a_restarted_one_is_served() {
     let full = report_of(&cell.reports(1, LONG), 2, 0);
     assert_eq!(full.status(), Some(StationStatus::Complete));
     assert_eq!(full.stats.count, 100_000);
+    // Any agent cleans up every dead node it finds: one of another test's agents, started at
+    // the same time, may have done it first; then no dead node is left.
+    let no_dead_node = || {
+        use iceoryx2::prelude::*;
+        let mut dead = 0;
+        Node::<asbuilt_protocol::ipc::Ipc>::list(Config::global_config(), |n| {
+            dead += usize::from(matches!(n, NodeState::Dead(_)));
+            CallbackProgression::Continue
+        })
+        .unwrap();
+        dead == 0
+    };
+    let start = Instant::now();
+    let mut cleaned = false;
+    while !cleaned && start.elapsed() < LONG {
+        cleaned = cell
+            .status_where(Duration::from_millis(500), |s| s.dead_nodes_cleaned >= 1)
+            .is_some()
+            || no_dead_node();
+    }
     assert!(
-        cell.status_where(LONG, |s| s.dead_nodes_cleaned >= 1)
-            .is_some(),
+        cleaned,
         "the dead publisher's node was never cleaned up; log:\n{}",
         agent.log()
     );

@@ -6,6 +6,7 @@ mod agent;
 mod autzen;
 mod bunny;
 mod calibrate;
+mod crash;
 mod fuzz;
 mod inspect_methods;
 mod recording;

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
@@ -170,16 +171,61 @@ class Cell:
     what the robot reports in `pose_mode` ("design_scanner", "fixed" or "6dof"). `receive`
     returns the agent's reports and findings that arrived, waiting up to `timeout` seconds for
     the first. One thread only: the ports are not shared between threads.
+
+    A report's `status` is one of `STATUS`; `Interrupted` means the agent stopped (or started
+    again) while the station was sending: send it again with `attempt=` one more.
+    `deliver_station` does that for you.
     """
+
+    STATUS = ("Complete", "Incomplete", "TimedOut", "Partial", "Interrupted")
 
     def __init__(self, prefix: str, *, max_points_per_chunk: int = 16384, wait: float = 10.0):
         self._cell = _Cell(prefix, max_points_per_chunk=max_points_per_chunk, wait=wait)
+        self._kept: List[Dict[str, Any]] = []
 
     def send_station(self, station: int, points, translation, rotation_xyzw, **options) -> int:
         return self._cell.send_station(station, points, translation, rotation_xyzw, **options)
 
     def receive(self, timeout: float = 0.0) -> List[Dict[str, Any]]:
-        return [_public(m) for m in self._cell.receive(timeout)]
+        kept, self._kept = self._kept, []
+        return kept + [_public(m) for m in self._cell.receive(0.0 if kept else timeout)]
+
+    def deliver_station(self, station: int, points, translation, rotation_xyzw, *,
+                        attempts: int = 5, timeout: float = 60.0,
+                        **options) -> Dict[str, Any]:
+        """Sends a station and waits for its report; an attempt that does not end `Complete`
+        (the agent was killed and started again, a chunk went missing) is sent again as the
+        next attempt, up to `attempts`. Returns the last attempt's report, with the earlier
+        ones under `"earlier"`. Other messages that arrive meanwhile are kept for `receive`."""
+        job = options.get("job", 1)
+        earlier: List[Dict[str, Any]] = []
+        for attempt in range(1, attempts + 1):
+            self.send_station(station, points, translation, rotation_xyzw, attempt=attempt,
+                              **options)
+            report = self._wait_for_report(job, station, attempt, timeout)
+            if report is None:
+                raise TimeoutError(f"station {station} attempt {attempt}: no report within "
+                                   f"{timeout} s; is the agent running?")
+            if self.STATUS[report["status"]] == "Complete" or attempt == attempts:
+                report["earlier"] = earlier
+                return report
+            earlier.append(report)
+        raise AssertionError("unreachable")
+
+    def _wait_for_report(self, job: int, station: int, attempt: int, timeout: float):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for m in [_public(m) for m in self._cell.receive(0.2)]:
+                mine = (m["kind"] == "report" and m["job"] == job and m["station"] == station
+                        and max(m["attempt"], 1) == attempt)
+                if mine:
+                    return m
+                # Reports come at least once: an agent resuming its job publishes its recorded
+                # reports again; an earlier attempt's is not news.
+                if m["kind"] == "report" and m["station"] == station and m["job"] == job:
+                    continue
+                self._kept.append(m)
+        return None
 
 
 class SimulatedJob(_SimulatedJob):

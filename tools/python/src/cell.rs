@@ -117,11 +117,12 @@ impl Cell {
 
     /// Sends one station: Begin (with its name, layer and printed height), the pose, the points
     /// in chunks of at most `chunk_points`, End. `translation` and `rotation_xyzw` are the pose
-    /// the robot reports, in the frame `pose_mode` says. Returns the points sent.
+    /// the robot reports, in the frame `pose_mode` says. `attempt` numbers a station sent
+    /// again (after an interrupted report): 1 the first time. Returns the points sent.
     #[pyo3(signature = (
         station, points, translation, rotation_xyzw, *, job = 1, name = "", layer = 0,
         printed_height = f64::NAN, position_sigma = 0.001, pose_mode = "design_scanner",
-        intensity = None, flags = None, chunk_points = None
+        intensity = None, flags = None, chunk_points = None, attempt = 1
     ))]
     #[allow(clippy::too_many_arguments)] // a station's Begin and pose, one keyword each
     fn send_station(
@@ -139,7 +140,11 @@ impl Cell {
         intensity: Option<PyReadonlyArray1<'_, f32>>,
         flags: Option<PyReadonlyArray1<'_, u16>>,
         chunk_points: Option<usize>,
+        attempt: u8,
     ) -> PyResult<u64> {
+        if attempt == 0 {
+            return Err(PyValueError::new_err("attempt counts from 1"));
+        }
         let chunk = chunk_points.unwrap_or(self.max_points_per_chunk);
         if chunk == 0 || chunk > self.max_points_per_chunk {
             return Err(PyValueError::new_err(format!(
@@ -154,6 +159,7 @@ impl Cell {
         begin.printed_height = printed_height;
         begin.expected_chunks = pts.len().div_ceil(chunk) as u32;
         begin.expected_points = pts.len() as u64;
+        begin.attempt = attempt;
         let mut pose = PoseSnapshot::new(job, station, self::pose_mode(pose_mode)?);
         pose.translation = translation;
         pose.rotation_xyzw = rotation_xyzw;
@@ -315,6 +321,7 @@ impl SimulatedJob {
             },
             step_deg: step_deg.unwrap_or(d.step_deg),
             job: job.unwrap_or(d.job),
+            attempts: d.attempts,
         };
         Ok(Self {
             job: spec

@@ -62,6 +62,35 @@ def test_a_python_cell_gets_reports_and_findings(tmp_path, monkeypatch):
     assert [len(s.scan_points) for s in rec.stations] == [sent[0], sent[1]]
 
 
+def test_a_station_sent_again_is_a_new_attempt_reported_once(tmp_path):
+    job = asbuilt.SimulatedJob(part="wall", scan_after=[8], stations=1, step_deg=0.15)
+    job.design.write_stl(tmp_path / "design.stl")
+    prefix = f"asbuilt-pytest-attempt-{os.getpid()}"
+    with asbuilt.Agent(agent_config(prefix, job), tmp_path) as agent:
+        agent.wait_until_serving()
+        cell = asbuilt.Cell(prefix, wait=30.0)
+        st = job.stations()[0]
+        scan = job.scan(0)
+        args = (0, scan["points"], st["translation"], st["rotation_xyzw"])
+        options = dict(job=job.job, name=st["name"], layer=st["printed"] - 1,
+                       printed_height=st["printed_height"], pose_mode=st["pose_mode"])
+        first = cell.deliver_station(*args, **options)
+        assert asbuilt.Cell.STATUS[first["status"]] == "Complete", agent.log()
+        assert first["attempt"] == 1 and first["earlier"] == []
+        # The same station again, as the cell sends it after an interrupted report: a new
+        # attempt, processed and reported on its own; the first is not reported again.
+        cell.send_station(*args, attempt=2, **options)
+        deadline = time.monotonic() + 60
+        reports = []
+        while time.monotonic() < deadline and not reports:
+            reports = [m for m in cell.receive(timeout=1.0) if m["kind"] == "report"]
+        assert [(r["station"], r["attempt"]) for r in reports] == [(0, 2)], agent.log()
+        assert reports[0]["points_received"] == first["points_received"]
+        assert reports[0]["stats"] == first["stats"]
+        with pytest.raises(ValueError, match="attempt counts from 1"):
+            cell.send_station(*args, attempt=0, **options)
+
+
 def test_a_cell_without_an_agent_says_so():
     with pytest.raises(RuntimeError, match="no asbuilt-agent is serving"):
         asbuilt.Cell(f"asbuilt-pytest-none-{os.getpid()}", wait=0.2)

@@ -450,6 +450,11 @@ impl MapCollector {
             })
     }
 
+    /// Forgets a station's points: it was interrupted, and its next attempt sends them again.
+    pub fn station_dropped(&mut self, station: (u64, u32)) {
+        self.stations.remove(&station);
+    }
+
     /// `station` reported, at `printed_height`: its points join its scan layer's.
     pub fn station_done(&mut self, station: (u64, u32), printed_height: f64) {
         let Some(sides) = self.stations.remove(&station) else {

@@ -103,6 +103,13 @@ pub struct Parameters {
 pub struct Section {
     /// The station's id, or `overall`.
     pub id: String,
+    /// How the station's report ended, when not complete (`Incomplete`, `TimedOut`,
+    /// `Partial`, `Interrupted`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub status: Option<String>,
+    /// Which try at the station this is, from the second on (the cell sent it again).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub attempt: Option<u8>,
     /// The scan file it was read from (offline).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scan: Option<String>,
@@ -246,6 +253,8 @@ impl Section {
         let rejected = rej.total() + malformed_lines;
         Self {
             id: r.name.as_str().to_string(),
+            status: None,
+            attempt: None,
             scan,
             points: r.points_received + malformed_lines,
             valid: r.points_received - rej.total(),

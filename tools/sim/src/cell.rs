@@ -13,7 +13,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
-    StationFindings, StationReport, StationSender, StationSink, codec, unix_time_ns,
+    StationFindings, StationReport, StationSender, StationSink, StationStatus, codec, unix_time_ns,
 };
 use nalgebra::{Isometry3, Point3};
 use rand::SeedableRng;
@@ -53,6 +53,10 @@ pub struct SimJob {
     /// Wait for a station's report before the next station begins, as a scanner carried from
     /// station to station does. Off, the cell runs ahead of the agent as far as its queues let it.
     pub one_station_at_a_time: bool,
+    /// Tries at a station before the cell gives up on it: a station that is reported
+    /// interrupted or unfinished, or whose sending fails (the agent stopped), is scanned and sent
+    /// again as its next attempt.
+    pub max_attempts: u8,
 }
 
 impl SimJob {
@@ -75,6 +79,7 @@ impl SimJob {
             chunk_points: 16_384,
             rate: Some(1.0e6),
             one_station_at_a_time: true,
+            max_attempts: 5,
         }
     }
 
@@ -210,8 +215,18 @@ pub enum SimEvent<'a> {
         /// Seconds the sending took.
         seconds: f64,
     },
-    /// The agent reported a station.
+    /// The agent reported a station attempt.
     Report(&'a StationReport),
+    /// A station attempt did not end complete: the cell tries the station again (when
+    /// `attempt` is below the job's `max_attempts`).
+    Retry {
+        /// The station.
+        station: &'a PlannedStation,
+        /// The attempt that did not end complete.
+        attempt: u8,
+        /// What happened to it.
+        why: &'a str,
+    },
     /// The agent sent a station's findings.
     Findings(&'a StationFindings),
 }
@@ -223,8 +238,15 @@ pub struct SimOutcome {
     pub points_sent: u64,
     /// Seconds the whole job took, up to its last report (or the end of the wait for it).
     pub seconds: f64,
-    /// The reports, as they came.
+    /// Each station's report of its latest attempt, in the order stations were first reported.
     pub reports: Vec<StationReport>,
+    /// Every attempt's report, as they came (a report published again comes once).
+    pub attempts: Vec<StationReport>,
+    /// The station attempts that did not end complete: station, attempt, what happened.
+    pub retries: Vec<(u32, u8, String)>,
+    /// The serving agent's process id, from its status, and since when it serves: a new one
+    /// means the agent was started again.
+    pub agent: Option<(u32, Instant)>,
     /// The findings, as they came.
     pub findings: Vec<StationFindings>,
 }
@@ -246,7 +268,8 @@ impl SimOutcome {
 }
 
 /// Sends the job to the agent behind `ports`; waits up to `wait` for the last report (and for
-/// findings, when `expect_findings`).
+/// findings, when `expect_findings`). A station attempt that is not reported complete is tried
+/// again, up to the job's `max_attempts`.
 pub fn run(
     job: &SimJob,
     ports: &CellPorts,
@@ -257,10 +280,17 @@ pub fn run(
     if job.chunk_points == 0 {
         bail!("chunks need at least one point");
     }
+    if job.max_attempts == 0 {
+        bail!("a station needs at least one attempt");
+    }
     let plan = job.plan();
     let mut out = SimOutcome::default();
     let started = Instant::now();
     let mut current: Option<(u32, AsBuilt)> = None;
+    // Attempts sent whose report is still to come, oldest first.
+    let mut in_flight: std::collections::VecDeque<Attempt<'_>> = Default::default();
+    // The serving agent's status (kept in the service's history), before the first station.
+    collect(job.job, ports, &mut out, on)?;
     for st in &plan {
         if current.as_ref().map(|c| c.0) != Some(st.printed) {
             current = Some((st.printed, job.as_built(st.printed)?));
@@ -276,30 +306,26 @@ pub fn run(
         // The robot moves on once the scanner is done; the agent may still be busy with the
         // last station's points. Waiting for its report keeps one station in flight, as a
         // scanner that is carried from station to station sends them.
-        let previous = st
-            .index
-            .checked_sub(1)
-            .filter(|_| job.one_station_at_a_time);
-        let deadline = Instant::now() + wait;
-        while let Some(p) = previous
-            && !out.reports.iter().any(|r| r.station == p)
-            && Instant::now() < deadline
-        {
-            ports.wait_for_output(Duration::from_millis(50))?;
-            collect(job.job, ports, &mut out, on)?;
+        if job.one_station_at_a_time {
+            while let Some(a) = in_flight.pop_front() {
+                settle(job, a, ports, wait, &mut out, on)?;
+            }
         }
-        let t = Instant::now();
-        send_station(job, st, &s, ports, &mut out, on)?;
-        on(SimEvent::Sent {
+        let mut a = Attempt {
             station: st,
-            points: s.points.len() as u64,
-            seconds: t.elapsed().as_secs_f64(),
-        });
+            attempt: 1,
+            scan: job.one_station_at_a_time.then_some(s),
+            cut: None,
+            agent: None,
+        };
+        send_attempt(job, &mut a, ports, &mut out, on)?;
+        in_flight.push_back(a);
+    }
+    while let Some(a) = in_flight.pop_front() {
+        settle(job, a, ports, wait, &mut out, on)?;
     }
     let deadline = Instant::now() + wait;
-    let done = |o: &SimOutcome| {
-        o.reports.len() >= plan.len() && (!expect_findings || o.findings.len() >= plan.len())
-    };
+    let done = |o: &SimOutcome| !expect_findings || o.findings.len() >= plan.len();
     while !done(&out) && Instant::now() < deadline {
         ports.wait_for_output(Duration::from_millis(100))?;
         collect(job.job, ports, &mut out, on)?;
@@ -308,9 +334,163 @@ pub fn run(
     Ok(out)
 }
 
+/// One try at a station: what was sent, and why it was cut short if it was.
+struct Attempt<'a> {
+    station: &'a PlannedStation,
+    attempt: u8,
+    /// The station's scan, kept while one station is in flight at a time; scanned again (the
+    /// same points: the noise is drawn from the seed and the station) when it is not.
+    scan: Option<Scan>,
+    /// Why sending stopped early: the agent reported the attempt interrupted, or a send failed.
+    cut: Option<String>,
+    /// The agent (process id) serving when the attempt was sent.
+    agent: Option<u32>,
+}
+
+/// Sends an attempt; a failed send or an interrupted report cuts it short, which is noted in
+/// the attempt rather than returned as an error, so that the station can be tried again.
+fn send_attempt(
+    job: &SimJob,
+    a: &mut Attempt<'_>,
+    ports: &CellPorts,
+    out: &mut SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<()> {
+    let rescanned;
+    let s = match &a.scan {
+        Some(s) => s,
+        None => {
+            rescanned = job.scan(a.station, &job.as_built(a.station.printed)?);
+            &rescanned
+        }
+    };
+    let t = Instant::now();
+    a.agent = out.agent.map(|(pid, _)| pid);
+    a.cut = match send_station(job, a.station, a.attempt, s, ports, out, on) {
+        Ok(()) => None,
+        Err(e) => match e.downcast::<Cut>() {
+            Ok(Cut(why)) => Some(why),
+            Err(e) => match e.downcast::<asbuilt_protocol::ipc::IpcError>() {
+                // The agent is gone or stuck: the next attempt goes to the one that replaces it.
+                Ok(e) => Some(format!("sending failed: {}", asbuilt_io::error_message(&e))),
+                Err(e) => return Err(e),
+            },
+        },
+    };
+    on(SimEvent::Sent {
+        station: a.station,
+        points: s.points.len() as u64,
+        seconds: t.elapsed().as_secs_f64(),
+    });
+    Ok(())
+}
+
+/// Waits for an attempt's report and tries the station again until an attempt is reported
+/// complete or the attempts run out.
+fn settle(
+    job: &SimJob,
+    mut a: Attempt<'_>,
+    ports: &CellPorts,
+    wait: Duration,
+    out: &mut SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<()> {
+    loop {
+        let why = match a.cut.take() {
+            Some(why) => why,
+            None => match wait_for_report(job.job, &a, ports, wait, out, on)? {
+                Waited::Reported(StationStatus::Complete) => return Ok(()),
+                Waited::Reported(status) => format!("reported {status:?}"),
+                Waited::Replaced(pid) => format!(
+                    "lost: the agent was started again (process {pid}) and does not know it"
+                ),
+                Waited::Nothing => format!("no report within {:.0} s", wait.as_secs_f64()),
+            },
+        };
+        on(SimEvent::Retry {
+            station: a.station,
+            attempt: a.attempt,
+            why: &why,
+        });
+        out.retries.push((a.station.index, a.attempt, why));
+        if a.attempt >= job.max_attempts {
+            return Ok(());
+        }
+        a.attempt += 1;
+        send_attempt(job, &mut a, ports, out, on)?;
+    }
+}
+
+/// How long a new agent has to report an attempt sent to the one it replaced: it resumes the
+/// job from its recording at start, and reports what it knows of at once.
+const REPLACED_GRACE: Duration = Duration::from_secs(2);
+
+/// What waiting for an attempt's report came to.
+enum Waited {
+    /// Its report came, with this status.
+    Reported(StationStatus),
+    /// The agent it was sent to was replaced (by this process) and the new one has not
+    /// reported it within [`REPLACED_GRACE`]: the attempt's messages were lost with the old.
+    Replaced(u32),
+    /// Nothing within the wait.
+    Nothing,
+}
+
+/// Waits for the report of an attempt.
+fn wait_for_report(
+    job: u64,
+    a: &Attempt<'_>,
+    ports: &CellPorts,
+    wait: Duration,
+    out: &mut SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<Waited> {
+    let deadline = Instant::now() + wait;
+    loop {
+        collect(job, ports, out, on)?;
+        if let Some(r) = out.report_of(a.station.index, a.attempt) {
+            return Ok(Waited::Reported(
+                r.status().unwrap_or(StationStatus::Incomplete),
+            ));
+        }
+        if let Some((pid, since)) = out.agent
+            && a.agent.is_some_and(|sent_to| sent_to != pid)
+            && since.elapsed() >= REPLACED_GRACE
+        {
+            return Ok(Waited::Replaced(pid));
+        }
+        if Instant::now() >= deadline {
+            return Ok(Waited::Nothing);
+        }
+        ports.wait_for_output(Duration::from_millis(50))?;
+    }
+}
+
+impl SimOutcome {
+    /// The report of `attempt` of `station`, once it came.
+    pub fn report_of(&self, station: u32, attempt: u8) -> Option<&StationReport> {
+        self.attempts
+            .iter()
+            .find(|r| r.station == station && r.attempt.max(1) == attempt)
+    }
+}
+
+/// Sending stopped because the agent reported the attempt interrupted.
+#[derive(Debug)]
+struct Cut(String);
+
+impl std::fmt::Display for Cut {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Cut {}
+
 fn send_station(
     job: &SimJob,
     st: &PlannedStation,
+    attempt: u8,
     s: &Scan,
     ports: &CellPorts,
     out: &mut SimOutcome,
@@ -323,6 +503,7 @@ fn send_station(
     begin.printed_height = st.printed_height;
     begin.expected_chunks = n.div_ceil(job.chunk_points) as u32;
     begin.expected_points = n as u64;
+    begin.attempt = attempt;
     let mut pose = PoseSnapshot::new(job.job, st.index, job.pose_mode);
     pose.translation = st.nominal.translation.vector.into();
     let q = st.nominal.rotation.coords;
@@ -331,6 +512,8 @@ fn send_station(
     let mut sink = CellSink {
         ports,
         job: job.job,
+        station: st.index,
+        attempt,
         chunk_points: job.chunk_points,
         rate: job.rate,
         started: Instant::now(),
@@ -349,6 +532,8 @@ fn send_station(
 struct CellSink<'a> {
     ports: &'a CellPorts,
     job: u64,
+    station: u32,
+    attempt: u8,
     chunk_points: usize,
     rate: Option<f64>,
     started: Instant,
@@ -377,7 +562,15 @@ impl StationSink for CellSink<'_> {
                 std::thread::sleep(ahead);
             }
         }
-        collect(self.job, self.ports, self.out, self.on)
+        collect(self.job, self.ports, self.out, self.on)?;
+        // An agent started again reports the attempt it could not finish at once: the rest of
+        // it would be dropped, so the cell stops and sends the station again.
+        match self.out.report_of(self.station, self.attempt) {
+            Some(r) if r.status() == Some(StationStatus::Interrupted) => {
+                Err(Cut("reported Interrupted while sending".into()).into())
+            }
+            _ => Ok(()),
+        }
     }
 }
 
@@ -391,22 +584,42 @@ fn collect(
     let bad = |e: &dyn std::fmt::Debug| anyhow::anyhow!("cannot read the agent's outputs: {e:?}");
     while let Some(r) = ports.reports.receive().map_err(|e| bad(&e))? {
         let r = *r.payload();
-        if r.job == job && !out.reports.iter().any(|x| x.station == r.station) {
-            on(SimEvent::Report(&r));
-            out.reports.push(r);
+        // Reports are delivered at least once (an agent that resumes a job publishes its
+        // recorded reports again): each attempt counts once.
+        if r.job != job || out.report_of(r.station, r.attempt.max(1)).is_some() {
+            continue;
+        }
+        on(SimEvent::Report(&r));
+        out.attempts.push(r);
+        match out.reports.iter_mut().find(|x| x.station == r.station) {
+            Some(x) if x.attempt <= r.attempt => *x = r,
+            Some(_) => {}
+            None => out.reports.push(r),
         }
     }
     while let Some(sample) = ports.findings.receive().map_err(|e| bad(&e))? {
         match codec::decode::<StationFindings>(sample.payload()) {
-            Ok(f) if f.job == job && !out.findings.iter().any(|x| x.station == f.station) => {
+            Ok(f) if f.job == job => {
+                // A station tried again gives its findings again: the latest stand. The same
+                // findings published twice (an agent resuming) come once.
+                match out.findings.iter_mut().find(|x| x.station == f.station) {
+                    Some(x) if *x == f => continue,
+                    Some(x) => *x = f.clone(),
+                    None => out.findings.push(f.clone()),
+                }
                 on(SimEvent::Findings(&f));
-                out.findings.push(f);
             }
             Ok(_) => {}
             Err(e) => eprintln!("warning: findings from the agent cannot be read: {e}"),
         }
     }
     while let Ok(Some(_)) = ports.deviations.receive() {}
+    while let Ok(Some(s)) = ports.status.receive() {
+        let pid = s.payload().process_id;
+        if out.agent.is_none_or(|(known, _)| known != pid) {
+            out.agent = Some((pid, Instant::now()));
+        }
+    }
     Ok(())
 }
 

@@ -49,6 +49,8 @@ pub struct JobSpec {
     pub step_deg: f64,
     /// Job number.
     pub job: u64,
+    /// Tries at a station before the cell gives up on it (see [`SimJob::max_attempts`]).
+    pub attempts: u8,
 }
 
 impl Default for JobSpec {
@@ -64,6 +66,7 @@ impl Default for JobSpec {
             rate: Some(1.0e6),
             step_deg: 0.036,
             job: 1,
+            attempts: 5,
         }
     }
 }
@@ -104,6 +107,9 @@ pub enum JobSpecError {
     /// An angular step outside [0.005, 2] degrees.
     #[error("step {0}°: give degrees in [0.005, 2]")]
     StepDeg(f64),
+    /// No attempt at a station.
+    #[error("attempts must be at least 1")]
+    Attempts,
     /// A rate that is not a positive number of points per second.
     #[error("rate {0}: give points per second above 0")]
     Rate(f64),
@@ -151,6 +157,10 @@ impl JobSpec {
             return Err(JobSpecError::NoStations);
         }
         job.stations_per_scan = self.stations;
+        if self.attempts == 0 {
+            return Err(JobSpecError::Attempts);
+        }
+        job.max_attempts = self.attempts;
         job.defects = self
             .defects
             .iter()

@@ -1,0 +1,34 @@
+//! A recording's inputs fed to the station lifecycle as the agent took them: `asbuilt report`
+//! and `asbuilt replay` read a job back this way, and a resuming agent takes up its job this way.
+
+use std::time::Instant;
+
+use asbuilt_protocol::recording::Recorded;
+use asbuilt_protocol::{ChunkHeader, ScanPoint, StationStatus};
+
+use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
+
+/// Feeds one recorded message: station events, poses and scan chunks as the agent took them,
+/// and an `Interrupted` report where a resumed agent said a station attempt was cut off. Other
+/// outputs (reports, findings, deviations, status) change nothing: the lifecycle computes its
+/// own.
+pub fn feed<C>(lifecycle: &mut Lifecycle<C>, m: Recorded, now: Instant, out: &mut impl Outputs)
+where
+    C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
+{
+    match m {
+        Recorded::Event(e) => lifecycle.on_event(&e, now, out),
+        Recorded::Pose(p) => lifecycle.on_pose(&p, now, out),
+        Recorded::Chunk(h, pts) => {
+            // The live agent's chunks waited while their printed height was prepared.
+            if lifecycle.awaits_design(&h) {
+                lifecycle.wait_designs(now, out);
+            }
+            lifecycle.on_chunk(C::from((h, pts)), now, out);
+        }
+        Recorded::Report(r) if r.status() == Some(StationStatus::Interrupted) => {
+            lifecycle.interrupt((r.job, r.station), r.attempt.into(), out);
+        }
+        _ => {}
+    }
+}

@@ -1,0 +1,337 @@
+//! Resuming the newest job of the recorder's folder when the agent starts, so that an unplanned
+//! stop (killed, power lost, updated) loses nothing: the agent before this one recorded every
+//! input it took, and this one takes them again.
+//!
+//! At start, before serving:
+//! 1. Files whose writer died (no MCAP footer) are recovered in place, every channel kept. A file
+//!    that cannot be read at all is renamed `*.damaged` and left out, with a warning.
+//! 2. The newest job's files are read in order. Every recorded report tells which station
+//!    attempts are over; the inputs of the current scan layer's stations are fed through the
+//!    lifecycle again, so the findings state of that scan layer is the one the agent before had.
+//! 3. What the agent before left undone is done: a station it closed but whose report never made
+//!    it to disk is reported now; a station still open is reported `Interrupted`, so the cell
+//!    scans it again. Recorded reports are published again (the cell may never have had them).
+//!
+//! Replaying the inputs costs the current scan layer's points once; a snapshot of the state was
+//! the alternative, but it would add design-sized records to every station of the recording.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use asbuilt_protocol::recording::{self, ReadError, Recorded};
+use asbuilt_protocol::{
+    ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, StationEventKind, StationReport,
+    StationStatus,
+};
+
+use crate::attempts::StationKey;
+use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
+use crate::{info, warn};
+
+/// One recording file of the agent's folder: `job-{job}-{stamp}[-part{n}].mcap`.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct JobFile {
+    /// The Unix second the file was opened at.
+    pub stamp: u64,
+    /// 1 for the first file of a segment, then one more at each rotation.
+    pub part: u32,
+    /// The job it records.
+    pub job: u64,
+    /// Where it is.
+    pub path: PathBuf,
+}
+
+impl JobFile {
+    /// The file's job, stamp and part from its name; `None` for a name the recorder does not
+    /// write.
+    pub fn parse(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_str()?.strip_suffix(".mcap")?;
+        let rest = name.strip_prefix("job-")?;
+        let mut fields = rest.splitn(3, '-');
+        let job = fields.next()?.parse().ok()?;
+        let stamp = fields.next()?.parse().ok()?;
+        let part = match fields.next() {
+            None => 1,
+            Some(p) => p.strip_prefix("part")?.parse().ok()?,
+        };
+        Some(Self {
+            stamp,
+            part,
+            job,
+            path: path.to_path_buf(),
+        })
+    }
+}
+
+/// The recorder's files, oldest first, after every unfinished one was recovered in place.
+/// Never fails on a file: what cannot be used is said and left aside.
+pub fn recover_folder(dir: &Path) -> Vec<JobFile> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Vec::new(),
+        Err(e) => {
+            warn!(
+                "resume: cannot list {}: {e}; starting without the jobs recorded there",
+                dir.display()
+            );
+            return Vec::new();
+        }
+    };
+    let mut files = Vec::new();
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == "recovering") {
+            // A recovery cut short by another stop: its source is still there and is
+            // recovered again below.
+            let _ = std::fs::remove_file(&path);
+            continue;
+        }
+        let Some(file) = JobFile::parse(&path) else {
+            continue;
+        };
+        match recover_if_unfinished(&path) {
+            Ok(()) => files.push(file),
+            Err(e) => {
+                let aside = path.with_extension("mcap.damaged");
+                let moved = std::fs::rename(&path, &aside).is_ok();
+                warn!(
+                    "resume: {} cannot be read ({e}); {}",
+                    path.display(),
+                    if moved {
+                        format!("kept as {} and left out", aside.display())
+                    } else {
+                        "left out".to_string()
+                    }
+                );
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+/// Whether a recording was closed by its writer: a finished MCAP file ends with the magic.
+fn is_finished(bytes: &[u8]) -> bool {
+    bytes.len() >= 2 * mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC)
+}
+
+/// Rewrites a file whose writer died into a valid recording, next to it first and then over it,
+/// so that a stop during the recovery leaves the original as it was.
+fn recover_if_unfinished(path: &Path) -> Result<(), String> {
+    let map = map(path).map_err(|e| e.to_string())?;
+    if is_finished(&map) {
+        return Ok(());
+    }
+    let started = Instant::now();
+    let tmp = path.with_extension("mcap.recovering");
+    let out = File::create(&tmp).map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;
+    let result = recording::recover(&map, std::io::BufWriter::new(out));
+    let (w, counts) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e.to_string());
+        }
+    };
+    let file = w.into_inner().map_err(|e| e.to_string())?;
+    file.sync_all().map_err(|e| e.to_string())?;
+    drop(map);
+    std::fs::rename(&tmp, path).map_err(|e| e.to_string())?;
+    info!(
+        "resume: recovered {} (its writer stopped without closing it): {} messages, {} \
+         attachment(s) kept{}, in {:.2} s",
+        path.display(),
+        counts.messages,
+        counts.attachments,
+        if counts.truncated {
+            ", the unwritten end cut off"
+        } else {
+            ""
+        },
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn map(path: &Path) -> std::io::Result<memmap2::Mmap> {
+    let file = File::open(path)?;
+    // SAFETY: only read; this agent is the folder's only writer and has not started writing.
+    unsafe { memmap2::Mmap::map(&file) }
+}
+
+/// What resuming found and did.
+#[derive(Debug, Default)]
+pub struct Resumed {
+    /// The job resumed.
+    pub job: u64,
+    /// Its files, oldest first.
+    pub files: usize,
+    /// Every report the agents before recorded, in the order they were recorded.
+    pub recorded: Vec<StationReport>,
+    /// Stations of the current scan layer fed through the lifecycle again, and their points.
+    pub stations_replayed: usize,
+    /// Points of those stations.
+    pub points_replayed: u64,
+    /// Reports the replay gave for station attempts whose report was never recorded: the agent
+    /// before closed them, or would have, but stopped before the report was on disk.
+    pub unrecorded: Vec<StationReport>,
+    /// Messages of the files that could not be read (a damaged record ends a file's reading).
+    pub unreadable: Vec<String>,
+}
+
+/// Reads the newest job of `files` back into `lifecycle`: the attempts it reported are over, and
+/// the current scan layer's stations are fed again. Stations left open are those that were open
+/// when the agent before stopped: the caller reports them interrupted with its real outputs.
+pub fn replay_job<C>(files: &[JobFile], lifecycle: &mut Lifecycle<C>) -> Option<Resumed>
+where
+    C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
+{
+    let job = files.last()?.job;
+    let files: Vec<&JobFile> = files.iter().filter(|f| f.job == job).collect();
+    let mut resumed = Resumed {
+        job,
+        files: files.len(),
+        ..Default::default()
+    };
+    // First pass: the reports, and the scan layer of the latest Begin.
+    let mut current: Option<u64> = None;
+    let mut layer_of = std::collections::BTreeMap::<StationKey, u64>::new();
+    let mut seen_in_second_pass = Vec::new();
+    for f in &files {
+        read_file(f, &mut seen_in_second_pass, |m| match m {
+            Recorded::Report(r) => resumed.recorded.push(*r),
+            Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                let height = e.printed_height.to_bits();
+                layer_of.insert((e.job, e.station), height);
+                current = Some(height);
+            }
+            _ => {}
+        });
+    }
+    // Second pass: the current scan layer's inputs, in the order the agent took them.
+    let in_layer = |key: StationKey| current.is_some() && layer_of.get(&key) == current.as_ref();
+    let mut out = Replayed::default();
+    let mut stations = std::collections::BTreeSet::new();
+    for f in &files {
+        read_file(f, &mut resumed.unreadable, |m| {
+            let key = match &m {
+                Recorded::Event(e) => (e.job, e.station),
+                Recorded::Pose(p) => (p.job, p.station),
+                Recorded::Chunk(h, _) => (h.job, h.station),
+                Recorded::Report(r) => (r.job, r.station),
+                _ => return,
+            };
+            if !in_layer(key) {
+                return;
+            }
+            if let Recorded::Chunk(_, p) = &m {
+                resumed.points_replayed += p.len() as u64;
+                stations.insert(key);
+            }
+            crate::replay::feed(lifecycle, m, Instant::now(), &mut out);
+        });
+    }
+    lifecycle.wait_designs(Instant::now(), &mut out);
+    // After the replay, which must take the current scan layer's stations as new: every
+    // attempt reported before is over, and its repeats change nothing.
+    for r in &resumed.recorded {
+        if r.status() != Some(StationStatus::Interrupted) {
+            lifecycle.remember_reported((r.job, r.station), r.attempt.into());
+        }
+    }
+    resumed.stations_replayed = stations.len();
+    resumed.unrecorded = out
+        .reports
+        .into_iter()
+        .filter(|r| {
+            !resumed
+                .recorded
+                .iter()
+                .any(|x| (x.job, x.station, x.attempt) == (r.job, r.station, r.attempt))
+        })
+        .collect();
+    Some(resumed)
+}
+
+/// Calls `take` with every message of a file in the order the agent took them; a file that
+/// stops reading is noted in `unreadable`.
+fn read_file(f: &JobFile, unreadable: &mut Vec<String>, mut take: impl FnMut(Recorded)) {
+    let map = match map(&f.path) {
+        Ok(m) => m,
+        Err(e) => {
+            unreadable.push(format!("{}: {e}", f.path.display()));
+            return;
+        }
+    };
+    let messages = match recording::messages_in_agent_order(&map) {
+        Ok(m) => m,
+        Err(e) => {
+            unreadable.push(format!("{}: {e}", f.path.display()));
+            return;
+        }
+    };
+    for m in messages {
+        match m {
+            Ok((_, m)) => take(m),
+            Err(e) => {
+                unreadable.push(format!("{}: {}", f.path.display(), describe(&e)));
+                return;
+            }
+        }
+    }
+}
+
+fn describe(e: &ReadError) -> String {
+    format!("{e}; the messages after it are left out")
+}
+
+/// The replay's outputs: the reports it gives are kept, to find those never recorded; the
+/// deviations are computed into a scratch buffer and forgotten.
+#[derive(Default)]
+struct Replayed {
+    reports: Vec<StationReport>,
+    scratch: Vec<PointDeviation>,
+}
+
+impl Outputs for Replayed {
+    fn deviations(
+        &mut self,
+        n: usize,
+        fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
+    ) {
+        if self.scratch.len() < n {
+            self.scratch.resize(n, PointDeviation::default());
+        }
+        fill(&mut self.scratch[..n]);
+    }
+
+    fn report(&mut self, report: &StationReport) {
+        self.reports.push(*report);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_give_job_stamp_and_part_and_sort_in_writing_order() {
+        let a = JobFile::parse(Path::new("/r/job-7-1700000000.mcap")).unwrap();
+        let b = JobFile::parse(Path::new("/r/job-7-1700000000-part2.mcap")).unwrap();
+        let c = JobFile::parse(Path::new("/r/job-7-1700000005.mcap")).unwrap();
+        assert_eq!((a.job, a.stamp, a.part), (7, 1_700_000_000, 1));
+        assert_eq!(b.part, 2);
+        let mut v = vec![c.clone(), b.clone(), a.clone()];
+        v.sort();
+        assert_eq!(v, [a, b, c]);
+        for bad in [
+            "job-7.mcap",
+            "x-7-1.mcap",
+            "job-7-1-p2.mcap",
+            "job-7-1.mcap.damaged",
+        ] {
+            assert!(JobFile::parse(Path::new(bad)).is_none(), "{bad}");
+        }
+    }
+}

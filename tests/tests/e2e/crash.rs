@@ -1,0 +1,252 @@
+//! Faults as a user meets them: the agent killed with SIGKILL at random moments while the
+//! simulated cell prints, and started again within a second each time, on the same
+//! configuration. The job must come out as if nothing had happened: every station ends
+//! complete exactly once, the cell names each interruption, and `asbuilt report` over the
+//! recording folder gives the stations and findings of the same job run without kills.
+//! (`tools/bench/crash_soak.sh` runs the full demo job the same way.)
+
+use std::time::{Duration, Instant};
+
+use asbuilt_protocol::StationStatus;
+use asbuilt_sim::{self as sim, Defect, Part, SimJob, SimOutcome};
+use asbuilt_tests::{Agent, Cell, unique_prefix};
+use rand::{Rng, SeedableRng};
+use serde_json::Value;
+
+const AGENT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt-agent");
+const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
+
+/// The wall with a bulge and a missing segment, scanned after layers 8, 16, 24 and 32 from four
+/// stations each, at a coarse angular step so that a debug build runs it in seconds.
+fn job() -> SimJob {
+    let mut job = SimJob::new(Part::wall());
+    job.scan_after = vec![8, 16, 24, 32];
+    job.defects = [
+        "bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm",
+        "missing-segment:layer=6,x=0.45,y=0,length=0.25",
+    ]
+    .iter()
+    .map(|d| Defect::parse(d, &job.part).unwrap())
+    .collect();
+    job.scanner.step_deg = 0.07;
+    // Slower than the scanner, so that ten kills fall within the job.
+    job.rate = Some(0.5e6);
+    job
+}
+
+/// An agent with the recorder and findings on, in a folder of its own.
+fn start(test: &str, job: &SimJob) -> (Agent, Cell) {
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("design.stl");
+    sim::write_stl(&stl, &job.part.design).unwrap();
+    let config = format!(
+        "[design]\npath = \"design.stl\"\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+         max_distance = 0.03\n[limits]\nmax_points_per_chunk = {}\n[recorder]\n\
+         dir = \"recording\"\n[findings]\nenabled = true\nlayer_height = {}\n",
+        job.chunk_points, job.part.layer_height
+    );
+    let agent = Agent::start_in(AGENT, &unique_prefix(test), &config, dir);
+    let cell = Cell::open(&agent.prefix, job.chunk_points);
+    (agent, cell)
+}
+
+/// `asbuilt report` over an agent's recording folder: report.json.
+fn report(agent: &Agent) -> Value {
+    let out = agent.dir.path().join("report");
+    let run = std::process::Command::new(ASBUILT)
+        .arg("report")
+        .arg(agent.dir.path().join("recording"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&run.stderr),
+        agent.logs()
+    );
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
+
+/// Equal, numbers within 1e-6 relative.
+fn same(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            x == y || (x - y).abs() <= 1e-6 * x.abs().max(y.abs())
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w)))
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(v, w)| same(v, w))
+        }
+        _ => a == b,
+    }
+}
+
+/// A station's section without the attempt that produced it.
+fn without_attempt(s: &Value) -> Value {
+    let mut s = s.clone();
+    s.as_object_mut().unwrap().remove("attempt");
+    s
+}
+
+fn stop(mut agent: Agent) -> Agent {
+    agent.signal("TERM");
+    agent.wait_exit(Duration::from_secs(60));
+    agent
+}
+
+fn wait_serving(agent: &Agent, timeout: Duration) {
+    let start = Instant::now();
+    while !agent.log().contains("serving ") && start.elapsed() < timeout {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Kills an agent serving `job` with SIGKILL at seeded random moments while the cell sends the
+/// job, and starts it again in its folder within a second each time: mostly while it serves
+/// (during a station or between two), sometimes while it starts or resumes. Returns what the
+/// cell got, the agent, and the kills.
+fn run_with_kills(
+    job: &SimJob,
+    agent: Agent,
+    cell: &Cell,
+    kills: usize,
+) -> (SimOutcome, Agent, usize) {
+    use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+    let done = AtomicBool::new(false);
+    let (outcome, agent, killed) = std::thread::scope(|s| {
+        let done = &done;
+        let killer = s.spawn(move || {
+            let mut agent = agent;
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(27);
+            let mut killed = 0;
+            while killed < kills && !done.load(Relaxed) {
+                if rng.random_bool(0.8) {
+                    wait_serving(&agent, Duration::from_secs(30));
+                }
+                std::thread::sleep(Duration::from_millis(rng.random_range(50..900)));
+                if done.load(Relaxed) {
+                    break;
+                }
+                agent.kill_and_restart(Duration::from_millis(rng.random_range(0..1000)));
+                killed += 1;
+            }
+            (agent, killed)
+        });
+        // The cell's ports stay on this thread (they are not Send).
+        let outcome = sim::run(job, &cell.ports, true, Duration::from_secs(60), &mut |_| {});
+        done.store(true, Relaxed);
+        let (agent, killed) = killer.join().unwrap();
+        (outcome, agent, killed)
+    });
+    let outcome = outcome.unwrap_or_else(|e| panic!("{e}\n{}", agent.logs()));
+    (outcome, agent, killed)
+}
+
+/// The cell finished the job: every station ended complete exactly once, and each attempt
+/// that did not was tried again.
+fn assert_each_station_complete_once(job: &SimJob, outcome: &SimOutcome, logs: &str) {
+    assert!(
+        !outcome.retries.is_empty(),
+        "the kills interrupted nothing?\n{logs}"
+    );
+    for st in &job.plan() {
+        let complete = outcome
+            .attempts
+            .iter()
+            .filter(|r| r.station == st.index && r.status() == Some(StationStatus::Complete))
+            .count();
+        assert_eq!(
+            complete, 1,
+            "{} ended complete {complete} times\n{logs}",
+            st.name
+        );
+        let last = outcome
+            .reports
+            .iter()
+            .find(|r| r.station == st.index)
+            .unwrap();
+        assert_eq!(last.status(), Some(StationStatus::Complete), "{}", st.name);
+    }
+    for (station, attempt, why) in &outcome.retries {
+        let tried_again = outcome
+            .attempts
+            .iter()
+            .any(|r| r.station == *station && r.attempt > *attempt);
+        assert!(
+            tried_again || why.contains("lost") || why.contains("sending failed"),
+            "station {station} attempt {attempt} ({why}) was not tried again"
+        );
+    }
+}
+
+/// report.json of the job with kills gives the reference's stations (each its latest
+/// attempt), overall section and findings, and names the attempts reported interrupted.
+fn assert_same_job(reference: &Value, soaked: &Value, outcome: &SimOutcome) {
+    let stations = outcome.reports.len();
+    let list = |r: &Value| -> Vec<Value> {
+        r["stations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(without_attempt)
+            .collect()
+    };
+    let (a, b) = (list(reference), list(soaked));
+    assert_eq!(a.len(), stations);
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert!(same(x, y), "station differs:\n{x}\n{y}");
+    }
+    assert!(same(&reference["overall"], &soaked["overall"]));
+    assert!(
+        same(&reference["findings"], &soaked["findings"]),
+        "findings differ:\n{}\n{}",
+        reference["findings"],
+        soaked["findings"]
+    );
+    let warnings = soaked["warnings"].to_string();
+    let interrupted = outcome
+        .attempts
+        .iter()
+        .filter(|r| r.status() == Some(StationStatus::Interrupted))
+        .count();
+    assert_eq!(
+        warnings.contains("interrupted"),
+        interrupted > 0,
+        "{interrupted} interrupted: {warnings}"
+    );
+    assert!(!warnings.contains("differ"), "{warnings}");
+}
+
+#[test]
+fn a_job_through_ten_kills_of_the_agent_reports_as_if_none_happened() {
+    let job = job();
+    // The reference: the same job, the same seed, no kills.
+    let (agent, cell) = start("crash-reference", &job);
+    let clean = sim::run(
+        &job,
+        &cell.ports,
+        true,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}\n{}", agent.logs()));
+    assert!(clean.retries.is_empty(), "{:?}", clean.retries);
+    let reference = report(&stop(agent));
+
+    const KILLS: usize = 10;
+    let (agent, cell) = start("crash-soak", &job);
+    let (outcome, agent, kills) = run_with_kills(&job, agent, &cell, KILLS);
+    let logs = agent.logs();
+    assert_eq!(kills, KILLS, "the job ended before {KILLS} kills\n{logs}");
+    let agent = stop(agent);
+    assert!(!logs.contains("panicked"), "{logs}");
+    assert_each_station_complete_once(&job, &outcome, &logs);
+    assert_eq!(outcome.reports.len(), job.plan().len());
+    assert_same_job(&reference, &report(&agent), &outcome);
+}

@@ -111,6 +111,8 @@ struct IpcOutputs<'p> {
     /// Reports waiting for the recorder to have them on disk, with their flush ticket and since
     /// when: the cell learns of a station only once a crash can no longer lose it.
     unpublished: std::collections::VecDeque<(u64, Instant, StationReport)>,
+    /// Record each scan layer's findings state after every station (`[recorder] resume`).
+    record_states: bool,
 }
 
 /// How long a report waits for the recorder's disk before it is published anyway: a slow disk
@@ -151,6 +153,27 @@ impl IpcOutputs<'_> {
 }
 
 impl Outputs for IpcOutputs<'_> {
+    fn wants_scan_layer_state(&self) -> bool {
+        self.record_states && self.recorder.is_some()
+    }
+
+    fn scan_layer_state(
+        &mut self,
+        report: &StationReport,
+        state: &asbuilt_core::scan_layer::ScanLayerState,
+    ) {
+        if let Some(r) = &self.recorder {
+            r.scan_layer_state(asbuilt_protocol::recording::ScanLayerStateRecord {
+                version: asbuilt_protocol::recording::ScanLayerStateRecord::VERSION,
+                job: report.job,
+                station: report.station,
+                attempt: report.attempt,
+                printed_height: report.printed_height,
+                state: postcard::to_allocvec(state).expect("a state of numbers always encodes"),
+            });
+        }
+    }
+
     fn findings(&mut self, f: &StationFindings) {
         if let Some(r) = &self.recorder {
             r.findings(f);
@@ -277,7 +300,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let limits = &config.limits;
     let design = designs.whole_design().clone();
     let mut lifecycle = make_lifecycle(config, designs);
-    let resumed = resume(config, &mut lifecycle);
+    let mut resumed = resume(config, &mut lifecycle);
     let mut out = IpcOutputs {
         ports: &ports,
         recorder: start_recorder(config, design)?,
@@ -287,10 +310,11 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
         unloaned: 0,
         unpublished: std::collections::VecDeque::new(),
+        record_states: config.recorder.resume && config.findings.enabled,
     };
-    if let Some(r) = &resumed {
-        finish_resume(r, &mut lifecycle, &mut out);
-    }
+    let recovering = resumed
+        .as_mut()
+        .and_then(|r| finish_resume(r, &mut lifecycle, &mut out));
 
     let tick = config.status.period().min(MAX_TICK);
     let waitset = WaitSetBuilder::new()
@@ -365,7 +389,13 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         }
     }
 
-    Ok(shut_down(lifecycle, out, held, &mut status, started))
+    let summary = shut_down(lifecycle, out, held, &mut status, started);
+    if let Some(t) = recovering
+        && t.join().is_err()
+    {
+        warn!("resume: recovering the unfinished files failed; the next start tries again");
+    }
+    Ok(summary)
 }
 
 /// The design's mesh, for a view.
@@ -439,8 +469,9 @@ fn resume(config: &AgentConfig, lifecycle: &mut AgentLifecycle) -> Option<Resume
         .as_ref()
         .filter(|_| config.recorder.resume)?;
     let started = Instant::now();
-    let files = crate::resume::recover_folder(dir);
-    let resumed = crate::resume::replay_job(&files, lifecycle)?;
+    let folder = crate::resume::scan_folder(dir);
+    let mut resumed = crate::resume::replay_job(&folder.files, lifecycle)?;
+    resumed.unfinished = folder.unfinished;
     for u in &resumed.unreadable {
         warn!("resume: {u}");
     }
@@ -451,14 +482,21 @@ fn resume(config: &AgentConfig, lifecycle: &mut AgentLifecycle) -> Option<Resume
             config.recorder.scan_every
         );
     }
+    let layer = match resumed.state_bytes {
+        Some(bytes) => format!(
+            "the current scan layer taken up from its recorded state ({:.1} MB)",
+            bytes as f64 / 1e6
+        ),
+        None => format!(
+            "{} station(s) of the current scan layer replayed ({} points)",
+            resumed.stations_replayed, resumed.points_replayed
+        ),
+    };
     info!(
-        "resume: job {} from {} file(s): {} report(s) recorded; {} station(s) of the current \
-         scan layer replayed ({} points) in {:.2} s",
+        "resume: job {} from {} file(s): {} report(s) recorded; {layer}; in {:.2} s",
         resumed.job,
         resumed.files,
         resumed.recorded.len(),
-        resumed.stations_replayed,
-        resumed.points_replayed,
         started.elapsed().as_secs_f64()
     );
     // The replay's counts are not this run's work.
@@ -468,8 +506,14 @@ fn resume(config: &AgentConfig, lifecycle: &mut AgentLifecycle) -> Option<Resume
 
 /// Reports, with the real outputs, what the agent before left undone: the reports it never had
 /// on disk, the stations it had open (interrupted: the cell sends them again), and every
-/// recorded report once more, since the cell may not have had them.
-fn finish_resume(r: &Resumed, lifecycle: &mut AgentLifecycle, out: &mut IpcOutputs<'_>) {
+/// recorded report once more, since the cell may not have had them. Then starts rewriting the
+/// files whose writer died (every channel kept) on a thread of their own, while the agent
+/// serves: the resume read them as they are.
+fn finish_resume(
+    r: &mut Resumed,
+    lifecycle: &mut AgentLifecycle,
+    out: &mut IpcOutputs<'_>,
+) -> Option<std::thread::JoinHandle<()>> {
     for report in &r.unrecorded {
         info!(
             "resume: job {} station {} attempt {} was closed but its report never recorded; \
@@ -478,7 +522,15 @@ fn finish_resume(r: &Resumed, lifecycle: &mut AgentLifecycle, out: &mut IpcOutpu
         );
         out.report(report);
     }
-    for (job, station) in lifecycle.interrupt_open(out) {
+    let mut open = lifecycle.interrupt_open(out);
+    for begin in &r.open {
+        lifecycle.interrupt(begin, out);
+        let key = (begin.job, begin.station);
+        if !open.contains(&key) {
+            open.push(key);
+        }
+    }
+    for (job, station) in open {
         warn!(
             "resume: job {job} station {station} was open when the agent before stopped; \
              reported interrupted, for the cell to send it again"
@@ -489,6 +541,15 @@ fn finish_resume(r: &Resumed, lifecycle: &mut AgentLifecycle, out: &mut IpcOutpu
     for report in &r.recorded[skip..] {
         out.publish_report(report);
     }
+    let unfinished = std::mem::take(&mut r.unfinished);
+    if unfinished.is_empty() {
+        return None;
+    }
+    std::thread::Builder::new()
+        .name("recover".into())
+        .spawn(move || crate::resume::recover_files(&unfinished))
+        .map_err(|e| warn!("resume: cannot start recovering the unfinished files: {e}"))
+        .ok()
 }
 
 /// How many of the latest recorded reports are published again on resuming.

@@ -163,6 +163,38 @@ impl FindingsStage {
         }
     }
 
+    /// What the scan layer of `job` over `design` gathered from its closed stations, when it is
+    /// kept.
+    pub fn layer_state(
+        &self,
+        job: u64,
+        design: &Arc<PrintedDesign>,
+    ) -> Option<asbuilt_core::scan_layer::ScanLayerState> {
+        self.epochs
+            .iter()
+            .find(|e| e.is(job, design))
+            .map(|e| e.layer.state())
+    }
+
+    /// Takes up a scan layer of `job` over `design` from a state its agent recorded; false
+    /// when the state does not fit (another design or other settings).
+    pub fn restore(
+        &mut self,
+        job: u64,
+        design: &Arc<PrintedDesign>,
+        state: &asbuilt_core::scan_layer::ScanLayerState,
+    ) -> bool {
+        let Some(mut epoch) = self.maker.make(job, design) else {
+            return false;
+        };
+        if !epoch.layer.restore(state) {
+            return false;
+        }
+        self.epochs.retain(|e| !e.is(job, design));
+        self.keep(epoch);
+        true
+    }
+
     /// What makes a scan layer's state, for a thread that prepares a printed height.
     pub(crate) fn maker(&self) -> EpochMaker {
         self.maker.clone()

@@ -63,6 +63,17 @@ pub trait Outputs {
     fn tally(&mut self, _tally: &Tally) {}
     /// Findings of a station's scan layer, after its report (when `[findings]` is on).
     fn findings(&mut self, _findings: &StationFindings) {}
+    /// Whether [`Outputs::scan_layer_state`] is wanted (an agent that records for resuming).
+    fn wants_scan_layer_state(&self) -> bool {
+        false
+    }
+    /// The scan layer's state after the station of `report` closed, when wanted.
+    fn scan_layer_state(
+        &mut self,
+        _report: &StationReport,
+        _state: &asbuilt_core::scan_layer::ScanLayerState,
+    ) {
+    }
     /// The design samples' states behind `findings`, right after them, when the findings stage
     /// keeps them (a reader of a recording drawing maps).
     fn samples(
@@ -237,6 +248,11 @@ impl<C: ChunkSource> Lifecycle<C> {
             closed: ClosedStations::new(CLOSED_MEMORY),
             counters: Counters::default(),
         }
+    }
+
+    /// Whether findings are drawn (a findings stage is on).
+    pub fn has_findings(&self) -> bool {
+        self.findings.is_some()
     }
 
     /// Turns on findings over each scan layer's stations.
@@ -415,6 +431,17 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         let key = (ev.job, ev.station);
         let attempt = attempt_of(ev.attempt.into());
+        if ev.kind() == Some(StationEventKind::Begin)
+            && self.closed.is_sent_anew(key, attempt, ev.timestamp_ns)
+        {
+            // A cell process started again does not know its predecessor's attempts.
+            info!(
+                "job {} station {} attempt {attempt}: begins anew, later than the reported one \
+                 (a cell started again); served again",
+                key.0, key.1
+            );
+            self.closed.forget(key);
+        }
         if self.is_over(key, attempt, out) {
             // An End after a chunk flagged last closed the station is the usual order.
             if ev.kind() != Some(StationEventKind::End) {
@@ -597,14 +624,19 @@ impl<C: ChunkSource> Lifecycle<C> {
         self.counters.rejected_points += report.rejected;
         self.counters.stations_reported += 1;
         out.report(&report);
-        self.closed.push((h.job, h.station), attempt);
+        // Its Begin was sent before this chunk: a later one is the station sent anew.
+        self.closed
+            .push((h.job, h.station), attempt, h.timestamp_ns);
     }
 
     /// Closes `attempt` of `key` as interrupted: the agent that had it open stopped (a resumed
     /// agent after replaying its recording, a reader of a recording where the resumed agent
     /// said so). An attempt not open here is reported interrupted all the same.
-    pub fn interrupt(&mut self, key: StationKey, attempt: u16, out: &mut impl Outputs) {
-        let attempt = attempt_of(attempt);
+    /// `begin` names the attempt: its job, station and attempt, and the name, layer and printed
+    /// height the report carries when the station is not open here.
+    pub fn interrupt(&mut self, begin: &StationEvent, out: &mut impl Outputs) {
+        let key = (begin.job, begin.station);
+        let attempt = attempt_of(begin.attempt.into());
         if self.closed.covers(key, attempt) {
             return;
         }
@@ -620,9 +652,13 @@ impl<C: ChunkSource> Lifecycle<C> {
                 let mut report = StationReport::new(key.0, key.1);
                 report.attempt = attempt.min(u8::MAX.into()) as u8;
                 report.status = StationStatus::Interrupted as u8;
+                report.name = begin.name;
+                report.layer = begin.layer;
+                report.printed_height = begin.printed_height;
                 self.counters.stations_reported += 1;
                 out.report(&report);
-                self.closed.push(key, attempt);
+                self.closed
+                    .push(key, attempt, asbuilt_protocol::unix_time_ns());
             }
         }
     }
@@ -638,11 +674,37 @@ impl<C: ChunkSource> Lifecycle<C> {
         keys
     }
 
+    /// Takes up the scan layer of `job` at `printed_height` (NaN: the whole design) from the
+    /// state the agent before recorded after its last station: the printed design is prepared
+    /// here and now, and the layer's next stations go on from that state.
+    pub fn restore_scan_layer(
+        &mut self,
+        job: u64,
+        printed_height: f64,
+        state: &asbuilt_core::scan_layer::ScanLayerState,
+    ) -> Result<(), String> {
+        let design = if printed_height.is_finite() {
+            self.designs.at(printed_height).map_err(|e| e.to_string())?
+        } else {
+            self.designs.full().clone()
+        };
+        let stage = self
+            .findings
+            .as_mut()
+            .ok_or("findings are off in this configuration")?;
+        if stage.restore(job, &design, state) {
+            Ok(())
+        } else {
+            Err("the recorded state does not fit this design and these [findings] settings".into())
+        }
+    }
+
     /// Remembers that `attempt` of `key` was reported by the agent before this one (from its
     /// recording), so that its repeats and late messages change nothing.
-    pub fn remember_reported(&mut self, key: StationKey, attempt: u16) {
+    /// `begun_ns` is when that attempt's Begin was sent (0 when unknown).
+    pub fn remember_reported(&mut self, key: StationKey, attempt: u16, begun_ns: u64) {
         if !self.closed.covers(key, attempt) {
-            self.closed.push(key, attempt_of(attempt));
+            self.closed.push(key, attempt_of(attempt), begun_ns);
         }
     }
 
@@ -1047,11 +1109,19 @@ impl<C: ChunkSource> Lifecycle<C> {
                 if !stage.samples().is_empty() {
                     out.samples(&f, stage.samples());
                 }
+                if out.wants_scan_layer_state()
+                    && let Some(state) = stage.layer_state(key.0, &s.design)
+                {
+                    out.scan_layer_state(&report, &state);
+                }
             }
         }
         self.counters.stations_reported += 1;
         self.counters.rejected_points += report.rejected;
-        self.closed.push(key, s.attempt);
+        let begun = s
+            .begin
+            .map_or_else(asbuilt_protocol::unix_time_ns, |b| b.timestamp_ns);
+        self.closed.push(key, s.attempt, begun);
         let st = &report.stats;
         info!(
             "job {} station {} ({}){} {:?}: {} points, {} matched, {} rejected, {} no match; chunks \
@@ -1488,12 +1558,116 @@ mod tests {
         begin_with_pose(&mut lc, &mut out, t, 1, 3);
         lc.on_chunk(chunk(1, 0, 10), t, &mut out);
         assert_eq!(lc.interrupt_open(&mut out), vec![(1, 1)]);
-        lc.interrupt((1, 1), 1, &mut out);
+        lc.interrupt(&event(StationEventKind::Begin, 1, 3), &mut out);
         assert_eq!(out.reports.len(), 1);
         assert_eq!(out.reports[0].status(), Some(StationStatus::Interrupted));
         // An attempt reported interrupted that was never open here is reported all the same.
-        lc.interrupt((1, 4), 2, &mut out);
+        let mut begin = event(StationEventKind::Begin, 4, 0);
+        begin.attempt = 2;
+        begin.name = asbuilt_protocol::FixedText::truncated("L008-S4");
+        lc.interrupt(&begin, &mut out);
         assert_eq!(out.reports.len(), 2);
         assert_eq!((out.reports[1].station, out.reports[1].attempt), (4, 2));
+        assert_eq!(out.reports[1].name.as_str(), "L008-S4");
+    }
+
+    /// Outputs that keep reports, findings and the scan layer states.
+    #[derive(Default)]
+    struct WithStates {
+        inner: Collect,
+        findings: Vec<StationFindings>,
+        states: Vec<asbuilt_core::scan_layer::ScanLayerState>,
+    }
+    impl Outputs for WithStates {
+        fn deviations(
+            &mut self,
+            n: usize,
+            fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
+        ) {
+            self.inner.deviations(n, fill)
+        }
+        fn report(&mut self, r: &StationReport) {
+            self.inner.report(r)
+        }
+        fn findings(&mut self, f: &StationFindings) {
+            self.findings.push(f.clone());
+        }
+        fn wants_scan_layer_state(&self) -> bool {
+            true
+        }
+        fn scan_layer_state(
+            &mut self,
+            _: &StationReport,
+            state: &asbuilt_core::scan_layer::ScanLayerState,
+        ) {
+            self.states.push(state.clone());
+        }
+    }
+
+    fn with_findings() -> Lifecycle<Owned> {
+        let (lc, _, _) = setup();
+        let config = crate::config::FindingsConfig {
+            enabled: true,
+            ..Default::default()
+        };
+        lc.with_findings(FindingsStage::new(config, 0.005, 0.05, 100))
+    }
+
+    /// A station of 4 chunks of 100 points on the cube's top, 2 mm above it, shifted by `dx`.
+    fn station_on_top(lc: &mut Lifecycle<Owned>, out: &mut WithStates, station: u32, dx: f32) {
+        let t = Instant::now();
+        let mut p = pose(station);
+        p.translation = [0.0, 0.0, 2.0];
+        lc.on_event(&event(StationEventKind::Begin, station, 4), t, out);
+        lc.on_pose(&p, t, out);
+        for seq in 0..4u64 {
+            let pts = (0..100)
+                .map(|i| {
+                    let x = -0.45 + 0.009 * i as f32 + dx;
+                    let y = -0.45 + 0.3 * seq as f32;
+                    ScanPoint::new(x, y, -1.498)
+                })
+                .collect();
+            lc.on_chunk(Owned(ChunkHeader::new(1, station, seq, 100), pts), t, out);
+        }
+        lc.on_event(&event(StationEventKind::End, station, 4), t, out);
+    }
+
+    /// An agent that takes up a scan layer from the state recorded after its second station
+    /// draws, after the third, the findings of the agent that never stopped, bit for bit.
+    #[test]
+    fn a_scan_layer_taken_up_from_its_state_goes_on_as_if_never_stopped() {
+        let mut a = with_findings();
+        let mut out_a = WithStates::default();
+        for (station, dx) in [(1, 0.0), (2, 0.004)] {
+            station_on_top(&mut a, &mut out_a, station, dx);
+        }
+        assert_eq!(out_a.states.len(), 2, "{:?}", out_a.inner.reports);
+        let saved = out_a.states[1].clone();
+        assert_eq!(saved.stations, 2);
+        let encoded = postcard::to_allocvec(&saved).unwrap();
+        let decoded: asbuilt_core::scan_layer::ScanLayerState =
+            postcard::from_bytes(&encoded).unwrap();
+        assert_eq!(decoded, saved);
+
+        let mut b = with_findings();
+        let mut out_b = WithStates::default();
+        b.restore_scan_layer(1, f64::NAN, &decoded).unwrap();
+        station_on_top(&mut a, &mut out_a, 3, 0.002);
+        station_on_top(&mut b, &mut out_b, 3, 0.002);
+        let bytes = |f: &StationFindings| asbuilt_protocol::codec::encode(f);
+        assert_eq!(out_a.findings.len(), 3);
+        assert_eq!(out_b.findings.len(), 1);
+        assert_eq!(bytes(&out_a.findings[2]), bytes(&out_b.findings[0]));
+        assert_eq!(out_a.states[2], out_b.states[0]);
+        assert_eq!(out_b.findings[0].stations, 3);
+        // A state of another design does not fit, and says so.
+        let mut other = saved.clone();
+        other.samples += 1;
+        assert!(
+            with_findings()
+                .restore_scan_layer(1, f64::NAN, &other)
+                .is_err()
+        );
     }
 }

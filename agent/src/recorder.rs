@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 
-use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
+use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter, ScanLayerStateRecord};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
     StationEvent, StationFindings, StationReport, unix_time_ns,
@@ -34,6 +34,8 @@ enum Item {
     Message(u64, Recorded),
     /// A message for Foxglove's channels only (a deviation chunk the asbuilt channel skips).
     FoxgloveOnly(u64, Recorded),
+    /// A scan layer's findings state, attached to the job's file.
+    State(u64, Box<ScanLayerStateRecord>),
     Flush,
 }
 
@@ -179,6 +181,24 @@ impl Recorder {
     /// Records a station's findings, and flushes them like a report.
     pub fn findings(&self, f: &StationFindings) {
         self.flushed(Recorded::Findings(Box::new(f.clone())));
+    }
+
+    /// Attaches a scan layer's findings state after a station, flushed like a report: an agent
+    /// resuming the job goes on from the latest instead of replaying the layer's points.
+    pub fn scan_layer_state(&self, record: ScanLayerStateRecord) {
+        let Some(tx) = &self.tx else { return };
+        let bytes = record.state.len();
+        self.queued.fetch_add(bytes, Relaxed);
+        if tx
+            .send(Item::State(unix_time_ns(), Box::new(record)))
+            .is_err()
+        {
+            self.queued.fetch_sub(bytes, Relaxed);
+            return;
+        }
+        if tx.send(Item::Flush).is_ok() {
+            self.flushes_asked.fetch_add(1, Relaxed);
+        }
     }
 
     /// Whether the flush of `ticket` is done: what was queued before it survives a crash of the
@@ -374,6 +394,18 @@ impl Writer {
                         since_check = 0;
                         self.check_disk();
                     }
+                }
+                Item::State(t, record) => {
+                    if let Some(f) = &mut self.file
+                        && f.job == record.job
+                        && let Err(e) = f.writer.attach_scan_layer_state(&record, t)
+                    {
+                        warn!(
+                            "recorder: cannot attach the scan layer state to {}: {e}",
+                            f.path.display()
+                        );
+                    }
+                    self.queued.fetch_sub(record.state.len(), Relaxed);
                 }
                 Item::Flush => {
                     if let Some(f) = &mut self.file

@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use asbuilt_protocol::recording::Recorded;
-use asbuilt_protocol::{ChunkHeader, ScanPoint, StationStatus};
+use asbuilt_protocol::{ChunkHeader, ScanPoint, StationEvent, StationEventKind, StationStatus};
 
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 
@@ -27,7 +27,12 @@ where
             lifecycle.on_chunk(C::from((h, pts)), now, out);
         }
         Recorded::Report(r) if r.status() == Some(StationStatus::Interrupted) => {
-            lifecycle.interrupt((r.job, r.station), r.attempt.into(), out);
+            let mut begin = StationEvent::new(StationEventKind::Begin, r.job, r.station);
+            begin.attempt = r.attempt;
+            begin.name = r.name;
+            begin.layer = r.layer;
+            begin.printed_height = r.printed_height;
+            lifecycle.interrupt(&begin, out);
         }
         _ => {}
     }

@@ -19,7 +19,10 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use asbuilt_protocol::recording::{self, ReadError, Recorded};
+use std::collections::BTreeMap;
+
+use asbuilt_core::scan_layer::ScanLayerState;
+use asbuilt_protocol::recording::{self, Channel, ReadError, Recorded, ScanLayerStateRecord};
 use asbuilt_protocol::{
     ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, StationEventKind, StationReport,
     StationStatus,
@@ -64,51 +67,84 @@ impl JobFile {
     }
 }
 
-/// The recorder's files, oldest first, after every unfinished one was recovered in place.
-/// Never fails on a file: what cannot be used is said and left aside.
-pub fn recover_folder(dir: &Path) -> Vec<JobFile> {
+/// The recorder's folder at start: its job files, oldest first, and those of them whose
+/// writer died (no footer), to recover with [`recover_files`] (while the agent serves: the
+/// resume reads them as they are, up to where they stop). A file that is not MCAP at all is
+/// set aside as `*.damaged`. Never fails on a file: what cannot be used is said.
+pub struct Folder {
+    /// Every job file, oldest first.
+    pub files: Vec<JobFile>,
+    /// The files among them that their writer never closed.
+    pub unfinished: Vec<PathBuf>,
+}
+
+/// Lists the recorder's folder (see [`Folder`]).
+pub fn scan_folder(dir: &Path) -> Folder {
+    let mut folder = Folder {
+        files: Vec::new(),
+        unfinished: Vec::new(),
+    };
     let entries = match std::fs::read_dir(dir) {
         Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Vec::new(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return folder,
         Err(e) => {
             warn!(
                 "resume: cannot list {}: {e}; starting without the jobs recorded there",
                 dir.display()
             );
-            return Vec::new();
+            return folder;
         }
     };
-    let mut files = Vec::new();
     for entry in entries.flatten() {
         let path = entry.path();
         if path.extension().is_some_and(|e| e == "recovering") {
             // A recovery cut short by another stop: its source is still there and is
-            // recovered again below.
+            // recovered again.
             let _ = std::fs::remove_file(&path);
             continue;
         }
         let Some(file) = JobFile::parse(&path) else {
             continue;
         };
-        match recover_if_unfinished(&path) {
-            Ok(()) => files.push(file),
-            Err(e) => {
-                let aside = path.with_extension("mcap.damaged");
-                let moved = std::fs::rename(&path, &aside).is_ok();
-                warn!(
-                    "resume: {} cannot be read ({e}); {}",
-                    path.display(),
-                    if moved {
-                        format!("kept as {} and left out", aside.display())
-                    } else {
-                        "left out".to_string()
-                    }
-                );
+        match map(&path) {
+            Ok(m) if m.starts_with(mcap::MAGIC) => {
+                if !is_finished(&m) {
+                    folder.unfinished.push(path);
+                }
+                folder.files.push(file);
             }
+            Ok(_) => set_aside(&path, "it is not an MCAP file"),
+            Err(e) => set_aside(&path, &e.to_string()),
         }
     }
-    files.sort();
-    files
+    folder.files.sort();
+    folder
+}
+
+/// Recovers each file in place (every channel kept); one that cannot be recovered is set
+/// aside as `*.damaged`.
+pub fn recover_files(paths: &[PathBuf]) {
+    for path in paths {
+        if let Err(e) = recover_if_unfinished(path) {
+            set_aside(path, &e);
+        }
+    }
+}
+
+/// Renames a file the resume cannot use to `*.damaged`, so that nothing reads it as a job file
+/// again and nothing of it is lost.
+fn set_aside(path: &Path, why: &str) {
+    let aside = path.with_extension("mcap.damaged");
+    let moved = std::fs::rename(path, &aside).is_ok();
+    warn!(
+        "resume: {} cannot be read ({why}); {}",
+        path.display(),
+        if moved {
+            format!("kept as {} and left out", aside.display())
+        } else {
+            "left out".to_string()
+        }
+    );
 }
 
 /// Whether a recording was closed by its writer: a finished MCAP file ends with the magic.
@@ -178,11 +214,20 @@ pub struct Resumed {
     pub unrecorded: Vec<StationReport>,
     /// Messages of the files that could not be read (a damaged record ends a file's reading).
     pub unreadable: Vec<String>,
+    /// Bytes of the scan layer state taken up, when the current scan layer went on from its
+    /// recorded state rather than a replay.
+    pub state_bytes: Option<usize>,
+    /// The Begins of station attempts never reported: open when the agent before stopped.
+    pub open: Vec<asbuilt_protocol::StationEvent>,
+    /// Files of the folder whose writer died, to recover while serving.
+    pub unfinished: Vec<PathBuf>,
 }
 
-/// Reads the newest job of `files` back into `lifecycle`: the attempts it reported are over, and
-/// the current scan layer's stations are fed again. Stations left open are those that were open
-/// when the agent before stopped: the caller reports them interrupted with its real outputs.
+/// Reads the newest job of `files` back into `lifecycle`: the attempts it reported are over,
+/// and the current scan layer's findings state is taken up: from the state recorded after its
+/// last station when there is one (its size is the design's), else by feeding the layer's
+/// recorded inputs through the lifecycle again. Station attempts begun and never reported are
+/// in [`Resumed::open`]: the caller reports them interrupted with its real outputs.
 pub fn replay_job<C>(files: &[JobFile], lifecycle: &mut Lifecycle<C>) -> Option<Resumed>
 where
     C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
@@ -194,26 +239,141 @@ where
         files: files.len(),
         ..Default::default()
     };
-    // First pass: the reports, and the scan layer of the latest Begin.
-    let mut current: Option<u64> = None;
-    let mut layer_of = std::collections::BTreeMap::<StationKey, u64>::new();
-    let mut seen_in_second_pass = Vec::new();
-    for f in &files {
-        read_file(f, &mut seen_in_second_pass, |m| match m {
-            Recorded::Report(r) => resumed.recorded.push(*r),
-            Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
-                let height = e.printed_height.to_bits();
-                layer_of.insert((e.job, e.station), height);
-                current = Some(height);
+    let seen = survey(&files, job, &mut resumed);
+    // The current scan layer's last station that did not end interrupted: the state after it
+    // is the layer's.
+    let in_layer = |key: StationKey| {
+        seen.current.is_some() && seen.layer_of.get(&key) == seen.current.as_ref()
+    };
+    let last_done = resumed
+        .recorded
+        .iter()
+        .rev()
+        .find(|r| in_layer((r.job, r.station)) && r.status() != Some(StationStatus::Interrupted))
+        .map(|r| (r.station, r.attempt));
+    if let (Some(height), Some(done)) = (seen.current, last_done)
+        && lifecycle.has_findings()
+    {
+        let restored = seen
+            .states
+            .get(&height)
+            .filter(|r| (r.station, r.attempt) == done)
+            .map(|r| restore(lifecycle, r));
+        match restored {
+            Some(Ok(bytes)) => resumed.state_bytes = Some(bytes),
+            Some(Err(e)) => {
+                warn!("resume: the recorded scan layer state cannot be used ({e}); replaying");
+                replay_layer(&files, lifecycle, &in_layer, &mut resumed);
             }
-            _ => {}
+            None => replay_layer(&files, lifecycle, &in_layer, &mut resumed),
+        }
+    }
+    // After a replay, which must take the current scan layer's stations as new: every attempt
+    // reported before is over, and its repeats change nothing.
+    for r in &resumed.recorded {
+        if r.status() != Some(StationStatus::Interrupted) {
+            let key = (r.job, r.station);
+            let begun = seen.begun_at.get(&key).copied().unwrap_or(0);
+            lifecycle.remember_reported(key, r.attempt.into(), begun);
+        }
+    }
+    resumed.open = seen
+        .begun
+        .into_values()
+        .filter(|b| {
+            !resumed.recorded.iter().any(|r| {
+                (r.job, r.station) == (b.job, b.station) && r.attempt.max(1) >= b.attempt.max(1)
+            })
+        })
+        .collect();
+    Some(resumed)
+}
+
+/// What a first pass over a job's files finds, without decoding a scan chunk.
+#[derive(Default)]
+struct Survey {
+    /// The scan layer (printed height's bits) of each station's Begin.
+    layer_of: BTreeMap<StationKey, u64>,
+    /// The latest Begin's scan layer.
+    current: Option<u64>,
+    /// The Begin of the latest attempt of each station.
+    begun: BTreeMap<StationKey, asbuilt_protocol::StationEvent>,
+    /// When each station's latest Begin was sent.
+    begun_at: BTreeMap<StationKey, u64>,
+    /// The latest scan layer state recorded for each scan layer.
+    states: BTreeMap<u64, ScanLayerStateRecord>,
+}
+
+/// Reads the reports (into `resumed`), the Begins and the scan layer states of `job`'s files.
+fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
+    let mut seen = Survey::default();
+    for f in files {
+        let map = match map(&f.path) {
+            Ok(m) => m,
+            Err(e) => {
+                resumed
+                    .unreadable
+                    .push(format!("{}: {e}", f.path.display()));
+                continue;
+            }
+        };
+        let wanted = [Channel::StationEvents, Channel::Reports];
+        let messages = recording::messages_on(&map, &wanted);
+        for m in messages.into_iter().flatten() {
+            // A damaged record ends the file's reading; the second pass says so.
+            let Ok((_, m)) = m else { break };
+            match m {
+                Recorded::Report(r) => resumed.recorded.push(*r),
+                Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                    let height = e.printed_height.to_bits();
+                    let key = (e.job, e.station);
+                    seen.layer_of.insert(key, height);
+                    seen.current = Some(height);
+                    let attempt = |b: &asbuilt_protocol::StationEvent| {
+                        crate::attempts::attempt_of(b.attempt.into())
+                    };
+                    let latest = seen.begun.entry(key).or_insert(e);
+                    if attempt(&e) >= attempt(latest) {
+                        *latest = e;
+                    }
+                    seen.begun_at.insert(key, e.timestamp_ns);
+                }
+                _ => {}
+            }
+        }
+        let _ = recording::scan_layer_states(&map, |r| {
+            if r.job == job {
+                seen.states.insert(r.printed_height.to_bits(), r);
+            }
         });
     }
-    // Second pass: the current scan layer's inputs, in the order the agent took them.
-    let in_layer = |key: StationKey| current.is_some() && layer_of.get(&key) == current.as_ref();
+    seen
+}
+
+/// Takes up the scan layer from a recorded state; the state's bytes.
+fn restore<C: ChunkSource>(
+    lifecycle: &mut Lifecycle<C>,
+    r: &ScanLayerStateRecord,
+) -> Result<usize, String> {
+    let state: ScanLayerState =
+        postcard::from_bytes(&r.state).map_err(|e| format!("it does not decode: {e}"))?;
+    lifecycle.restore_scan_layer(r.job, r.printed_height, &state)?;
+    Ok(r.state.len())
+}
+
+/// Feeds the current scan layer's recorded inputs through the lifecycle again, in the order
+/// the agent took them.
+fn replay_layer<C>(
+    files: &[&JobFile],
+    lifecycle: &mut Lifecycle<C>,
+    in_layer: &dyn Fn(StationKey) -> bool,
+    resumed: &mut Resumed,
+) where
+    C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
+{
     let mut out = Replayed::default();
     let mut stations = std::collections::BTreeSet::new();
-    for f in &files {
+    for f in files {
         read_file(f, &mut resumed.unreadable, |m| {
             let key = match &m {
                 Recorded::Event(e) => (e.job, e.station),
@@ -233,13 +393,6 @@ where
         });
     }
     lifecycle.wait_designs(Instant::now(), &mut out);
-    // After the replay, which must take the current scan layer's stations as new: every
-    // attempt reported before is over, and its repeats change nothing.
-    for r in &resumed.recorded {
-        if r.status() != Some(StationStatus::Interrupted) {
-            lifecycle.remember_reported((r.job, r.station), r.attempt.into());
-        }
-    }
     resumed.stations_replayed = stations.len();
     resumed.unrecorded = out
         .reports
@@ -251,7 +404,6 @@ where
                 .any(|x| (x.job, x.station, x.attempt) == (r.job, r.station, r.attempt))
         })
         .collect();
-    Some(resumed)
 }
 
 /// Calls `take` with every message of a file in the order the agent took them; a file that

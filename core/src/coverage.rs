@@ -147,6 +147,17 @@ pub enum SampleClass {
     NotScanned,
 }
 
+/// What coverage has gathered over the closed stations: each sample's nearest point (squared
+/// distance, offset along the normal, buried) and each station's origin and angular step.
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct CoverageState {
+    /// Per sample: the nearest point's squared distance, its offset along the normal, buried.
+    pub nearest: Vec<(f64, f64, bool)>,
+    /// Per closed station: its origin and angular step.
+    pub stations: Vec<([f64; 3], Option<f64>)>,
+}
+
 /// The nearest scan point of one sample so far.
 #[derive(Debug, Clone, Copy)]
 struct Nearest {
@@ -281,6 +292,47 @@ impl Coverage {
     /// Starts a station: its own nearest points start empty; the job's are kept.
     pub fn begin_station(&mut self) {
         self.station.fill(Nearest::NONE);
+    }
+
+    /// Samples it keeps a state for.
+    pub fn state_len(&self) -> usize {
+        self.total.len()
+    }
+
+    /// What the closed stations gathered, for [`Self::restore`].
+    pub fn state(&self) -> CoverageState {
+        CoverageState {
+            nearest: self
+                .total
+                .iter()
+                .map(|n| (n.d2, n.along, n.buried))
+                .collect(),
+            stations: self
+                .origins
+                .iter()
+                .map(|s| (s.origin.coords.into(), s.step))
+                .collect(),
+        }
+    }
+
+    /// Goes on from a [`Self::state`] of the same samples; false (and nothing changed) when it
+    /// holds another number of samples.
+    pub fn restore(&mut self, s: &CoverageState) -> bool {
+        if s.nearest.len() != self.total.len() {
+            return false;
+        }
+        for (t, &(d2, along, buried)) in self.total.iter_mut().zip(&s.nearest) {
+            *t = Nearest { d2, along, buried };
+        }
+        self.origins = s
+            .stations
+            .iter()
+            .map(|&(o, step)| Station {
+                origin: Point3::from(o),
+                step,
+            })
+            .collect();
+        true
     }
 
     /// Takes a chunk of scan points already in the design frame.

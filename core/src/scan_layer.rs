@@ -99,6 +99,21 @@ pub struct StationPart {
     pub m3c2: Option<StreamingSummary>,
 }
 
+/// What a scan layer has gathered over its closed stations, to go on from after a restart:
+/// its size is the design samples', whatever the points scanned.
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct ScanLayerState {
+    /// The design samples it is over (a check that it fits).
+    pub samples: usize,
+    /// Stations closed.
+    pub stations: u32,
+    /// M3C2's cylinders over them, by core point.
+    pub m3c2: Option<Vec<crate::m3c2::Running>>,
+    /// Coverage over them.
+    pub coverage: Option<crate::coverage::CoverageState>,
+}
+
 /// A scan layer's state over its design samples: M3C2 and coverage fed with each station's
 /// points, and the findings drawn from them. Memory proportional to the samples.
 pub struct ScanLayer {
@@ -142,6 +157,43 @@ impl ScanLayer {
     /// Design samples the layer measures at.
     pub fn samples(&self) -> usize {
         self.samples
+    }
+
+    /// What the closed stations gathered (a station under way is not in it).
+    pub fn state(&self) -> ScanLayerState {
+        ScanLayerState {
+            samples: self.samples,
+            stations: self.stations,
+            m3c2: self.m3c2.as_ref().map(|m| m.total_state().to_vec()),
+            coverage: self.coverage.as_ref().map(|c| c.state()),
+        }
+    }
+
+    /// Goes on from `s`, the [`Self::state`] of a scan layer over the same samples with the
+    /// same methods; false, with nothing changed, when it does not fit.
+    pub fn restore(&mut self, s: &ScanLayerState) -> bool {
+        let fits = s.samples == self.samples
+            && s.m3c2.is_some() == self.m3c2.is_some()
+            && s.coverage.is_some() == self.coverage.is_some()
+            && s.m3c2
+                .as_ref()
+                .zip(self.m3c2.as_ref())
+                .is_none_or(|(a, m)| a.len() == m.total_state().len())
+            && s.coverage
+                .as_ref()
+                .zip(self.coverage.as_ref())
+                .is_none_or(|(a, c)| a.nearest.len() == c.state_len());
+        if !fits {
+            return false;
+        }
+        if let (Some(m), Some(t)) = (self.m3c2.as_mut(), s.m3c2.as_ref()) {
+            m.restore(t);
+        }
+        if let (Some(c), Some(t)) = (self.coverage.as_mut(), s.coverage.as_ref()) {
+            c.restore(t);
+        }
+        self.stations = s.stations;
+        true
     }
 
     /// The design surface one sample stands for, m².

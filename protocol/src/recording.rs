@@ -35,6 +35,36 @@ pub const METADATA_JOB: &str = "asbuilt.job";
 /// The attachment name prefix of the design file (`design/<file name>`).
 pub const ATTACHMENT_DESIGN: &str = "design";
 
+/// The attachment that holds a scan layer's findings state after a station
+/// ([`ScanLayerStateRecord`]): an agent that resumes the job goes on from it instead of
+/// replaying the scan layer's points.
+pub const ATTACHMENT_SCAN_LAYER_STATE: &str = "asbuilt.scan_layer_state";
+
+/// A scan layer's findings state as the agent had it after a station closed: which station
+/// attempt, the scan layer (its printed height), and the state itself, postcard-encoded by the
+/// agent (`asbuilt_core::scan_layer::ScanLayerState`: per design sample, so its size is the
+/// design's, not the scan's).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ScanLayerStateRecord {
+    /// The record's version.
+    pub version: u16,
+    /// The job.
+    pub job: u64,
+    /// The station whose close the state follows.
+    pub station: u32,
+    /// Its attempt.
+    pub attempt: u8,
+    /// The scan layer's printed height, metres (NaN: the whole design).
+    pub printed_height: f64,
+    /// The state.
+    pub state: Vec<u8>,
+}
+
+impl ScanLayerStateRecord {
+    /// The version this build writes and reads.
+    pub const VERSION: u16 = 1;
+}
+
 /// The channels of a recording.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Channel {
@@ -412,6 +442,23 @@ impl<W: Write + Seek> RecordingWriter<W> {
 
     /// Attaches the design file's bytes as `design/<name>`, so a recording can be reviewed
     /// without the design beside it.
+    /// Attaches a scan layer's findings state (see [`ATTACHMENT_SCAN_LAYER_STATE`]).
+    pub fn attach_scan_layer_state(
+        &mut self,
+        record: &ScanLayerStateRecord,
+        time: u64,
+    ) -> Result<(), mcap::McapError> {
+        let data = postcard::to_allocvec(record).expect("a record of bytes always encodes");
+        self.mcap.attach(&mcap::Attachment {
+            log_time: time,
+            create_time: time,
+            name: ATTACHMENT_SCAN_LAYER_STATE.into(),
+            media_type: "application/x-asbuilt-postcard".into(),
+            data: std::borrow::Cow::Owned(data),
+        })
+    }
+
+    /// Attaches the design file.
     pub fn attach_design(
         &mut self,
         name: &str,
@@ -475,6 +522,15 @@ impl From<RecordError> for ReadError {
 pub fn messages(
     bytes: &[u8],
 ) -> Result<impl Iterator<Item = Result<(u64, Recorded), ReadError>> + '_, ReadError> {
+    messages_on(bytes, &Channel::ALL)
+}
+
+/// [`messages`] of the `wanted` channels only: the others are not decoded (a reader after the
+/// station events and reports skips the scan chunks' points).
+pub fn messages_on<'a>(
+    bytes: &'a [u8],
+    wanted: &'a [Channel],
+) -> Result<impl Iterator<Item = Result<(u64, Recorded), ReadError>> + 'a, ReadError> {
     if !bytes.starts_with(mcap::MAGIC) {
         return Err(ReadError::Mcap(mcap::McapError::BadMagic));
     }
@@ -493,6 +549,9 @@ pub fn messages(
             Ok(mcap::records::Record::Message { header, data }) => {
                 index += 1;
                 let (channel, topic) = channels.get(&header.channel_id)?;
+                if !wanted.contains(channel) {
+                    return None;
+                }
                 Some(
                     Recorded::decode(*channel, &data)
                         .map(|msg| (header.log_time, msg))
@@ -611,13 +670,40 @@ pub fn job(bytes: &[u8]) -> Result<(Option<JobMetadata>, Vec<DesignAttachment>),
             mcap::records::Record::Metadata(m) if m.name == METADATA_JOB => {
                 metadata = Some(JobMetadata::from_map(&m.metadata));
             }
-            mcap::records::Record::Attachment { header, data, .. } => {
+            mcap::records::Record::Attachment { header, data, .. }
+                if header.name != ATTACHMENT_SCAN_LAYER_STATE =>
+            {
                 attachments.push((header.name.clone(), data.into_owned()));
             }
             _ => {}
         }
     }
     Ok((metadata, attachments))
+}
+
+/// Every scan layer state attached to a recording, in file order, to `take`; records that do
+/// not decode are skipped. Reading stops at a damaged record (a file whose writer died ends
+/// so), which is returned after what came before it was taken. Returns the records skipped.
+pub fn scan_layer_states(
+    bytes: &[u8],
+    mut take: impl FnMut(ScanLayerStateRecord),
+) -> Result<usize, ReadError> {
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err(ReadError::Mcap(mcap::McapError::BadMagic));
+    }
+    let mut skipped = 0;
+    for record in Records::new(bytes, Chunks::Skip, true) {
+        if let mcap::records::Record::Attachment { header, data, .. } = record? {
+            if header.name != ATTACHMENT_SCAN_LAYER_STATE {
+                continue;
+            }
+            match postcard::from_bytes::<ScanLayerStateRecord>(&data) {
+                Ok(r) if r.version == ScanLayerStateRecord::VERSION => take(r),
+                _ => skipped += 1,
+            }
+        }
+    }
+    Ok(skipped)
 }
 
 /// Every complete record of a file whose writer died (no summary, no footer, a chunk cut off),

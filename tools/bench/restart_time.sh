@@ -23,12 +23,14 @@ AGENT=$BIN/${AGENT:-asbuilt-agent}
 case "$PART" in
 wall)
     JOB=(--part wall)
+    LAYERS=()
     LAST=48
     ;;
 column)
     INPUTS=${INPUTS:-out/c2m-bench}
     [ -f "$INPUTS/column.stl" ] || "$BIN/examples/c2m_bench_inputs" "$INPUTS"
-    JOB=(--part "$(cd "$INPUTS" && pwd)/column.stl" --units m --layer-height 0.02 --scan-after 10,30,50)
+    JOB=(--part "$(cd "$INPUTS" && pwd)/column.stl" --units m --layer-height 0.02)
+    LAYERS=(--scan-after 10,30,50)
     LAST=50
     ;;
 *)
@@ -48,7 +50,7 @@ cd "$OUT"
 "$AGENT" --config agent.toml > agent-0.log 2>&1 &
 AGENT_PID=$!
 for _ in $(seq 1200); do grep -q "serving " agent-0.log && break; sleep 0.1; done
-"$ASBUILT" sim --prefix "$PREFIX" --findings --wait 120 "${JOB[@]}" > sim.log 2>&1 &
+"$ASBUILT" sim --prefix "$PREFIX" --findings --wait 120 "${JOB[@]}" "${LAYERS[@]}" > sim.log 2>&1 &
 SIM=$!
 # Kill while the last scan layer's third station sends: its second is reported.
 STATION=$(printf "L%03d-S2" "$LAST")

@@ -144,6 +144,7 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     // agent that resumed) no longer count.
     let mut sent = vec![1u8; expected];
     let mut deadline = Instant::now() + wait;
+    let mut changed = Instant::now();
     loop {
         reports.retain(|r| {
             sent.get(r.station as usize)
@@ -167,14 +168,27 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
             send(station, attempt, &mut sent_points)?;
             deadline = Instant::now() + wait;
         }
-        if reports.len() >= expected && again.is_empty() || Instant::now() >= deadline {
+        // A report that is not complete may be the history's, of a cell before this one: the
+        // agent's report of this send follows it within a moment.
+        let settled = reports
+            .iter()
+            .all(|r| r.status() == Some(StationStatus::Complete))
+            || changed.elapsed() >= HISTORY_GRACE;
+        if reports.len() >= expected && again.is_empty() && settled || Instant::now() >= deadline {
             break;
         }
+        let before = reports.clone();
         collect_reports(&ports, args.job, &mut reports, Duration::from_millis(100))?;
+        if reports != before {
+            changed = Instant::now();
+        }
     }
     tell_rate("sent", sent_points, started, reports.len(), expected);
     Ok(reports_verdict(expected, &reports, args.wait))
 }
+
+/// How long a station's report that is not complete is waited on for a newer one.
+const HISTORY_GRACE: Duration = Duration::from_secs(1);
 
 /// Prints how many points went out how fast, and how many stations have reported. Shared with
 /// `replay`.
@@ -223,11 +237,13 @@ pub(crate) fn collect_reports(
     {
         let r = *r.payload();
         // Reports come at least once (an agent resuming its job publishes them again); a later
-        // attempt of a station replaces an earlier one.
+        // attempt of a station replaces an earlier one. The reports' history can hold an older
+        // report of the same attempt (a cell before this one sent the station): the newer
+        // stands, and one identical to a report in hand is not news.
         if r.job != job
             || reports
                 .iter()
-                .any(|x| x.station == r.station && x.attempt >= r.attempt)
+                .any(|x| x.station == r.station && (x.attempt > r.attempt || *x == r))
         {
             continue;
         }

@@ -18,8 +18,14 @@ use asbuilt_report::Section;
 
 #[derive(Args)]
 pub struct ReplayArgs {
-    /// The recording (from the agent's recorder or `asbuilt pack`).
-    recording: PathBuf,
+    /// The recording (from the agent's recorder or `asbuilt pack`); several files of one job
+    /// (a job the agent resumed after a stop, or rotated into parts); or the agent's recording
+    /// folder, for its newest job.
+    #[arg(required = true, value_name = "RECORDING")]
+    recordings: Vec<PathBuf>,
+    /// With a folder: the job to replay instead of the newest.
+    #[arg(long)]
+    job: Option<u64>,
     /// 1.0 keeps the recorded timing, 2.0 twice as fast; `max` sends as fast as the agent takes.
     #[arg(long, default_value = "max")]
     speed: String,
@@ -44,11 +50,21 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
                 .with_context(|| format!("--speed {s:?}: give a factor such as 1.0, or max"))?,
         ),
     };
-    let bytes = crate::recording_file::map(&args.recording)?;
-    let bad = |e| crate::recording_file::unreadable(&args.recording, e);
-    let (stations, max_points, inputs) = survey(&bytes).map_err(bad)?;
+    let files = crate::recording_file::job_files(&args.recordings, args.job)?;
+    let (mut stations, mut max_points, mut inputs) = (BTreeSet::new(), 1, 0);
+    for f in &files {
+        let bytes = crate::recording_file::map(f)?;
+        let (s, m, i) = survey(&bytes).map_err(|e| crate::recording_file::unreadable(f, e))?;
+        stations.extend(s);
+        max_points = max_points.max(m);
+        inputs += i;
+    }
+    let shown = match files.as_slice() {
+        [one] => one.display().to_string(),
+        many => format!("{} files of one job", many.len()),
+    };
     if inputs == 0 {
-        bail!("{} holds no input to replay", args.recording.display());
+        bail!("{shown} holds no input to replay");
     }
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
@@ -57,7 +73,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
         "replaying {} inputs of {} stations from {} to {}/… at speed {}",
         inputs,
         stations.len(),
-        args.recording.display(),
+        shown,
         names.prefix,
         args.speed
     );
@@ -66,30 +82,35 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     let mut reports: Vec<StationReport> = Vec::new();
     let jobs: BTreeSet<u64> = stations.iter().map(|s| s.0).collect();
     let mut points = 0u64;
-    // In the order the agent processed them: an End recorded ahead of its chunks follows them.
-    for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
-        let (log_time, m) = m.map_err(bad)?;
-        if !Channel::INPUTS.contains(&m.channel()) {
-            continue;
-        }
-        if let Some(speed) = speed {
-            let t0 = *first.get_or_insert(log_time);
-            let due = Duration::from_secs_f64(log_time.saturating_sub(t0) as f64 / 1e9 / speed);
-            if let Some(ahead) = due.checked_sub(started.elapsed()) {
-                std::thread::sleep(ahead);
+    // In the order the agent processed them: an End recorded ahead of its chunks follows them;
+    // the files of a job one after the other.
+    for f in &files {
+        let bytes = crate::recording_file::map(f)?;
+        let bad = |e| crate::recording_file::unreadable(f, e);
+        for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
+            let (log_time, m) = m.map_err(bad)?;
+            if !Channel::INPUTS.contains(&m.channel()) {
+                continue;
             }
-        }
-        match &m {
-            Recorded::Event(e) => ports.send_event(e)?,
-            Recorded::Pose(p) => ports.send_pose(p)?,
-            Recorded::Chunk(h, p) => {
-                ports.send_chunk(h, p)?;
-                points += p.len() as u64;
+            if let Some(speed) = speed {
+                let t0 = *first.get_or_insert(log_time);
+                let due = Duration::from_secs_f64(log_time.saturating_sub(t0) as f64 / 1e9 / speed);
+                if let Some(ahead) = due.checked_sub(started.elapsed()) {
+                    std::thread::sleep(ahead);
+                }
             }
-            _ => {}
-        }
-        for &job in &jobs {
-            collect_reports(&ports, job, &mut reports, Duration::ZERO)?;
+            match &m {
+                Recorded::Event(e) => ports.send_event(e)?,
+                Recorded::Pose(p) => ports.send_pose(p)?,
+                Recorded::Chunk(h, p) => {
+                    ports.send_chunk(h, p)?;
+                    points += p.len() as u64;
+                }
+                _ => {}
+            }
+            for &job in &jobs {
+                collect_reports(&ports, job, &mut reports, Duration::ZERO)?;
+            }
         }
     }
     let deadline = Instant::now() + wait;

@@ -22,6 +22,7 @@ pub mod streaming;
 /// A count, mean and sum of squared deviations (Welford 1962), mergeable across chunks and
 /// threads (Chan, Golub and LeVeque 1979).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Running {
     /// Values taken.
     pub n: u32,

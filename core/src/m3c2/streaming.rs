@@ -148,6 +148,22 @@ impl StreamingM3c2 {
             });
     }
 
+    /// The job's cylinders over the closed stations, by core point: what [`Self::restore`]
+    /// takes to go on from here.
+    pub fn total_state(&self) -> &[Running] {
+        &self.total
+    }
+
+    /// Goes on from `total`, a [`Self::total_state`] of the same core points; false (and
+    /// nothing changed) when it has another length.
+    pub fn restore(&mut self, total: &[Running]) -> bool {
+        if total.len() != self.total.len() {
+            return false;
+        }
+        self.total.copy_from_slice(total);
+        true
+    }
+
     /// Closes a station: adds its cylinders to the job's and summarises the station alone.
     pub fn end_station(&mut self, registration_sigma: f64) -> StreamingSummary {
         for (t, s) in self.total.iter_mut().zip(&self.station) {

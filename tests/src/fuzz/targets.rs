@@ -228,7 +228,8 @@ fn resume(_: &str, bytes: &[u8], scratch: &Path) -> Outcome {
         None => bytes,
     };
     std::fs::write(dir.join("job-1-1700000000.mcap"), unfinished).expect("scratch is writable");
-    let files = resume::recover_folder(&dir);
+    let folder = resume::scan_folder(&dir);
+    let files = folder.files;
     let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
         box_design(),
         Default::default(),
@@ -244,13 +245,18 @@ fn resume(_: &str, bytes: &[u8], scratch: &Path) -> Outcome {
     let Some(r) = resume::replay_job(&files, &mut lifecycle) else {
         return Outcome::Refused("set aside: nothing to resume".into());
     };
-    let open = lifecycle.interrupt_open(&mut out);
-    // The file is recovered: a second start finds it finished and reads the same.
-    let again = resume::recover_folder(&dir);
-    assert_eq!(
-        again.len(),
-        files.len(),
-        "a recovered file is recovered again"
+    let mut open = lifecycle.interrupt_open(&mut out);
+    for begin in &r.open {
+        lifecycle.interrupt(begin, &mut out);
+        open.push((begin.job, begin.station));
+    }
+    // Recovered (or set aside) while the agent would serve: the next start finds nothing
+    // unfinished.
+    resume::recover_files(&folder.unfinished);
+    let again = resume::scan_folder(&dir);
+    assert!(
+        again.unfinished.is_empty(),
+        "a recovered file is unfinished again"
     );
     Outcome::Read(format!(
         "{} report(s), {} replayed, {} interrupted, {} unreadable",

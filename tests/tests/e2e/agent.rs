@@ -290,12 +290,14 @@ fn a_killed_publisher_times_out_and_a_restarted_one_is_served() {
     assert!(partial.stats.count >= 5000 && partial.stats.count < 100_000);
     assert_eq!(partial.stats.count, partial.points_received);
 
+    // A new cell process continues the same job: it sends the station anew (as its first
+    // attempt, knowing nothing of the dead one's), and the agent serves it again.
     let again = publish_command(ASBUILT, &stations, &prefix)
-        .args(["--job", "2"])
+        .args(["--job", "1"])
         .output()
         .unwrap();
     agent.assert_fed(&again);
-    let full = report_of(&cell.reports(1, LONG), 2, 0);
+    let full = report_of(&cell.reports(1, LONG), 1, 0);
     assert_eq!(full.status(), Some(StationStatus::Complete));
     assert_eq!(full.stats.count, 100_000);
     // Any agent cleans up every dead node it finds: one of another test's agents, started at

@@ -514,6 +514,14 @@ fn finish_resume(
     lifecycle: &mut AgentLifecycle,
     out: &mut IpcOutputs<'_>,
 ) -> Option<std::thread::JoinHandle<()>> {
+    if let Some(report) = &r.findings_due {
+        info!(
+            "resume: job {} station {}: its findings never made it to disk; drawn again from \
+             the scan layer's state",
+            report.job, report.station
+        );
+        lifecycle.findings_after(report, out);
+    }
     for report in &r.unrecorded {
         info!(
             "resume: job {} station {} attempt {} was closed but its report never recorded; \

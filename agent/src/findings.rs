@@ -176,6 +176,28 @@ impl FindingsStage {
             .map(|e| e.layer.state())
     }
 
+    /// The findings of the scan layer of `job` over `design` as they stood after the station of
+    /// `report` closed (its last station): what that station's close drew, drawn again.
+    pub fn findings_after(
+        &self,
+        design: &Arc<PrintedDesign>,
+        report: &StationReport,
+    ) -> Option<StationFindings> {
+        let e = self.epochs.iter().find(|e| e.is(report.job, design))?;
+        let sigma = if report.position_sigma.is_finite() {
+            report.position_sigma
+        } else {
+            0.0
+        };
+        let (f, _) = e.layer.measure(sigma, &*e.design, false)?;
+        Some(f.to_message(
+            (report.job, report.station),
+            e.layer.stations(),
+            self.maker.tolerance,
+            (report.layer, report.printed_height),
+        ))
+    }
+
     /// Takes up a scan layer of `job` over `design` from a state its agent recorded; false
     /// when the state does not fit (another design or other settings).
     pub fn restore(

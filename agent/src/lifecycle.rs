@@ -699,6 +699,26 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
     }
 
+    /// Publishes the findings the station of `report` drew when it closed, drawn again from its
+    /// scan layer's state: the agent before this one stopped before they were on disk.
+    pub fn findings_after(&mut self, report: &StationReport, out: &mut impl Outputs) {
+        let design = if report.printed_height.is_finite() {
+            match self.designs.at(report.printed_height) {
+                Ok(d) => d,
+                Err(_) => return,
+            }
+        } else {
+            self.designs.full().clone()
+        };
+        if let Some(f) = self
+            .findings
+            .as_ref()
+            .and_then(|s| s.findings_after(&design, report))
+        {
+            out.findings(&f);
+        }
+    }
+
     /// Remembers that `attempt` of `key` was reported by the agent before this one (from its
     /// recording), so that its repeats and late messages change nothing.
     /// `begun_ns` is when that attempt's Begin was sent (0 when unknown).
@@ -1076,44 +1096,50 @@ impl<C: ChunkSource> Lifecycle<C> {
             StationStatus::Incomplete
         });
         report.status = status as u8;
-        out.tally(s.inspector.tally());
-        out.report(&report);
         let interrupted = status == StationStatus::Interrupted;
-        if interrupted
-            && s.findings == Some(true)
+        let mut drawn = None;
+        if s.findings == Some(true)
             && let Some(stage) = self.findings.as_mut()
         {
-            // An interrupted try adds nothing: its next attempt scans the station again.
-            stage.abandon(key);
-        } else if s.findings == Some(true)
-            && let Some(stage) = self.findings.as_mut()
-        {
-            let origin = s
-                .pose
-                .and_then(|p| self.frames.t_design_scanner(&p).ok())
-                .map(|t| nalgebra::Point3::from(t.translation.vector));
-            if let Some(f) = stage.end(key, origin, &report) {
-                info!(
-                    "job {} station {}: findings over {} station(s) of layer {}: top {:+.1} mm, \
-                     {} layer(s) out of tolerance, {} region(s), {} missing area(s)",
-                    key.0,
-                    key.1,
-                    f.stations,
-                    f.layer,
-                    f.top_height_deviation * 1e3,
-                    f.layers_out_of_tolerance().count(),
-                    f.regions.len(),
-                    f.missing.len()
-                );
-                out.findings(&f);
-                if !stage.samples().is_empty() {
-                    out.samples(&f, stage.samples());
-                }
-                if out.wants_scan_layer_state()
+            if interrupted {
+                // An interrupted try adds nothing: its next attempt scans the station again.
+                stage.abandon(key);
+            } else {
+                let origin = s
+                    .pose
+                    .and_then(|p| self.frames.t_design_scanner(&p).ok())
+                    .map(|t| nalgebra::Point3::from(t.translation.vector));
+                drawn = stage.end(key, origin, &report);
+                // The scan layer's state goes out before the report: a report on disk means
+                // its layer's state is too, for an agent that resumes the job.
+                if drawn.is_some()
+                    && out.wants_scan_layer_state()
                     && let Some(state) = stage.layer_state(key.0, &s.design)
                 {
                     out.scan_layer_state(&report, &state);
                 }
+            }
+        }
+        out.tally(s.inspector.tally());
+        out.report(&report);
+        if let Some(f) = drawn {
+            info!(
+                "job {} station {}: findings over {} station(s) of layer {}: top {:+.1} mm, {} \
+                 layer(s) out of tolerance, {} region(s), {} missing area(s)",
+                key.0,
+                key.1,
+                f.stations,
+                f.layer,
+                f.top_height_deviation * 1e3,
+                f.layers_out_of_tolerance().count(),
+                f.regions.len(),
+                f.missing.len()
+            );
+            out.findings(&f);
+            if let Some(stage) = self.findings.as_ref()
+                && !stage.samples().is_empty()
+            {
+                out.samples(&f, stage.samples());
             }
         }
         self.counters.stations_reported += 1;

@@ -221,6 +221,9 @@ pub struct Resumed {
     pub open: Vec<asbuilt_protocol::StationEvent>,
     /// Files of the folder whose writer died, to recover while serving.
     pub unfinished: Vec<PathBuf>,
+    /// The current scan layer's last station, whose findings never made it to disk: they are
+    /// drawn again from the layer's state and published.
+    pub findings_due: Option<StationReport>,
 }
 
 /// Reads the newest job of `files` back into `lifecycle`: the attempts it reported are over,
@@ -245,19 +248,21 @@ where
     let in_layer = |key: StationKey| {
         seen.current.is_some() && seen.layer_of.get(&key) == seen.current.as_ref()
     };
-    let last_done = resumed
+    let last_report = resumed
         .recorded
         .iter()
         .rev()
         .find(|r| in_layer((r.job, r.station)) && r.status() != Some(StationStatus::Interrupted))
-        .map(|r| (r.station, r.attempt));
+        .copied();
+    let last_done = last_report.map(|r| (r.station, r.attempt));
     if let (Some(height), Some(done)) = (seen.current, last_done)
         && lifecycle.has_findings()
     {
         let restored = seen
             .states
-            .get(&height)
-            .filter(|r| (r.station, r.attempt) == done)
+            .iter()
+            .rev()
+            .find(|r| r.printed_height.to_bits() == height && (r.station, r.attempt) == done)
             .map(|r| restore(lifecycle, r));
         match restored {
             Some(Ok(bytes)) => resumed.state_bytes = Some(bytes),
@@ -268,6 +273,8 @@ where
             None => replay_layer(&files, lifecycle, &in_layer, &mut resumed),
         }
     }
+    resumed.findings_due = last_report
+        .filter(|r| lifecycle.has_findings() && !seen.with_findings.contains(&(r.job, r.station)));
     // After a replay, which must take the current scan layer's stations as new: every attempt
     // reported before is over, and its repeats change nothing.
     for r in &resumed.recorded {
@@ -300,8 +307,12 @@ struct Survey {
     begun: BTreeMap<StationKey, asbuilt_protocol::StationEvent>,
     /// When each station's latest Begin was sent.
     begun_at: BTreeMap<StationKey, u64>,
-    /// The latest scan layer state recorded for each scan layer.
-    states: BTreeMap<u64, ScanLayerStateRecord>,
+    /// Stations whose findings were recorded.
+    with_findings: std::collections::BTreeSet<StationKey>,
+    /// The scan layer states recorded for the latest scan layer that has one, by station
+    /// attempt (a scan layer's stations are recorded one after the other, so this holds one
+    /// scan layer's at most).
+    states: Vec<ScanLayerStateRecord>,
 }
 
 /// Reads the reports (into `resumed`), the Begins and the scan layer states of `job`'s files.
@@ -317,13 +328,16 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                 continue;
             }
         };
-        let wanted = [Channel::StationEvents, Channel::Reports];
+        let wanted = [Channel::StationEvents, Channel::Reports, Channel::Findings];
         let messages = recording::messages_on(&map, &wanted);
         for m in messages.into_iter().flatten() {
             // A damaged record ends the file's reading; the second pass says so.
             let Ok((_, m)) = m else { break };
             match m {
                 Recorded::Report(r) => resumed.recorded.push(*r),
+                Recorded::Findings(f) => {
+                    seen.with_findings.insert((f.job, f.station));
+                }
                 Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
                     let height = e.printed_height.to_bits();
                     let key = (e.job, e.station);
@@ -342,9 +356,15 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
             }
         }
         let _ = recording::scan_layer_states(&map, |r| {
-            if r.job == job {
-                seen.states.insert(r.printed_height.to_bits(), r);
+            if r.job != job {
+                return;
             }
+            let height = r.printed_height.to_bits();
+            seen.states.retain(|s| {
+                s.printed_height.to_bits() == height
+                    && (s.station, s.attempt) != (r.station, r.attempt)
+            });
+            seen.states.push(r);
         });
     }
     seen

@@ -129,10 +129,10 @@ starts = []
 for log in sorted(glob.glob(f"{out}/soak/agent-*.log"), key=lambda p: int(re.search(r"(\d+)\.log", p)[1])):
     text = open(log).read()
     m = re.search(r"serving .* ([0-9.]+) s after start", text)
-    r = re.search(r"resume: job \d+ from (\d+) file\(s\): (\d+) report\(s\) recorded; (\d+) station\(s\) of the current scan layer replayed \((\d+) points\) in ([0-9.]+) s", text)
+    r = re.search(r"resume: job \d+ from (\d+) file\(s\): (\d+) report\(s\) recorded; (.*); in ([0-9.]+) s", text)
     starts.append((log.split("/")[-1], m and float(m[1]), r and r.groups()))
 for name, t, r in starts:
-    what = f"files {r[0]}, reports {r[1]}, replayed {r[2]} station(s) / {r[3]} points in {r[4]} s" if r else "nothing to resume"
+    what = f"files {r[0]}, reports {r[1]}, {r[2]}, in {r[3]} s" if r else "nothing to resume"
     print(f"  {name}: serving {t if t is not None else 'never (killed first)'} s after start; {what}")
 served = [t for _, t, _ in starts[1:] if t is not None]
 if served:

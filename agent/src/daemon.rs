@@ -487,6 +487,9 @@ fn resume(config: &AgentConfig, lifecycle: &mut AgentLifecycle) -> Option<Resume
             "the current scan layer taken up from its recorded state ({:.1} MB)",
             bytes as f64 / 1e6
         ),
+        None if resumed.stations_replayed == 0 => {
+            "no station of the current scan layer to take up".to_string()
+        }
         None => format!(
             "{} station(s) of the current scan layer replayed ({} points)",
             resumed.stations_replayed, resumed.points_replayed

@@ -174,17 +174,7 @@ impl Outputs for Discard {
 /// The bytes decoded as every kind of message, and whatever decodes as an input fed to the
 /// agent's lifecycle, as a peer's message would be.
 fn wire(_: &str, bytes: &[u8], _: &Path) -> Outcome {
-    let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
-        box_design(),
-        Default::default(),
-        InspectParams::with_tolerance(0.005),
-        LifecycleLimits {
-            max_points_per_chunk: 4096,
-            pending_chunks: 4,
-            open_stations: 2,
-            station_timeout: std::time::Duration::from_secs(10),
-        },
-    );
+    let mut lifecycle = small_lifecycle();
     let mut out = Discard(Vec::new());
     let now = std::time::Instant::now();
     let mut decoded = Vec::new();
@@ -230,17 +220,7 @@ fn resume(_: &str, bytes: &[u8], scratch: &Path) -> Outcome {
     std::fs::write(dir.join("job-1-1700000000.mcap"), unfinished).expect("scratch is writable");
     let folder = resume::scan_folder(&dir);
     let files = folder.files;
-    let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
-        box_design(),
-        Default::default(),
-        InspectParams::with_tolerance(0.005),
-        LifecycleLimits {
-            max_points_per_chunk: 4096,
-            pending_chunks: 4,
-            open_stations: 2,
-            station_timeout: std::time::Duration::from_secs(10),
-        },
-    );
+    let mut lifecycle = small_lifecycle();
     let mut out = Discard(Vec::new());
     let Some(r) = resume::replay_job(&files, &mut lifecycle) else {
         return Outcome::Refused("set aside: nothing to resume".into());
@@ -265,6 +245,21 @@ fn resume(_: &str, bytes: &[u8], scratch: &Path) -> Outcome {
         open.len(),
         r.unreadable.len()
     ))
+}
+
+/// The agent's lifecycle on a small design, with small limits.
+fn small_lifecycle() -> Lifecycle<(ChunkHeader, Vec<ScanPoint>)> {
+    Lifecycle::new(
+        box_design(),
+        Default::default(),
+        InspectParams::with_tolerance(0.005),
+        LifecycleLimits {
+            max_points_per_chunk: 4096,
+            pending_chunks: 4,
+            open_stations: 2,
+            station_timeout: std::time::Duration::from_secs(10),
+        },
+    )
 }
 
 fn box_design() -> PrintedDesigns {

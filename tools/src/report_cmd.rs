@@ -523,6 +523,32 @@ fn same_design(files: &[PathBuf], first: &[u8]) -> Result<()> {
     Ok(())
 }
 
+impl RecordedJob {
+    /// The agent's station lifecycle with its settings and, when it drew findings, its
+    /// findings stage as the agent ran it: the findings are drawn again from the recorded
+    /// chunks, not copied from the recording.
+    fn lifecycle(&self, designs: PrintedDesigns) -> Lifecycle<(ChunkHeader, Vec<ScanPoint>)> {
+        let lifecycle = Lifecycle::new(
+            designs,
+            self.frames.clone(),
+            self.params,
+            self.limits.lifecycle(),
+        );
+        match &self.findings {
+            Some(f) => lifecycle.with_findings(
+                FindingsStage::new(
+                    f.clone(),
+                    self.tolerance,
+                    self.max_distance,
+                    self.limits.max_points_per_chunk,
+                )
+                .keeping_samples(),
+            ),
+            None => lifecycle,
+        }
+    }
+}
+
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
 /// recording read back gives what the live agent gave, whatever order its file holds. The
 /// files of a job are read in turn, as the agents that wrote them took their inputs.
@@ -532,25 +558,7 @@ fn replay_stations(
     designs: PrintedDesigns,
     keep: bool,
 ) -> Result<Replayed> {
-    let mut lifecycle: Lifecycle<(ChunkHeader, Vec<ScanPoint>)> = Lifecycle::new(
-        designs,
-        job.frames.clone(),
-        job.params,
-        job.limits.lifecycle(),
-    );
-    // The agent's findings stage, as the agent ran it: the findings are drawn again from the
-    // recorded chunks, not copied from the recording.
-    if let Some(f) = &job.findings {
-        lifecycle = lifecycle.with_findings(
-            FindingsStage::new(
-                f.clone(),
-                job.tolerance,
-                job.max_distance,
-                job.limits.max_points_per_chunk,
-            )
-            .keeping_samples(),
-        );
-    }
+    let mut lifecycle = job.lifecycle(designs);
     let spacing = job
         .findings
         .as_ref()

@@ -617,16 +617,28 @@ impl<C: ChunkSource> Lifecycle<C> {
             h.job, h.station, h.sequence
         );
         let mut report = StationReport::new(h.job, h.station);
-        report.attempt = attempt.min(u8::MAX.into()) as u8;
-        report.status = StationStatus::Interrupted as u8;
         report.points_received = chunk.points().len() as u64;
         report.rejected.without_pose = chunk.points().len() as u64;
+        // Its Begin was sent before this chunk: a later one is the station sent anew.
+        self.report_interrupted(report, attempt, h.timestamp_ns, out);
+    }
+
+    /// Reports an attempt that is not open here as interrupted (`report` says what is known
+    /// of it), and remembers it as over; `begun_ns` is when its Begin was sent, or before.
+    fn report_interrupted(
+        &mut self,
+        mut report: StationReport,
+        attempt: u16,
+        begun_ns: u64,
+        out: &mut impl Outputs,
+    ) {
+        report.attempt = attempt.min(u8::MAX.into()) as u8;
+        report.status = StationStatus::Interrupted as u8;
         self.counters.rejected_points += report.rejected;
         self.counters.stations_reported += 1;
         out.report(&report);
-        // Its Begin was sent before this chunk: a later one is the station sent anew.
         self.closed
-            .push((h.job, h.station), attempt, h.timestamp_ns);
+            .push((report.job, report.station), attempt, begun_ns);
     }
 
     /// Closes `attempt` of `key` as interrupted: the agent that had it open stopped (a resumed
@@ -650,15 +662,10 @@ impl<C: ChunkSource> Lifecycle<C> {
                     self.close(i, Some(StationStatus::Interrupted), out);
                 }
                 let mut report = StationReport::new(key.0, key.1);
-                report.attempt = attempt.min(u8::MAX.into()) as u8;
-                report.status = StationStatus::Interrupted as u8;
                 report.name = begin.name;
                 report.layer = begin.layer;
                 report.printed_height = begin.printed_height;
-                self.counters.stations_reported += 1;
-                out.report(&report);
-                self.closed
-                    .push(key, attempt, asbuilt_protocol::unix_time_ns());
+                self.report_interrupted(report, attempt, asbuilt_protocol::unix_time_ns(), out);
             }
         }
     }

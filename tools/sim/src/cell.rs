@@ -476,16 +476,9 @@ impl SimOutcome {
 }
 
 /// Sending stopped because the agent reported the attempt interrupted.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
 struct Cut(String);
-
-impl std::fmt::Display for Cut {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for Cut {}
 
 fn send_station(
     job: &SimJob,

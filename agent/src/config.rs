@@ -214,6 +214,10 @@ pub struct RecorderConfig {
     /// replay the current scan layer so its findings go on, report the stations that were open
     /// as interrupted and publish the recorded reports again.
     pub resume: bool,
+    /// Keep the design with its index in `dir/design.index`, so a restart takes them up
+    /// instead of indexing the design again (seconds for a million triangles). About the
+    /// index's size on disk; written once per design, build and `[inspect]` parameters.
+    pub index_cache: bool,
 }
 
 impl Default for RecorderConfig {
@@ -228,6 +232,7 @@ impl Default for RecorderConfig {
             compress: false,
             foxglove: false,
             resume: true,
+            index_cache: true,
         }
     }
 }

@@ -5,9 +5,9 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use asbuilt_core::Design;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
-use asbuilt_core::{C2mParams, Design};
 use asbuilt_protocol::{
     AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
     PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
@@ -295,7 +295,11 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     set_log_level_from_env_or(LogLevel::Error);
     let started = Instant::now();
 
-    let (designs, design_view) = load_designs(config, started)?;
+    let crate::design::LoadedDesign {
+        designs,
+        view: design_view,
+        caching,
+    } = crate::design::load(config, started)?;
     let (node, ports, dead_nodes) = open_ports(config)?;
     let limits = &config.limits;
     let design = designs.whole_design().clone();
@@ -390,48 +394,19 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     }
 
     let summary = shut_down(lifecycle, out, held, &mut status, started);
-    if let Some(t) = recovering
-        && t.join().is_err()
-    {
-        warn!("resume: recovering the unfinished files failed; the next start tries again");
-    }
+    join(recovering, "resume: recovering the unfinished files failed; the next start tries again");
+    join(caching, "design: writing the index cache failed; the next start indexes again");
     Ok(summary)
 }
 
-/// The design's mesh, for a view.
-type DesignView = (Vec<nalgebra::Point3<f64>>, Vec<[u32; 3]>);
-
-/// The design read and indexed once, and its mesh for the view when there is one.
-fn load_designs(
-    config: &AgentConfig,
-    started: Instant,
-) -> Result<(PrintedDesigns, Option<DesignView>), AgentError> {
-    let design = asbuilt_io::read_design(&config.design.path, config.design.units())?;
-    for w in design.report.warnings() {
-        warn!("design: {w}");
+/// Waits for a helper thread (its work is done or safely cut short); says `failed` if it
+/// panicked.
+fn join(thread: Option<std::thread::JoinHandle<()>>, failed: &str) {
+    if let Some(t) = thread
+        && t.join().is_err()
+    {
+        warn!("{failed}");
     }
-    // The view needs the mesh once; the index has everything else.
-    let design_view = (config.viewer.rrd.is_some() || config.viewer.url.is_some())
-        .then(|| (design.vertices.clone(), design.triangles.clone()));
-    let designs = PrintedDesigns::new(
-        design,
-        C2mParams {
-            max_distance: config.inspect.max_distance(),
-            cell_size: config.inspect.cell_size,
-        },
-    )?;
-    let ix = designs.full().index.stats();
-    info!(
-        "design {} ({}): {} triangles, index {} cells of {:.2} mm, {:.0} MB, ready in {:.1} s",
-        config.design.path.display(),
-        config.design.units,
-        ix.triangles,
-        ix.cells,
-        ix.cell_size * 1e3,
-        ix.bytes as f64 / 1e6,
-        started.elapsed().as_secs_f64()
-    );
-    Ok((designs, design_view))
 }
 
 /// The node and the agent's services; also how many dead nodes of an earlier run were cleaned.
@@ -629,7 +604,7 @@ fn start_recorder(
 
 fn start_viewer(
     config: &AgentConfig,
-    design_view: Option<DesignView>,
+    design_view: Option<crate::design::DesignView>,
 ) -> Result<Option<Viewer>, AgentError> {
     Ok(
         if config.viewer.rrd.is_some() || config.viewer.url.is_some() {

@@ -13,6 +13,7 @@
 pub mod attempts;
 pub mod config;
 pub mod daemon;
+pub mod design;
 pub mod findings;
 pub mod lifecycle;
 pub mod log;

@@ -287,11 +287,17 @@ const RECENT: usize = 3;
 impl PrintedDesigns {
     /// Indexes the design once; every height is served from that index.
     pub fn new(design: Design, params: C2mParams) -> Result<Self, C2mError> {
-        let index = Arc::new(C2mIndex::build(&design, params)?);
+        let index = C2mIndex::build(&design, params)?;
+        Ok(Self::with_index(design, index))
+    }
+
+    /// [`PrintedDesigns::new`] over an index built for `design` before (one kept between runs).
+    pub fn with_index(design: Design, index: C2mIndex) -> Self {
+        let index = Arc::new(index);
         let top = design.bounds().1.z;
         let full = Arc::new(design);
         let full_sharp = Arc::new(OnceLock::new());
-        Ok(Self {
+        Self {
             full: Arc::new(PrintedDesign {
                 height: f64::NAN,
                 index: index.clone(),
@@ -308,7 +314,7 @@ impl PrintedDesigns {
                 top,
             },
             recent: Vec::new(),
-        })
+        }
     }
 
     /// The whole design, as a printed design with no cut.

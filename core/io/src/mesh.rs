@@ -59,6 +59,18 @@ pub fn read_design(path: &Path, units: Units) -> Result<Design, IoError> {
     design(mesh, units, path)
 }
 
+/// The design file's bytes, checked as [`read_design`] checks the file (a known format, a file
+/// that is there), for a caller that keeps them: to hash, attach, or key a cache by. They read
+/// with [`read_design_bytes`] under the path's name.
+pub fn read_design_file(path: &Path) -> Result<Vec<u8>, IoError> {
+    format_of(path)?;
+    IoError::require_file(path, "design")?;
+    std::fs::read(path).map_err(|source| IoError::Open {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// [`read_design`] for a design held in memory (one attached to a recording): `name` is the
 /// file name it had, which gives its format and names it in errors.
 pub fn read_design_bytes(bytes: &[u8], name: &str, units: Units) -> Result<Design, IoError> {

@@ -16,6 +16,7 @@ const LEAF_SIZE: usize = 8;
 const PARALLEL_MIN: usize = 16_384;
 
 #[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 struct Node {
     min: [f32; 3],
     max: [f32; 3],
@@ -25,6 +26,7 @@ struct Node {
     count: u32,
 }
 
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Bvh {
     nodes: Vec<Node>,
 }

@@ -39,6 +39,7 @@ const SAMPLE_EVERY: usize = 16;
 pub const BAND: f64 = 0.5;
 
 #[derive(Debug, Clone, Copy)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Cell {
     start: u32,
     /// 0: no list; the cell is answered by the BVH.
@@ -55,6 +56,7 @@ impl Cell {
     }
 }
 
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Grid {
     origin: Point3<f64>,
     /// The design's lowest z and the step of a cell's `top`.

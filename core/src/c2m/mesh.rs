@@ -19,6 +19,7 @@ use super::triangle::{Lanes, Region, Triangle};
 const BOUNDARY: u32 = u32::MAX;
 const EXTRA: u32 = 1 << 31;
 
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Mesh {
     pub vertices: Vec<Point3<f64>>,
     /// Vertex ids, in internal order.

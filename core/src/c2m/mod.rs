@@ -131,6 +131,7 @@ pub struct Cursor {
 }
 
 /// A design prepared for C2M queries. Built once per design and maximum distance.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct C2mIndex {
     mesh: Mesh,
     bvh: Bvh,

@@ -4,8 +4,6 @@
 pub mod shapes;
 pub(crate) mod topology;
 
-use std::collections::HashMap;
-
 use nalgebra::Point3;
 
 pub use topology::Topology;
@@ -64,6 +62,7 @@ impl std::str::FromStr for Units {
 
 /// What loading and cleaning found. Everything here is a warning unless the mesh ends up empty.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct MeshReport {
     /// Vertices the file holds.
     pub input_vertices: usize,
@@ -122,6 +121,7 @@ impl MeshReport {
 }
 
 /// An indexed triangle mesh in metres, with no degenerate triangles.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone)]
 pub struct Design {
     /// Vertices, metres.
@@ -148,7 +148,10 @@ impl Design {
         // Merge by exact position: STL repeats each vertex per triangle, bit for bit.
         let mut remap = Vec::with_capacity(vertices.len());
         let mut unique: Vec<Point3<f64>> = Vec::with_capacity(vertices.len());
-        let mut seen: HashMap<[u64; 3], u32> = HashMap::with_capacity(vertices.len());
+        // Fx, not SipHash: the keys are the file's own coordinates, and hashing them is most
+        // of the time a large design takes to load.
+        let mut seen: rustc_hash::FxHashMap<[u64; 3], u32> = rustc_hash::FxHashMap::default();
+        seen.reserve(vertices.len());
         for v in &vertices {
             let v = v * scale;
             // +0.0 and -0.0 are one position.
@@ -245,26 +248,24 @@ pub(crate) fn sharp_edges(
     min_angle_deg: f64,
     include: impl Fn(usize) -> bool,
 ) -> Vec<[Point3<f64>; 2]> {
-    // Per edge: its faces' normals, and whether `include` takes one of them.
-    type Faces = (Vec<nalgebra::Vector3<f64>>, bool);
-    let mut faces: HashMap<(u32, u32), Faces> = HashMap::new();
-    for (f, t) in triangles.iter().enumerate() {
-        let [a, b, c] = t.map(|i| vertices[i as usize]);
-        let n = (b - a).cross(&(c - a));
-        let n = n / n.norm().max(f64::MIN_POSITIVE);
-        let inc = include(f);
-        for k in 0..3 {
-            let (u, v) = (t[k], t[(k + 1) % 3]);
-            let e = faces.entry((u.min(v), u.max(v))).or_default();
-            e.0.push(n);
-            e.1 |= inc;
-        }
-    }
+    let normals: Vec<nalgebra::Vector3<f64>> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize]);
+            let n = (b - a).cross(&(c - a));
+            n / n.norm().max(f64::MIN_POSITIVE)
+        })
+        .collect();
     let cos_max = min_angle_deg.to_radians().cos();
-    let mut out: Vec<[Point3<f64>; 2]> = faces
-        .into_iter()
-        .filter(|(_, (n, inc))| *inc && (n.len() != 2 || n[0].dot(&n[1]) < cos_max))
-        .map(|((u, v), _)| [vertices[u as usize], vertices[v as usize]])
+    let uses = topology::EdgeUse::sorted(triangles);
+    let mut out: Vec<[Point3<f64>; 2]> = uses
+        .chunk_by(|a, b| a.key == b.key)
+        .filter(|faces| faces.iter().any(|e| include(e.triangle as usize)))
+        .filter(|faces| {
+            let n = |k: usize| &normals[faces[k].triangle as usize];
+            faces.len() != 2 || n(0).dot(n(1)) < cos_max
+        })
+        .map(|faces| faces[0].vertices().map(|v| vertices[v as usize]))
         .collect();
     sort_edges(&mut out);
     out

@@ -131,6 +131,8 @@ fn count_recorded(dir: &Path) -> (usize, u64, usize, usize) {
     let files: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
+        // The folder also keeps the design index cache.
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
         .collect();
     let mut chunks = 0usize;
     let mut deviations = 0usize;

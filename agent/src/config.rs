@@ -204,12 +204,16 @@ pub struct RecorderConfig {
     pub queue_mb: f64,
     /// Also record deviation chunks (2.5 × the bytes of the scans; a replay recomputes them).
     pub deviations: bool,
-    /// LZ4-compress the file's chunks: about half the disk, for CPU the inspection also needs.
-    pub compress: bool,
+    /// How the file's chunks are compressed: `zstd` (the default: a third smaller on scan
+    /// points, on the writer's thread), `lz4` or `none`.
+    pub compression: asbuilt_protocol::recording::ChunkCompression,
     /// Also write channels in Foxglove's schemas (the design, the stations' frames, the
     /// deviation-coloured points, reports and findings as JSON), so Foxglove opens the file as
     /// it is. Deviation chunks are then taken to the writer even without `deviations`.
     pub foxglove: bool,
+    /// One matched point in this many goes into the Foxglove deviations' cloud (1: every
+    /// point). The asbuilt channels keep every point: replay and report use those.
+    pub foxglove_every: u32,
     /// At start, take up the newest job recorded in `dir`: recover files whose writer died,
     /// replay the current scan layer so its findings go on, report the stations that were open
     /// as interrupted and publish the recorded reports again.
@@ -229,8 +233,9 @@ impl Default for RecorderConfig {
             min_free_mb: 1024.0,
             queue_mb: 256.0,
             deviations: false,
-            compress: false,
+            compression: Default::default(),
             foxglove: false,
+            foxglove_every: 16,
             resume: true,
             index_cache: true,
         }

@@ -295,20 +295,16 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     set_log_level_from_env_or(LogLevel::Error);
     let started = Instant::now();
 
-    let crate::design::LoadedDesign {
-        designs,
-        view: design_view,
-        caching,
-    } = crate::design::load(config, started)?;
+    let loaded = crate::design::load(config, started)?;
     let (node, ports, dead_nodes) = open_ports(config)?;
     let limits = &config.limits;
-    let design = designs.whole_design().clone();
-    let mut lifecycle = make_lifecycle(config, designs);
+    let design = loaded.designs.whole_design().clone();
+    let mut lifecycle = make_lifecycle(config, loaded.designs);
     let mut resumed = resume(config, &mut lifecycle);
     let mut out = IpcOutputs {
         ports: &ports,
         recorder: start_recorder(config, design)?,
-        viewer: start_viewer(config, design_view)?,
+        viewer: start_viewer(config, loaded.view)?,
         shown: Default::default(),
         frames: &config.frames,
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
@@ -394,8 +390,14 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     }
 
     let summary = shut_down(lifecycle, out, held, &mut status, started);
-    join(recovering, "resume: recovering the unfinished files failed; the next start tries again");
-    join(caching, "design: writing the index cache failed; the next start indexes again");
+    join(
+        recovering,
+        "resume: recovering unfinished files failed; the next start tries again",
+    );
+    join(
+        loaded.caching,
+        "design: caching the index failed; the next start indexes again",
+    );
     Ok(summary)
 }
 

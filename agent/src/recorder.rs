@@ -101,7 +101,7 @@ impl Recorder {
         let writer = Writer {
             dir,
             max_bytes: (cfg.max_file_mb * 1e6) as u64,
-            compress: cfg.compress,
+            compression: cfg.compression,
             min_free: (cfg.min_free_mb * 1e6) as u64,
             meta,
             design_name,
@@ -110,7 +110,11 @@ impl Recorder {
             counters: counters.clone(),
             disk_low: disk_low.clone(),
             file: None,
-            foxglove: cfg.foxglove.then_some(Foxglove { tolerance, mesh }),
+            foxglove: cfg.foxglove.then_some(Foxglove {
+                tolerance,
+                mesh,
+                every: cfg.foxglove_every.max(1) as usize,
+            }),
         };
         // Before the first chunk can be offered: a disk that is already full must keep it out.
         writer.check_disk();
@@ -342,7 +346,7 @@ struct OpenFile {
 struct Writer {
     dir: PathBuf,
     max_bytes: u64,
-    compress: bool,
+    compression: asbuilt_protocol::recording::ChunkCompression,
     min_free: u64,
     meta: JobMetadata,
     design_name: String,
@@ -358,6 +362,7 @@ struct Writer {
 struct Foxglove {
     tolerance: f64,
     mesh: Arc<Design>,
+    every: usize,
 }
 
 fn job_of(m: &Recorded) -> Option<u64> {
@@ -496,14 +501,15 @@ impl Writer {
                 inner: BufWriter::with_capacity(1 << 20, file),
                 bytes: bytes.clone(),
             },
-            self.compress,
+            self.compression,
         )
         .map_err(|e| e.to_string())?;
         if let Some(f) = &self.foxglove {
             let tolerance = f.tolerance;
             writer = writer
                 .with_foxglove(Box::new(move |d| deviation_colour(d, tolerance)))
-                .map_err(|e| e.to_string())?;
+                .map_err(|e| e.to_string())?
+                .foxglove_every(f.every);
         }
         writer.metadata(&self.meta).map_err(|e| e.to_string())?;
         let now = unix_time_ns();

@@ -52,6 +52,8 @@ pub(crate) struct FoxgloveChannels {
     /// Scan chunks too (a packed file has no deviations to show).
     scans: Option<u16>,
     colour: Colour,
+    /// One matched point in this many goes into the deviations' cloud.
+    every: usize,
 }
 
 fn add<W: Write + Seek, E: Encode>(
@@ -85,7 +87,13 @@ impl FoxgloveChannels {
             findings: add_json(mcap, TOPIC_FINDINGS, "asbuilt.StationFindings")?,
             scans: None,
             colour,
+            every: 1,
         })
+    }
+
+    /// Keeps one matched point in `every` in the deviations' cloud (at least 1: all).
+    pub(crate) fn decimate(&mut self, every: usize) {
+        self.every = every.max(1);
     }
 
     pub(crate) fn add_scans<W: Write + Seek>(
@@ -107,7 +115,7 @@ impl FoxgloveChannels {
             Recorded::Pose(p) => Some((self.stations, encode(&transform(p)))),
             Recorded::Deviations(h, points) => Some((
                 self.deviations,
-                encode(&cloud(h.timestamp_ns, points, &self.colour)),
+                encode(&cloud(h.timestamp_ns, points, &self.colour, self.every)),
             )),
             Recorded::Report(r) => Some((self.reports, serde_json::to_vec(r).ok()?)),
             Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
@@ -156,14 +164,14 @@ fn transform(p: &PoseSnapshot) -> FrameTransform {
     }
 }
 
-/// A chunk's matched points in the design frame, coloured by their deviation; points without a
-/// match or rejected are left out.
-fn cloud(time_ns: u64, points: &[PointDeviation], colour: &Colour) -> PointCloud {
-    let mut data = Vec::with_capacity(points.len() * POINT_STRIDE as usize);
-    for d in points {
-        if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
-            continue;
-        }
+/// A chunk's matched points in the design frame, coloured by their deviation, one in `every`
+/// (counted over the matched ones); points without a match or rejected are left out.
+fn cloud(time_ns: u64, points: &[PointDeviation], colour: &Colour, every: usize) -> PointCloud {
+    let mut data = Vec::with_capacity(points.len() / every * POINT_STRIDE as usize);
+    let matched = points
+        .iter()
+        .filter(|d| !d.flags.contains(DeviationFlags::REJECTED) && d.distance.is_finite());
+    for d in matched.step_by(every) {
         for v in d.position {
             data.extend_from_slice(&(v as f32).to_le_bytes());
         }

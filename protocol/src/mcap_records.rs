@@ -3,8 +3,8 @@
 //! `mcap` reserves a string's memory from its 32-bit length field before it reads the bytes,
 //! so one flipped bit in a damaged recording asked for up to 4 GiB; a chunk's claimed
 //! uncompressed size was taken as it came. Here every length inside a record must fit in what
-//! is left of that record, and a chunk may not claim to open to more than lz4 can make of its
-//! bytes, before any record is parsed. What does not fit is a [`Damaged`] error naming the
+//! is left of that record, and a chunk may not claim to open to more than its compression can
+//! make of its bytes (and a zstd chunk to no more than 1 GiB), before any record is parsed. What does not fit is a [`Damaged`] error naming the
 //! record and the field. Chunks are opened one at a time and all or nothing.
 
 use mcap::records::{Record, op};
@@ -44,8 +44,14 @@ pub struct Records<'a> {
     failed: bool,
 }
 
-/// lz4, the one compression recordings use, opens at most 255 bytes from one.
+/// lz4 opens at most 255 bytes from one.
 const MAX_RATIO: u64 = 255;
+/// zstd at most 32,768 (a 4-byte block of one repeated byte opens to 128 KiB)...
+const ZSTD_MAX_RATIO: u64 = 1 << 15;
+/// ...and a zstd chunk is taken to claim no more than this: well above any chunk this build
+/// writes (chunks close at 4 MiB, and the largest single message is a design's mesh), so that a
+/// damaged size field cannot ask for more memory than that.
+const ZSTD_MAX_CHUNK: u64 = 1 << 30;
 
 impl<'a> Records<'a> {
     /// `ends_cleanly`: false for a file whose writer died (no end magic to expect).
@@ -122,9 +128,14 @@ fn open_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, RecordError> {
     // them into bytes after them underflowed its count of what is left.
     let body = &body[..check(op::CHUNK, body)?];
     let uncompressed = u64::from_le_bytes(body[16..24].try_into().expect("checked"));
-    let limit = (body.len() as u64)
-        .saturating_mul(MAX_RATIO)
-        .saturating_add(1 << 16);
+    let name_len = u32::from_le_bytes(body[28..32].try_into().expect("checked")) as usize;
+    let limit = match &body[32..32 + name_len] {
+        b"zstd" => (body.len() as u64)
+            .saturating_mul(ZSTD_MAX_RATIO)
+            .min(ZSTD_MAX_CHUNK),
+        _ => (body.len() as u64).saturating_mul(MAX_RATIO),
+    }
+    .saturating_add(1 << 16);
     if uncompressed > limit {
         return Err(Damaged {
             record: "chunk",

@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use asbuilt_core::Units;
 use asbuilt_io::scan::ScanFile;
-use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
+use asbuilt_protocol::recording::{ChunkCompression, JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
     StationSender, StationSink, unix_time_ns,
@@ -47,6 +47,18 @@ pub struct PackArgs {
     /// points in that frame (see the README's Recordings section).
     #[arg(long)]
     foxglove: bool,
+    /// How the file's chunks are compressed: zstd, lz4 or none.
+    #[arg(long, default_value = "zstd", value_parser = compression)]
+    compression: ChunkCompression,
+}
+
+fn compression(s: &str) -> Result<ChunkCompression, String> {
+    match s {
+        "zstd" => Ok(ChunkCompression::Zstd),
+        "lz4" => Ok(ChunkCompression::Lz4),
+        "none" => Ok(ChunkCompression::None),
+        _ => Err(format!("{s:?}: use zstd, lz4 or none")),
+    }
 }
 
 pub fn run(args: PackArgs) -> Result<ExitCode> {
@@ -63,7 +75,10 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
     let mesh = asbuilt_io::read_design(&args.design, args.units)?;
     let file =
         File::create(&args.out).with_context(|| format!("cannot write {}", args.out.display()))?;
-    let mut w = RecordingWriter::new(BufWriter::with_capacity(1 << 20, file))?;
+    let mut w = RecordingWriter::with_compression(
+        BufWriter::with_capacity(1 << 20, file),
+        args.compression,
+    )?;
     if args.foxglove {
         // A packed file has scans, not deviations: the colour scale is never used.
         w = w

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use asbuilt_io::scan::write::{OutScan, create};
-use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter};
+use asbuilt_protocol::recording::{ChunkCompression, JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseMode, PoseSnapshot, ScanPoint,
     StationEvent, StationEventKind, StationFindings, StationReport,
@@ -67,12 +67,13 @@ pub fn write_seeds(dir: &Path, shared: &Path) -> Result<()> {
     }
     for target in ["recording", "report", "resume"] {
         let d = sub(target)?;
-        for compress in [false, true] {
-            let path = d.join(format!(
-                "job-{}.mcap",
-                if compress { "lz4" } else { "plain" }
-            ));
-            std::fs::write(&path, recording(compress)?)?;
+        for compression in [
+            ChunkCompression::None,
+            ChunkCompression::Lz4,
+            ChunkCompression::Zstd,
+        ] {
+            let path = d.join(format!("job-{compression:?}.mcap").to_lowercase());
+            std::fs::write(&path, recording(compression)?)?;
         }
     }
     std::fs::write(sub("agent-toml")?.join("agent.toml"), AGENT_TOML)?;
@@ -245,8 +246,8 @@ fn wire_messages() -> Vec<Recorded> {
 }
 
 /// A small job as the agent records it: metadata, the design, three stations, their outputs.
-fn recording(compress: bool) -> Result<Vec<u8>> {
-    let mut w = RecordingWriter::with_compression(std::io::Cursor::new(Vec::new()), compress)?;
+fn recording(compression: ChunkCompression) -> Result<Vec<u8>> {
+    let mut w = RecordingWriter::with_compression(std::io::Cursor::new(Vec::new()), compression)?;
     w.metadata(&JobMetadata {
         writer: "asbuilt-agent".into(),
         config: AGENT_TOML.into(),

@@ -99,12 +99,12 @@ fn the_demo_report_shows_each_scan_layer_on_maps_with_its_findings_history_and_v
 
 /// `report --png` writes each map of the page as a PNG, drawn at twice the page's size.
 fn check_png_maps(dir: &std::path::Path, html: &Html) {
+    // The folder also keeps the agent's design index cache.
     let recording = std::fs::read_dir(dir.join("recording"))
         .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .unwrap();
     let again = dir.join("again");
     let o = std::process::Command::new(ASBUILT)
         .arg("report")

@@ -260,17 +260,20 @@ fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
     ] {
         assert!(out.path().join(f).is_file(), "{f} missing; {err}");
     }
-    let mcaps = std::fs::read_dir(out.path().join("recording"))
+    // The folder also keeps the agent's design index cache.
+    let mcaps: Vec<_> = std::fs::read_dir(out.path().join("recording"))
         .unwrap()
-        .count();
-    assert!(mcaps >= 1);
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    assert!(!mcaps.is_empty());
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
     assert_eq!(report["stations"].as_array().unwrap().len(), 4);
     // The final table (report.json read back from the recording) is what the agent reported live.
     let mut live = Vec::new();
-    for f in std::fs::read_dir(out.path().join("recording")).unwrap() {
-        let bytes = std::fs::read(f.unwrap().path()).unwrap();
+    for f in &mcaps {
+        let bytes = std::fs::read(f).unwrap();
         for m in asbuilt_protocol::recording::messages(&bytes).unwrap() {
             if let (_, asbuilt_protocol::recording::Recorded::Report(r)) = m.unwrap() {
                 live.push(*r);

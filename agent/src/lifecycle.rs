@@ -376,7 +376,7 @@ impl<C: ChunkSource> Lifecycle<C> {
                         None => ("", String::new()),
                     };
                     info!(
-                        "design at printed height {} m ready in {:.1} ms (section of {} \
+                        "design at printed height {:.3} m ready in {:.1} ms (section of {} \
                          triangles{cut} {:.1} ms{samples})",
                         p.height,
                         ms(now.saturating_duration_since(p.since)),

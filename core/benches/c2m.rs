@@ -6,7 +6,7 @@
 //! points shuffled (a merged or reference cloud). Beside it, parry's `TriMesh` (a BVH with
 //! pseudo-normals) answers the same points on the same cores. Also: the index's build, and the
 //! section that a new printed height needs, on the bunny and on a generated 1,004,000-triangle
-//! free-form column.
+//! free-form column; and coverage's line of sight, ours against parry's ray cast.
 //!
 //! Run: `cargo bench -p asbuilt-core --bench c2m`
 
@@ -107,6 +107,7 @@ fn bench(c: &mut Criterion) {
     }
     g.finish();
 
+    line_of_sight(c, &design, &index, &trimesh, &points[..200_000]);
     design_index(c, &design, &index);
 
     // Brute force on a sample, for the ratio (every triangle per point).
@@ -151,6 +152,72 @@ fn parry_project(
                     .map(|proj| ((proj.point - v).length(), proj.is_inside));
             }
         });
+}
+
+/// Coverage's question, whether the design hides a point from a station, asked of our index
+/// (`blocks_sight`, its BVH) and of parry's `TriMesh` ray cast, one core each: parry serves
+/// where it is no slower. Four stations around the bunny, each looking at every target.
+fn line_of_sight(
+    c: &mut Criterion,
+    design: &Design,
+    index: &C2mIndex,
+    trimesh: &parry3d_f64::shape::TriMesh,
+    targets: &[nalgebra::Point3<f64>],
+) {
+    use nalgebra::{Point3, Vector3};
+    use parry3d_f64::math::Vector;
+    use parry3d_f64::query::{Ray, RayCast};
+    // Surface within this of either end does not count: a point sees past its own face.
+    const MARGIN: f64 = 0.002;
+    let (lo, hi) = design.bounds();
+    let centre = nalgebra::center(&lo, &hi);
+    let r = (hi - lo).norm();
+    let eyes: Vec<Point3<f64>> = (0..4)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::FRAC_PI_2;
+            centre + Vector3::new(a.cos() * r, a.sin() * r, 0.3 * r)
+        })
+        .collect();
+    let ours = |eye: &Point3<f64>, p: &Point3<f64>| index.blocks_sight(eye, p, MARGIN);
+    let parry = |eye: &Point3<f64>, p: &Point3<f64>| {
+        let d = p - eye;
+        let len = d.norm();
+        if len <= 2.0 * MARGIN {
+            return false;
+        }
+        let dir = d / len;
+        let o = eye + dir * MARGIN;
+        let ray = Ray::new(Vector::new(o.x, o.y, o.z), Vector::new(dir.x, dir.y, dir.z));
+        trimesh.intersects_local_ray(&ray, len - 2.0 * MARGIN)
+    };
+    let (mut blocked, mut differ) = (0usize, 0usize);
+    for eye in &eyes {
+        for p in targets {
+            let a = ours(eye, p);
+            blocked += usize::from(a);
+            differ += usize::from(a != parry(eye, p));
+        }
+    }
+    eprintln!(
+        "line of sight: {blocked} of {} sights blocked; parry answers {differ} of them otherwise",
+        eyes.len() * targets.len()
+    );
+    let mut g = c.benchmark_group("line_of_sight_bunny");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements((eyes.len() * targets.len()) as u64));
+    for (name, f) in [
+        ("ours", &ours as &dyn Fn(_, _) -> bool),
+        ("parry_trimesh", &parry),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                eyes.iter()
+                    .map(|e| targets.iter().filter(|p| f(e, p)).count())
+                    .sum::<usize>()
+            })
+        });
+    }
+    g.finish();
 }
 
 /// What the design costs: the index's build, and a new printed height's section, on the bunny

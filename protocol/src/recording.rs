@@ -327,8 +327,9 @@ pub enum ChunkCompression {
     None,
     /// LZ4: fast, about 10 % smaller on scan points.
     Lz4,
-    /// zstd at level 3 on the writer's own thread: a third smaller on scan points (16-byte f32
-    /// points, measured on the demo's chunks), for about 0.25 s of one core per 100 MB.
+    /// zstd at level 3 on the writer's own thread: about a third smaller on scan points
+    /// (measured on the demo's chunks), for CPU the agent's full rate feels (the agent
+    /// benchmark measures it).
     #[default]
     Zstd,
 }

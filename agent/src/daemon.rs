@@ -303,7 +303,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let mut resumed = resume(config, &mut lifecycle);
     let mut out = IpcOutputs {
         ports: &ports,
-        recorder: start_recorder(config, design)?,
+        recorder: start_recorder(config, design, loaded.file)?,
         viewer: start_viewer(config, loaded.view)?,
         shown: Default::default(),
         frames: &config.frames,
@@ -578,13 +578,14 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
 fn start_recorder(
     config: &AgentConfig,
     design: Arc<Design>,
+    file: Vec<u8>,
 ) -> Result<Option<Recorder>, AgentError> {
     Ok(match &config.recorder.dir {
         Some(dir) => {
             let r = Recorder::start(
                 &config.recorder,
                 job_metadata(config),
-                &config.design.path,
+                (&config.design.path, file),
                 design,
                 config.inspect.tolerance,
             )

@@ -26,6 +26,8 @@ pub struct LoadedDesign {
     pub view: Option<DesignView>,
     /// The thread writing the index cache, after a start that had to index the design.
     pub caching: Option<JoinHandle<()>>,
+    /// The design file as read, for the recorder to hash and attach without reading it again.
+    pub file: Vec<u8>,
 }
 
 /// The cache file in the recording folder, when the configuration keeps one.
@@ -69,7 +71,6 @@ pub fn load(config: &AgentConfig, started: Instant) -> Result<LoadedDesign, Agen
             (design, index)
         }
     };
-    drop(bytes);
     for w in design.report.warnings() {
         warn!("design: {w}");
     }
@@ -106,6 +107,7 @@ pub fn load(config: &AgentConfig, started: Instant) -> Result<LoadedDesign, Agen
         designs,
         view,
         caching,
+        file: bytes,
     })
 }
 

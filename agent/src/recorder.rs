@@ -74,21 +74,20 @@ pub struct Recorder {
 }
 
 impl Recorder {
-    /// Starts the writer thread. `design` is attached to every file with `meta`.
-    /// `meta`'s design hash is filled from the bytes attached, read once here. With Foxglove's
+    /// Starts the writer thread. `design` (the file's path and bytes, as the agent read them)
+    /// is attached to every file with `meta`, whose design hash is filled from those bytes. With Foxglove's
     /// channels, `mesh` (the design as the agent read it) is shown and `tolerance` sets the
     /// points' colour scale.
     pub fn start(
         cfg: &RecorderConfig,
         mut meta: JobMetadata,
-        design: &Path,
+        (design, design_bytes): (&Path, Vec<u8>),
         mesh: Arc<Design>,
         tolerance: f64,
     ) -> std::io::Result<Self> {
         use sha2::{Digest, Sha256};
         let dir = cfg.dir.clone().expect("started only when recording is on");
         std::fs::create_dir_all(&dir)?;
-        let design_bytes = std::fs::read(design)?;
         meta.design_sha256 = format!("{:x}", Sha256::digest(&design_bytes));
         let design_name = design
             .file_name()

@@ -39,6 +39,8 @@ pub struct AgentConfig {
     pub findings: FindingsConfig,
     /// `[tolerances]`: the limits the findings are held to.
     pub tolerances: TolerancesConfig,
+    /// `[corrections]`: advice for the layers still to print.
+    pub corrections: CorrectionsConfig,
     /// The file as written, for the recording's metadata.
     pub text: String,
 }
@@ -93,6 +95,73 @@ impl Default for FindingsConfig {
             min_region_samples: defaults::MIN_REGION_SAMPLES,
             min_missing_area_m2: defaults::MIN_MISSING_AREA_M2,
         }
+    }
+}
+
+/// `[corrections]`: after each station's findings, advice for the layers still to print (a z
+/// offset per layer, a flow factor, a lateral path offset), published on
+/// `PREFIX/agent/corrections` and recorded. Off unless `enabled`; needs `[findings]` with a
+/// `layer_height`. The advice is the agent's: the cell decides whether to apply it. Metres.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CorrectionsConfig {
+    /// Corrections are computed and sent after each station's findings.
+    pub enabled: bool,
+    /// The largest z offset advised for any one layer.
+    pub max_z_per_layer: f64,
+    /// The smallest flow factor advised.
+    pub flow_min: f64,
+    /// The largest flow factor advised.
+    pub flow_max: f64,
+    /// The largest lateral path offset advised.
+    pub max_path_offset: f64,
+    /// Errors (top height, width, shift) and changes within this are the measurement's noise:
+    /// the advice is held. Default 2 mm, twice a robot-mounted scanner's pose accuracy.
+    pub deadband: f64,
+    /// Layers over which an accumulated top height error is taken back.
+    pub absorb_layers: u32,
+    /// The latest layer bands (printed since the last scan layer) whose width and shift count.
+    pub bands: u32,
+    /// The nominal width of a printed layer (the bead): the design file does not say it, so it
+    /// is declared. Without it, widths are measured and sent but no flow factor is advised.
+    pub bead_width: Option<f64>,
+}
+
+impl Default for CorrectionsConfig {
+    fn default() -> Self {
+        let l = asbuilt_core::corrections::CorrectionLimits::default();
+        Self {
+            enabled: false,
+            max_z_per_layer: l.max_z_per_layer,
+            flow_min: l.flow.0,
+            flow_max: l.flow.1,
+            max_path_offset: l.max_path_offset,
+            deadband: l.deadband,
+            absorb_layers: l.absorb_layers,
+            bands: l.bands,
+            bead_width: l.bead_width,
+        }
+    }
+}
+
+impl CorrectionsConfig {
+    /// The corrector's limits.
+    pub fn limits(&self) -> asbuilt_core::corrections::CorrectionLimits {
+        asbuilt_core::corrections::CorrectionLimits {
+            max_z_per_layer: self.max_z_per_layer,
+            flow: (self.flow_min, self.flow_max),
+            max_path_offset: self.max_path_offset,
+            deadband: self.deadband,
+            absorb_layers: self.absorb_layers,
+            bands: self.bands,
+            bead_width: self.bead_width,
+        }
+    }
+}
+
+fn check_corrections(c: &CorrectionsConfig, problems: &mut Vec<String>) {
+    if let Err(e) = c.limits().check() {
+        problems.push(format!("corrections: {e}"));
     }
 }
 
@@ -412,6 +481,7 @@ const SECTIONS: &[&str] = &[
     "viewer",
     "findings",
     "tolerances",
+    "corrections",
 ];
 
 impl AgentConfig {
@@ -462,6 +532,16 @@ impl AgentConfig {
         check_findings(&findings, &mut problems);
         let tolerances: TolerancesConfig =
             section(&table, "tolerances", &mut problems, true).unwrap_or_default();
+        let corrections: CorrectionsConfig =
+            section(&table, "corrections", &mut problems, true).unwrap_or_default();
+        check_corrections(&corrections, &mut problems);
+        if corrections.enabled && !(findings.enabled && findings.layer_height.is_some()) {
+            problems.push(
+                "corrections.enabled: corrections are drawn from the findings' layer bands; \
+                 turn [findings] on with a layer_height"
+                    .into(),
+            );
+        }
         // Kinds left out take inspect.tolerance, whose own problem is reported there.
         let tolerance_ok = inspect.tolerance > 0.0 && inspect.tolerance.is_finite();
         if let (true, Err(e)) = (tolerance_ok, tolerances.limits(inspect.tolerance)) {
@@ -507,6 +587,7 @@ impl AgentConfig {
                 viewer,
                 findings,
                 tolerances,
+                corrections,
                 text: text.to_string(),
             }),
             _ => Err(ConfigError {
@@ -547,6 +628,12 @@ pub fn recorded_limits(text: &str) -> Result<Limits, Vec<String>> {
 /// the recording draws the findings the agent drew.
 pub fn recorded_findings(text: &str) -> Result<FindingsConfig, Vec<String>> {
     recorded_section(text, "findings", check_findings)
+}
+
+/// The `[corrections]` of a recorded configuration (off where it has none), so that a reader
+/// of the recording advises what the agent advised.
+pub fn recorded_corrections(text: &str) -> Result<CorrectionsConfig, Vec<String>> {
+    recorded_section(text, "corrections", check_corrections)
 }
 
 /// The `[tolerances]` of a recorded configuration (the job's tolerance for every kind where it

@@ -9,9 +9,9 @@ use asbuilt_core::Design;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
 use asbuilt_protocol::{
-    AgentState, AgentStatus, ChunkHeader, DeviationHeader, OutputDrops, PointDeviation,
-    PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
-    unix_time_ns,
+    AgentState, AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, OutputDrops,
+    PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings,
+    StationReport, unix_time_ns,
 };
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -203,6 +203,19 @@ impl Outputs for IpcOutputs<'_> {
                 f.station,
                 bytes.len()
             ),
+        }
+    }
+
+    fn correction(&mut self, c: &LayerCorrection) {
+        if let Some(r) = &self.recorder {
+            r.correction(c);
+        }
+        if let Some(v) = &self.viewer {
+            v.show(View::Correction(Box::new(*c)));
+        }
+        match self.ports.corrections.send_copy(*c) {
+            Ok(_) => self.notify(),
+            Err(e) => warn!("advice after station {} not published: {e:?}", c.station),
         }
     }
 
@@ -496,8 +509,8 @@ fn finish_resume(
 ) -> Option<std::thread::JoinHandle<()>> {
     if let Some(report) = &r.findings_due {
         info!(
-            "resume: job {} station {}: its findings never made it to disk; drawn again from \
-             the scan layer's state",
+            "resume: job {} station {}: its findings (or the advice after them) never made it \
+             to disk; drawn again from the scan layer's state",
             report.job, report.station
         );
         lifecycle.findings_after(report, out);
@@ -571,6 +584,23 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
             config.inspect.max_distance(),
             limits.max_points_per_chunk,
         ));
+    }
+    if config.corrections.enabled {
+        let c = &config.corrections;
+        info!(
+            "corrections: on, at most {:.1} mm a layer, flow {:.2}..{:.2}, path {:.0} mm, deadband \
+             {:.1} mm, {}",
+            c.max_z_per_layer * 1e3,
+            c.flow_min,
+            c.flow_max,
+            c.max_path_offset * 1e3,
+            c.deadband * 1e3,
+            c.bead_width
+                .map_or("no bead width (no flow advice)".to_string(), |b| {
+                    format!("bead {:.1} mm", b * 1e3)
+                })
+        );
+        lifecycle = lifecycle.with_corrections(c.limits());
     }
     lifecycle
 }

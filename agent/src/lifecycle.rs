@@ -14,13 +14,14 @@ use std::sync::Arc;
 use asbuilt_core::frames::FrameChain;
 use std::sync::mpsc;
 
+use asbuilt_core::corrections::{CorrectionLimits, Corrector};
 use asbuilt_core::layers::CutError;
 use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
 use asbuilt_core::station::{InspectParams, StationInspector, Tally};
 use asbuilt_protocol::{
-    AgentStatus, ChunkHeader, DeviationHeader, InputRejects, Message, PointDeviation, PoseSnapshot,
-    RejectCounts, ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport,
-    StationStatus,
+    AgentStatus, ChunkHeader, DeviationHeader, InputRejects, LayerCorrection, Message,
+    PointDeviation, PoseSnapshot, RejectCounts, ScanPoint, StationEvent, StationEventKind,
+    StationFindings, StationReport, StationStatus,
 };
 
 use crate::attempts::{ClosedStations, StationKey, attempt_of};
@@ -63,6 +64,8 @@ pub trait Outputs {
     fn tally(&mut self, _tally: &Tally) {}
     /// Findings of a station's scan layer, after its report (when `[findings]` is on).
     fn findings(&mut self, _findings: &StationFindings) {}
+    /// Advice for the layers still to print, after the findings (when `[corrections]` is on).
+    fn correction(&mut self, _correction: &LayerCorrection) {}
     /// Whether [`Outputs::scan_layer_state`] is wanted (an agent that records for resuming).
     fn wants_scan_layer_state(&self) -> bool {
         false
@@ -217,6 +220,8 @@ pub struct Lifecycle<C> {
     designs: PrintedDesigns,
     preparing: Vec<Preparation>,
     findings: Option<FindingsStage>,
+    /// Advice after each findings, when `[corrections]` is on.
+    corrector: Option<Corrector>,
     frames: FrameChain,
     config: InspectParams,
     limits: LifecycleLimits,
@@ -240,6 +245,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             designs,
             preparing: Vec::new(),
             findings: None,
+            corrector: None,
             frames,
             config,
             limits,
@@ -259,6 +265,51 @@ impl<C: ChunkSource> Lifecycle<C> {
     pub fn with_findings(mut self, stage: FindingsStage) -> Self {
         self.findings = Some(stage);
         self
+    }
+
+    /// Whether advice follows the findings (`[corrections]` is on).
+    pub fn has_corrections(&self) -> bool {
+        self.corrector.is_some()
+    }
+
+    /// Turns on advice for the layers still to print after each findings.
+    pub fn with_corrections(mut self, limits: CorrectionLimits) -> Self {
+        self.corrector = Some(Corrector::new(limits));
+        self
+    }
+
+    /// Takes up advice the agent before this one gave (from its recording), in order.
+    pub fn restore_correction(&mut self, c: &LayerCorrection) {
+        if let Some(k) = self.corrector.as_mut() {
+            k.restore(c);
+        }
+    }
+
+    /// Findings out, then the advice they lead to.
+    fn findings_out(
+        &mut self,
+        f: &StationFindings,
+        report: &StationReport,
+        out: &mut impl Outputs,
+    ) {
+        out.findings(f);
+        if let Some(k) = self.corrector.as_mut() {
+            let c = k.advise(f, report.attempt.max(1), report.position_sigma);
+            info!(
+                "job {} station {}: advice from layer {}: z {:+.2} mm a layer ({} layers), then \
+                 {:+.2}; flow {:.3}; path ({:+.1}, {:+.1}) mm",
+                c.job,
+                c.station,
+                c.from_layer,
+                c.z_first * 1e3,
+                c.first_layers,
+                c.z_then * 1e3,
+                c.flow,
+                c.path_offset[0] * 1e3,
+                c.path_offset[1] * 1e3
+            );
+            out.correction(&c);
+        }
     }
 
     /// The printed layer an open station's Begin gave (0 until it is known).
@@ -722,7 +773,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             .as_ref()
             .and_then(|s| s.findings_after(&design, report))
         {
-            out.findings(&f);
+            self.findings_out(&f, report, out);
         }
     }
 
@@ -1142,7 +1193,7 @@ impl<C: ChunkSource> Lifecycle<C> {
                 f.regions.len(),
                 f.missing.len()
             );
-            out.findings(&f);
+            self.findings_out(&f, &report, out);
             if let Some(stage) = self.findings.as_ref()
                 && !stage.samples().is_empty()
             {

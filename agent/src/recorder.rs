@@ -186,6 +186,12 @@ impl Recorder {
         self.flushed(Recorded::Findings(Box::new(f.clone())));
     }
 
+    /// Records advice for the layers still to print, flushed like a report: an agent resuming
+    /// the job builds its next advice on it.
+    pub fn correction(&self, c: &asbuilt_protocol::LayerCorrection) {
+        self.flushed(Recorded::Correction(Box::new(*c)));
+    }
+
     /// Attaches a scan layer's findings state after a station, flushed like a report: an agent
     /// resuming the job goes on from the latest instead of replaying the layer's points.
     pub fn scan_layer_state(&self, record: ScanLayerStateRecord) {
@@ -372,6 +378,7 @@ fn job_of(m: &Recorded) -> Option<u64> {
         Recorded::Deviations(h, _) => Some(h.job),
         Recorded::Report(r) => Some(r.job),
         Recorded::Findings(f) => Some(f.job),
+        Recorded::Correction(c) => Some(c.job),
         Recorded::Status(_) => None,
     }
 }

@@ -243,6 +243,9 @@ where
         ..Default::default()
     };
     let seen = survey(&files, job, &mut resumed);
+    for c in seen.advice.history() {
+        lifecycle.restore_correction(c);
+    }
     // The current scan layer's last station that did not end interrupted: the state after it
     // is the layer's.
     let in_layer = |key: StationKey| {
@@ -273,8 +276,13 @@ where
             None => replay_layer(&files, lifecycle, &in_layer, &mut resumed),
         }
     }
-    resumed.findings_due = last_report
-        .filter(|r| lifecycle.has_findings() && !seen.with_findings.contains(&(r.job, r.station)));
+    // Findings, or the advice that follows them, that never made it to disk are drawn again.
+    resumed.findings_due = last_report.filter(|r| {
+        let key = (r.job, r.station);
+        lifecycle.has_findings()
+            && (!seen.with_findings.contains(&key)
+                || (lifecycle.has_corrections() && !seen.with_advice.contains(&key)))
+    });
     // After a replay, which must take the current scan layer's stations as new: every attempt
     // reported before is over, and its repeats change nothing.
     for r in &resumed.recorded {
@@ -297,7 +305,6 @@ where
 }
 
 /// What a first pass over a job's files finds, without decoding a scan chunk.
-#[derive(Default)]
 struct Survey {
     /// The scan layer (printed height's bits) of each station's Begin.
     layer_of: BTreeMap<StationKey, u64>,
@@ -309,6 +316,10 @@ struct Survey {
     begun_at: BTreeMap<StationKey, u64>,
     /// Stations whose findings were recorded.
     with_findings: std::collections::BTreeSet<StationKey>,
+    /// Stations whose advice was recorded.
+    with_advice: std::collections::BTreeSet<StationKey>,
+    /// The advice recorded, as far as the next advice builds on it.
+    advice: asbuilt_core::corrections::Corrector,
     /// The scan layer states recorded for the latest scan layer that has one, by station
     /// attempt (a scan layer's stations are recorded one after the other, so this holds one
     /// scan layer's at most).
@@ -317,7 +328,16 @@ struct Survey {
 
 /// Reads the reports (into `resumed`), the Begins and the scan layer states of `job`'s files.
 fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
-    let mut seen = Survey::default();
+    let mut seen = Survey {
+        layer_of: BTreeMap::new(),
+        current: None,
+        begun: BTreeMap::new(),
+        begun_at: BTreeMap::new(),
+        with_findings: Default::default(),
+        with_advice: Default::default(),
+        advice: asbuilt_core::corrections::Corrector::new(Default::default()),
+        states: Vec::new(),
+    };
     for f in files {
         let map = match map(&f.path) {
             Ok(m) => m,
@@ -328,7 +348,12 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                 continue;
             }
         };
-        let wanted = [Channel::StationEvents, Channel::Reports, Channel::Findings];
+        let wanted = [
+            Channel::StationEvents,
+            Channel::Reports,
+            Channel::Findings,
+            Channel::Corrections,
+        ];
         let messages = recording::messages_on(&map, &wanted);
         for m in messages.into_iter().flatten() {
             // A damaged record ends the file's reading; the second pass says so.
@@ -337,6 +362,10 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                 Recorded::Report(r) => resumed.recorded.push(*r),
                 Recorded::Findings(f) => {
                     seen.with_findings.insert((f.job, f.station));
+                }
+                Recorded::Correction(c) if c.job == job => {
+                    seen.with_advice.insert((c.job, c.station));
+                    seen.advice.restore(&c);
                 }
                 Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
                     let height = e.printed_height.to_bits();

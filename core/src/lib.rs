@@ -15,6 +15,7 @@ pub mod c2c;
 pub mod calibration;
 pub mod cloud;
 pub mod colour;
+pub mod corrections;
 pub mod coverage;
 pub mod findings;
 pub mod layers;

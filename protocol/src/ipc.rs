@@ -31,8 +31,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use crate::{
-    AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, MAX_FINDINGS_BYTES, PointDeviation,
-    PoseSnapshot, ScanPoint, StationEvent, StationReport,
+    AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, LayerCorrection, MAX_FINDINGS_BYTES,
+    PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationReport,
 };
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -165,6 +165,8 @@ pub struct ServiceNames {
     pub reports: String,
     /// `PREFIX/agent/findings`: findings, agent to cell.
     pub findings: String,
+    /// `PREFIX/agent/corrections`: advice for the layers still to print, agent to cell.
+    pub corrections: String,
     /// `PREFIX/agent/status`: the agent's health.
     pub status: String,
     /// `PREFIX/agent/outbox`: the event that wakes the cell.
@@ -184,6 +186,7 @@ impl ServiceNames {
             deviations: n("agent/deviations"),
             reports: n("agent/reports"),
             findings: n("agent/findings"),
+            corrections: n("agent/corrections"),
             status: n("agent/status"),
             outbox: n("agent/outbox"),
         }
@@ -260,6 +263,8 @@ pub struct AgentPorts {
     pub reports: Publisher<Ipc, StationReport, ()>,
     /// Encoded [`crate::StationFindings`] behind their header.
     pub findings: Publisher<Ipc, [u8], FindingsHeader>,
+    /// Advice for the layers still to print out (when `[corrections]` is on).
+    pub corrections: Publisher<Ipc, LayerCorrection, ()>,
     /// The agent's health out.
     pub status: Publisher<Ipc, AgentStatus, ()>,
     /// Wakes the cell when an output is sent.
@@ -358,6 +363,22 @@ impl AgentPorts {
             .create()
             .map_err(|e| IpcError::iceoryx("cannot publish reports", e))?;
         let findings = findings_publisher(node, names, &report_drops, &exists)?;
+        let corrections = node
+            .service_builder(&service_name(&names.corrections)?)
+            .publish_subscribe::<LayerCorrection>()
+            .max_publishers(1)
+            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .history_size(REPORT_HISTORY)
+            .subscriber_max_buffer_size(REPORT_QUEUE)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(|e| exists(&names.corrections, e.into()))?
+            .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .set_backpressure_handler(counting_handler(report_drops.clone()))
+            .create()
+            .map_err(|e| IpcError::iceoryx("cannot publish corrections", e))?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -377,6 +398,7 @@ impl AgentPorts {
             deviations,
             reports,
             findings,
+            corrections,
             status,
             outbox,
             deviation_drops,
@@ -402,6 +424,8 @@ pub struct CellPorts {
     pub reports: Subscriber<Ipc, StationReport, ()>,
     /// Encoded [`crate::StationFindings`] behind their header, from the agent.
     pub findings: Subscriber<Ipc, [u8], FindingsHeader>,
+    /// Advice for the layers still to print, from the agent (when its `[corrections]` is on).
+    pub corrections: Subscriber<Ipc, LayerCorrection, ()>,
     /// The agent's health.
     pub status: Subscriber<Ipc, AgentStatus, ()>,
     /// Wakes the cell when the agent sent something.
@@ -605,6 +629,9 @@ impl CellPorts {
                 .user_header::<FindingsHeader>()
                 .open()
         })?;
+        let corrections = output_subscriber(node, &names.corrections, |b| {
+            b.publish_subscribe::<LayerCorrection>().open()
+        })?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -621,6 +648,7 @@ impl CellPorts {
             deviations,
             reports,
             findings,
+            corrections,
             status,
             outbox,
             chunk_service,

@@ -12,6 +12,7 @@
 #![warn(missing_docs)]
 
 pub mod codec;
+mod correction;
 mod deviation;
 mod findings;
 pub mod foxglove;
@@ -27,6 +28,7 @@ mod status;
 mod text;
 
 pub use codec::{DecodeError, Message};
+pub use correction::{CorrectionFlags, Evidence, LayerCorrection};
 pub use deviation::{DeviationFlags, DeviationHeader, Feature, PointDeviation};
 pub use findings::{
     FindingsHeader, LayerFinding, MAX_FINDINGS_BYTES, MAX_LAYER_ROWS, MAX_REGIONS, RegionFinding,

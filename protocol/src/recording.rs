@@ -22,8 +22,8 @@ use crate::codec::{self, DecodeError, Message};
 use crate::foxglove::{Colour, FoxgloveChannels};
 use crate::mcap_records::{Chunks, Damaged, RecordError, Records};
 use crate::{
-    AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
-    StationEvent, StationFindings, StationReport,
+    AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, PointDeviation, PoseSnapshot,
+    ScanPoint, StationEvent, StationFindings, StationReport,
 };
 
 /// The MCAP message encoding of the asbuilt channels: [`crate::codec`]'s postcard records.
@@ -84,11 +84,13 @@ pub enum Channel {
     Status,
     /// Findings after each report, from the agent ([`StationFindings`]).
     Findings,
+    /// Advice for the layers still to print, after findings ([`LayerCorrection`]).
+    Corrections,
 }
 
 impl Channel {
     /// Every channel, in the order a recording declares them.
-    pub const ALL: [Channel; 7] = [
+    pub const ALL: [Channel; 8] = [
         Channel::Poses,
         Channel::ScanChunks,
         Channel::StationEvents,
@@ -96,6 +98,7 @@ impl Channel {
         Channel::Reports,
         Channel::Status,
         Channel::Findings,
+        Channel::Corrections,
     ];
 
     /// The cell's messages to the agent: what a replay sends again.
@@ -111,6 +114,7 @@ impl Channel {
             Channel::Reports => "/agent/reports",
             Channel::Status => "/agent/status",
             Channel::Findings => "/agent/findings",
+            Channel::Corrections => "/agent/corrections",
         }
     }
 
@@ -129,6 +133,7 @@ impl Channel {
             Channel::Reports => StationReport::TYPE_NAME,
             Channel::Status => AgentStatus::TYPE_NAME,
             Channel::Findings => StationFindings::TYPE_NAME,
+            Channel::Corrections => LayerCorrection::TYPE_NAME,
         }
     }
 }
@@ -174,6 +179,12 @@ pub fn schema_text(channel: Channel) -> &'static str {
              StationFindings in declaration order (per-layer width, shift and top height, \
              regions out of tolerance and missing material; metres, design frame)"
         }
+        Channel::Corrections => {
+            "asbuilt.LayerCorrection v1, postcard: the fields of asbuilt-protocol's \
+             LayerCorrection in declaration order (z offset per layer for the first layers and \
+             after, drift per layer, flow factor, path offset; each measured error with its \
+             sigma and samples; metres, design frame)"
+        }
     }
 }
 
@@ -194,6 +205,8 @@ pub enum Recorded {
     Status(Box<AgentStatus>),
     /// A station's findings.
     Findings(Box<StationFindings>),
+    /// Advice for the layers still to print.
+    Correction(Box<LayerCorrection>),
 }
 
 impl Recorded {
@@ -207,6 +220,7 @@ impl Recorded {
             Recorded::Report(_) => Channel::Reports,
             Recorded::Status(_) => Channel::Status,
             Recorded::Findings(_) => Channel::Findings,
+            Recorded::Correction(_) => Channel::Corrections,
         }
     }
 
@@ -226,6 +240,7 @@ impl Recorded {
             Channel::Reports => Recorded::Report(Box::new(codec::decode(bytes)?)),
             Channel::Status => Recorded::Status(Box::new(codec::decode(bytes)?)),
             Channel::Findings => Recorded::Findings(Box::new(codec::decode(bytes)?)),
+            Channel::Corrections => Recorded::Correction(Box::new(codec::decode(bytes)?)),
         })
     }
 
@@ -239,6 +254,7 @@ impl Recorded {
             Recorded::Report(m) => codec::encode(m.as_ref()),
             Recorded::Status(m) => codec::encode(m.as_ref()),
             Recorded::Findings(m) => codec::encode(m.as_ref()),
+            Recorded::Correction(m) => codec::encode(m.as_ref()),
         }
     }
 
@@ -249,7 +265,7 @@ impl Recorded {
             Recorded::Chunk(h, _) => h.timestamp_ns,
             Recorded::Event(m) => m.timestamp_ns,
             Recorded::Deviations(h, _) => h.timestamp_ns,
-            Recorded::Report(_) | Recorded::Findings(_) => 0,
+            Recorded::Report(_) | Recorded::Findings(_) | Recorded::Correction(_) => 0,
             Recorded::Status(m) => m.timestamp_ns,
         }
     }

@@ -103,6 +103,9 @@ pub enum View {
         /// The findings.
         findings: Box<asbuilt_protocol::StationFindings>,
     },
+    /// Advice for the layers still to print: z offsets, flow and path as series across scan
+    /// layers.
+    Correction(Box<asbuilt_protocol::LayerCorrection>),
     /// A per-layer value as a time series on the `layer` timeline.
     LayerValue {
         /// The series' entity path.
@@ -295,7 +298,12 @@ pub fn blueprint() -> rerun::blueprint::Blueprint {
         TimeSeriesView::new("top height deviation (mm), by scan layer")
             .with_origin("/history/top_mm")
             .into(),
-        TimeSeriesView::new("mean deviation per layer band (mm)")
+        TimeSeriesView::new(
+            "corrections advised, by scan layer: z per layer (mm), flow − 1 (%), path (mm)",
+        )
+        .with_origin("/history/corrections")
+        .into(),
+        TimeSeriesView::new("mean deviation per layer band (mm), over the bands (time: band)")
             .with_origin("/layers")
             .into(),
     ])
@@ -520,6 +528,7 @@ impl Painter {
                 significant,
             } => self.samples(path, &positions, &values, significant.as_deref())?,
             View::Findings { index, findings } => self.findings(index, &findings)?,
+            View::Correction(c) => self.correction(&c)?,
             View::LayerValue {
                 series,
                 layer,
@@ -597,6 +606,20 @@ impl Painter {
             n if n % 2 == 1 => Some(widths[n / 2]),
             n => Some(0.5 * (widths[n / 2 - 1] + widths[n / 2])),
         };
+        // Each scan layer's profile of the bands' mean M3C2 distance, on the `band` timeline
+        // alone (as `inspect` draws its per-band means).
+        let profile = format!("layers/m3c2_mean_mm/scan_layer_{:03}", f.layer);
+        self.rec.reset_time();
+        for row in &f.layers {
+            if row.samples > 0 && row.mean.is_finite() {
+                self.rec.set_time_sequence("band", row.layer as i64);
+                self.rec
+                    .log(profile.as_str(), &rerun::Scalars::new([row.mean * 1e3]))?;
+            }
+        }
+        self.rec.reset_time();
+        self.rec.set_time_sequence("station", index as i64);
+        self.rec.set_time_sequence("layer", f.layer as i64);
         for row in &f.layers {
             let band = format!("band_{:03}", row.layer);
             if let Some(w) = row.width() {
@@ -618,6 +641,31 @@ impl Painter {
                     &rerun::Scalars::new([shift * 1e3]),
                 )?;
             }
+        }
+        Ok(())
+    }
+}
+
+impl Painter {
+    /// Advice as series on the `layer` timeline (the scan layer it follows): the z offset per
+    /// layer for the first layers and after, the flow's departure from nominal, and the path.
+    fn correction(
+        &mut self,
+        c: &asbuilt_protocol::LayerCorrection,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        self.rec.set_time_sequence("station", c.station as i64);
+        self.rec.set_time_sequence("layer", c.layer as i64);
+        for (series, value) in [
+            ("z_first_mm", c.z_first * 1e3),
+            ("z_then_mm", c.z_then * 1e3),
+            ("flow_minus_1_percent", (c.flow - 1.0) * 1e2),
+            ("path_x_mm", c.path_offset[0] * 1e3),
+            ("path_y_mm", c.path_offset[1] * 1e3),
+        ] {
+            self.rec.log(
+                format!("history/corrections/{series}"),
+                &rerun::Scalars::new([value]),
+            )?;
         }
         Ok(())
     }

@@ -13,8 +13,16 @@
 //! - **Path.** The shift `s` measured on those bands, under the last path offset `p`, gives
 //!   `p − s`.
 //!
+//! A scan layer's stations each carry their own pose error, a rigid offset of their points: it
+//! moves the width and shift of every band of that scan layer alike (by a millimetre or more
+//! with a 1 mm pose), and it changes from one scan layer to the next. So the latest bands are
+//! read against the scan layer's median band: what a persistent excess or shift adds to them
+//! beyond the part printed before. (An excess that covers most of the bands printed by the
+//! first scan hides in that median.)
+//!
 //! Every value is held where its evidence is inside the deadband (the measurement's noise), and
-//! clamped to its limits. The advice assumes the cell applied the last advice from the layer it
+//! clamped to its limits. A change of the top's error is a difference of two measurements, so
+//! the drift estimate moves only when it is beyond √2 deadbands. The advice assumes the cell applied the last advice from the layer it
 //! was for; a cell that did not should say so by not acting on it, and the height loop then
 //! learns the difference as drift.
 
@@ -45,7 +53,7 @@ impl Default for CorrectionLimits {
             max_z_per_layer: 0.002,
             flow: (0.85, 1.15),
             max_path_offset: 0.02,
-            deadband: 0.002,
+            deadband: 0.0015,
             absorb_layers: 4,
             bands: 3,
             bead_width: None,
@@ -203,8 +211,8 @@ pub fn advise(
     let mut flags = 0;
     flags |= advise_height(limits, base, f, sigma, &mut c);
     let bands = latest_bands(limits, base, f);
-    flags |= advise_flow(limits, base, &bands, &mut c);
-    flags |= advise_path(limits, base, &bands, &mut c);
+    flags |= advise_flow(limits, base, f, &bands, &mut c);
+    flags |= advise_path(limits, base, f, &bands, &mut c);
     c.flags = flags;
     c
 }
@@ -239,7 +247,7 @@ fn advise_height(
         let drift = if e_prev.is_finite() {
             let applied = base.map_or(0.0, |b| b.z_over(printed_prev, printed));
             let innovation = e - e_prev - n as f64 * drift_prev - applied;
-            if innovation.abs() > limits.deadband {
+            if innovation.abs() > std::f64::consts::SQRT_2 * limits.deadband {
                 drift_prev + innovation / n as f64
             } else {
                 drift_prev
@@ -267,8 +275,9 @@ fn advise_height(
     if first.abs() > m || then.abs() > m {
         flags |= CorrectionFlags::Z_CLAMPED;
     }
-    c.z_first = first.clamp(-m, m);
-    c.z_then = then.clamp(-m, m);
+    // `+ 0.0` turns a −0 (no drift, negated) into 0.
+    c.z_first = first.clamp(-m, m) + 0.0;
+    c.z_then = then.clamp(-m, m) + 0.0;
     c.first_layers = if absorb != 0.0 {
         limits.absorb_layers
     } else {
@@ -296,16 +305,25 @@ fn latest_bands<'f>(
         .collect()
 }
 
-/// The flow that brings the latest bands' width back to the bead's.
+/// The flow that brings the latest bands' width, against the scan layer's median band, back
+/// to the bead's.
 fn advise_flow(
     limits: &CorrectionLimits,
     base: Option<&LayerCorrection>,
+    f: &StationFindings,
     bands: &[&asbuilt_protocol::LayerFinding],
     c: &mut LayerCorrection,
 ) -> u32 {
     let flow_prev = base.map_or(1.0, |b| b.flow);
     c.flow = flow_prev;
-    let widths: Vec<f64> = bands.iter().filter_map(|r| r.width()).collect();
+    let Some(reference) = median(f.layers.iter().filter_map(|r| r.width()).collect()) else {
+        return CorrectionFlags::FLOW_UNSEEN;
+    };
+    let widths: Vec<f64> = bands
+        .iter()
+        .filter_map(|r| r.width())
+        .map(|w| w - reference)
+        .collect();
     let samples = bands
         .iter()
         .filter(|r| r.width().is_some())
@@ -342,16 +360,29 @@ fn advise_flow(
     }
 }
 
-/// The path offset that takes the latest bands' shift back.
+/// The path offset that takes the latest bands' shift, against the scan layer's median band,
+/// back.
 fn advise_path(
     limits: &CorrectionLimits,
     base: Option<&LayerCorrection>,
+    f: &StationFindings,
     bands: &[&asbuilt_protocol::LayerFinding],
     c: &mut LayerCorrection,
 ) -> u32 {
     let path_prev = base.map_or([0.0; 2], |b| b.path_offset);
     c.path_offset = path_prev;
-    let shifts: Vec<[f64; 2]> = bands.iter().filter_map(|r| r.shift_xy()).collect();
+    let all: Vec<[f64; 2]> = f.layers.iter().filter_map(|r| r.shift_xy()).collect();
+    let (Some(rx), Some(ry)) = (
+        median(all.iter().map(|s| s[0]).collect()),
+        median(all.iter().map(|s| s[1]).collect()),
+    ) else {
+        return CorrectionFlags::PATH_UNSEEN;
+    };
+    let shifts: Vec<[f64; 2]> = bands
+        .iter()
+        .filter_map(|r| r.shift_xy())
+        .map(|s| [s[0] - rx, s[1] - ry])
+        .collect();
     let (Some(sx), Some(sy)) = (
         median(shifts.iter().map(|s| s[0]).collect()),
         median(shifts.iter().map(|s| s[1]).collect()),
@@ -421,6 +452,7 @@ mod tests {
         drift: Box<dyn Fn(u32) -> f64>,
         excess: Box<dyn Fn(u32) -> f64>,
         shift: [f64; 2],
+        shift_from: u32,
         bead: f64,
         /// Per printed layer: height error gained, width error, shift.
         layers: Vec<(f64, f64, [f64; 2])>,
@@ -437,7 +469,12 @@ mod tests {
                     }
                 });
                 let width = (self.bead + (self.excess)(j)) * flow - self.bead;
-                let shift = [self.shift[0] + path[0], self.shift[1] + path[1]];
+                let s = if j >= self.shift_from {
+                    self.shift
+                } else {
+                    [0.0; 2]
+                };
+                let shift = [s[0] + path[0], s[1] + path[1]];
                 self.layers.push(((self.drift)(j) + dz, width, shift));
             }
         }
@@ -475,6 +512,7 @@ mod tests {
             drift: Box::new(drift),
             excess: Box::new(excess),
             shift: [0.0; 2],
+            shift_from: 0,
             bead: 0.06,
             layers: Vec::new(),
         }
@@ -547,15 +585,17 @@ mod tests {
     fn a_shift_is_taken_back_by_the_path() {
         let mut p = printer(|_| 0.0, |_| 0.0);
         p.shift = [0.004, -0.003];
+        p.shift_from = 12;
         let closed = run(&mut p, &[8, 16, 24], limits(), true, 0.0);
-        assert_eq!(closed[0].1.path_offset, [-0.004, 0.003]);
-        assert!(p.layers[8..].iter().all(|l| l.2[0].hypot(l.2[1]) < 1e-12));
+        assert_eq!(closed[0].1.path_offset, [0.0, 0.0]);
+        assert_eq!(closed[1].1.path_offset, [-0.004, 0.003]);
+        assert!(p.layers[16..].iter().all(|l| l.2[0].hypot(l.2[1]) < 1e-12));
         assert!(closed[2].1.flags().contains(CorrectionFlags::PATH_HELD));
     }
 
     #[test]
     fn noise_inside_the_deadband_advises_nothing() {
-        // Top and widths off by up to 0.9 mm, alternating: changes of 1.8 mm, inside 2 mm.
+        // Top and widths off by up to 0.9 mm, alternating: changes of 1.8 mm, inside √2 × 1.5.
         let scans = [8, 16, 24, 32, 40, 48];
         let closed = run(
             &mut printer(|_| 0.0, |_| 0.0),
@@ -584,6 +624,7 @@ mod tests {
             |j| 0.03 * ((j % 5) as f64 - 2.0),
         );
         p.shift = [0.01, 0.01];
+        p.shift_from = 10;
         for (_, c) in run(&mut p, &[4, 9, 13, 20, 27, 33, 40, 48], l, true, 0.001) {
             for z in [c.z_first, c.z_then] {
                 assert!(z.abs() <= l.max_z_per_layer, "{c:?}");

@@ -68,13 +68,15 @@ pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     let config = out.join("agent.toml");
     std::fs::write(&config, agent_config(&job, &prefix, &args))
         .with_context(|| format!("cannot write {}", config.display()))?;
-    sim_cmd::write_truth(&out.join("truth.json"), &job)?;
+    sim_cmd::write_truth(&out.join("truth.json"), &job, &[])?;
 
     let log = out.join("agent.log");
     let mut agent = start_agent(&config, &log)?;
     let outcome = talk_to_agent(&job, &prefix, &mut agent, &log);
     stop_agent(&mut agent)?;
     let outcome = outcome?;
+    // As built with what the printer applied (the same as before, open loop).
+    sim_cmd::write_truth(&out.join("truth.json"), &job, &outcome.settings)?;
 
     let recording = newest_mcap(&out.join("recording"))?;
     crate::report_cmd::write(&[out.join("recording")], out, Default::default())?;
@@ -105,6 +107,15 @@ fn prepare(out: &Path) -> Result<()> {
 }
 
 fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
+    let corrections = if job.closed_loop {
+        format!(
+            "\n[corrections]\n# The loop is closed (--closed-loop): the simulated printer applies \
+             this advice.\nenabled = true\nbead_width = {}\n",
+            job.part.bead_width().unwrap_or(0.1)
+        )
+    } else {
+        String::new()
+    };
     let url = args
         .rerun_url
         .as_ref()
@@ -122,7 +133,7 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
          [findings]\nenabled = true\nlayer_height = {h}\n\n\
          [tolerances]\n# The report's verdicts: each kind's limit (metres, m² for missing material).\n\
          width = {tol}\ntop_height = {tol}\nposition = {tol}\nsurface = {tol}\n\
-         missing_area_m2 = 0.002\ncreep = {tol}\n",
+         missing_area_m2 = 0.002\ncreep = {tol}\n{corrections}",
         tol = args.tolerance,
         chunk = job.chunk_points,
         h = job.part.layer_height,

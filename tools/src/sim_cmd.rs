@@ -60,6 +60,11 @@ pub struct JobArgs {
     /// unfinished, or whose sending fails (the agent stopped), is scanned and sent again.
     #[arg(long, default_value_t = 5)]
     pub attempts: u8,
+    /// Close the loop: the printer applies the agent's latest advice (its [corrections] must be
+    /// on) from the next layer it prints, against the height drift, extrusion and shift of the
+    /// process; local defects (a missing segment, a bulge) are not corrected.
+    #[arg(long)]
+    pub closed_loop: bool,
 }
 
 impl JobArgs {
@@ -100,6 +105,7 @@ impl JobArgs {
             step_deg: self.step_deg,
             job: self.job,
             attempts: self.attempts,
+            closed_loop: self.closed_loop,
         })
     }
 
@@ -139,9 +145,13 @@ pub fn run(args: SimArgs) -> Result<ExitCode> {
     let wait = Duration::from_secs_f64(args.wait);
     let (_node, ports) = crate::publish::connect(&names, job.chunk_points, wait)?;
     if let Some(p) = &args.truth {
-        write_truth(p, &job)?;
+        write_truth(p, &job, &[])?;
     }
     let outcome = run_with_progress(&job, &ports, args.findings, wait)?;
+    if let Some(p) = &args.truth {
+        // As built with what the printer applied.
+        write_truth(p, &job, &outcome.settings)?;
+    }
     Ok(verdict(&job, &outcome))
 }
 
@@ -184,6 +194,8 @@ pub fn run_with_progress(
         SimEvent::Sent { .. } => bar.inc(1),
         SimEvent::Report(r) => say(&bar, report_line(r)),
         SimEvent::Findings(f) => say(&bar, findings_line(f)),
+        SimEvent::Correction(_) => {}
+        SimEvent::Printing { layers, advice } => say(&bar, printing_line(layers, advice)),
         SimEvent::Retry {
             station,
             attempt,
@@ -254,6 +266,55 @@ pub fn report_line(r: &StationReport) -> String {
         r.stats.p95_abs * 1e3,
         100.0 * r.stats.within as f64 / r.stats.count.max(1) as f64
     )
+}
+
+/// One line for the layers the closed-loop printer prints next, and the advice it applies.
+pub fn printing_line(
+    layers: (u32, u32),
+    advice: Option<&asbuilt_protocol::LayerCorrection>,
+) -> String {
+    let what = match advice {
+        None => "as designed (no advice came)".to_string(),
+        Some(c) if c.is_neutral() => "as designed (advice: nothing to correct)".to_string(),
+        Some(c) => advice_text(c),
+    };
+    format!(
+        "  printing layers {}–{}: {what}",
+        layers.0 + 1,
+        layers.1 + 1
+    )
+}
+
+/// Advice in a few words: the z offsets, the flow and the path.
+pub fn advice_text(c: &asbuilt_protocol::LayerCorrection) -> String {
+    let mut items = Vec::new();
+    if c.z_first != 0.0 || c.z_then != 0.0 {
+        if c.first_layers > 0 && c.z_first != c.z_then {
+            items.push(format!(
+                "z {:+.2} mm a layer for {} layers, then {:+.2}",
+                c.z_first * 1e3,
+                c.first_layers,
+                c.z_then * 1e3
+            ));
+        } else {
+            items.push(format!("z {:+.2} mm a layer", c.z_then * 1e3));
+        }
+    }
+    if c.flow != 1.0 {
+        items.push(format!("flow ×{:.3}", c.flow));
+    }
+    if c.path_offset != [0.0, 0.0] {
+        items.push(format!(
+            "path ({:+.1}, {:+.1}) mm",
+            c.path_offset[0] * 1e3,
+            c.path_offset[1] * 1e3
+        ));
+    }
+    if items.is_empty() {
+        "nothing to correct".into()
+    } else {
+        format!("advised {}", items.join(", "))
+    }
 }
 
 /// One line for a scan layer's findings, as `sim` and `demo` print it.
@@ -336,8 +397,16 @@ fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {
     ExitCode::SUCCESS
 }
 
-/// Writes the job's truth.json (the injected defects and what the agent should find).
-pub fn write_truth(path: &Path, job: &SimJob) -> Result<()> {
-    std::fs::write(path, serde_json::to_string_pretty(&job.truth_json())?)
-        .with_context(|| format!("cannot write {}", path.display()))
+/// Writes the job's truth.json: the injected defects, what the agent should find, and the
+/// print as built with the `settings` the printer applied (none: as designed).
+pub fn write_truth(
+    path: &Path,
+    job: &SimJob,
+    settings: &[asbuilt_sim::LayerSettings],
+) -> Result<()> {
+    std::fs::write(
+        path,
+        serde_json::to_string_pretty(&job.truth_json(settings))?,
+    )
+    .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use asbuilt_protocol::{RegionKind, StationFindings, StationStatus};
+use asbuilt_protocol::{LayerCorrection, RegionKind, StationFindings, StationStatus};
 use asbuilt_sim::{self as sim, SimJob, SimOutcome};
 use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_tests::{Agent, Cell, unique_prefix};
@@ -406,5 +406,109 @@ fn the_agent_keeps_its_status_period_while_a_new_printed_height_is_prepared() {
     assert!(
         gap < 1500.0,
         "a {gap:.0} ms gap between health lines:\n{log}"
+    );
+}
+
+/// Runs `job` closed loop through a fresh agent with findings and corrections on (`limits`
+/// as agent.toml takes them); every scan layer's last advice, in order.
+fn run_closed_loop(test: &str, job: &SimJob, limits: &str) -> (SimOutcome, Vec<LayerCorrection>) {
+    let config = format!(
+        "[inspect]\ntolerance = {TOLERANCE}\nmax_distance = 0.03\n[limits]\n\
+         max_points_per_chunk = {}\n[findings]\nenabled = true\nlayer_height = {}\n\
+         [corrections]\nenabled = true\nbead_width = {}\n{limits}",
+        job.chunk_points,
+        job.part.layer_height,
+        job.part.bead_width().unwrap()
+    );
+    let (agent, cell) = start(test, job, &config);
+    let out = send(job, &agent, &cell, true);
+    let plan = job.plan();
+    assert_eq!(out.reports.len(), plan.len(), "agent log:\n{}", agent.log());
+    let last_of_layer: Vec<LayerCorrection> = job
+        .scan_after
+        .iter()
+        .map(|&k| {
+            let last = plan.iter().filter(|s| s.printed == k).last().unwrap();
+            *out.corrections
+                .iter()
+                .find(|c| c.station == last.index)
+                .unwrap_or_else(|| panic!("no advice after {}\n{}", last.name, agent.log()))
+        })
+        .collect();
+    (out, last_of_layer)
+}
+
+#[test]
+fn closed_loop_takes_back_a_drift_and_an_over_extrusion_on_the_column_within_limits() {
+    // A drift from the first scan on, and an over-extrusion that persists over 21 layers.
+    let part = Part::column();
+    let mut job = SimJob::new(part.clone());
+    job.scan_after = vec![8, 16, 24, 32];
+    job.defects = [
+        "height-drift:from=8,per-layer=0.5mm",
+        "over-extrusion:layers=10-30,width=6mm",
+    ]
+    .iter()
+    .map(|d| Defect::parse(d, &part).unwrap())
+    .collect();
+    job.scanner.step_deg = 0.1;
+    job.rate = None;
+    job.seed = 3;
+    job.closed_loop = true;
+    let (max_z, flow, path) = (0.002, (0.9, 1.1), 0.01);
+    let limits = format!(
+        "max_z_per_layer = {max_z}\nflow_min = {}\nflow_max = {}\nmax_path_offset = {path}\n",
+        flow.0, flow.1
+    );
+    let (out, advice) = run_closed_loop("sim_closed_column", &job, &limits);
+    for c in &out.corrections {
+        assert!(c.z_first.abs() <= max_z && c.z_then.abs() <= max_z, "{c:?}");
+        assert!((flow.0..=flow.1).contains(&c.flow), "{c:?}");
+        assert!(
+            c.path_offset[0].hypot(c.path_offset[1]) <= path + 1e-12,
+            "{c:?}"
+        );
+    }
+    // The first scan sees nothing yet; the second sees +3 mm of top and 6 mm of width on its
+    // latest bands, and advises.
+    assert!(advice[0].is_neutral(), "{:?}", advice[0]);
+    assert!(
+        advice[1].z_first < 0.0 && advice[1].flow < 1.0,
+        "{:?}",
+        advice[1]
+    );
+    // By the next scan interval, and after, the print is back within 10 % of the layer height.
+    let h = part.layer_height;
+    let layers = sim::built_layers(&part, &job.defects, 32, &out.settings).unwrap();
+    for k in [24, 32] {
+        let top = layers[k - 1].top_error_m;
+        assert!(top.abs() <= 0.1 * h, "after {k} layers: top {top}");
+    }
+    // Every layer printed with the flow advised while the excess lasts (to layer 30).
+    for l in &layers[16..=30] {
+        assert!(l.width_error_m.abs() <= 0.1 * h, "{l:?}");
+    }
+    // Layer 31, past the excess, comes out narrow under the advised flow: one band of the
+    // three the scan after it reads, so their median holds the flow until more follow.
+    // Open loop, the same print would be 8 mm high and 6 mm wide there.
+    let open = sim::built_layers(&part, &job.defects, 32, &[]).unwrap();
+    assert!((open[23].top_error_m - 0.008).abs() < 1e-9);
+    assert!((open[20].width_error_m - 0.006).abs() < 1e-9);
+}
+
+#[test]
+fn closed_loop_on_a_print_without_defects_advises_nothing() {
+    let mut job = wall_job(24, vec![]);
+    job.scan_after = vec![8, 16, 24];
+    job.closed_loop = true;
+    let (out, _) = run_closed_loop("sim_closed_clean", &job, "");
+    assert_eq!(out.corrections.len(), job.plan().len());
+    for c in &out.corrections {
+        assert!(c.is_neutral(), "{c:?}");
+    }
+    assert!(
+        out.settings
+            .iter()
+            .all(|s| *s == sim::LayerSettings::NOMINAL)
     );
 }

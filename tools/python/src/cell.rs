@@ -322,6 +322,7 @@ impl SimulatedJob {
             step_deg: step_deg.unwrap_or(d.step_deg),
             job: job.unwrap_or(d.job),
             attempts: d.attempts,
+            closed_loop: d.closed_loop,
         };
         Ok(Self {
             job: spec

@@ -6,7 +6,7 @@
 use nalgebra::{Point3, Vector2};
 
 use super::Part;
-use super::defects::{Defect, LayerState, bulge_at, gaps_of, layer_states};
+use super::defects::{Defect, LayerSettings, LayerState, bulge_at, gaps_of, layer_states};
 use super::part::{PartError, Ring, signed_area2};
 
 /// Cap triangles longer than this are split, so a scanner's raster tests few pixels per triangle.
@@ -33,10 +33,23 @@ struct LayerRings {
     gapped: bool,
 }
 
-/// The as-built part after `printed` layers (at most the part's) with `defects` applied.
+/// The as-built part after `printed` layers (at most the part's) with `defects` applied,
+/// printed as designed.
 pub fn as_built(part: &Part, defects: &[Defect], printed: u32) -> Result<AsBuilt, PartError> {
+    as_built_with(part, defects, printed, &[])
+}
+
+/// The as-built part after `printed` layers with `defects`, each layer printed with its
+/// `settings` (nominal past their end): corrections act on the process disturbances, not on
+/// local defects.
+pub fn as_built_with(
+    part: &Part,
+    defects: &[Defect],
+    printed: u32,
+    settings: &[LayerSettings],
+) -> Result<AsBuilt, PartError> {
     let printed = printed.min(part.layers());
-    let states = layer_states(part, defects, printed);
+    let states = layer_states(part, defects, printed, settings, part.bead_width()?);
     let mut layers = Vec::with_capacity(states.len());
     for (j, s) in states.iter().enumerate() {
         let gaps = gaps_of(defects, j as u32);

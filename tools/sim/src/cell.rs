@@ -7,13 +7,15 @@
 use std::time::{Duration, Instant};
 
 use crate::{
-    AsBuilt, Defect, Part, Scan, ScannerModel, Truth, as_built, perturb, scan, stations_around,
+    AsBuilt, Defect, LayerSettings, Part, Scan, ScannerModel, Truth, as_built_with, built_layers,
+    perturb, scan, stations_around,
 };
 use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
-    StationFindings, StationReport, StationSender, StationSink, StationStatus, codec, unix_time_ns,
+    ChunkHeader, FixedText, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, StationEvent,
+    StationEventKind, StationFindings, StationReport, StationSender, StationSink, StationStatus,
+    codec, unix_time_ns,
 };
 use nalgebra::{Isometry3, Point3};
 use rand::SeedableRng;
@@ -57,6 +59,10 @@ pub struct SimJob {
     /// interrupted or unfinished, or whose sending fails (the agent stopped), is scanned and sent
     /// again as its next attempt.
     pub max_attempts: u8,
+    /// The printer applies the agent's latest advice (`PREFIX/agent/corrections`) from the
+    /// next layer it prints, as a controller would; it waits for the advice after each scan
+    /// layer's last station before printing on.
+    pub closed_loop: bool,
 }
 
 impl SimJob {
@@ -80,6 +86,7 @@ impl SimJob {
             rate: Some(1.0e6),
             one_station_at_a_time: true,
             max_attempts: 5,
+            closed_loop: false,
         }
     }
 
@@ -117,8 +124,11 @@ impl SimJob {
         }
         out
     }
-    /// The job and the truth of each scan layer, as `truth.json` holds it for a reviewer.
-    pub fn truth_json(&self) -> serde_json::Value {
+    /// The job and the truth of each scan layer, as `truth.json` holds it for a reviewer: the
+    /// defects, what each did by each scan layer, and the print as built with `settings` (what
+    /// the printer applied per layer; empty for a print as designed): each layer's top, width
+    /// and shift error, and the top's error at each scan layer.
+    pub fn truth_json(&self, settings: &[LayerSettings]) -> serde_json::Value {
         let t = |t: &Truth| {
             serde_json::json!({
                 "kind": t.kind,
@@ -128,16 +138,50 @@ impl SimJob {
                 "direction": t.direction,
             })
         };
+        let last = self.scan_after.last().copied().unwrap_or(0);
+        let built = built_layers(&self.part, &self.defects, last, settings).unwrap_or_default();
+        let scans: Vec<serde_json::Value> = self
+            .scan_after
+            .iter()
+            .filter_map(|&k| {
+                let layers = built_layers(&self.part, &self.defects, k, settings).ok()?;
+                let top = layers.last()?;
+                Some(serde_json::json!({
+                    "after_layers": k,
+                    "top_error_m": top.top_error_m,
+                    "width_error_m": top.width_error_m,
+                    "shift_m": top.shift_m,
+                }))
+            })
+            .collect();
+        let applied: Vec<serde_json::Value> = settings
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s != LayerSettings::NOMINAL)
+            .map(|(j, s)| {
+                serde_json::json!({
+                    "layer": j,
+                    "z_offset_m": s.z_offset,
+                    "flow": s.flow,
+                    "path_offset_m": s.path_offset,
+                })
+            })
+            .collect();
         serde_json::json!({
             "part": self.part.name,
             "layer_height_m": self.part.layer_height,
+            "bead_width_m": self.part.bead_width().ok(),
             "scan_after_layers": self.scan_after,
+            "closed_loop": self.closed_loop,
             "defects": self.defects.iter().map(|d| format!("{d:?}")).collect::<Vec<_>>(),
             "truth": self.truth().iter().map(|(k, tr)| {
                 let mut v = t(tr);
                 v["after_layers"] = serde_json::json!(k);
                 v
             }).collect::<Vec<_>>(),
+            "as_built_at_scans": scans,
+            "as_built_layers": built,
+            "corrections_applied": applied,
         })
     }
 
@@ -153,9 +197,14 @@ impl SimJob {
             .collect()
     }
 
-    /// The as-built part after `printed` layers.
+    /// The as-built part after `printed` layers, printed as designed.
     pub fn as_built(&self, printed: u32) -> Result<AsBuilt> {
-        Ok(as_built(&self.part, &self.defects, printed)?)
+        self.as_built_with(printed, &[])
+    }
+
+    /// The as-built part after `printed` layers, each printed with its `settings`.
+    pub fn as_built_with(&self, printed: u32, settings: &[LayerSettings]) -> Result<AsBuilt> {
+        Ok(as_built_with(&self.part, &self.defects, printed, settings)?)
     }
 
     /// The scan of one station, repeatable from the job's seed.
@@ -229,6 +278,15 @@ pub enum SimEvent<'a> {
     },
     /// The agent sent a station's findings.
     Findings(&'a StationFindings),
+    /// The agent sent advice for the layers still to print.
+    Correction(&'a LayerCorrection),
+    /// The printer prints `layers` (inclusive) with `advice` (closed loop).
+    Printing {
+        /// First and last layer.
+        layers: (u32, u32),
+        /// The advice applied; `None`: none came, the layers are printed as designed.
+        advice: Option<&'a LayerCorrection>,
+    },
 }
 
 /// What a job sent and got back.
@@ -249,6 +307,10 @@ pub struct SimOutcome {
     pub agent: Option<(u32, Instant)>,
     /// The findings, as they came.
     pub findings: Vec<StationFindings>,
+    /// The latest advice after each station, as it came.
+    pub corrections: Vec<LayerCorrection>,
+    /// What the printer applied to each layer (closed loop; empty when open).
+    pub settings: Vec<LayerSettings>,
 }
 
 impl SimOutcome {
@@ -291,10 +353,33 @@ pub fn run(
     let mut in_flight: std::collections::VecDeque<Attempt<'_>> = Default::default();
     // The serving agent's status (kept in the service's history), before the first station.
     collect(job.job, ports, &mut out, on)?;
+    let mut settings: Vec<LayerSettings> = Vec::new();
+    let mut previous: Option<&PlannedStation> = None;
     for st in &plan {
         if current.as_ref().map(|c| c.0) != Some(st.printed) {
-            current = Some((st.printed, job.as_built(st.printed)?));
+            if job.closed_loop {
+                // The printer goes on only with the last scan layer's advice in hand.
+                while let Some(a) = in_flight.pop_front() {
+                    settle(job, a, ports, wait, &settings, &mut out, on)?;
+                }
+                let advice = match previous {
+                    Some(p) => wait_for_advice(job, p, ports, &mut out, on)?,
+                    None => None,
+                };
+                let from = settings.len() as u32;
+                settings.extend((from..st.printed).map(|j| {
+                    advice.map_or(LayerSettings::NOMINAL, |c| LayerSettings::advised(&c, j))
+                }));
+                if from < st.printed {
+                    on(SimEvent::Printing {
+                        layers: (from, st.printed - 1),
+                        advice: advice.as_ref(),
+                    });
+                }
+            }
+            current = Some((st.printed, job.as_built_with(st.printed, &settings)?));
         }
+        previous = Some(st);
         let part = &current.as_ref().expect("set above").1;
         let t = Instant::now();
         let s = job.scan(st, part);
@@ -308,7 +393,7 @@ pub fn run(
         // scanner that is carried from station to station sends them.
         if job.one_station_at_a_time {
             while let Some(a) = in_flight.pop_front() {
-                settle(job, a, ports, wait, &mut out, on)?;
+                settle(job, a, ports, wait, &settings, &mut out, on)?;
             }
         }
         let mut a = Attempt {
@@ -318,11 +403,11 @@ pub fn run(
             cut: None,
             agent: None,
         };
-        send_attempt(job, &mut a, ports, &mut out, on)?;
+        send_attempt(job, &mut a, ports, &settings, &mut out, on)?;
         in_flight.push_back(a);
     }
     while let Some(a) = in_flight.pop_front() {
-        settle(job, a, ports, wait, &mut out, on)?;
+        settle(job, a, ports, wait, &settings, &mut out, on)?;
     }
     let deadline = Instant::now() + wait;
     let done = |o: &SimOutcome| !expect_findings || o.findings.len() >= plan.len();
@@ -331,7 +416,38 @@ pub fn run(
         collect(job.job, ports, &mut out, on)?;
     }
     out.seconds = started.elapsed().as_secs_f64();
+    out.settings = settings;
     Ok(out)
+}
+
+/// How long the printer waits for the advice after a scan layer's last station was reported.
+const ADVICE_WAIT: Duration = Duration::from_secs(5);
+
+/// The advice after `station` (the last of its scan layer); when none comes within
+/// [`ADVICE_WAIT`] (the agent's `[corrections]` are off, or it was lost), the latest advice
+/// the agent gave, if any.
+fn wait_for_advice(
+    job: &SimJob,
+    station: &PlannedStation,
+    ports: &CellPorts,
+    out: &mut SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<Option<LayerCorrection>> {
+    let deadline = Instant::now() + ADVICE_WAIT;
+    loop {
+        collect(job.job, ports, out, on)?;
+        if let Some(c) = out.corrections.iter().find(|c| c.station == station.index) {
+            return Ok(Some(*c));
+        }
+        if Instant::now() >= deadline {
+            return Ok(out
+                .corrections
+                .iter()
+                .max_by_key(|c| (c.layer, c.station))
+                .copied());
+        }
+        ports.wait_for_output(Duration::from_millis(50))?;
+    }
 }
 
 /// One try at a station: what was sent, and why it was cut short if it was.
@@ -353,6 +469,7 @@ fn send_attempt(
     job: &SimJob,
     a: &mut Attempt<'_>,
     ports: &CellPorts,
+    settings: &[LayerSettings],
     out: &mut SimOutcome,
     on: &mut dyn FnMut(SimEvent<'_>),
 ) -> Result<()> {
@@ -360,7 +477,7 @@ fn send_attempt(
     let s = match &a.scan {
         Some(s) => s,
         None => {
-            rescanned = job.scan(a.station, &job.as_built(a.station.printed)?);
+            rescanned = job.scan(a.station, &job.as_built_with(a.station.printed, settings)?);
             &rescanned
         }
     };
@@ -392,6 +509,7 @@ fn settle(
     mut a: Attempt<'_>,
     ports: &CellPorts,
     wait: Duration,
+    settings: &[LayerSettings],
     out: &mut SimOutcome,
     on: &mut dyn FnMut(SimEvent<'_>),
 ) -> Result<()> {
@@ -417,7 +535,7 @@ fn settle(
             return Ok(());
         }
         a.attempt += 1;
-        send_attempt(job, &mut a, ports, out, on)?;
+        send_attempt(job, &mut a, ports, settings, out, on)?;
     }
 }
 
@@ -605,6 +723,19 @@ fn collect(
             Ok(_) => {}
             Err(e) => eprintln!("warning: findings from the agent cannot be read: {e}"),
         }
+    }
+    while let Some(sample) = ports.corrections.receive().map_err(|e| bad(&e))? {
+        let c = *sample.payload();
+        if c.job != job {
+            continue;
+        }
+        // The latest advice after each station stands; the same advice again comes once.
+        match out.corrections.iter_mut().find(|x| x.station == c.station) {
+            Some(x) if codec::encode(x) == codec::encode(&c) => continue,
+            Some(x) => *x = c,
+            None => out.corrections.push(c),
+        }
+        on(SimEvent::Correction(&c));
     }
     while let Ok(Some(_)) = ports.deviations.receive() {}
     while let Ok(Some(s)) = ports.status.receive() {

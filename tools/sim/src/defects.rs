@@ -189,6 +189,38 @@ impl Defect {
     }
 }
 
+/// What the printer was set to for one layer: the advice it applied, nominal without any.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LayerSettings {
+    /// Metres added to the layer's height.
+    pub z_offset: f64,
+    /// Factor on the nominal flow.
+    pub flow: f64,
+    /// Metres the path is moved by, x and y.
+    pub path_offset: [f64; 2],
+}
+
+impl LayerSettings {
+    /// As designed.
+    pub const NOMINAL: LayerSettings = LayerSettings {
+        z_offset: 0.0,
+        flow: 1.0,
+        path_offset: [0.0; 2],
+    };
+
+    /// Layer `j` as `advice` says to print it (nominal before the layer it is for).
+    pub fn advised(advice: &asbuilt_protocol::LayerCorrection, j: u32) -> Self {
+        if j < advice.from_layer {
+            return Self::NOMINAL;
+        }
+        Self {
+            z_offset: advice.z_offset(j),
+            flow: advice.flow,
+            path_offset: advice.path_offset,
+        }
+    }
+}
+
 /// Per-layer effect of all defects after `printed` layers.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LayerState {
@@ -201,18 +233,33 @@ pub(crate) struct LayerState {
     pub shift: [f64; 2],
 }
 
-pub(crate) fn layer_states(part: &Part, defects: &[Defect], printed: u32) -> Vec<LayerState> {
+/// Each layer's span, outline offset and shift after `printed` layers: the process
+/// disturbances among `defects` (drift, extrusion, shift, sag), acted against by the
+/// `settings` the printer applied to each layer (nominal past their end). A layer `bead` wide
+/// at nominal flow comes out `(bead + excess) · flow` wide.
+pub(crate) fn layer_states(
+    part: &Part,
+    defects: &[Defect],
+    printed: u32,
+    settings: &[LayerSettings],
+    bead: f64,
+) -> Vec<LayerState> {
     let mut out = Vec::with_capacity(printed as usize);
     let mut z = 0.0;
     for j in 0..printed {
         let nominal = part.layer_span(j);
-        let mut h = nominal.1 - nominal.0;
+        let set = settings
+            .get(j as usize)
+            .copied()
+            .unwrap_or(LayerSettings::NOMINAL);
+        let mut h = nominal.1 - nominal.0 + set.z_offset;
+        let mut excess = 0.0;
         let mut offset = 0.0;
-        let mut shift = [0.0; 2];
+        let mut shift = set.path_offset;
         for d in defects {
             match *d {
                 Defect::Extrusion { first, last, width } if (first..=last).contains(&j) => {
-                    offset += 0.5 * width;
+                    excess += width;
                 }
                 Defect::HeightDrift { from, per_layer } if j >= from => h += per_layer,
                 Defect::LateralShift { from, offset: o } if j >= from => {
@@ -231,6 +278,8 @@ pub(crate) fn layer_states(part: &Part, defects: &[Defect], printed: u32) -> Vec
                 _ => {}
             }
         }
+        // At nominal flow this adds nothing, so an open-loop print is what it always was.
+        offset += 0.5 * excess + 0.5 * (bead + excess) * (set.flow - 1.0);
         out.push(LayerState {
             z0: z,
             z1: z + h,
@@ -241,6 +290,42 @@ pub(crate) fn layer_states(part: &Part, defects: &[Defect], printed: u32) -> Vec
         z += h;
     }
     out
+}
+
+/// One printed layer as built, for a reviewer: where it ended up against its design.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct BuiltLayer {
+    /// The layer, 0-based.
+    pub layer: u32,
+    /// Its bottom and top, metres.
+    pub z: [f64; 2],
+    /// Its top less the nominal one: the print's height error there, metres.
+    pub top_error_m: f64,
+    /// As built minus designed width (both sides), metres.
+    pub width_error_m: f64,
+    /// Its shift in x and y, metres.
+    pub shift_m: [f64; 2],
+}
+
+/// Every layer of the print after `printed` layers, as built with `settings`.
+pub fn built_layers(
+    part: &Part,
+    defects: &[Defect],
+    printed: u32,
+    settings: &[LayerSettings],
+) -> Result<Vec<BuiltLayer>, crate::PartError> {
+    let states = layer_states(part, defects, printed, settings, part.bead_width()?);
+    Ok(states
+        .iter()
+        .enumerate()
+        .map(|(j, s)| BuiltLayer {
+            layer: j as u32,
+            z: [s.z0, s.z1],
+            top_error_m: s.z1 - s.nominal.1,
+            width_error_m: 2.0 * s.offset,
+            shift_m: s.shift,
+        })
+        .collect())
 }
 
 /// Outward displacement of a bulge at `p`.
@@ -299,6 +384,8 @@ mod tests {
                 per_layer: 0.001,
             }],
             10,
+            &[],
+            0.1734,
         );
         assert!((s[9].z1 - (0.2 + 0.005)).abs() < 1e-12);
         assert!((s[4].z1 - 0.1).abs() < 1e-12);
@@ -309,10 +396,52 @@ mod tests {
                 depth: 0.006,
             }],
             10,
+            &[],
+            0.1734,
         );
         assert!((s[9].z1 - (0.2 - 0.006)).abs() < 1e-12);
         assert!((s[6].z1 - 0.14).abs() < 1e-12);
         assert!(s[9].offset > s[8].offset && s[8].offset > s[7].offset);
+    }
+
+    #[test]
+    fn settings_act_against_the_process() {
+        let p = Part::wall();
+        let defects = [
+            Defect::HeightDrift {
+                from: 2,
+                per_layer: 0.001,
+            },
+            Defect::Extrusion {
+                first: 0,
+                last: 9,
+                width: 0.01,
+            },
+            Defect::LateralShift {
+                from: 0,
+                offset: [0.002, -0.001],
+            },
+        ];
+        let bead = 0.1;
+        let set = LayerSettings {
+            z_offset: -0.001,
+            flow: bead / (bead + 0.01),
+            path_offset: [-0.002, 0.001],
+        };
+        let open = layer_states(&p, &defects, 10, &[], bead);
+        let closed = layer_states(
+            &p,
+            &defects,
+            10,
+            &[LayerSettings::NOMINAL, set, set, set],
+            bead,
+        );
+        assert!((open[4].offset - 0.005).abs() < 1e-15);
+        assert!(closed[3].offset.abs() < 1e-15 && closed[4].offset == open[4].offset);
+        assert!(closed[3].shift.iter().all(|v| v.abs() < 1e-15));
+        // Layers 2 and 3 drift +1 mm each, taken back; layer 1 is printed 1 mm thin.
+        assert!((closed[3].z1 - (0.08 - 0.001)).abs() < 1e-12);
+        assert!((open[3].z1 - 0.082).abs() < 1e-12);
     }
 
     #[test]

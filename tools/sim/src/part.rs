@@ -120,6 +120,30 @@ impl Part {
         (z0, (z0 + self.layer_height).min(self.height))
     }
 
+    /// The width a layer comes out at nominal flow, for the printer's flow model: a wall's
+    /// thickness; for another section sprayed or extruded whole, `2 · area / perimeter` of its
+    /// first layer (what the width grows by when the flow's extra volume spreads evenly around
+    /// its outline).
+    pub fn bead_width(&self) -> Result<f64, PartError> {
+        if let Shape::Wall { thickness, .. } = self.shape {
+            return Ok(thickness);
+        }
+        let rings = self.section(0.5 * self.layer_height.min(self.height))?;
+        let area: f64 = rings.iter().map(|r| 0.5 * signed_area2(r)).sum();
+        let perimeter: f64 = rings
+            .iter()
+            .map(|r| {
+                (0..r.len())
+                    .map(|k| {
+                        let (p, q) = (r[k], r[(k + 1) % r.len()]);
+                        (q[0] - p[0]).hypot(q[1] - p[1])
+                    })
+                    .sum::<f64>()
+            })
+            .sum();
+        Ok(2.0 * area.abs() / perimeter.max(f64::MIN_POSITIVE))
+    }
+
     /// Whether a layer's bottom and top outlines correspond vertex for vertex (the analytic
     /// shapes), so a layer follows the design's slope; sliced meshes give vertical prisms.
     pub fn sections_correspond(&self) -> bool {

@@ -51,6 +51,8 @@ pub struct JobSpec {
     pub job: u64,
     /// Tries at a station before the cell gives up on it (see [`SimJob::max_attempts`]).
     pub attempts: u8,
+    /// The printer applies the agent's advice (see [`SimJob::closed_loop`]).
+    pub closed_loop: bool,
 }
 
 impl Default for JobSpec {
@@ -67,6 +69,7 @@ impl Default for JobSpec {
             step_deg: 0.036,
             job: 1,
             attempts: 5,
+            closed_loop: false,
         }
     }
 }
@@ -183,6 +186,7 @@ impl JobSpec {
             return Err(JobSpecError::Rate(r));
         }
         job.rate = self.rate;
+        job.closed_loop = self.closed_loop;
         Ok(job)
     }
 }

@@ -346,39 +346,21 @@ impl AgentPorts {
         let deviation_drops = Arc::new(AtomicU64::new(0));
         let report_drops = Arc::new(AtomicU64::new(0));
         let deviations = deviation_publisher(node, names, q, &deviation_drops, &exists)?;
-        let reports = node
-            .service_builder(&service_name(&names.reports)?)
-            .publish_subscribe::<StationReport>()
-            .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(REPORT_HISTORY)
-            .subscriber_max_buffer_size(REPORT_QUEUE)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.reports, e.into()))?
-            .publisher_builder()
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(report_drops.clone()))
-            .create()
-            .map_err(|e| IpcError::iceoryx("cannot publish reports", e))?;
+        let reports = message_publisher::<StationReport>(
+            node,
+            &names.reports,
+            "reports",
+            &report_drops,
+            &exists,
+        )?;
         let findings = findings_publisher(node, names, &report_drops, &exists)?;
-        let corrections = node
-            .service_builder(&service_name(&names.corrections)?)
-            .publish_subscribe::<LayerCorrection>()
-            .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(REPORT_HISTORY)
-            .subscriber_max_buffer_size(REPORT_QUEUE)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.corrections, e.into()))?
-            .publisher_builder()
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(report_drops.clone()))
-            .create()
-            .map_err(|e| IpcError::iceoryx("cannot publish corrections", e))?;
+        let corrections = message_publisher::<LayerCorrection>(
+            node,
+            &names.corrections,
+            "corrections",
+            &report_drops,
+            &exists,
+        )?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -467,6 +449,33 @@ fn deviation_publisher(
         .set_backpressure_handler(counting_handler(drops.clone()))
         .create()
         .map_err(|e| IpcError::iceoryx("cannot publish deviations", e))
+}
+
+/// A publisher of one fixed-size message per station (reports, corrections): a late
+/// subscriber gets the latest from the history; a full subscriber queue drops and counts in
+/// `drops`, never makes the agent wait.
+fn message_publisher<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    name: &str,
+    what: &str,
+    drops: &Arc<AtomicU64>,
+    exists: Exists<'_>,
+) -> Result<Publisher<Ipc, T, ()>, IpcError> {
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<T>()
+        .max_publishers(1)
+        .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
+        .max_nodes(MAX_NODES)
+        .history_size(REPORT_HISTORY)
+        .subscriber_max_buffer_size(REPORT_QUEUE)
+        .enable_safe_overflow(false)
+        .open_or_create()
+        .map_err(|e| exists(name, e.into()))?
+        .publisher_builder()
+        .backpressure_strategy(BackpressureStrategy::DiscardData)
+        .set_backpressure_handler(counting_handler(drops.clone()))
+        .create()
+        .map_err(|e| IpcError::iceoryx(format!("cannot publish {what}"), e))
 }
 
 /// The agent's findings publisher (encoded `StationFindings`), dropping and counting in `drops`

@@ -251,6 +251,21 @@ fn summary(job: &SimJob, o: &SimOutcome, out: &Path, recording: &Path) {
             Some(f) => eprintln!("  {}", sim_cmd::findings_line(f).trim_start()),
             None => eprintln!("    no findings came back for this layer"),
         }
+        if job.closed_loop {
+            let built = asbuilt_sim::built_layers(&job.part, &job.defects, k, &o.settings);
+            if let Ok(Some(top)) = built.map(|b| b.last().copied()) {
+                let advice = o
+                    .corrections
+                    .iter()
+                    .filter(|c| c.layer + 1 == k)
+                    .max_by_key(|c| c.station);
+                eprintln!(
+                    "    closed loop: top as built {:+.1} mm; {}",
+                    top.top_error_m * 1e3,
+                    advice.map_or("no advice came".into(), sim_cmd::advice_text)
+                );
+            }
+        }
     }
     eprintln!(
         "\n{} in {:.0} s. Look at it:\n  rerun {}          # pip install rerun-sdk==0.36.*\n  \

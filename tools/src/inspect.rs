@@ -494,6 +494,7 @@ impl Job {
             layers: totals.layers,
             m3c2_two_cloud: totals.m3c2_two_cloud,
             findings,
+            corrections: Vec::new(),
             assessment: None,
             warnings,
             maps: maps.finish(),

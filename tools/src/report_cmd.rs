@@ -18,8 +18,8 @@ use asbuilt_core::station::{InspectParams, Tally};
 use asbuilt_core::{C2mParams, Units};
 use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{
-    ChunkHeader, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
-    StationFindings, StationReport, StationStatus,
+    ChunkHeader, LayerCorrection, PointDeviation, PoseSnapshot, ScanPoint, StationEvent,
+    StationEventKind, StationFindings, StationReport, StationStatus,
 };
 use clap::Args;
 use std::time::{Duration, Instant};
@@ -102,6 +102,8 @@ struct Collected {
     buffer: Vec<PointDeviation>,
     /// The latest findings of each scan layer (by job and printed height).
     findings: BTreeMap<(u64, u64), StationFindings>,
+    /// The latest advice after each scan layer (by job and layer).
+    corrections: BTreeMap<(u64, u32), LayerCorrection>,
     maps: MapCollector,
 }
 
@@ -116,6 +118,7 @@ impl Collected {
             interrupted: Vec::new(),
             buffer: Vec::new(),
             findings: BTreeMap::new(),
+            corrections: BTreeMap::new(),
             maps,
         }
     }
@@ -190,6 +193,10 @@ impl Outputs for Collected {
         }
         self.findings
             .insert((f.job, f.printed_height.to_bits()), f.clone());
+    }
+
+    fn correction(&mut self, c: &LayerCorrection) {
+        self.corrections.insert((c.job, c.layer), *c);
     }
 
     fn samples(&mut self, f: &StationFindings, samples: &[SampleState]) {
@@ -305,6 +312,8 @@ struct RecordedJob {
     limits: asbuilt_agent::config::Limits,
     /// The agent's `[findings]` when it drew findings: the report draws them again.
     findings: Option<asbuilt_agent::config::FindingsConfig>,
+    /// The agent's `[corrections]` when it advised: the report advises again.
+    corrections: Option<asbuilt_agent::config::CorrectionsConfig>,
     /// What the verdicts hold the findings to.
     verdict_limits: asbuilt_core::verdict::Limits,
     tolerance: f64,
@@ -338,9 +347,12 @@ impl RecordedJob {
         // The design as it was, read from the recording's bytes; its name gives the format.
         let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
             .with_context(|| format!("the design recorded in {}", path.display()))?;
-        let (frames, settings, limits, findings, tolerances) = if meta.writer == "asbuilt-agent" {
+        let (frames, settings, limits, findings, tolerances, corrections) = if meta.writer
+            == "asbuilt-agent"
+        {
             use asbuilt_agent::config::{
-                recorded_findings, recorded_limits, recorded_settings, recorded_tolerances,
+                recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
+                recorded_tolerances,
             };
             let problems =
                 |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
@@ -348,12 +360,14 @@ impl RecordedJob {
             let limits = recorded_limits(&meta.config).map_err(problems)?;
             let findings = recorded_findings(&meta.config).map_err(problems)?;
             let tolerances = recorded_tolerances(&meta.config).map_err(problems)?;
+            let corrections = recorded_corrections(&meta.config).map_err(problems)?;
             (
                 frames,
                 settings,
                 limits,
                 findings.enabled.then_some(findings),
                 tolerances,
+                corrections.enabled.then_some(corrections),
             )
         } else {
             Default::default()
@@ -386,6 +400,7 @@ impl RecordedJob {
             params,
             limits,
             findings,
+            corrections,
             verdict_limits,
             tolerance,
             max_distance,
@@ -402,6 +417,14 @@ impl RecordedJob {
             warnings.push(
                 "the findings drawn from the recorded chunks differ from those the agent \
                  recorded: a --tolerance or --max-distance given here, or another asbuilt \
+                 version than the agent's"
+                    .to_string(),
+            );
+        }
+        if replayed.corrections_differ {
+            warnings.push(
+                "the advice drawn again from the recorded chunks differs from the advice the \
+                 agent recorded: a --tolerance or --max-distance given here, or another asbuilt \
                  version than the agent's"
                     .to_string(),
             );
@@ -466,6 +489,7 @@ impl RecordedJob {
             layers: None,
             m3c2_two_cloud: None,
             findings,
+            corrections: replayed.corrections,
             assessment: None,
             warnings,
             maps: replayed.maps,
@@ -488,6 +512,10 @@ struct Replayed {
     findings: BTreeMap<(u64, u64), StationFindings>,
     /// The findings drawn again differ from those the agent recorded.
     findings_differ: bool,
+    /// The latest advice after each scan layer, drawn again.
+    corrections: Vec<LayerCorrection>,
+    /// The advice drawn again differs from what the agent recorded.
+    corrections_differ: bool,
     unfinished: usize,
     /// Station attempts the agent reported interrupted: (job, station, attempt, name).
     interrupted: Vec<(u64, u32, u8, String)>,
@@ -534,7 +562,7 @@ impl RecordedJob {
             self.params,
             self.limits.lifecycle(),
         );
-        match &self.findings {
+        let lifecycle = match &self.findings {
             Some(f) => lifecycle.with_findings(
                 FindingsStage::new(
                     f.clone(),
@@ -544,6 +572,10 @@ impl RecordedJob {
                 )
                 .keeping_samples(),
             ),
+            None => lifecycle,
+        };
+        match &self.corrections {
+            Some(c) => lifecycle.with_corrections(c.limits()),
             None => lifecycle,
         }
     }
@@ -569,6 +601,7 @@ fn replay_stations(
         out.kept = Some(BTreeMap::new());
     }
     let mut recorded = BTreeMap::new();
+    let mut advised = BTreeMap::new();
     let mut first_time = None;
     let start = Instant::now();
     let mut cut = Vec::new();
@@ -599,6 +632,9 @@ fn replay_stations(
                 Recorded::Findings(f) => {
                     recorded.insert(scan_layer_of(&f), *f);
                 }
+                Recorded::Correction(c) => {
+                    advised.insert((c.job, c.layer), *c);
+                }
                 m => asbuilt_agent::replay::feed(&mut lifecycle, m, now, &mut out),
             }
         }
@@ -618,6 +654,7 @@ fn replay_stations(
         tallies,
         interrupted,
         findings: drawn,
+        corrections: drawn_advice,
         maps,
         kept,
         ..
@@ -630,27 +667,40 @@ fn replay_stations(
     if done.is_empty() {
         bail!("{} holds no station", files[0].display());
     }
-    let (findings, findings_differ) = if job.findings.is_some() {
-        // Bytes, not floats: NaN fields compare equal as bytes.
-        let bytes = |m: &BTreeMap<(u64, u64), StationFindings>| -> Vec<Vec<u8>> {
-            m.values().map(asbuilt_protocol::codec::encode).collect()
-        };
-        let differ = bytes(&drawn) != bytes(&recorded);
-        (drawn, differ)
-    } else {
-        (recorded, false)
-    };
+    let (findings, findings_differ) = drawn_or_recorded(job.findings.is_some(), drawn, recorded);
+    let (corrections, corrections_differ) =
+        drawn_or_recorded(job.corrections.is_some(), drawn_advice, advised);
     Ok(Replayed {
         maps: maps.finish(),
         stations: done.into_values().collect(),
         total,
         findings,
         findings_differ,
+        corrections: corrections.into_values().collect(),
+        corrections_differ,
         unfinished,
         interrupted,
         cut,
         kept: kept.unwrap_or_default(),
     })
+}
+
+/// What the lifecycle drew again when it `drew` (and whether it differs from what the agent
+/// recorded), else what was recorded.
+fn drawn_or_recorded<K: Ord, M: asbuilt_protocol::Message>(
+    drew: bool,
+    drawn: BTreeMap<K, M>,
+    recorded: BTreeMap<K, M>,
+) -> (BTreeMap<K, M>, bool) {
+    if !drew {
+        return (recorded, false);
+    }
+    // Bytes, not floats: NaN fields compare equal as bytes.
+    let bytes = |m: &BTreeMap<K, M>| -> Vec<Vec<u8>> {
+        m.values().map(asbuilt_protocol::codec::encode).collect()
+    };
+    let differ = bytes(&drawn) != bytes(&recorded);
+    (drawn, differ)
 }
 
 fn write_outputs(source: &str, out: &std::path::Path, report: &Report) -> Result<()> {

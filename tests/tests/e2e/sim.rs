@@ -428,7 +428,7 @@ fn run_closed_loop(test: &str, job: &SimJob, limits: &str) -> (SimOutcome, Vec<L
         .scan_after
         .iter()
         .map(|&k| {
-            let last = plan.iter().filter(|s| s.printed == k).last().unwrap();
+            let last = plan.iter().rfind(|s| s.printed == k).unwrap();
             *out.corrections
                 .iter()
                 .find(|c| c.station == last.index)

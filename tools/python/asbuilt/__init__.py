@@ -164,12 +164,13 @@ class Cell:
         cell.send_station(0, points, translation, rotation_xyzw, name="L008-S1", layer=7,
                           printed_height=0.16)
         for message in cell.receive(timeout=5.0):
-            ...   # message["kind"] is "report" or "findings"
+            ...   # message["kind"] is "report", "findings" or "correction"
 
     `send_station` sends Begin, the pose, the points in chunks (the last flagged) and End, and
     returns the points sent; `points` are (N, 3) float32 in the scanner frame, the pose is
     what the robot reports in `pose_mode` ("design_scanner", "fixed" or "6dof"). `receive`
-    returns the agent's reports and findings that arrived, waiting up to `timeout` seconds for
+    returns the agent's reports, findings and corrections (advice for the layers still to
+    print, when its `[corrections]` are on) that arrived, waiting up to `timeout` seconds for
     the first. One thread only: the ports are not shared between threads.
 
     A report's `status` is one of `STATUS`; `Interrupted` means the agent stopped (or started
@@ -233,7 +234,9 @@ class SimulatedJob(_SimulatedJob):
     scan_after=[8, 16], defect=["bulge:x=0,y=-0.5,z=0.3,radius=0.1,height=8mm"], seed=1)`.
     Keywords are `asbuilt sim`'s job flags, typed (`rate` is points per second or "max"); one
     left out takes `asbuilt sim`'s default. `stations()` is the robot's plan, `scan(i)` what
-    the scanner sees at station i, `design` the part."""
+    the scanner sees at station i, `design` the part. `print_to(layers, correction)` prints
+    the layers up to `layers` with an agent's advice applied (closing the loop); scans after
+    it see them so."""
 
     def __new__(cls, **options: Any):
         return super().__new__(cls, **options)

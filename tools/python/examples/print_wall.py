@@ -7,7 +7,8 @@ asbuilt agent, and react to what the agent finds.
 Without --prefix the script starts its own agent (this package's `asbuilt agent`) in a child
 process; with it, it talks to an agent already serving that prefix. This is the loop a COMPAS
 robot script runs between layers: print, move the scanner to its stations, send each scan with
-the robot's pose, read the findings, decide.
+the robot's pose, read the findings and the agent's advice, decide, and print the next layers
+with the advice applied (the agent's [corrections] are on; --open-loop leaves them unapplied).
 """
 
 import argparse
@@ -23,15 +24,18 @@ def main() -> int:
     p.add_argument("--prefix", help="services prefix of a running agent (default: start one)")
     p.add_argument("--scan-every", type=int, default=8, help="layers between scans")
     p.add_argument("--step-deg", type=float, default=0.1, help="scanner step, degrees")
+    p.add_argument("--open-loop", action="store_true",
+                   help="print as designed whatever the agent advises")
     args = p.parse_args()
 
-    # The wall of the source study with an over-extruded band and a bulge, scanned every
-    # `scan_every` layers from four stations.
-    scan_after = list(range(args.scan_every, 25, args.scan_every))
+    # The wall of the source study with an over-extruded band, a bulge and a height drift,
+    # scanned every `scan_every` layers from four stations.
+    scan_after = list(range(args.scan_every, 33, args.scan_every))
     job = asbuilt.SimulatedJob(
         part="wall", scan_after=scan_after, stations=4, step_deg=args.step_deg,
         defect=["over-extrusion:layers=2-4,width=12mm",
-                "bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm"])
+                "bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm",
+                "height-drift:from=8,per-layer=0.5mm"])
     os.makedirs(args.out, exist_ok=True)
     agent = None
     prefix = args.prefix
@@ -44,25 +48,30 @@ def main() -> int:
             "services": {"prefix": prefix},
             "recorder": {"dir": "recording"},
             "findings": {"enabled": True, "layer_height": job.layer_height},
+            "corrections": {"enabled": True, "bead_width": job.bead_width},
         }, args.out).start()
         agent.wait_until_serving()
         print(f"agent up: {agent.config_path}, log {agent.log_path}")
     try:
-        return print_and_inspect(job, asbuilt.Cell(prefix, wait=30.0))
+        return print_and_inspect(job, asbuilt.Cell(prefix, wait=30.0), not args.open_loop)
     finally:
         if agent is not None:
             agent.stop()
             print(f"agent stopped; recording in {os.path.join(args.out, 'recording')}")
 
 
-def print_and_inspect(job, cell) -> int:
+def print_and_inspect(job, cell, closed_loop) -> int:
     plan = job.stations()
     printed = 0
     worst = 0
+    advice = None
     for layers in sorted({st["printed"] for st in plan}):
-        while printed < layers:
-            printed += 1
-            print(f"printing layer {printed}/{job.layers}")
+        # The printer applies the latest advice from the next layer it prints.
+        job.print_to(layers, advice if closed_loop else None)
+        print(f"printed layers {printed + 1}–{layers} of {job.layers}"
+              + (f" with the advice from layer {advice['from_layer'] + 1}" if advice and closed_loop
+                 else ""))
+        printed = layers
         print(f"scanning after layer {printed}")
         stations = [s for s in plan if s["printed"] == layers]
         for st in stations:
@@ -74,11 +83,17 @@ def print_and_inspect(job, cell) -> int:
         # The findings after a scan layer's last station cover all its stations.
         findings = wait_for(cell, "findings", stations[-1]["index"])
         worst = max(worst, react(findings))
+        # The advice follows the findings: for the layers still to print.
+        advice = wait_for(cell, "correction", stations[-1]["index"])
+        print(f"  advice: z {advice['z_first'] * 1e3:+.2f} mm a layer for "
+              f"{advice['first_layers']} layers, then {advice['z_then'] * 1e3:+.2f}; flow "
+              f"×{advice['flow']:.3f}; path ({advice['path_offset'][0] * 1e3:+.1f}, "
+              f"{advice['path_offset'][1] * 1e3:+.1f}) mm")
     return 1 if worst >= 2 else 0
 
 
 def wait_for(cell, kind, station, timeout=120.0):
-    """The agent's `kind` message ("report" or "findings") for `station`."""
+    """The agent's `kind` message ("report", "findings" or "correction") for `station`."""
     import time
 
     deadline = time.monotonic() + timeout

@@ -8,10 +8,10 @@ use std::time::{Duration, Instant};
 
 use asbuilt_protocol::ipc::{CellPorts, Ipc, IpcError, ServiceNames};
 use asbuilt_protocol::{
-    FixedText, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent, StationEventKind,
-    StationFindings, StationReport, StationSender, codec,
+    FixedText, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent,
+    StationEventKind, StationFindings, StationReport, StationSender, codec,
 };
-use asbuilt_sim::{AsBuilt, JobSpec, PartSpec, SimJob};
+use asbuilt_sim::{AsBuilt, JobSpec, LayerSettings, PartSpec, SimJob};
 use iceoryx2::prelude::*;
 use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -210,10 +210,41 @@ impl Cell {
             let f: StationFindings = codec::decode(s.payload()).map_err(runtime)?;
             out.append(tagged(py, "findings", &f)?)?;
         }
+        while let Some(c) = self.ports.corrections.receive().map_err(bad)? {
+            let c: LayerCorrection = *c.payload();
+            out.append(tagged(py, "correction", &c)?)?;
+        }
         // Deviations are for viewers; a cell that does not read them must not fill the queue.
         while let Ok(Some(_)) = self.ports.deviations.receive() {}
         Ok(())
     }
+}
+
+/// An agent's correction, as `Cell.receive` gives it, back into the message.
+fn advice_from(d: &Bound<'_, PyDict>) -> PyResult<LayerCorrection> {
+    let get = |key: &str| {
+        d.get_item(key)?
+            .ok_or_else(|| PyValueError::new_err(format!("correction: no {key:?}")))
+    };
+    let mut c = LayerCorrection::neutral(
+        get("job")?.extract()?,
+        get("station")?.extract()?,
+        1,
+        get("layer")?.extract()?,
+    );
+    c.from_layer = get("from_layer")?.extract()?;
+    c.first_layers = get("first_layers")?.extract()?;
+    c.z_first = get("z_first")?.extract()?;
+    c.z_then = get("z_then")?.extract()?;
+    c.flow = get("flow")?.extract()?;
+    c.path_offset = get("path_offset")?.extract()?;
+    if !(c.flow > 0.0 && c.flow.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "correction: flow {} is not a factor above 0",
+            c.flow
+        )));
+    }
+    Ok(c)
 }
 
 fn tagged<'py>(
@@ -233,8 +264,10 @@ fn tagged<'py>(
 #[pyclass(frozen, subclass, module = "asbuilt")]
 pub struct SimulatedJob {
     job: SimJob,
-    /// The as-built part of the last layer count scanned.
-    built: Mutex<Option<(u32, std::sync::Arc<AsBuilt>)>>,
+    /// What the printer applied to each layer printed so far ([`SimulatedJob::print_to`]).
+    settings: Mutex<Vec<LayerSettings>>,
+    /// The as-built part of the last layer count scanned, with the settings it was built with.
+    built: Mutex<Option<(u32, usize, std::sync::Arc<AsBuilt>)>>,
 }
 
 /// `part`: `wall`, `column` or a design file (with `units` and `layer_height`).
@@ -328,8 +361,37 @@ impl SimulatedJob {
             job: spec
                 .build()
                 .map_err(|e| PyValueError::new_err(asbuilt_tools::error_message(&e)))?,
+            settings: Mutex::new(Vec::new()),
             built: Mutex::new(None),
         })
+    }
+
+    /// The width a layer comes out at nominal flow, metres: what the agent's
+    /// `[corrections] bead_width` should say for this part.
+    #[getter]
+    fn bead_width(&self) -> PyResult<f64> {
+        self.job
+            .part
+            .bead_width()
+            .map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+
+    /// Prints the layers up to `layers` (a count) not printed yet with `correction` (an
+    /// agent's `"correction"` message from `Cell.receive`; `None`: as designed), as the
+    /// printer's controller applies the latest advice from the next layer it prints. Later
+    /// scans see them as printed. Returns the layers printed.
+    #[pyo3(signature = (layers, correction = None))]
+    fn print_to(&self, layers: u32, correction: Option<&Bound<'_, PyDict>>) -> PyResult<u32> {
+        let advice = correction.map(advice_from).transpose()?;
+        let mut settings = self.settings.lock().unwrap_or_else(|e| e.into_inner());
+        let from = settings.len() as u32;
+        let to = layers.min(self.job.part.layers());
+        settings.extend((from..to).map(|j| {
+            advice
+                .as_ref()
+                .map_or(LayerSettings::NOMINAL, |c| LayerSettings::advised(c, j))
+        }));
+        Ok(to.saturating_sub(from))
     }
 
     /// The design being printed.
@@ -394,16 +456,23 @@ impl SimulatedJob {
                 PyValueError::new_err(format!("no station {index}: the plan has {}", plan.len()))
             })?
             .clone();
+        let settings = self
+            .settings
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        // The layers scanned were printed with the settings of as many of them as are set.
+        let set = settings.len().min(st.printed as usize);
         let part = {
             let mut slot = self.built.lock().unwrap_or_else(|e| e.into_inner());
             match &*slot {
-                Some((k, b)) if *k == st.printed => b.clone(),
+                Some((k, n, b)) if *k == st.printed && *n == set => b.clone(),
                 _ => {
                     let b = py
-                        .detach(|| self.job.as_built(st.printed))
+                        .detach(|| self.job.as_built_with(st.printed, &settings))
                         .map_err(anyhow_err)?;
                     let b = std::sync::Arc::new(b);
-                    *slot = Some((st.printed, b.clone()));
+                    *slot = Some((st.printed, set, b.clone()));
                     b
                 }
             }

@@ -169,3 +169,38 @@ def test_the_offline_suite_on_a_recordings_scans_gives_the_agents_findings(tmp_p
     # The raised top was judged by the whole top, not by the few samples within 6 mm of it.
     assert live[23]["top_height_deviation"] > 0.010
     assert live[23]["top_samples"] > 0.5 * live[7]["top_samples"] > 100
+
+
+def test_a_python_cell_closes_the_loop_with_the_agents_advice(tmp_path):
+    """The agent advises after each scan layer; the printer applies it and the drift it saw
+    is taken back by the next scan."""
+    job = asbuilt.SimulatedJob(part="wall", scan_after=[8, 16, 24], stations=4, step_deg=0.15,
+                               defect=["height-drift:from=8,per-layer=0.5mm"])
+    job.design.write_stl(tmp_path / "design.stl")
+    prefix = f"asbuilt-pytest-loop-{os.getpid()}"
+    config = agent_config(prefix, job)
+    config["corrections"] = {"enabled": True, "bead_width": job.bead_width}
+    tops = []
+    with asbuilt.Agent(config, tmp_path) as agent:
+        agent.wait_until_serving()
+        cell = asbuilt.Cell(prefix, wait=30.0)
+        advice = None
+        for layers in (8, 16, 24):
+            assert job.print_to(layers, advice) == 8
+            stations = [st for st in job.stations() if st["printed"] == layers]
+            for st in stations:
+                job.send(cell, st)
+            last = stations[-1]["index"]
+            got, advice, deadline = [], None, time.monotonic() + 120
+            while advice is None and time.monotonic() < deadline:
+                got += cell.receive(timeout=1.0)
+                advice = next((m for m in got if m["kind"] == "correction"
+                               and m["station"] == last), None)
+            assert advice is not None, agent.log()
+            findings = [m for m in got if m["kind"] == "findings" and m["station"] == last]
+            tops.append(findings[-1]["top_height_deviation"])
+            assert advice["from_layer"] == layers
+    # Open loop the top would be 4 mm high after 16 layers and 8 mm after 24: the advice after
+    # 16 takes it back.
+    assert tops[1] > 0.0025, tops
+    assert abs(tops[2]) < 0.002, tops

@@ -257,3 +257,89 @@ pub fn charts(a: &Assessment) -> String {
         chart("top", &top, "layers printed", "mm", l.top_height_m * 1e3),
     )
 }
+
+/// The advice after each scan layer beside what followed it: the top's error and the width of
+/// the latest bands at the next scan layer (the evidence the next advice rests on), and a chart
+/// of the advice over the print. Empty without advice.
+pub fn corrections(cs: &[asbuilt_protocol::LayerCorrection], top_limit_m: f64) -> String {
+    if cs.is_empty() {
+        return String::new();
+    }
+    let mm = |v: f64| {
+        if v.is_finite() {
+            format!("{:+.2}", v * 1e3)
+        } else {
+            "–".into()
+        }
+    };
+    let rows: String = cs
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let next = cs.get(k + 1);
+            let z = if c.first_layers > 0 && c.z_first != c.z_then {
+                format!(
+                    "{} for {} layers, then {}",
+                    mm(c.z_first),
+                    c.first_layers,
+                    mm(c.z_then)
+                )
+            } else {
+                mm(c.z_then)
+            };
+            format!(
+                "<tr class=\"advice\" data-layer=\"{}\"><td>{}</td><td>{}</td><td>{}</td>\
+                 <td>{}</td><td>{z}</td><td>{:.3}</td><td>{} / {}</td><td>{}</td><td>{}</td></tr>",
+                c.layer,
+                c.layer + 1,
+                mm(c.top.value),
+                mm(c.width.value),
+                c.from_layer + 1,
+                c.flow,
+                mm(c.path_offset[0]),
+                mm(c.path_offset[1]),
+                next.map_or("–".into(), |n| mm(n.top.value)),
+                next.map_or("–".into(), |n| mm(n.width.value)),
+            )
+        })
+        .collect();
+    let x = |c: &asbuilt_protocol::LayerCorrection| f64::from(c.layer + 1);
+    let series =
+        |name: &str, colour: &str, v: &dyn Fn(&asbuilt_protocol::LayerCorrection) -> f64| Series {
+            name: name.into(),
+            colour: colour.into(),
+            points: cs
+                .iter()
+                .filter(|c| v(c).is_finite())
+                .map(|c| (x(c), v(c)))
+                .collect(),
+        };
+    let chart_series = [
+        series("top measured mm", "#333", &|c| c.top.value * 1e3),
+        series("z first layers mm", "#c40", &|c| c.z_first * 1e3),
+        series("z then mm", "#e90", &|c| c.z_then * 1e3),
+        series("flow − 1 %", "#07a", &|c| (c.flow - 1.0) * 1e2),
+        series("path mm", "#6a3", &|c| {
+            c.path_offset[0].hypot(c.path_offset[1]) * 1e3
+        }),
+    ];
+    format!(
+        "<section class=\"corrections\"><h2>Corrections advised</h2><p>After each scan layer \
+         (its last station), the agent's advice for the layers still to print: a z offset per \
+         layer (the drift fed forward, and the top's error taken back over the first layers), a \
+         flow factor (from the latest bands' width against the scan layer's median band) and a \
+         path offset. The cell decides whether to apply it; what followed is what the next scan \
+         layer measured.</p><figure><figcaption>Advice and the top's error, by layers printed\
+         </figcaption>{}</figure><table class=\"advice\"><tr><th>after layers</th><th>top mm</th>\
+         <th>latest bands' width mm</th><th>from layer</th><th>z mm a layer</th><th>flow</th>\
+         <th>path x / y mm</th><th>then: top mm</th><th>then: width mm</th></tr>{rows}</table>\
+         </section>",
+        chart(
+            "advice",
+            &chart_series,
+            "layers printed",
+            "mm, %",
+            top_limit_m * 1e3
+        ),
+    )
+}

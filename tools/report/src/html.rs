@@ -135,6 +135,10 @@ pub fn page(r: &Report, source: &str) -> String {
             body.push_str(&scan_layer(s, maps));
         }
         body.push_str(&crate::history::charts(a));
+        body.push_str(&crate::history::corrections(
+            &r.corrections,
+            a.limits.top_height_m,
+        ));
     }
     // Maps of scan layers without findings (C2M only).
     if r.assessment

@@ -35,6 +35,10 @@ pub struct Report {
     /// agent's own stage (`report`), or the job's (`inspect --method all`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub findings: Vec<asbuilt_protocol::StationFindings>,
+    /// The advice for the layers still to print after each scan layer (its last station's),
+    /// drawn again from a recording whose agent had `[corrections]` on.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub corrections: Vec<asbuilt_protocol::LayerCorrection>,
     /// Verdicts against the crew's limits, each finding followed across scan layers, the layer
     /// history and the summary the page opens with; with findings.
     #[serde(skip_serializing_if = "Option::is_none")]

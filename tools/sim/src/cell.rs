@@ -410,7 +410,11 @@ pub fn run(
         settle(job, a, ports, wait, &settings, &mut out, on)?;
     }
     let deadline = Instant::now() + wait;
-    let done = |o: &SimOutcome| !expect_findings || o.findings.len() >= plan.len();
+    // Closed loop, the advice follows each station's findings: the last is awaited too.
+    let done = |o: &SimOutcome| {
+        (!expect_findings || o.findings.len() >= plan.len())
+            && (!job.closed_loop || o.corrections.len() >= plan.len())
+    };
     while !done(&out) && Instant::now() < deadline {
         ports.wait_for_output(Duration::from_millis(100))?;
         collect(job.job, ports, &mut out, on)?;

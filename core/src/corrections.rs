@@ -28,6 +28,8 @@
 
 use asbuilt_protocol::{CorrectionFlags, Evidence, LayerCorrection, StationFindings};
 
+use crate::stats::median;
+
 /// What a [`Corrector`] may advise, and from which evidence. Metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CorrectionLimits {
@@ -316,7 +318,7 @@ fn advise_flow(
 ) -> u32 {
     let flow_prev = base.map_or(1.0, |b| b.flow);
     c.flow = flow_prev;
-    let Some(reference) = median(f.layers.iter().filter_map(|r| r.width()).collect()) else {
+    let Some(reference) = median(f.layers.iter().filter_map(|r| r.width())) else {
         return CorrectionFlags::FLOW_UNSEEN;
     };
     let widths: Vec<f64> = bands
@@ -373,8 +375,8 @@ fn advise_path(
     c.path_offset = path_prev;
     let all: Vec<[f64; 2]> = f.layers.iter().filter_map(|r| r.shift_xy()).collect();
     let (Some(rx), Some(ry)) = (
-        median(all.iter().map(|s| s[0]).collect()),
-        median(all.iter().map(|s| s[1]).collect()),
+        median(all.iter().map(|s| s[0])),
+        median(all.iter().map(|s| s[1])),
     ) else {
         return CorrectionFlags::PATH_UNSEEN;
     };
@@ -384,8 +386,8 @@ fn advise_path(
         .map(|s| [s[0] - rx, s[1] - ry])
         .collect();
     let (Some(sx), Some(sy)) = (
-        median(shifts.iter().map(|s| s[0]).collect()),
-        median(shifts.iter().map(|s| s[1]).collect()),
+        median(shifts.iter().map(|s| s[0])),
+        median(shifts.iter().map(|s| s[1])),
     ) else {
         return CorrectionFlags::PATH_UNSEEN;
     };
@@ -414,20 +416,6 @@ fn advise_path(
         c.path_offset = p;
         0
     }
-}
-
-/// The median; the mean of the middle two for an even count.
-fn median(mut v: Vec<f64>) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }
 
 /// The sample standard deviation; NaN below two values.

@@ -255,6 +255,21 @@ fn abs_bin_bounds(i: usize) -> (f64, f64) {
     (base + sub * step, base + (sub + 1.0) * step)
 }
 
+/// The median of `values`; the mean of the middle two for an even count, `None` for none.
+pub fn median(values: impl IntoIterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = values.into_iter().collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

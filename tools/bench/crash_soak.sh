@@ -9,11 +9,15 @@
 #
 #   tools/bench/crash_soak.sh                 # SEED=1 KILLS=12 OUT=out/crash-soak
 #   BIN=target/debug ASBUILT=e2e-asbuilt AGENT=e2e-asbuilt-agent tools/bench/crash_soak.sh
+#   CLOSED_LOOP=1 tools/bench/crash_soak.sh   # the printer applies the agent's advice: what is
+#                                             # printed depends on advice taken up after each kill
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-out/crash-soak}
 SEED=${SEED:-1}
 KILLS=${KILLS:-12}
+LOOP=()
+[ -n "${CLOSED_LOOP:-}" ] && LOOP=(--closed-loop)
 if [ -z "${BIN:-}" ]; then
     cargo build --release --locked -p asbuilt-tools --bin asbuilt -p asbuilt-agent --bin asbuilt-agent
     BIN=target/release
@@ -25,7 +29,7 @@ rm -rf "$OUT"
 mkdir -p "$OUT/soak"
 
 echo "== the reference: the demo, without kills"
-"$ASBUILT" demo --out "$OUT/reference" > "$OUT/reference.log" 2>&1
+"$ASBUILT" demo "${LOOP[@]}" --out "$OUT/reference" > "$OUT/reference.log" 2>&1
 tail -n 3 "$OUT/reference.log"
 
 echo "== the same job while the agent is killed $KILLS times (seed $SEED)"
@@ -45,7 +49,7 @@ start 0
 for _ in $(seq 600); do grep -q "serving " agent-0.log && break; sleep 0.1; done
 grep -q "serving " agent-0.log || { cat agent-0.log; exit 1; }
 # The demo's job (its defaults and its defects on the wall), sent by the simulated cell.
-"$ASBUILT" sim --prefix "$PREFIX" --findings --wait 60 \
+"$ASBUILT" sim --prefix "$PREFIX" --findings --wait 60 "${LOOP[@]}" \
     --defect over-extrusion:layers=2-4,width=12mm \
     --defect bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm \
     --defect missing-segment:layer=18,x=0.45,y=0,length=0.25 \

@@ -382,7 +382,8 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
     let mut bands: BTreeMap<u32, LayerHistory> = BTreeMap::new();
     for f in layers {
         let top_band = f.layers.iter().map(|r| r.layer).max();
-        let median = median(f.layers.iter().filter_map(|r| finite(r.width_deviation)));
+        let median =
+            asbuilt_core::stats::median(f.layers.iter().filter_map(|r| finite(r.width_deviation)));
         for r in &f.layers {
             let h = bands.entry(r.layer).or_insert_with(|| LayerHistory {
                 job: f.job,
@@ -416,20 +417,6 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
         }
     }
     bands.into_values().collect()
-}
-
-fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let mut v: Vec<f64> = values.collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }
 
 /// The change of a band's relative width from the first scan layer that measured it up to scan

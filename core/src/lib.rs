@@ -18,6 +18,7 @@ pub mod colour;
 pub mod corrections;
 pub mod coverage;
 pub mod findings;
+pub mod flatness;
 pub mod layers;
 pub mod m3c2;
 mod order;

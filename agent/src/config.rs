@@ -549,6 +549,9 @@ impl AgentConfig {
         if let (true, Err(e)) = (tolerance_ok, tolerances.limits(inspect.tolerance)) {
             problems.push(format!("tolerances: {e}"));
         }
+        if let Err(e) = tolerances.flatness() {
+            problems.push(format!("tolerances.{e}"));
+        }
         check_outputs(&mut recorder, &mut viewer, base, &mut problems);
 
         let design = design.map(|mut d| {
@@ -687,9 +690,22 @@ pub struct TolerancesConfig {
     pub warn_fraction: Option<f64>,
     /// Per range of layers, later entries winning: `"width=12mm@2-4"` (the `--limit` syntax).
     pub layers: Vec<String>,
+    /// A standard every planar face's flatness is judged by with a virtual straightedge, as
+    /// `--flatness` takes it: `"din18202:6"`, `"aci117:B"`. `asbuilt report` applies it.
+    pub flatness: Option<String>,
 }
 
 impl TolerancesConfig {
+    /// The flatness standard, when one is set.
+    pub fn flatness(
+        &self,
+    ) -> Result<
+        Option<asbuilt_core::flatness::FlatnessStandard>,
+        asbuilt_core::flatness::UnknownStandard,
+    > {
+        self.flatness.as_deref().map(str::parse).transpose()
+    }
+
     /// The limits for a job whose tolerance is `tolerance`, then `extra` (`--limit` on the
     /// command line) over them.
     pub fn limits_with(

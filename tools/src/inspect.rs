@@ -16,6 +16,7 @@ use nalgebra::Point3;
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
 use asbuilt_io::stations::{self, DEFAULT_POSITION_SIGMA, Station};
+use asbuilt_report::flatness::FlatnessCollector;
 use asbuilt_report::maps::MapCollector;
 use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
@@ -61,6 +62,10 @@ pub struct InspectArgs {
     /// Also write every map of report.html as a PNG file into OUT/maps.
     #[arg(long)]
     png: bool,
+    /// Judge every planar face's flatness with a virtual straightedge by a standard:
+    /// din18202:5|6|7 (DIN 18202 Table 3, walls) or aci117:A|B|C|D (ACI 117, 5 ft straightedge).
+    #[arg(long, value_name = "STANDARD:ROW")]
+    flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]
@@ -263,6 +268,8 @@ struct Job {
     buffer: Vec<PointDeviation>,
     /// The deviation maps of report.html (one scan layer: the job's printed height).
     maps: MapCollector,
+    /// The faces' points for the straightedge, with --flatness.
+    flatness: Option<FlatnessCollector>,
     /// --printed-height; NaN without.
     printed_height: f64,
 }
@@ -280,6 +287,7 @@ impl Job {
         // The design's counts are all the report needs of it from here: the index takes it over.
         let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
+        let flatness = args.flatness.map(|s| FlatnessCollector::new(&design, s));
         let index = C2mIndex::from_design(design, C2mParams::within(plan.suite.reach))?;
         let ix = index.stats();
         eprintln!(
@@ -312,6 +320,7 @@ impl Job {
             failed: Vec::new(),
             buffer: vec![PointDeviation::default(); CHUNK],
             maps,
+            flatness,
             printed_height: args.printed_height.unwrap_or(f64::NAN),
         })
     }
@@ -356,6 +365,7 @@ impl Job {
                 ply: &mut self.ply,
                 suite: &mut self.suite,
                 maps: &mut self.maps,
+                flatness: self.flatness.as_mut(),
                 viewer: self.viewer.as_ref(),
             },
         );
@@ -495,6 +505,7 @@ impl Job {
             m3c2_two_cloud: totals.m3c2_two_cloud,
             findings,
             corrections: Vec::new(),
+            flatness: self.flatness.map(FlatnessCollector::finish),
             assessment: None,
             warnings,
             maps: maps.finish(),
@@ -513,6 +524,7 @@ struct StationOutputs<'a> {
     ply: &'a mut DeviationsPly,
     suite: &'a mut Suite,
     maps: &'a mut MapCollector,
+    flatness: Option<&'a mut FlatnessCollector>,
     viewer: Option<&'a Viewer>,
 }
 
@@ -539,12 +551,14 @@ fn stream_station(
         ply,
         suite,
         maps,
+        flatness,
         viewer,
     } = out;
     let stage = OutputStage {
         ply,
         suite,
         maps,
+        flatness,
         viewer,
         station: n,
         name: &station.id,
@@ -586,6 +600,7 @@ struct OutputStage<'a> {
     ply: &'a mut DeviationsPly,
     suite: &'a mut Suite,
     maps: &'a mut MapCollector,
+    flatness: Option<&'a mut FlatnessCollector>,
     viewer: Option<&'a Viewer>,
     station: usize,
     name: &'a str,
@@ -597,7 +612,7 @@ impl OutputStage<'_> {
     /// Writes every chunk that comes on `full` and hands its buffer back on `empty`; returns
     /// the bounds of the points that reached the design frame.
     fn run(
-        self,
+        mut self,
         full: std::sync::mpsc::Receiver<Vec<PointDeviation>>,
         empty: std::sync::mpsc::Sender<Vec<PointDeviation>>,
     ) -> Result<Bounds> {
@@ -617,6 +632,10 @@ impl OutputStage<'_> {
             self.ply.write(n as u16, &devs)?;
             self.suite.chunk(&devs);
             self.maps.points((0, n as u32), &devs);
+            if let Some(f) = self.flatness.as_deref_mut() {
+                // One scan set: every station is the same scan layer.
+                f.points(0, f64::NAN, &devs);
+            }
             if let Some(v) = self.viewer {
                 let (positions, distances) = viewer::decimate(&devs, self.view_step);
                 v.show(View::Points {

@@ -25,6 +25,7 @@ use clap::Args;
 use std::time::{Duration, Instant};
 
 use asbuilt_core::scan_layer::SampleState;
+use asbuilt_report::flatness::FlatnessCollector;
 use asbuilt_report::maps::{MapCollector, ScanLayerMaps};
 use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
 
@@ -57,6 +58,11 @@ pub struct ReportArgs {
     /// printed page).
     #[arg(long)]
     png: bool,
+    /// Judge every planar face's flatness with a virtual straightedge by a standard, over the
+    /// recording's [tolerances] flatness: din18202:5|6|7 (DIN 18202 Table 3, walls) or
+    /// aci117:A|B|C|D (ACI 117, 5 ft straightedge). The latest scan layer is judged.
+    #[arg(long, value_name = "STANDARD:ROW")]
+    flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
 }
 
 /// Writes report.json and report.html for a recording and prints its summary table.
@@ -70,6 +76,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
             limits: args.limits,
             png: args.png,
             job: args.job,
+            flatness: args.flatness,
         },
     )
     .map_err(|e| {
@@ -105,6 +112,10 @@ struct Collected {
     /// The latest advice after each scan layer (by job and layer).
     corrections: BTreeMap<(u64, u32), LayerCorrection>,
     maps: MapCollector,
+    /// The faces' points of the latest scan layer, with a flatness standard.
+    flatness: Option<FlatnessCollector>,
+    /// Each station's printed height, from its Begin (for the flatness).
+    heights: BTreeMap<(u64, u32), f64>,
 }
 
 impl Collected {
@@ -120,6 +131,8 @@ impl Collected {
             findings: BTreeMap::new(),
             corrections: BTreeMap::new(),
             maps,
+            flatness: None,
+            heights: BTreeMap::new(),
         }
     }
 }
@@ -127,6 +140,11 @@ impl Collected {
 impl Collected {
     /// With [`read_back`], a station's recorded inputs: its Begin, pose and scan chunks.
     fn keep_input(&mut self, m: &Recorded) {
+        if let (Recorded::Event(e), Some(_)) = (m, &self.flatness)
+            && e.kind() == Some(StationEventKind::Begin)
+        {
+            self.heights.insert((e.job, e.station), e.printed_height);
+        }
         let Some(k) = &mut self.kept else { return };
         match m {
             Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
@@ -151,6 +169,10 @@ impl Outputs for Collected {
         self.buffer.resize(n, PointDeviation::default());
         let h = fill(&mut self.buffer);
         self.maps.points((h.job, h.station), &self.buffer);
+        if let Some(f) = &mut self.flatness {
+            let height = self.heights.get(&(h.job, h.station)).copied();
+            f.points(h.job, height.unwrap_or(f64::NAN), &self.buffer);
+        }
         if let Some(k) = &mut self.kept {
             let s = k.entry((h.job, h.station)).or_default();
             s.deviations.insert(h.sequence, self.buffer.clone());
@@ -217,6 +239,8 @@ pub struct Overrides {
     pub png: bool,
     /// With a recording folder, the job to read instead of the newest.
     pub job: Option<u64>,
+    /// The flatness standard instead of the recorded one.
+    pub flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
 }
 
 /// Writes `out/report.json` and `out/report.html` for the job `recordings` name (see
@@ -316,6 +340,8 @@ struct RecordedJob {
     corrections: Option<asbuilt_agent::config::CorrectionsConfig>,
     /// What the verdicts hold the findings to.
     verdict_limits: asbuilt_core::verdict::Limits,
+    /// The standard the faces' flatness is judged by, if any.
+    flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
     tolerance: f64,
     max_distance: f64,
 }
@@ -379,6 +405,12 @@ impl RecordedJob {
         let verdict_limits = tolerances
             .limits_with(tolerance, &overrides.limits)
             .map_err(|e| anyhow::anyhow!("the verdicts' limits ([tolerances], --limit): {e}"))?;
+        let flatness = match overrides.flatness {
+            Some(f) => Some(f),
+            None => tolerances
+                .flatness()
+                .map_err(|e| anyhow::anyhow!("the recording's [tolerances]: {e}"))?,
+        };
         if !(tolerance > 0.0 && max_distance > 0.0) {
             bail!("--tolerance and --max-distance must be positive metres");
         }
@@ -402,6 +434,7 @@ impl RecordedJob {
             findings,
             corrections,
             verdict_limits,
+            flatness,
             tolerance,
             max_distance,
         };
@@ -490,6 +523,7 @@ impl RecordedJob {
             m3c2_two_cloud: None,
             findings,
             corrections: replayed.corrections,
+            flatness: replayed.flatness,
             assessment: None,
             warnings,
             maps: replayed.maps,
@@ -516,6 +550,8 @@ struct Replayed {
     corrections: Vec<LayerCorrection>,
     /// The advice drawn again differs from what the agent recorded.
     corrections_differ: bool,
+    /// The faces' flatness, with a standard.
+    flatness: Option<asbuilt_report::flatness::FlatnessSection>,
     unfinished: usize,
     /// Station attempts the agent reported interrupted: (job, station, attempt, name).
     interrupted: Vec<(u64, u32, u8, String)>,
@@ -597,6 +633,9 @@ fn replay_stations(
         .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
+    out.flatness = job
+        .flatness
+        .map(|s| FlatnessCollector::new(job.full.design(), s));
     if keep {
         out.kept = Some(BTreeMap::new());
     }
@@ -657,6 +696,7 @@ fn replay_stations(
         corrections: drawn_advice,
         maps,
         kept,
+        flatness,
         ..
     } = out;
     // A station counts once: its latest attempt (attempts are reported in order).
@@ -678,6 +718,7 @@ fn replay_stations(
         findings_differ,
         corrections: corrections.into_values().collect(),
         corrections_differ,
+        flatness: flatness.map(FlatnessCollector::finish),
         unfinished,
         interrupted,
         cut,

@@ -55,9 +55,12 @@ pub struct PlanarFaces {
 impl PlanarFaces {
     /// Groups `design`'s triangles by plane: normals within about 0.06° and plane offsets
     /// within 1 mm make one face, so two coplanar patches apart count as one. A curved
-    /// surface's triangles each make a face of their own, below `min_area`.
+    /// surface's triangles each make a face of their own, below `min_area`. The face the part
+    /// stands on (facing down at its lowest height) is left out: no scan sees it, and points
+    /// at the foot of a wall would be read against it.
     pub fn of(design: &Design, min_area: f64) -> Self {
         use std::collections::HashMap;
+        let lowest = design.bounds().0.z;
         let mut groups: HashMap<[i64; 4], (Vec<u32>, f64)> = HashMap::new();
         for (k, t) in design.triangles.iter().enumerate() {
             let [a, b, c] = t.map(|i| design.vertices[i as usize]);
@@ -67,6 +70,10 @@ impl PlanarFaces {
                 continue;
             }
             let n = cross / (2.0 * area);
+            let bed = n.z < -0.99 && [a, b, c].iter().all(|p| (p.z - lowest).abs() < 1e-3);
+            if bed {
+                continue;
+            }
             let key = [
                 (n.x * 1e3).round() as i64,
                 (n.y * 1e3).round() as i64,

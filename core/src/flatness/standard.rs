@@ -92,6 +92,14 @@ impl std::fmt::Display for FlatnessStandard {
 }
 
 impl FlatnessStandard {
+    /// As `--flatness` takes it: `din18202:6`, `aci117:B`.
+    pub fn key(&self) -> String {
+        match self {
+            FlatnessStandard::Din18202 { row } => format!("din18202:{row}"),
+            FlatnessStandard::Aci117 { class } => format!("aci117:{class}"),
+        }
+    }
+
     /// The spans it is judged at, metres.
     pub fn spans(&self) -> Vec<f64> {
         match self {

@@ -118,11 +118,9 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
             0.0
         }
     });
+    // 6 mm at 1 m fails row 6 (5 mm).
     let g = gap(&grid, face, Direction::Along, 1.0);
-    assert!(
-        (g.gap - 0.006).abs() < SLACK && !g.passes() == (0.006 > g.limit),
-        "{g:?}"
-    );
+    assert!((g.gap - 0.006).abs() < SLACK && !g.passes(), "{g:?}");
     assert!(
         (g.at.x - 0.3).abs() < 0.03 && (g.at.z - 0.5).abs() < 0.03,
         "{g:?}"

@@ -512,3 +512,94 @@ fn closed_loop_on_a_print_without_defects_advises_nothing() {
             .all(|s| *s == sim::LayerSettings::NOMINAL)
     );
 }
+
+#[test]
+fn flatness_to_din_18202_fails_at_a_bulge_and_passes_the_face_without_one() {
+    // Twelve layers of the wall with a 15 mm bulge on its −y face, scanned from four stations;
+    // the recording judged by DIN 18202 row 6 (finished walls).
+    let out = tempfile::tempdir().unwrap();
+    let demo = std::process::Command::new(ASBUILT)
+        .args([
+            "demo",
+            "--scan-after",
+            "12",
+            "--step-deg",
+            "0.1",
+            "--rate",
+            "max",
+        ])
+        .args([
+            "--defect",
+            "bulge:x=-0.5,y=-0.0867,z=0.12,radius=0.1,height=15mm",
+        ])
+        .arg("--out")
+        .arg(out.path())
+        .output()
+        .unwrap();
+    assert!(
+        demo.status.success(),
+        "{}",
+        String::from_utf8_lossy(&demo.stderr)
+    );
+    let judged = out.path().join("flat");
+    let report = std::process::Command::new(ASBUILT)
+        .arg("report")
+        .arg(out.path().join("recording"))
+        .args(["--flatness", "din18202:6", "--out"])
+        .arg(&judged)
+        .output()
+        .unwrap();
+    assert!(
+        report.status.success(),
+        "{}",
+        String::from_utf8_lossy(&report.stderr)
+    );
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(judged.join("report.json")).unwrap()).unwrap();
+    let f = &r["flatness"];
+    assert_eq!(f["key"], "din18202:6");
+    let face_facing = |y: f64| {
+        f["faces"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| (x["normal"][1].as_f64().unwrap() - y).abs() < 1e-6)
+            .unwrap_or_else(|| panic!("no face facing y {y}: {f}"))["face"]
+            .clone()
+    };
+    let gaps = |face: &serde_json::Value| -> Vec<serde_json::Value> {
+        f["gaps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|g| g["face"] == *face)
+            .cloned()
+            .collect()
+    };
+    // The bulge's face fails along the layers at 0.1 m and 1 m, deepest beside the bulge.
+    for span in [0.1, 1.0] {
+        let g = gaps(&face_facing(-1.0))
+            .into_iter()
+            .find(|g| g["direction"] == "along_layers" && g["span_m"] == span)
+            .unwrap();
+        assert_eq!(g["verdict"], "fail", "{g}");
+        let at = g["at_m"].as_array().unwrap();
+        let (x, z) = (at[0].as_f64().unwrap(), at[2].as_f64().unwrap());
+        assert!((x + 0.5).abs() < 0.2 && (z - 0.12).abs() < 0.1, "{g}");
+    }
+    // The face without it passes at every span, both ways.
+    let clean = gaps(&face_facing(1.0));
+    assert!(clean.len() >= 3, "{f}");
+    for g in &clean {
+        assert_eq!(g["verdict"], "pass", "{g}");
+    }
+    // The job's verdict names the standard it was judged by.
+    assert_eq!(r["assessment"]["verdict"], "fail");
+    let first = r["assessment"]["summary"][0].as_str().unwrap();
+    assert!(
+        first.starts_with("Flatness to DIN 18202 Table 3 row 6: FAIL"),
+        "{first}"
+    );
+    let html = std::fs::read_to_string(judged.join("report.html")).unwrap();
+    assert!(html.contains("<section class=\"flatness\">") && html.contains("data-label=\"F"));
+}

@@ -107,10 +107,13 @@ pub enum ItemKind {
     Deficit,
     /// Missing material.
     Missing,
+    /// The deepest gap under a straightedge on a face (`--flatness`; drawn on the maps only).
+    Flatness,
 }
 
 impl ItemKind {
-    /// `width`, `position`, `creep`, `top_height`, `excess`, `deficit` or `missing`.
+    /// `width`, `position`, `creep`, `top_height`, `excess`, `deficit`, `missing` or
+    /// `flatness`.
     pub fn as_str(self) -> &'static str {
         match self {
             ItemKind::Width => "width",
@@ -120,6 +123,7 @@ impl ItemKind {
             ItemKind::Excess => "excess",
             ItemKind::Deficit => "deficit",
             ItemKind::Missing => "missing",
+            ItemKind::Flatness => "flatness",
         }
     }
 }
@@ -545,6 +549,11 @@ fn describe(kind: ItemKind, value: f64, layers: Option<[u32; 2]>, at: Option<[f6
             mm(value)
         ),
         ItemKind::TopHeight => format!("top of the print {}", mm(value)),
+        ItemKind::Flatness => format!(
+            "gap {:.1} mm under the straightedge at {}",
+            value * 1e3,
+            at.map_or_else(String::new, xyz)
+        ),
         ItemKind::Missing => format!(
             "missing material, {:.0} cm², {} at {}",
             value * 1e4,

@@ -122,7 +122,21 @@ pub fn page(r: &Report, source: &str) -> String {
     if let Some(a) = &r.assessment {
         body.push_str(&summary(a));
     }
+    if let Some(f) = &r.flatness {
+        body.push_str(&f.html());
+    }
     body.push_str(&legend(tol));
+    // The faces' worst gaps are marked on the maps of the scan layer judged.
+    let flat_items = r
+        .flatness
+        .as_ref()
+        .map(|f| f.map_items())
+        .unwrap_or_default();
+    let judged = |h: Option<f64>| {
+        r.flatness
+            .as_ref()
+            .is_some_and(|f| f.printed_height_m.map(f64::to_bits) == h.map(f64::to_bits))
+    };
     if let Some(a) = &r.assessment {
         for s in a.scan_layers.iter().rev() {
             let maps = r.maps.iter().find(|m| {
@@ -132,7 +146,12 @@ pub fn page(r: &Report, source: &str) -> String {
                         None => !m.printed_height.is_finite(),
                     }
             });
-            body.push_str(&scan_layer(s, maps));
+            let extra: &[Item] = if judged(s.printed_height) {
+                &flat_items
+            } else {
+                &[]
+            };
+            body.push_str(&scan_layer(s, maps, extra));
         }
         body.push_str(&crate::history::charts(a));
         body.push_str(&crate::history::corrections(
@@ -146,7 +165,7 @@ pub fn page(r: &Report, source: &str) -> String {
         .is_none_or(|a| a.scan_layers.is_empty())
     {
         for m in &r.maps {
-            body.push_str(&maps_html(m, &[]));
+            body.push_str(&maps_html(m, &flat_items));
         }
     }
     body.push_str(&stations(r));
@@ -225,7 +244,7 @@ fn legend(tolerance: f64) -> String {
     )
 }
 
-fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
+fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>, extra: &[Item]) -> String {
     let mut out = format!(
         "<section class=\"scan-layer\" data-layer=\"{}\"><h2>{} {}</h2>\
          <p>{} station(s). {} finding(s) fail, {} warn, {} pass.</p>",
@@ -271,7 +290,8 @@ fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>) -> String {
         );
     }
     if let Some(m) = maps {
-        out.push_str(&maps_html(m, &s.items));
+        let items: Vec<Item> = s.items.iter().chain(extra).cloned().collect();
+        out.push_str(&maps_html(m, &items));
     }
     out.push_str("</section>");
     out

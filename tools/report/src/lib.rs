@@ -8,6 +8,7 @@
 
 mod assessment;
 pub mod export;
+pub mod flatness;
 mod history;
 pub mod html;
 pub mod maps;

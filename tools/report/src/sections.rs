@@ -39,6 +39,10 @@ pub struct Report {
     /// drawn again from a recording whose agent had `[corrections]` on.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub corrections: Vec<asbuilt_protocol::LayerCorrection>,
+    /// The deepest gap under a virtual straightedge per face, direction and span, judged by a
+    /// standard (`--flatness`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flatness: Option<crate::flatness::FlatnessSection>,
     /// Verdicts against the crew's limits, each finding followed across scan layers, the layer
     /// history and the summary the page opens with; with findings.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -234,12 +238,13 @@ pub struct HistogramSection {
 impl Report {
     /// Gives the stations, findings and layer bands their verdicts against `limits`.
     pub fn assess(&mut self, limits: &asbuilt_core::verdict::Limits) {
-        self.assessment = Some(crate::assess(
-            &self.findings,
-            &self.stations,
-            Some(&self.overall),
-            limits,
-        ));
+        let mut a = crate::assess(&self.findings, &self.stations, Some(&self.overall), limits);
+        // Judged by a standard too: the job's verdict is the worse, and the summary names it.
+        if let Some(f) = &self.flatness {
+            a.verdict = a.verdict.max(f.verdict);
+            a.summary.insert(0, f.summary_line());
+        }
+        self.assessment = Some(a);
     }
 }
 

@@ -552,6 +552,9 @@ impl AgentConfig {
         if let Err(e) = tolerances.flatness() {
             problems.push(format!("tolerances.{e}"));
         }
+        if let Err(e) = tolerances.dimensions() {
+            problems.push(format!("tolerances.{e}"));
+        }
         check_outputs(&mut recorder, &mut viewer, base, &mut problems);
 
         let design = design.map(|mut d| {
@@ -693,6 +696,9 @@ pub struct TolerancesConfig {
     /// A standard every planar face's flatness is judged by with a virtual straightedge, as
     /// `--flatness` takes it: `"din18202:6"`, `"aci117:B"`. `asbuilt report` applies it.
     pub flatness: Option<String>,
+    /// A standard the element's dimensions and plumb are judged by, as `--dimensions` takes
+    /// it: `"din18202"`. `asbuilt report` applies it.
+    pub dimensions: Option<String>,
 }
 
 impl TolerancesConfig {
@@ -704,6 +710,16 @@ impl TolerancesConfig {
         asbuilt_core::flatness::UnknownStandard,
     > {
         self.flatness.as_deref().map(str::parse).transpose()
+    }
+
+    /// The dimensions standard, when one is set.
+    pub fn dimensions(
+        &self,
+    ) -> Result<
+        Option<asbuilt_core::flatness::DimensionsStandard>,
+        asbuilt_core::flatness::UnknownDimensionsStandard,
+    > {
+        self.dimensions.as_deref().map(str::parse).transpose()
     }
 
     /// The limits for a job whose tolerance is `tolerance`, then `extra` (`--limit` on the
@@ -1037,6 +1053,15 @@ mod tests {
             l.at_layer(asbuilt_core::verdict::LimitKind::Width, 3),
             0.012
         );
+        let c = parse(&format!(
+            "{base}[tolerances]\nflatness = \"din18202:6\"\ndimensions = \"din18202\"\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            c.tolerances.flatness().unwrap(),
+            Some(asbuilt_core::flatness::FlatnessStandard::Din18202 { row: 6 })
+        );
+        assert!(c.tolerances.dimensions().unwrap().is_some());
         assert_eq!(
             l.at_layer(asbuilt_core::verdict::LimitKind::Width, 5),
             0.008
@@ -1046,6 +1071,8 @@ mod tests {
             ("width = -0.001", "width limit must be positive"),
             ("warn_fraction = 2.0", "warn_fraction"),
             ("widht = 0.003", "widht"),
+            ("flatness = \"din18202:9\"", "aci117:A"),
+            ("dimensions = \"iso\"", "give din18202"),
         ] {
             let err = parse(&format!("{base}[tolerances]\n{bad}\n")).unwrap_err();
             assert!(format!("{err}").contains(says), "{bad}: {err}");

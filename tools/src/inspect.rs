@@ -66,6 +66,10 @@ pub struct InspectArgs {
     /// din18202:5|6|7 (DIN 18202 Table 3, walls) or aci117:A|B|C|D (ACI 117, 5 ft straightedge).
     #[arg(long, value_name = "STANDARD:ROW")]
     flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
+    /// Judge the element's dimensions (between opposite faces, and to a top seen) and each
+    /// upright face's plumb by a standard: din18202 (Tables 1 and 2).
+    #[arg(long, value_name = "STANDARD")]
+    dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]
@@ -287,7 +291,7 @@ impl Job {
         // The design's counts are all the report needs of it from here: the index takes it over.
         let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
-        let flatness = args.flatness.map(|s| FlatnessCollector::new(&design, s));
+        let flatness = FlatnessCollector::new(&design, args.flatness, args.dimensions);
         let index = C2mIndex::from_design(design, C2mParams::within(plan.suite.reach))?;
         let ix = index.stats();
         eprintln!(
@@ -472,6 +476,10 @@ impl Job {
                 plan.suite.reach
             ));
         }
+        let (flatness, dimensions) = self
+            .flatness
+            .map(FlatnessCollector::finish)
+            .unwrap_or_default();
         let ix = &self.facts.index;
         let mut report = Report {
             asbuilt_version: env!("CARGO_PKG_VERSION"),
@@ -505,7 +513,8 @@ impl Job {
             m3c2_two_cloud: totals.m3c2_two_cloud,
             findings,
             corrections: Vec::new(),
-            flatness: self.flatness.map(FlatnessCollector::finish),
+            flatness,
+            dimensions,
             assessment: None,
             warnings,
             maps: maps.finish(),

@@ -63,6 +63,11 @@ pub struct ReportArgs {
     /// aci117:A|B|C|D (ACI 117, 5 ft straightedge). The latest scan layer is judged.
     #[arg(long, value_name = "STANDARD:ROW")]
     flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
+    /// Judge the element's dimensions (between opposite faces, and to a top seen) and each
+    /// upright face's plumb by a standard, over the recording's [tolerances] dimensions:
+    /// din18202 (Tables 1 and 2). The latest scan layer is judged.
+    #[arg(long, value_name = "STANDARD")]
+    dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
 }
 
 /// Writes report.json and report.html for a recording and prints its summary table.
@@ -77,6 +82,7 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
             png: args.png,
             job: args.job,
             flatness: args.flatness,
+            dimensions: args.dimensions,
         },
     )
     .map_err(|e| {
@@ -241,6 +247,8 @@ pub struct Overrides {
     pub job: Option<u64>,
     /// The flatness standard instead of the recorded one.
     pub flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
+    /// The dimensions standard instead of the recorded one.
+    pub dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
 }
 
 /// Writes `out/report.json` and `out/report.html` for the job `recordings` name (see
@@ -342,6 +350,8 @@ struct RecordedJob {
     verdict_limits: asbuilt_core::verdict::Limits,
     /// The standard the faces' flatness is judged by, if any.
     flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
+    /// The standard the dimensions and plumb are judged by, if any.
+    dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
     tolerance: f64,
     max_distance: f64,
 }
@@ -405,11 +415,15 @@ impl RecordedJob {
         let verdict_limits = tolerances
             .limits_with(tolerance, &overrides.limits)
             .map_err(|e| anyhow::anyhow!("the verdicts' limits ([tolerances], --limit): {e}"))?;
+        let recorded =
+            |e: &dyn std::fmt::Display| anyhow::anyhow!("the recording's [tolerances]: {e}");
         let flatness = match overrides.flatness {
             Some(f) => Some(f),
-            None => tolerances
-                .flatness()
-                .map_err(|e| anyhow::anyhow!("the recording's [tolerances]: {e}"))?,
+            None => tolerances.flatness().map_err(|e| recorded(&e))?,
+        };
+        let dimensions = match overrides.dimensions {
+            Some(d) => Some(d),
+            None => tolerances.dimensions().map_err(|e| recorded(&e))?,
         };
         if !(tolerance > 0.0 && max_distance > 0.0) {
             bail!("--tolerance and --max-distance must be positive metres");
@@ -435,6 +449,7 @@ impl RecordedJob {
             corrections,
             verdict_limits,
             flatness,
+            dimensions,
             tolerance,
             max_distance,
         };
@@ -523,7 +538,8 @@ impl RecordedJob {
             m3c2_two_cloud: None,
             findings,
             corrections: replayed.corrections,
-            flatness: replayed.flatness,
+            flatness: replayed.judged.0,
+            dimensions: replayed.judged.1,
             assessment: None,
             warnings,
             maps: replayed.maps,
@@ -550,8 +566,11 @@ struct Replayed {
     corrections: Vec<LayerCorrection>,
     /// The advice drawn again differs from what the agent recorded.
     corrections_differ: bool,
-    /// The faces' flatness, with a standard.
-    flatness: Option<asbuilt_report::flatness::FlatnessSection>,
+    /// The faces' flatness, and the dimensions and plumb, with their standards.
+    judged: (
+        Option<asbuilt_report::flatness::FlatnessSection>,
+        Option<asbuilt_report::flatness::DimensionsSection>,
+    ),
     unfinished: usize,
     /// Station attempts the agent reported interrupted: (job, station, attempt, name).
     interrupted: Vec<(u64, u32, u8, String)>,
@@ -633,9 +652,7 @@ fn replay_stations(
         .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
-    out.flatness = job
-        .flatness
-        .map(|s| FlatnessCollector::new(job.full.design(), s));
+    out.flatness = FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions);
     if keep {
         out.kept = Some(BTreeMap::new());
     }
@@ -718,7 +735,7 @@ fn replay_stations(
         findings_differ,
         corrections: corrections.into_values().collect(),
         corrections_differ,
-        flatness: flatness.map(FlatnessCollector::finish),
+        judged: flatness.map(FlatnessCollector::finish).unwrap_or_default(),
         unfinished,
         interrupted,
         cut,

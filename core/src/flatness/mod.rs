@@ -9,12 +9,16 @@
 //! the straightedge up, while a dent of a few centimetres keeps its depth. A position of the
 //! straightedge counts where at least 70 % of its bins were measured.
 
+mod dimensions;
 mod faces;
 mod standard;
 mod straightedge;
 
+pub use dimensions::{Dimension, DimensionKind, Plumb};
 pub use faces::{Face, PlanarFaces};
-pub use standard::{ACCEPTED, FlatnessStandard, UnknownStandard};
+pub use standard::{
+    ACCEPTED, DimensionsStandard, FlatnessStandard, UnknownDimensionsStandard, UnknownStandard,
+};
 pub use straightedge::worst_gap;
 
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
@@ -91,6 +95,8 @@ struct Cells {
 pub struct FlatnessGrid {
     faces: PlanarFaces,
     cells: Vec<Cells>,
+    /// The height the part stands on: where heights are measured from.
+    bed: f64,
 }
 
 impl FlatnessGrid {
@@ -114,7 +120,11 @@ impl FlatnessGrid {
                 }
             })
             .collect();
-        Self { faces, cells }
+        Self {
+            faces,
+            cells,
+            bed: design.bounds().0.z,
+        }
     }
 
     /// The faces.

@@ -162,3 +162,38 @@ mod tests {
         }
     }
 }
+
+/// The standard dimensions and plumb are judged by; DIN 18202 (Tables 1 and 2) is the one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DimensionsStandard {
+    /// DIN 18202 Table 1 (lengths, widths, heights) and Table 2 (angles, as a gap).
+    Din18202,
+}
+
+/// A dimensions standard that is not `din18202`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("dimensions {given:?}: give din18202 (Tables 1 and 2)")]
+pub struct UnknownDimensionsStandard {
+    /// What was given.
+    pub given: String,
+}
+
+impl std::str::FromStr for DimensionsStandard {
+    type Err = UnknownDimensionsStandard;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s.eq_ignore_ascii_case("din18202") {
+            Ok(DimensionsStandard::Din18202)
+        } else {
+            Err(UnknownDimensionsStandard {
+                given: s.to_string(),
+            })
+        }
+    }
+}
+
+impl std::fmt::Display for DimensionsStandard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("DIN 18202 Tables 1 and 2")
+    }
+}

@@ -545,7 +545,13 @@ fn flatness_to_din_18202_fails_at_a_bulge_and_passes_the_face_without_one() {
     let report = std::process::Command::new(ASBUILT)
         .arg("report")
         .arg(out.path().join("recording"))
-        .args(["--flatness", "din18202:6", "--out"])
+        .args([
+            "--flatness",
+            "din18202:6",
+            "--dimensions",
+            "din18202",
+            "--out",
+        ])
         .arg(&judged)
         .output()
         .unwrap();
@@ -593,6 +599,28 @@ fn flatness_to_din_18202_fails_at_a_bulge_and_passes_the_face_without_one() {
     for g in &clean {
         assert_eq!(g["verdict"], "pass", "{g}");
     }
+    // Its thickness and length are the design's within DIN 18202 Table 1 (the bulge does not
+    // move a face's median), and every upright face stands plumb within Table 2.
+    let d = &r["dimensions"];
+    for kind in ["thickness", "length"] {
+        let x = d["dimensions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["kind"] == kind)
+            .unwrap_or_else(|| panic!("no {kind}: {d}"));
+        let off = x["measured_m"].as_f64().unwrap() - x["nominal_m"].as_f64().unwrap();
+        assert!(off.abs() < 0.003 && x["verdict"] == "pass", "{x}");
+    }
+    assert_eq!(d["plumb"].as_array().unwrap().len(), 4, "{d}");
+    assert!(
+        d["plumb"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|p| p["verdict"] == "pass"),
+        "{d}"
+    );
     // The job's verdict names the standard it was judged by.
     assert_eq!(r["assessment"]["verdict"], "fail");
     let first = r["assessment"]["summary"][0].as_str().unwrap();
@@ -602,4 +630,5 @@ fn flatness_to_din_18202_fails_at_a_bulge_and_passes_the_face_without_one() {
     );
     let html = std::fs::read_to_string(judged.join("report.html")).unwrap();
     assert!(html.contains("<section class=\"flatness\">") && html.contains("data-label=\"F"));
+    assert!(html.contains("<section class=\"dimensions\">"));
 }

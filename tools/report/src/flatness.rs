@@ -4,15 +4,17 @@
 //! it stands.
 
 use asbuilt_core::Design;
-use asbuilt_core::flatness::{FlatnessGrid, FlatnessStandard};
+use asbuilt_core::flatness::{DimensionsStandard, FlatnessGrid, FlatnessStandard};
 use asbuilt_core::verdict::Verdict;
 use asbuilt_protocol::PointDeviation;
 use serde::Serialize;
 
-/// Gathers the points of the latest scan layer per planar face.
+/// Gathers the points of the latest scan layer per planar face, for the flatness and, when
+/// asked, the dimensions and plumb.
 pub struct FlatnessCollector {
     grid: FlatnessGrid,
-    standard: FlatnessStandard,
+    standard: Option<FlatnessStandard>,
+    dimensions: Option<DimensionsStandard>,
     /// The scan layer gathered: job and printed height (NaN: not printing).
     layer: Option<(u64, f64)>,
 }
@@ -67,13 +69,19 @@ pub struct FlatnessSection {
 }
 
 impl FlatnessCollector {
-    /// Cells over `design`'s planar faces, judged by `standard`.
-    pub fn new(design: &Design, standard: FlatnessStandard) -> Self {
-        Self {
+    /// Cells over `design`'s planar faces, their flatness judged by `standard` and their
+    /// dimensions and plumb by `dimensions`; `None` when neither is asked for.
+    pub fn new(
+        design: &Design,
+        standard: Option<FlatnessStandard>,
+        dimensions: Option<DimensionsStandard>,
+    ) -> Option<Self> {
+        (standard.is_some() || dimensions.is_some()).then(|| Self {
             grid: FlatnessGrid::new(design),
             standard,
+            dimensions,
             layer: None,
-        }
+        })
     }
 
     /// Points of a station of `job` scanned at `printed_height`: a later scan layer starts the
@@ -95,11 +103,23 @@ impl FlatnessCollector {
         self.grid.add(devs);
     }
 
-    /// The gaps of the faces gathered, judged.
-    pub fn finish(self) -> FlatnessSection {
-        let gaps: Vec<GapSection> = self
-            .grid
-            .judge(&self.standard)
+    /// The faces gathered, judged: their flatness and their dimensions and plumb, as asked.
+    pub fn finish(self) -> (Option<FlatnessSection>, Option<DimensionsSection>) {
+        let printed_height_m = self.layer.map(|l| l.1).filter(|h| h.is_finite());
+        let dimensions = self
+            .dimensions
+            .map(|s| DimensionsSection::of(&self.grid, s, printed_height_m));
+        let flatness = self
+            .standard
+            .map(|s| FlatnessSection::of(&self.grid, s, printed_height_m));
+        (flatness, dimensions)
+    }
+}
+
+impl FlatnessSection {
+    fn of(grid: &FlatnessGrid, standard: FlatnessStandard, printed_height_m: Option<f64>) -> Self {
+        let gaps: Vec<GapSection> = grid
+            .judge(&standard)
             .into_iter()
             .map(|g| GapSection {
                 face: g.face,
@@ -116,8 +136,7 @@ impl FlatnessCollector {
             })
             .collect();
         let judged: std::collections::BTreeSet<u32> = gaps.iter().map(|g| g.face).collect();
-        let faces = self
-            .grid
+        let faces = grid
             .faces()
             .iter()
             .enumerate()
@@ -130,9 +149,9 @@ impl FlatnessCollector {
             })
             .collect();
         FlatnessSection {
-            standard: self.standard.to_string(),
-            key: self.standard.key(),
-            printed_height_m: self.layer.map(|l| l.1).filter(|h| h.is_finite()),
+            standard: standard.to_string(),
+            key: standard.key(),
+            printed_height_m,
             verdict: gaps
                 .iter()
                 .map(|g| g.verdict)
@@ -274,6 +293,204 @@ impl FlatnessSection {
             self.printed_height_m
                 .map_or(String::new(), |h| format!(", printed to {h:.3} m")),
             crate::html::esc(&faces.join("; ")),
+            v = self.verdict,
+            V = self.verdict.as_str().to_uppercase()
+        )
+    }
+}
+
+/// A dimension as built, judged.
+#[derive(Debug, Clone, Serialize)]
+pub struct DimensionSection {
+    /// `length`, `thickness` or `height`.
+    pub kind: &'static str,
+    /// The faces it is measured between.
+    pub faces: [u32; 2],
+    /// The design's, metres.
+    pub nominal_m: f64,
+    /// As built, metres.
+    pub measured_m: f64,
+    /// The limit, metres.
+    pub limit_m: f64,
+    /// `pass` or `fail`.
+    pub verdict: Verdict,
+}
+
+/// An upright face's tilt, judged.
+#[derive(Debug, Clone, Serialize)]
+pub struct PlumbSection {
+    /// The face.
+    pub face: u32,
+    /// The height seen, metres.
+    pub height_m: f64,
+    /// Its top less its foot, outward, metres.
+    pub gap_m: f64,
+    /// The limit over that height, metres.
+    pub limit_m: f64,
+    /// `pass` or `fail`.
+    pub verdict: Verdict,
+}
+
+/// report.json's `dimensions`: the element's dimensions and each upright face's plumb.
+#[derive(Debug, Clone, Serialize)]
+pub struct DimensionsSection {
+    /// "DIN 18202 Tables 1 and 2".
+    pub standard: String,
+    /// The printed height of the scan layer judged.
+    pub printed_height_m: Option<f64>,
+    /// `fail` when any is beyond its limit.
+    pub verdict: Verdict,
+    /// Between opposite faces, and to a top that was seen.
+    pub dimensions: Vec<DimensionSection>,
+    /// Per upright face.
+    pub plumb: Vec<PlumbSection>,
+}
+
+fn verdict(value: f64, limit: f64) -> Verdict {
+    if value.abs() <= limit {
+        Verdict::Pass
+    } else {
+        Verdict::Fail
+    }
+}
+
+impl DimensionsSection {
+    fn of(
+        grid: &FlatnessGrid,
+        standard: DimensionsStandard,
+        printed_height_m: Option<f64>,
+    ) -> Self {
+        let dimensions: Vec<DimensionSection> = grid
+            .dimensions()
+            .into_iter()
+            .map(|d| DimensionSection {
+                kind: d.kind.as_str(),
+                faces: d.faces,
+                nominal_m: d.nominal,
+                measured_m: d.measured,
+                limit_m: d.limit,
+                verdict: verdict(d.measured - d.nominal, d.limit),
+            })
+            .collect();
+        let plumb: Vec<PlumbSection> = grid
+            .plumb()
+            .into_iter()
+            .map(|p| PlumbSection {
+                face: p.face,
+                height_m: p.height,
+                gap_m: p.gap,
+                limit_m: p.limit,
+                verdict: verdict(p.gap, p.limit),
+            })
+            .collect();
+        let verdict = dimensions
+            .iter()
+            .map(|d| d.verdict)
+            .chain(plumb.iter().map(|p| p.verdict))
+            .max()
+            .unwrap_or(Verdict::Pass);
+        Self {
+            standard: standard.to_string(),
+            printed_height_m,
+            verdict,
+            dimensions,
+            plumb,
+        }
+    }
+
+    /// One line for the summary: the standard and what failed.
+    pub fn summary_line(&self) -> String {
+        let failed: Vec<String> = self
+            .dimensions
+            .iter()
+            .filter(|d| d.verdict == Verdict::Fail)
+            .map(|d| {
+                format!(
+                    "{} {:.1} mm off (limit ±{:.0} mm)",
+                    d.kind,
+                    (d.measured_m - d.nominal_m) * 1e3,
+                    d.limit_m * 1e3
+                )
+            })
+            .chain(
+                self.plumb
+                    .iter()
+                    .filter(|p| p.verdict == Verdict::Fail)
+                    .map(|p| {
+                        format!(
+                            "face {} out of plumb by {:+.1} mm over {:.2} m (limit {:.0} mm)",
+                            p.face,
+                            p.gap_m * 1e3,
+                            p.height_m,
+                            p.limit_m * 1e3
+                        )
+                    }),
+            )
+            .collect();
+        if failed.is_empty() {
+            format!(
+                "Dimensions and plumb to {}: PASS, {} dimension(s) and {} face(s).",
+                self.standard,
+                self.dimensions.len(),
+                self.plumb.len()
+            )
+        } else {
+            format!(
+                "Dimensions and plumb to {}: FAIL: {}.",
+                self.standard,
+                failed.join("; ")
+            )
+        }
+    }
+
+    /// The tables of report.html.
+    pub fn html(&self) -> String {
+        let dims: String = self
+            .dimensions
+            .iter()
+            .map(|d| {
+                format!(
+                    "<tr class=\"dimension\"><td>{}</td><td>{} / {}</td><td>{:.1}</td><td>{:.1}\
+                     </td><td>{:+.1}</td><td>±{:.0}</td><td class=\"{v}\">{V}</td></tr>",
+                    d.kind,
+                    d.faces[0],
+                    d.faces[1],
+                    d.nominal_m * 1e3,
+                    d.measured_m * 1e3,
+                    (d.measured_m - d.nominal_m) * 1e3,
+                    d.limit_m * 1e3,
+                    v = d.verdict,
+                    V = d.verdict.as_str().to_uppercase()
+                )
+            })
+            .collect();
+        let plumb: String = self
+            .plumb
+            .iter()
+            .map(|p| {
+                format!(
+                    "<tr class=\"plumb\"><td>{}</td><td>{:.2}</td><td>{:+.1}</td><td>{:.0}</td>\
+                     <td class=\"{v}\">{V}</td></tr>",
+                    p.face,
+                    p.height_m,
+                    p.gap_m * 1e3,
+                    p.limit_m * 1e3,
+                    v = p.verdict,
+                    V = p.verdict.as_str().to_uppercase()
+                )
+            })
+            .collect();
+        format!(
+            "<section class=\"dimensions\"><h2>Dimensions and plumb to {} <span class=\"verdict \
+             {v}\">{V}</span></h2><p>Between opposite faces the design's distance plus each \
+             face's median offset (a local bulge does not move it); a height to a top face that \
+             was seen; each upright face's tilt, fitted to its cells, as the gap it makes over \
+             the height seen.</p><table class=\"dimensions\"><tr><th>dimension</th>\
+             <th>faces</th><th>design mm</th><th>as built mm</th><th>off mm</th><th>limit mm</th>\
+             <th>verdict</th></tr>{dims}</table><table class=\"plumb\"><tr><th>face</th>\
+             <th>height m</th><th>top less foot mm</th><th>limit mm</th><th>verdict</th></tr>\
+             {plumb}</table></section>",
+            crate::html::esc(&self.standard),
             v = self.verdict,
             V = self.verdict.as_str().to_uppercase()
         )

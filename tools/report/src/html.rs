@@ -125,6 +125,9 @@ pub fn page(r: &Report, source: &str) -> String {
     if let Some(f) = &r.flatness {
         body.push_str(&f.html());
     }
+    if let Some(d) = &r.dimensions {
+        body.push_str(&d.html());
+    }
     body.push_str(&legend(tol));
     // The faces' worst gaps are marked on the maps of the scan layer judged.
     let flat_items = r

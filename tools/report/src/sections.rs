@@ -43,6 +43,10 @@ pub struct Report {
     /// standard (`--flatness`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub flatness: Option<crate::flatness::FlatnessSection>,
+    /// The element's dimensions and each upright face's plumb, judged by a standard
+    /// (`--dimensions`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dimensions: Option<crate::flatness::DimensionsSection>,
     /// Verdicts against the crew's limits, each finding followed across scan layers, the layer
     /// history and the summary the page opens with; with findings.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -240,6 +244,10 @@ impl Report {
     pub fn assess(&mut self, limits: &asbuilt_core::verdict::Limits) {
         let mut a = crate::assess(&self.findings, &self.stations, Some(&self.overall), limits);
         // Judged by a standard too: the job's verdict is the worse, and the summary names it.
+        if let Some(d) = &self.dimensions {
+            a.verdict = a.verdict.max(d.verdict);
+            a.summary.insert(0, d.summary_line());
+        }
         if let Some(f) = &self.flatness {
             a.verdict = a.verdict.max(f.verdict);
             a.summary.insert(0, f.summary_line());

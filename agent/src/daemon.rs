@@ -560,6 +560,7 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
     let limits = &config.limits;
     let mut inspect = InspectParams::with_tolerance(config.inspect.tolerance);
     inspect.max_range = config.inspect.max_range;
+    let designs_full = designs.full().clone();
     if config.findings.enabled {
         // Findings keep M3C2 cylinders off sharp edges: find the whole design's at start-up,
         // not on the event loop (a printed height's are found where it is prepared).
@@ -585,6 +586,14 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
             limits.max_points_per_chunk,
         ));
     }
+    // Checked at start: a standard that does not parse was refused there.
+    let flatness = config.tolerances.flatness().ok().flatten();
+    let dimensions = config.tolerances.dimensions().ok().flatten();
+    lifecycle = lifecycle.with_survey(crate::survey::Survey::new(
+        designs_full.design(),
+        flatness,
+        dimensions,
+    ));
     if config.corrections.enabled {
         let c = &config.corrections;
         info!(

@@ -21,6 +21,7 @@ pub mod recorder;
 pub mod replay;
 pub mod resume;
 pub mod sequence;
+pub mod survey;
 
 pub use config::AgentConfig;
 pub use sequence::{ChunkVerdict, SequenceTracker};

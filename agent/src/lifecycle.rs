@@ -222,6 +222,9 @@ pub struct Lifecycle<C> {
     findings: Option<FindingsStage>,
     /// Advice after each findings, when `[corrections]` is on.
     corrector: Option<Corrector>,
+    /// Flatness, dimensions and plumb over each scan layer, when `[tolerances]` names a
+    /// standard.
+    survey: Option<crate::survey::Survey>,
     frames: FrameChain,
     config: InspectParams,
     limits: LifecycleLimits,
@@ -246,6 +249,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             preparing: Vec::new(),
             findings: None,
             corrector: None,
+            survey: None,
             frames,
             config,
             limits,
@@ -264,6 +268,12 @@ impl<C: ChunkSource> Lifecycle<C> {
     /// Turns on findings over each scan layer's stations.
     pub fn with_findings(mut self, stage: FindingsStage) -> Self {
         self.findings = Some(stage);
+        self
+    }
+
+    /// Judges the faces by the standards `survey` holds after every station.
+    pub fn with_survey(mut self, survey: Option<crate::survey::Survey>) -> Self {
+        self.survey = survey;
         self
     }
 
@@ -1100,10 +1110,15 @@ impl<C: ChunkSource> Lifecycle<C> {
             (None, None) => false,
         };
         let inspector = &mut s.inspector;
+        let survey = &mut self.survey;
+        let height = s.design.height;
         out.deviations(n, &mut |buf| {
             let outcome = inspector.process(points, buf);
             if in_findings && let Some(st) = stage.as_mut() {
                 st.ingest((h.job, h.station), buf);
+            }
+            if let Some(sv) = survey.as_mut() {
+                sv.ingest(h.job, height, buf);
             }
             let mut d = DeviationHeader::new(h.job, h.station, h.sequence);
             d.timestamp_ns = h.timestamp_ns;
@@ -1180,6 +1195,9 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         out.tally(s.inspector.tally());
         out.report(&report);
+        if !interrupted && let Some(sv) = &self.survey {
+            sv.judge(key.0, key.1);
+        }
         if let Some(f) = drawn {
             info!(
                 "job {} station {}: findings over {} station(s) of layer {}: top {:+.1} mm, {} \

@@ -1,0 +1,115 @@
+//! A surveyor's checks over each scan layer, live: the faces' flatness under a virtual
+//! straightedge and the element's dimensions and plumb, judged by the standards in
+//! `[tolerances]` (`flatness`, `dimensions`) after every station and logged. The cells grow
+//! with the design's faces, never with the scan; `asbuilt report` judges the recording the same
+//! way into report.json.
+
+use asbuilt_core::Design;
+use asbuilt_core::flatness::{DimensionsStandard, FlatnessGrid, FlatnessStandard};
+use asbuilt_protocol::PointDeviation;
+
+use crate::{info, warn};
+
+/// The faces' points of the scan layer being scanned, and the standards they are judged by.
+pub struct Survey {
+    grid: FlatnessGrid,
+    flatness: Option<FlatnessStandard>,
+    dimensions: Option<DimensionsStandard>,
+    /// The scan layer gathered: job and printed height's bits.
+    layer: Option<(u64, u64)>,
+}
+
+impl Survey {
+    /// Cells over `design`'s planar faces; `None` when no standard is set.
+    pub fn new(
+        design: &Design,
+        flatness: Option<FlatnessStandard>,
+        dimensions: Option<DimensionsStandard>,
+    ) -> Option<Self> {
+        (flatness.is_some() || dimensions.is_some()).then(|| Self {
+            grid: FlatnessGrid::new(design),
+            flatness,
+            dimensions,
+            layer: None,
+        })
+    }
+
+    /// A chunk's deviations of a station of `job` scanned at `printed_height`: a new scan
+    /// layer starts the faces over.
+    pub fn ingest(&mut self, job: u64, printed_height: f64, devs: &[PointDeviation]) {
+        let layer = (job, printed_height.to_bits());
+        if self.layer != Some(layer) {
+            self.grid.clear();
+            self.layer = Some(layer);
+        }
+        self.grid.add(devs);
+    }
+
+    /// Judges the scan layer so far and logs it, after station `station` of `job`.
+    pub fn judge(&self, job: u64, station: u32) {
+        if let Some(standard) = &self.flatness {
+            let gaps = self.grid.judge(standard);
+            let failed: Vec<_> = gaps.iter().filter(|g| !g.passes()).collect();
+            match failed
+                .iter()
+                .max_by(|a, b| (a.gap / a.limit).total_cmp(&(b.gap / b.limit)))
+            {
+                None => info!(
+                    "job {job} station {station}: flatness to {standard} over the scan layer so \
+                     far: PASS, {} gap(s) on the faces seen",
+                    gaps.len()
+                ),
+                Some(w) => warn!(
+                    "job {job} station {station}: flatness to {standard} over the scan layer so \
+                     far: FAIL, {} of {} gap(s); the worst {:.1} mm under a {} m straightedge {} \
+                     (limit {:.1} mm) at ({:.2}, {:.2}, {:.2}) m",
+                    failed.len(),
+                    gaps.len(),
+                    w.gap * 1e3,
+                    w.span,
+                    w.direction.as_str().replace('_', " "),
+                    w.limit * 1e3,
+                    w.at.x,
+                    w.at.y,
+                    w.at.z
+                ),
+            }
+        }
+        if let Some(standard) = &self.dimensions {
+            let mut off = Vec::new();
+            for d in self.grid.dimensions() {
+                if (d.measured - d.nominal).abs() > d.limit {
+                    off.push(format!(
+                        "{} {:+.1} mm (limit ±{:.0})",
+                        d.kind.as_str(),
+                        (d.measured - d.nominal) * 1e3,
+                        d.limit * 1e3
+                    ));
+                }
+            }
+            for p in self.grid.plumb() {
+                if p.gap.abs() > p.limit {
+                    off.push(format!(
+                        "face {} out of plumb {:+.1} mm over {:.2} m (limit {:.0})",
+                        p.face,
+                        p.gap * 1e3,
+                        p.height,
+                        p.limit * 1e3
+                    ));
+                }
+            }
+            if off.is_empty() {
+                info!(
+                    "job {job} station {station}: dimensions and plumb to {standard} over the \
+                     scan layer so far: PASS"
+                );
+            } else {
+                warn!(
+                    "job {job} station {station}: dimensions and plumb to {standard} over the \
+                     scan layer so far: FAIL: {}",
+                    off.join("; ")
+                );
+            }
+        }
+    }
+}

@@ -208,8 +208,12 @@ mod tests {
     }
 
     /// The study wall with every upright face and the top scanned every 5 mm, each face moved
-    /// out by `out(face normal, z)`.
+    /// out by `out(face normal, z)`, with 0.3 mm of scanner noise.
     fn wall(out: impl Fn(&Vector3<f64>, f64) -> f64) -> FlatnessGrid {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let noise = Normal::new(0.0, 0.0003).unwrap();
         let design = crate::design::shapes::study_wall();
         let mut grid = FlatnessGrid::new(&design);
         for f in 0..grid.faces().len() {
@@ -221,7 +225,7 @@ mod tests {
                 let mut v = v0 + 0.5 * step;
                 while v < v1 {
                     let p = face.point(u, v);
-                    let w = out(&face.normal, p.z);
+                    let w = out(&face.normal, p.z) + noise.sample(&mut rng);
                     grid.add_point(f, &Point3::from(p.coords + face.normal.into_inner() * w));
                     v += step;
                 }
@@ -257,12 +261,12 @@ mod tests {
         );
         let length = find(DimensionKind::Length);
         assert!(
-            (length.measured - length.nominal - 0.012).abs() < 1e-6,
+            (length.measured - length.nominal - 0.012).abs() < 1e-4,
             "{length:?}"
         );
         assert!((length.limit - 0.012).abs() < 1e-12);
         let height = find(DimensionKind::Height);
-        assert!((height.measured - 0.98 + 0.003).abs() < 1e-6, "{height:?}");
+        assert!((height.measured - 0.98 + 0.003).abs() < 1e-4, "{height:?}");
         let plumb = grid.plumb();
         assert_eq!(plumb.len(), 4, "{plumb:?}");
         let leaning = plumb
@@ -272,7 +276,7 @@ mod tests {
         assert!((leaning.gap - 0.007).abs() < 2e-4, "{leaning:?}");
         assert!(leaning.gap.abs() > leaning.limit, "{leaning:?}");
         for p in plumb.iter().filter(|p| p.face != leaning.face) {
-            assert!(p.gap.abs() < 1e-6, "{p:?}");
+            assert!(p.gap.abs() < 1e-4 && p.gap.abs() < p.limit, "{p:?}");
         }
     }
 }

@@ -206,6 +206,35 @@ impl Outputs for IpcOutputs<'_> {
         }
     }
 
+    fn surface(&mut self, s: &asbuilt_protocol::SurfaceFindings) {
+        if let Some(r) = &self.recorder {
+            r.surface(s);
+        }
+        let bytes = asbuilt_protocol::codec::encode(s);
+        match self.ports.surface.loan_slice_uninit(bytes.len()) {
+            Ok(mut sample) => {
+                let header = sample.user_header_mut();
+                header.job = s.job;
+                header.station = s.station;
+                header.layer = s.layer;
+                header.bytes = bytes.len() as u32;
+                let sample = sample.write_from_slice(&bytes);
+                if let Err(e) = sample.send() {
+                    warn!(
+                        "surface judgement of station {} not published: {e:?}",
+                        s.station
+                    );
+                }
+                self.notify();
+            }
+            Err(e) => warn!(
+                "surface judgement of station {} ({} bytes) not published: {e:?}",
+                s.station,
+                bytes.len()
+            ),
+        }
+    }
+
     fn correction(&mut self, c: &LayerCorrection) {
         if let Some(r) = &self.recorder {
             r.correction(c);

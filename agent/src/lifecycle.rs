@@ -66,6 +66,9 @@ pub trait Outputs {
     fn findings(&mut self, _findings: &StationFindings) {}
     /// Advice for the layers still to print, after the findings (when `[corrections]` is on).
     fn correction(&mut self, _correction: &LayerCorrection) {}
+    /// The scan layer's flatness, dimensions and plumb so far, after a report (when
+    /// `[tolerances]` names a standard).
+    fn surface(&mut self, _surface: &asbuilt_protocol::SurfaceFindings) {}
     /// Whether [`Outputs::scan_layer_state`] is wanted (an agent that records for resuming).
     fn wants_scan_layer_state(&self) -> bool {
         false
@@ -1196,7 +1199,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         out.tally(s.inspector.tally());
         out.report(&report);
         if !interrupted && let Some(sv) = &self.survey {
-            sv.judge(key.0, key.1);
+            out.surface(&sv.judge(key, report.layer, report.printed_height));
         }
         if let Some(f) = drawn {
             info!(

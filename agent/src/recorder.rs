@@ -186,6 +186,11 @@ impl Recorder {
         self.flushed(Recorded::Findings(Box::new(f.clone())));
     }
 
+    /// Records a surface judgement (flatness, dimensions, plumb), flushed like findings.
+    pub fn surface(&self, s: &asbuilt_protocol::SurfaceFindings) {
+        self.flushed(Recorded::Surface(Box::new(s.clone())));
+    }
+
     /// Records advice for the layers still to print, flushed like a report: an agent resuming
     /// the job builds its next advice on it.
     pub fn correction(&self, c: &asbuilt_protocol::LayerCorrection) {
@@ -379,6 +384,7 @@ fn job_of(m: &Recorded) -> Option<u64> {
         Recorded::Report(r) => Some(r.job),
         Recorded::Findings(f) => Some(f.job),
         Recorded::Correction(c) => Some(c.job),
+        Recorded::Surface(s) => Some(s.job),
         Recorded::Status(_) => None,
     }
 }

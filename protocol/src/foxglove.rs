@@ -7,7 +7,7 @@
 //! | [`TOPIC_DESIGN`] | `foxglove.SceneUpdate` | the design, once per file |
 //! | [`TOPIC_STATIONS`] | `foxglove.FrameTransform` | each pose: [`DESIGN_FRAME`] → `station_<job>_<n>` |
 //! | [`TOPIC_DEVIATIONS`] | `foxglove.PointCloud` | each deviation chunk: design frame, `x y z distance_mm` (f32) and `red green blue alpha` (u8) |
-//! | [`TOPIC_REPORTS`], [`TOPIC_FINDINGS`], [`TOPIC_CORRECTIONS`] | JSON | each station report, findings and correction |
+//! | [`TOPIC_REPORTS`], [`TOPIC_FINDINGS`], [`TOPIC_CORRECTIONS`], [`TOPIC_SURFACE`] | JSON | each station report, findings, correction and surface judgement |
 //! | [`TOPIC_SCANS`] (when asked for: `pack`) | `foxglove.PointCloud` | each scan chunk in its station's frame, `x y z intensity` (f32) |
 
 use std::collections::BTreeMap;
@@ -34,6 +34,8 @@ pub const TOPIC_REPORTS: &str = "/foxglove/reports";
 pub const TOPIC_FINDINGS: &str = "/foxglove/findings";
 /// Each correction for the layers still to print as JSON.
 pub const TOPIC_CORRECTIONS: &str = "/foxglove/corrections";
+/// Each surface judgement (flatness, dimensions, plumb) as JSON.
+pub const TOPIC_SURFACE: &str = "/foxglove/surface";
 /// Each scan chunk as a `foxglove.PointCloud` in its station's frame (`pack --foxglove`).
 pub const TOPIC_SCANS: &str = "/foxglove/scans";
 /// The frame every point and the design are in; stations hang from it.
@@ -52,6 +54,7 @@ pub(crate) struct FoxgloveChannels {
     reports: u16,
     findings: u16,
     corrections: u16,
+    surface: u16,
     /// Scan chunks too (a packed file has no deviations to show).
     scans: Option<u16>,
     colour: Colour,
@@ -89,6 +92,7 @@ impl FoxgloveChannels {
             reports: add_json(mcap, TOPIC_REPORTS, "asbuilt.StationReport")?,
             findings: add_json(mcap, TOPIC_FINDINGS, "asbuilt.StationFindings")?,
             corrections: add_json(mcap, TOPIC_CORRECTIONS, "asbuilt.LayerCorrection")?,
+            surface: add_json(mcap, TOPIC_SURFACE, "asbuilt.SurfaceFindings")?,
             scans: None,
             colour,
             every: 1,
@@ -124,6 +128,7 @@ impl FoxgloveChannels {
             Recorded::Report(r) => Some((self.reports, serde_json::to_vec(r).ok()?)),
             Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
             Recorded::Correction(c) => Some((self.corrections, serde_json::to_vec(c).ok()?)),
+            Recorded::Surface(s) => Some((self.surface, serde_json::to_vec(s).ok()?)),
             Recorded::Chunk(h, points) => Some((
                 self.scans?,
                 encode(&scan_cloud(h.timestamp_ns, h.job, h.station, points)),

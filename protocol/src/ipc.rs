@@ -167,6 +167,9 @@ pub struct ServiceNames {
     pub findings: String,
     /// `PREFIX/agent/corrections`: advice for the layers still to print, agent to cell.
     pub corrections: String,
+    /// `PREFIX/agent/surface`: flatness, dimensions and plumb judged by a standard, agent to
+    /// cell.
+    pub surface: String,
     /// `PREFIX/agent/status`: the agent's health.
     pub status: String,
     /// `PREFIX/agent/outbox`: the event that wakes the cell.
@@ -187,6 +190,7 @@ impl ServiceNames {
             reports: n("agent/reports"),
             findings: n("agent/findings"),
             corrections: n("agent/corrections"),
+            surface: n("agent/surface"),
             status: n("agent/status"),
             outbox: n("agent/outbox"),
         }
@@ -265,6 +269,9 @@ pub struct AgentPorts {
     pub findings: Publisher<Ipc, [u8], FindingsHeader>,
     /// Advice for the layers still to print out (when `[corrections]` is on).
     pub corrections: Publisher<Ipc, LayerCorrection, ()>,
+    /// Encoded [`crate::SurfaceFindings`] behind their header (when `[tolerances]` names a
+    /// standard).
+    pub surface: Publisher<Ipc, [u8], FindingsHeader>,
     /// The agent's health out.
     pub status: Publisher<Ipc, AgentStatus, ()>,
     /// Wakes the cell when an output is sent.
@@ -312,23 +319,7 @@ impl AgentPorts {
                     source: e.into(),
                 })?;
 
-        let chunks = node
-            .service_builder(&service_name(&names.chunks)?)
-            .publish_subscribe::<[ScanPoint]>()
-            .user_header::<ChunkHeader>()
-            .max_publishers(MAX_INPUT_PUBLISHERS)
-            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(0)
-            .subscriber_max_buffer_size(q.chunk_queue)
-            .subscriber_max_borrowed_samples(q.pending_chunks + 2)
-            .enable_safe_overflow(false)
-            .open_or_create()
-            .map_err(|e| exists(&names.chunks, e.into()))?
-            .subscriber_builder()
-            .buffer_size(q.chunk_queue)
-            .create()
-            .map_err(|e| IpcError::iceoryx("cannot subscribe to scan chunks", e))?;
+        let chunks = chunk_subscriber(node, names, q, &exists)?;
         let poses = control_subscriber::<PoseSnapshot>(node, &names.poses, &exists)?;
         let stations = control_subscriber::<StationEvent>(node, &names.stations, &exists)?;
         let inbox = node
@@ -353,7 +344,20 @@ impl AgentPorts {
             &report_drops,
             &exists,
         )?;
-        let findings = findings_publisher(node, names, &report_drops, &exists)?;
+        let findings = bytes_publisher(
+            node,
+            &names.findings,
+            MAX_FINDINGS_BYTES,
+            &report_drops,
+            &exists,
+        )?;
+        let surface = bytes_publisher(
+            node,
+            &names.surface,
+            crate::MAX_SURVEY_BYTES,
+            &report_drops,
+            &exists,
+        )?;
         let corrections = message_publisher::<LayerCorrection>(
             node,
             &names.corrections,
@@ -381,6 +385,7 @@ impl AgentPorts {
             reports,
             findings,
             corrections,
+            surface,
             status,
             outbox,
             deviation_drops,
@@ -408,6 +413,8 @@ pub struct CellPorts {
     pub findings: Subscriber<Ipc, [u8], FindingsHeader>,
     /// Advice for the layers still to print, from the agent (when its `[corrections]` is on).
     pub corrections: Subscriber<Ipc, LayerCorrection, ()>,
+    /// Encoded [`crate::SurfaceFindings`] behind their header, from the agent.
+    pub surface: Subscriber<Ipc, [u8], FindingsHeader>,
     /// The agent's health.
     pub status: Subscriber<Ipc, AgentStatus, ()>,
     /// Wakes the cell when the agent sent something.
@@ -451,6 +458,32 @@ fn deviation_publisher(
         .map_err(|e| IpcError::iceoryx("cannot publish deviations", e))
 }
 
+/// The agent's scan chunk subscriber: a full queue holds the publisher back (never drops), and
+/// a station's chunks waiting for their pose stay borrowed.
+fn chunk_subscriber(
+    node: &Node<Ipc>,
+    names: &ServiceNames,
+    q: QueueSizes,
+    exists: Exists<'_>,
+) -> Result<Subscriber<Ipc, [ScanPoint], ChunkHeader>, IpcError> {
+    node.service_builder(&service_name(&names.chunks)?)
+        .publish_subscribe::<[ScanPoint]>()
+        .user_header::<ChunkHeader>()
+        .max_publishers(MAX_INPUT_PUBLISHERS)
+        .max_subscribers(MAX_INPUT_SUBSCRIBERS)
+        .max_nodes(MAX_NODES)
+        .history_size(0)
+        .subscriber_max_buffer_size(q.chunk_queue)
+        .subscriber_max_borrowed_samples(q.pending_chunks + 2)
+        .enable_safe_overflow(false)
+        .open_or_create()
+        .map_err(|e| exists(&names.chunks, e.into()))?
+        .subscriber_builder()
+        .buffer_size(q.chunk_queue)
+        .create()
+        .map_err(|e| IpcError::iceoryx("cannot subscribe to scan chunks", e))
+}
+
 /// A publisher of one fixed-size message per station (reports, corrections): a late
 /// subscriber gets the latest from the history; a full subscriber queue drops and counts in
 /// `drops`, never makes the agent wait.
@@ -478,15 +511,16 @@ fn message_publisher<T: std::fmt::Debug + ZeroCopySend>(
         .map_err(|e| IpcError::iceoryx(format!("cannot publish {what}"), e))
 }
 
-/// The agent's findings publisher (encoded `StationFindings`), dropping and counting in `drops`
-/// as reports do.
-fn findings_publisher(
+/// A publisher of encoded messages behind a [`FindingsHeader`] (findings, the surface's
+/// judgement), samples of up to `max_bytes`, dropping and counting in `drops` as reports do.
+fn bytes_publisher(
     node: &Node<Ipc>,
-    names: &ServiceNames,
+    name: &str,
+    max_bytes: usize,
     drops: &Arc<AtomicU64>,
     exists: Exists<'_>,
 ) -> Result<Publisher<Ipc, [u8], FindingsHeader>, IpcError> {
-    node.service_builder(&service_name(&names.findings)?)
+    node.service_builder(&service_name(name)?)
         .publish_subscribe::<[u8]>()
         .user_header::<FindingsHeader>()
         .max_publishers(1)
@@ -496,14 +530,14 @@ fn findings_publisher(
         .subscriber_max_buffer_size(REPORT_QUEUE)
         .enable_safe_overflow(false)
         .open_or_create()
-        .map_err(|e| exists(&names.findings, e.into()))?
+        .map_err(|e| exists(name, e.into()))?
         .publisher_builder()
-        .initial_max_slice_len(MAX_FINDINGS_BYTES)
+        .initial_max_slice_len(max_bytes)
         .allocation_strategy(AllocationStrategy::Static)
         .backpressure_strategy(BackpressureStrategy::DiscardData)
         .set_backpressure_handler(counting_handler(drops.clone()))
         .create()
-        .map_err(|e| IpcError::iceoryx("cannot publish findings", e))
+        .map_err(|e| IpcError::iceoryx(format!("cannot publish on {name}"), e))
 }
 
 /// Inputs wait for a full agent queue, but not forever: a stuck agent becomes an error.
@@ -641,6 +675,11 @@ impl CellPorts {
         let corrections = output_subscriber(node, &names.corrections, |b| {
             b.publish_subscribe::<LayerCorrection>().open()
         })?;
+        let surface = output_subscriber(node, &names.surface, |b| {
+            b.publish_subscribe::<[u8]>()
+                .user_header::<FindingsHeader>()
+                .open()
+        })?;
         let outbox = node
             .service_builder(&service_name(&names.outbox)?)
             .event()
@@ -658,6 +697,7 @@ impl CellPorts {
             reports,
             findings,
             corrections,
+            surface,
             status,
             outbox,
             chunk_service,

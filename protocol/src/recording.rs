@@ -23,7 +23,7 @@ use crate::foxglove::{Colour, FoxgloveChannels};
 use crate::mcap_records::{Chunks, Damaged, RecordError, Records};
 use crate::{
     AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, PointDeviation, PoseSnapshot,
-    ScanPoint, StationEvent, StationFindings, StationReport,
+    ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
 };
 
 /// The MCAP message encoding of the asbuilt channels: [`crate::codec`]'s postcard records.
@@ -86,11 +86,14 @@ pub enum Channel {
     Findings,
     /// Advice for the layers still to print, after findings ([`LayerCorrection`]).
     Corrections,
+    /// Flatness, dimensions and plumb judged by a standard, after a report
+    /// ([`SurfaceFindings`]).
+    Surface,
 }
 
 impl Channel {
     /// Every channel, in the order a recording declares them.
-    pub const ALL: [Channel; 8] = [
+    pub const ALL: [Channel; 9] = [
         Channel::Poses,
         Channel::ScanChunks,
         Channel::StationEvents,
@@ -99,6 +102,7 @@ impl Channel {
         Channel::Status,
         Channel::Findings,
         Channel::Corrections,
+        Channel::Surface,
     ];
 
     /// The cell's messages to the agent: what a replay sends again.
@@ -115,6 +119,7 @@ impl Channel {
             Channel::Status => "/agent/status",
             Channel::Findings => "/agent/findings",
             Channel::Corrections => "/agent/corrections",
+            Channel::Surface => "/agent/surface",
         }
     }
 
@@ -134,6 +139,7 @@ impl Channel {
             Channel::Status => AgentStatus::TYPE_NAME,
             Channel::Findings => StationFindings::TYPE_NAME,
             Channel::Corrections => LayerCorrection::TYPE_NAME,
+            Channel::Surface => SurfaceFindings::TYPE_NAME,
         }
     }
 }
@@ -185,6 +191,12 @@ pub fn schema_text(channel: Channel) -> &'static str {
              after, drift per layer, flow factor, path offset; each measured error with its \
              sigma and samples; metres, design frame)"
         }
+        Channel::Surface => {
+            "asbuilt.SurfaceFindings v1, postcard: the fields of asbuilt-protocol's \
+             SurfaceFindings in declaration order (the standards' keys, the deepest gap per \
+             face, direction and span, dimensions and plumb, each with its limit; metres, \
+             design frame)"
+        }
     }
 }
 
@@ -207,6 +219,8 @@ pub enum Recorded {
     Findings(Box<StationFindings>),
     /// Advice for the layers still to print.
     Correction(Box<LayerCorrection>),
+    /// Flatness, dimensions and plumb judged by a standard.
+    Surface(Box<SurfaceFindings>),
 }
 
 impl Recorded {
@@ -221,6 +235,7 @@ impl Recorded {
             Recorded::Status(_) => Channel::Status,
             Recorded::Findings(_) => Channel::Findings,
             Recorded::Correction(_) => Channel::Corrections,
+            Recorded::Surface(_) => Channel::Surface,
         }
     }
 
@@ -241,6 +256,7 @@ impl Recorded {
             Channel::Status => Recorded::Status(Box::new(codec::decode(bytes)?)),
             Channel::Findings => Recorded::Findings(Box::new(codec::decode(bytes)?)),
             Channel::Corrections => Recorded::Correction(Box::new(codec::decode(bytes)?)),
+            Channel::Surface => Recorded::Surface(Box::new(codec::decode(bytes)?)),
         })
     }
 
@@ -255,6 +271,7 @@ impl Recorded {
             Recorded::Status(m) => codec::encode(m.as_ref()),
             Recorded::Findings(m) => codec::encode(m.as_ref()),
             Recorded::Correction(m) => codec::encode(m.as_ref()),
+            Recorded::Surface(m) => codec::encode(m.as_ref()),
         }
     }
 
@@ -265,7 +282,10 @@ impl Recorded {
             Recorded::Chunk(h, _) => h.timestamp_ns,
             Recorded::Event(m) => m.timestamp_ns,
             Recorded::Deviations(h, _) => h.timestamp_ns,
-            Recorded::Report(_) | Recorded::Findings(_) | Recorded::Correction(_) => 0,
+            Recorded::Report(_)
+            | Recorded::Findings(_)
+            | Recorded::Correction(_)
+            | Recorded::Surface(_) => 0,
             Recorded::Status(m) => m.timestamp_ns,
         }
     }

@@ -11,11 +11,11 @@ use super::FlatnessGrid;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DimensionKind {
     /// Between the two farthest-apart upright faces that face each other.
-    Length,
+    Length = 0,
     /// Between the other upright faces that face each other.
-    Thickness,
+    Thickness = 1,
     /// From the bed to a top face that was seen.
-    Height,
+    Height = 2,
 }
 
 impl DimensionKind {

@@ -644,3 +644,53 @@ fn dimensions_and_plumb_to_din_18202_hold_beside_a_bulge() {
     }));
     assert!(html.contains("<section class=\"dimensions\">"));
 }
+
+#[test]
+fn the_live_agent_sends_the_cell_its_flatness_and_dimensions_after_each_station() {
+    let defect = Defect::parse(
+        "bulge:x=-0.5,y=-0.0867,z=0.12,radius=0.1,height=15mm",
+        &Part::wall(),
+    )
+    .unwrap();
+    let mut job = wall_job(12, vec![defect]);
+    job.scanner.step_deg = 0.1;
+    let config = format!(
+        "[inspect]\ntolerance = {TOLERANCE}\nmax_distance = 0.03\n[limits]\n\
+         max_points_per_chunk = {}\n[tolerances]\nflatness = \"din18202:6\"\n\
+         dimensions = \"din18202\"\n",
+        job.chunk_points
+    );
+    let (agent, cell) = start("sim_surface", &job, &config);
+    let out = send(&job, &agent, &cell, false);
+    // The judgement follows each report; give the last a moment.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let mut surface = out.surface.clone();
+    while surface.len() < 4 && std::time::Instant::now() < deadline {
+        while let Ok(Some(s)) = cell.ports.surface.receive() {
+            let s: asbuilt_protocol::SurfaceFindings =
+                asbuilt_protocol::codec::decode(s.payload()).unwrap();
+            surface.retain(|x| x.station != s.station);
+            surface.push(s);
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(surface.len(), 4, "agent log:\n{}", agent.log());
+    let last = surface.iter().max_by_key(|s| s.station).unwrap();
+    assert_eq!(last.flatness_standard.as_str(), "din18202:6");
+    assert_eq!(last.dimensions_standard.as_str(), "din18202");
+    // After the four stations: the bulge fails under 1 m along the layers, beside it.
+    let worst = last
+        .flatness
+        .iter()
+        .filter(|r| r.direction == 0 && r.span == 1.0)
+        .max_by(|a, b| a.gap.total_cmp(&b.gap))
+        .unwrap();
+    assert!(!worst.pass && (worst.at[0] + 0.5).abs() < 0.2, "{worst:?}");
+    // Thickness, length and the four faces' plumb pass.
+    assert!(
+        last.dimensions.iter().filter(|d| d.kind <= 1).count() == 2,
+        "{last:?}"
+    );
+    assert!(last.dimensions.iter().all(|d| d.pass), "{last:?}");
+    assert!(!last.passes());
+}

@@ -164,13 +164,14 @@ class Cell:
         cell.send_station(0, points, translation, rotation_xyzw, name="L008-S1", layer=7,
                           printed_height=0.16)
         for message in cell.receive(timeout=5.0):
-            ...   # message["kind"] is "report", "findings" or "correction"
+            ...   # message["kind"] is "report", "findings", "correction" or "surface"
 
     `send_station` sends Begin, the pose, the points in chunks (the last flagged) and End, and
     returns the points sent; `points` are (N, 3) float32 in the scanner frame, the pose is
     what the robot reports in `pose_mode` ("design_scanner", "fixed" or "6dof"). `receive`
-    returns the agent's reports, findings and corrections (advice for the layers still to
-    print, when its `[corrections]` are on) that arrived, waiting up to `timeout` seconds for
+    returns the agent's reports, findings, corrections (advice for the layers still to
+    print, when its `[corrections]` are on) and surface judgements (flatness, dimensions and
+    plumb, when its `[tolerances]` name a standard) that arrived, waiting up to `timeout` seconds for
     the first. One thread only: the ports are not shared between threads.
 
     A report's `status` is one of `STATUS`; `Interrupted` means the agent stopped (or started

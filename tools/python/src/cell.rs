@@ -210,6 +210,11 @@ impl Cell {
             let f: StationFindings = codec::decode(s.payload()).map_err(runtime)?;
             out.append(tagged(py, "findings", &f)?)?;
         }
+        while let Some(s) = self.ports.surface.receive().map_err(bad)? {
+            let s: asbuilt_protocol::SurfaceFindings =
+                codec::decode(s.payload()).map_err(runtime)?;
+            out.append(tagged(py, "surface", &s)?)?;
+        }
         while let Some(c) = self.ports.corrections.receive().map_err(bad)? {
             let c: LayerCorrection = *c.payload();
             out.append(tagged(py, "correction", &c)?)?;

@@ -311,6 +311,9 @@ pub struct SimOutcome {
     pub corrections: Vec<LayerCorrection>,
     /// What the printer applied to each layer (closed loop; empty when open).
     pub settings: Vec<LayerSettings>,
+    /// The latest surface judgement after each station (when the agent's `[tolerances]` names
+    /// a standard).
+    pub surface: Vec<asbuilt_protocol::SurfaceFindings>,
 }
 
 impl SimOutcome {
@@ -740,6 +743,18 @@ fn collect(
             None => out.corrections.push(c),
         }
         on(SimEvent::Correction(&c));
+    }
+    while let Some(sample) = ports.surface.receive().map_err(|e| bad(&e))? {
+        match codec::decode::<asbuilt_protocol::SurfaceFindings>(sample.payload()) {
+            Ok(s) if s.job == job => {
+                match out.surface.iter_mut().find(|x| x.station == s.station) {
+                    Some(x) => *x = s,
+                    None => out.surface.push(s),
+                }
+            }
+            Ok(_) => {}
+            Err(e) => eprintln!("warning: a surface judgement from the agent cannot be read: {e}"),
+        }
     }
     while let Ok(Some(_)) = ports.deviations.receive() {}
     while let Ok(Some(s)) = ports.status.receive() {

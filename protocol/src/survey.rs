@@ -1,0 +1,139 @@
+//! A surveyor's judgement of a scan layer so far, sent after a station's report when
+//! `[tolerances]` names a standard: the faces' flatness under a virtual straightedge (DIN 18202
+//! Table 3, ACI 117) and the element's dimensions and plumb (DIN 18202 Tables 1 and 2).
+//!
+//! Variable in size, so on iceoryx2 it travels as its postcard encoding behind a
+//! [`crate::FindingsHeader`], as the findings do; the same bytes are the MCAP record.
+
+use serde::{Deserialize, Serialize};
+
+use crate::codec::Message;
+use crate::text::FixedText;
+
+/// Gaps, dimensions and plumb rows a [`SurfaceFindings`] holds at most.
+pub const MAX_SURVEY_ROWS: usize = 128;
+/// Upper bound of an encoded [`SurfaceFindings`], bytes.
+pub const MAX_SURVEY_BYTES: usize = 32 * 1024;
+
+/// The deepest gap under a straightedge on one face, one way, at one span. Metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FlatnessRow {
+    /// The face (the design's planar faces, largest first).
+    pub face: u32,
+    /// 0: along the layers; 1: across them.
+    pub direction: u8,
+    /// Whether the gap is within the limit.
+    pub pass: bool,
+    /// The span.
+    pub span: f64,
+    /// The deepest gap.
+    pub gap: f64,
+    /// The standard's limit at the span.
+    pub limit: f64,
+    /// Where the gap is deepest, design frame.
+    pub at: [f64; 3],
+}
+
+/// A dimension (0: length, 1: thickness, 2: height) or an upright face's plumb (3). Metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DimensionRow {
+    /// 0 length, 1 thickness, 2 height, 3 plumb.
+    pub kind: u8,
+    /// Whether it is within the limit.
+    pub pass: bool,
+    /// The faces it is measured between (a plumb's face twice).
+    pub faces: [u32; 2],
+    /// The design's size (for plumb, the height seen).
+    pub nominal: f64,
+    /// As built (for plumb, the face's top less its foot, outward).
+    pub measured: f64,
+    /// The limit.
+    pub limit: f64,
+}
+
+/// The judgement of a scan layer's stations so far.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceFindings {
+    /// The message's version ([`Message::VERSION`] when written by this build).
+    pub version: u16,
+    /// The job (one print).
+    pub job: u64,
+    /// The station whose report it follows.
+    pub station: u32,
+    /// The last printed layer of the scan layer, 0-based.
+    pub layer: u32,
+    /// NaN when not printing.
+    pub printed_height: f64,
+    /// The flatness standard, as `--flatness` spells it; empty when none.
+    pub flatness_standard: FixedText<16>,
+    /// The dimensions standard, as `--dimensions` spells it; empty when none.
+    pub dimensions_standard: FixedText<16>,
+    /// The deepest gap per face, direction and span.
+    pub flatness: heapless::Vec<FlatnessRow, MAX_SURVEY_ROWS>,
+    /// The dimensions, then each upright face's plumb.
+    pub dimensions: heapless::Vec<DimensionRow, MAX_SURVEY_ROWS>,
+    /// Rows left out because a list was full.
+    pub truncated: u32,
+}
+crate::codec::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v1", 1);
+
+impl SurfaceFindings {
+    /// Nothing judged yet, after station `station` of `job`.
+    pub fn new(job: u64, station: u32) -> Self {
+        Self {
+            version: Self::VERSION,
+            job,
+            station,
+            layer: 0,
+            printed_height: f64::NAN,
+            flatness_standard: FixedText::empty(),
+            dimensions_standard: FixedText::empty(),
+            flatness: heapless::Vec::new(),
+            dimensions: heapless::Vec::new(),
+            truncated: 0,
+        }
+    }
+
+    /// Whether everything judged is within its limit.
+    pub fn passes(&self) -> bool {
+        self.flatness.iter().all(|r| r.pass) && self.dimensions.iter().all(|r| r.pass)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec;
+
+    #[test]
+    fn full_lists_fit_the_byte_bound_and_round_trip() {
+        let mut s = SurfaceFindings::new(2, 5);
+        s.flatness_standard = FixedText::truncated("din18202:6");
+        let gap = FlatnessRow {
+            face: 1,
+            direction: 0,
+            pass: false,
+            span: 1.0,
+            gap: 0.0123,
+            limit: 0.005,
+            at: [-0.4, -0.09, 0.1],
+        };
+        let dim = DimensionRow {
+            kind: 3,
+            pass: true,
+            faces: [1, 1],
+            nominal: 0.98,
+            measured: 0.002,
+            limit: 0.006,
+        };
+        while s.flatness.push(gap).is_ok() {}
+        while s.dimensions.push(dim).is_ok() {}
+        let bytes = codec::encode(&s);
+        assert!(bytes.len() <= MAX_SURVEY_BYTES, "{}", bytes.len());
+        let back: SurfaceFindings = codec::decode(&bytes).unwrap();
+        // Bytes, not values: the printed height is NaN.
+        assert_eq!(codec::encode(&back), bytes);
+        assert!(!back.passes());
+        assert_eq!(back.flatness_standard.as_str(), "din18202:6");
+    }
+}

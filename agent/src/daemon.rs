@@ -9,9 +9,9 @@ use asbuilt_core::Design;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
 use asbuilt_protocol::{
-    AgentState, AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, OutputDrops,
-    PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind, StationFindings,
-    StationReport, unix_time_ns,
+    AgentState, AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, LayerCorrection,
+    OutputDrops, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
+    StationFindings, StationReport, unix_time_ns,
 };
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -145,6 +145,35 @@ impl IpcOutputs<'_> {
         });
     }
 
+    /// Publishes an encoded message (`what`) of a station `(job, station, layer)` behind a
+    /// findings header; a failure is logged, never waited for.
+    fn publish_encoded(
+        &self,
+        publisher: &iceoryx2::port::publisher::Publisher<Ipc, [u8], FindingsHeader>,
+        (job, station, layer): (u64, u32, u32),
+        bytes: &[u8],
+        what: &str,
+    ) {
+        match publisher.loan_slice_uninit(bytes.len()) {
+            Ok(mut sample) => {
+                let header = sample.user_header_mut();
+                header.job = job;
+                header.station = station;
+                header.layer = layer;
+                header.bytes = bytes.len() as u32;
+                let sample = sample.write_from_slice(bytes);
+                if let Err(e) = sample.send() {
+                    warn!("{what} of station {station} not published: {e:?}");
+                }
+                self.notify();
+            }
+            Err(e) => warn!(
+                "{what} of station {station} ({} bytes) not published: {e:?}",
+                bytes.len()
+            ),
+        }
+    }
+
     fn notify(&self) {
         if let Err(e) = self.ports.outbox.notify() {
             warn!("cannot notify output subscribers: {e:?}");
@@ -185,25 +214,12 @@ impl Outputs for IpcOutputs<'_> {
             });
         }
         let bytes = asbuilt_protocol::codec::encode(f);
-        match self.ports.findings.loan_slice_uninit(bytes.len()) {
-            Ok(mut sample) => {
-                let header = sample.user_header_mut();
-                header.job = f.job;
-                header.station = f.station;
-                header.layer = f.layer;
-                header.bytes = bytes.len() as u32;
-                let sample = sample.write_from_slice(&bytes);
-                if let Err(e) = sample.send() {
-                    warn!("findings of station {} not published: {e:?}", f.station);
-                }
-                self.notify();
-            }
-            Err(e) => warn!(
-                "findings of station {} ({} bytes) not published: {e:?}",
-                f.station,
-                bytes.len()
-            ),
-        }
+        self.publish_encoded(
+            &self.ports.findings,
+            (f.job, f.station, f.layer),
+            &bytes,
+            "findings",
+        );
     }
 
     fn surface(&mut self, s: &asbuilt_protocol::SurfaceFindings) {
@@ -211,28 +227,12 @@ impl Outputs for IpcOutputs<'_> {
             r.surface(s);
         }
         let bytes = asbuilt_protocol::codec::encode(s);
-        match self.ports.surface.loan_slice_uninit(bytes.len()) {
-            Ok(mut sample) => {
-                let header = sample.user_header_mut();
-                header.job = s.job;
-                header.station = s.station;
-                header.layer = s.layer;
-                header.bytes = bytes.len() as u32;
-                let sample = sample.write_from_slice(&bytes);
-                if let Err(e) = sample.send() {
-                    warn!(
-                        "surface judgement of station {} not published: {e:?}",
-                        s.station
-                    );
-                }
-                self.notify();
-            }
-            Err(e) => warn!(
-                "surface judgement of station {} ({} bytes) not published: {e:?}",
-                s.station,
-                bytes.len()
-            ),
-        }
+        self.publish_encoded(
+            &self.ports.surface,
+            (s.job, s.station, s.layer),
+            &bytes,
+            "surface judgement",
+        );
     }
 
     fn correction(&mut self, c: &LayerCorrection) {

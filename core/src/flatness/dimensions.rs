@@ -156,40 +156,57 @@ impl FlatnessGrid {
             .collect()
     }
 
-    /// The plane through face `f`'s measured cells; `None` with fewer than 10 of them or a
-    /// single row.
+    /// The plane through face `f`'s measured cells, each weighted by its points and refitted
+    /// once without the cells beyond 3 robust σ of the first fit (a bulge or a dent tilts a
+    /// plane fitted to part of a face); `None` with fewer than 10 cells or a single row.
     pub(crate) fn fit(&self, f: usize) -> Option<FaceFit> {
         let c = &self.cells[f];
         let face = &self.faces.faces[f];
-        let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
-        let mut means = Vec::new();
-        let mut v_range = [f64::INFINITY, f64::NEG_INFINITY];
+        // Each measured cell: (u, v, mean height, points).
+        let mut cells = Vec::new();
         for iv in 0..c.nv {
             for iu in 0..c.nu {
                 let k = iv * c.nu + iu;
-                if c.count[k] == 0 {
-                    continue;
+                if c.count[k] > 0 {
+                    cells.push((
+                        face.extent[0][0] + (iu as f64 + 0.5) * c.cell,
+                        face.extent[1][0] + (iv as f64 + 0.5) * c.cell,
+                        c.sum[k] / c.count[k] as f64,
+                        c.count[k] as f64,
+                    ));
                 }
-                let w = c.sum[k] / c.count[k] as f64;
-                let u = face.extent[0][0] + (iu as f64 + 0.5) * c.cell;
-                let v = face.extent[1][0] + (iv as f64 + 0.5) * c.cell;
-                let x = Vector3::new(1.0, u, v);
-                a += x * x.transpose();
-                b += x * w;
-                means.push(w);
-                v_range = [v_range[0].min(v), v_range[1].max(v)];
             }
         }
-        if means.len() < 10 || v_range[1] - v_range[0] < c.cell {
+        let v_range = cells
+            .iter()
+            .fold([f64::INFINITY, f64::NEG_INFINITY], |r, x| {
+                [r[0].min(x.1), r[1].max(x.1)]
+            });
+        if cells.len() < 10 || v_range[1] - v_range[0] < c.cell {
             return None;
         }
-        let s = a.lu().solve(&b)?;
+        let first = plane(cells.iter())?;
+        let residual = |x: &(f64, f64, f64, f64)| x.2 - (first.x + first.y * x.0 + first.z * x.1);
+        let sigma = 1.4826 * crate::stats::median(cells.iter().map(|x| residual(x).abs()))?;
+        let cut = (3.0 * sigma).max(0.001);
+        let s = plane(cells.iter().filter(|x| residual(x).abs() <= cut)).unwrap_or(first);
         Some(FaceFit {
-            median: crate::stats::median(means)?,
+            median: crate::stats::median(cells.iter().map(|x| x.2))?,
             slope_v: s.z,
             v_range,
         })
     }
+}
+
+/// `w = a + b·u + c·v` by least squares over cells `(u, v, w, weight)`.
+fn plane<'a>(cells: impl Iterator<Item = &'a (f64, f64, f64, f64)>) -> Option<Vector3<f64>> {
+    let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
+    for &(u, v, w, n) in cells {
+        let x = Vector3::new(1.0, u, v);
+        a += x * x.transpose() * n;
+        b += x * (w * n);
+    }
+    a.lu().solve(&b)
 }
 
 #[cfg(test)]

@@ -35,15 +35,21 @@ impl Survey {
         })
     }
 
-    /// A chunk's deviations of a station of `job` scanned at `printed_height`: a new scan
-    /// layer starts the faces over.
-    pub fn ingest(&mut self, job: u64, printed_height: f64, devs: &[PointDeviation]) {
+    /// A chunk's deviations of a station of `job` scanned at `printed_height` from `origin`
+    /// (design frame): a new scan layer starts the faces over.
+    pub fn ingest(
+        &mut self,
+        job: u64,
+        printed_height: f64,
+        origin: Option<nalgebra::Point3<f64>>,
+        devs: &[PointDeviation],
+    ) {
         let layer = (job, printed_height.to_bits());
         if self.layer != Some(layer) {
             self.grid.clear();
             self.layer = Some(layer);
         }
-        self.grid.add(devs);
+        self.grid.add(devs, origin);
     }
 
     /// Judges the scan layer so far after station `key` (job, station) of printed layer

@@ -569,6 +569,7 @@ fn stream_station(
         maps,
         flatness,
         viewer,
+        origin: Point3::from(station.t_design_scanner.translation.vector),
         station: n,
         name: &station.id,
         view_step: viewer::stride(declared.unwrap_or(1_000_000) as usize, rerun_points),
@@ -611,6 +612,8 @@ struct OutputStage<'a> {
     maps: &'a mut MapCollector,
     flatness: Option<&'a mut FlatnessCollector>,
     viewer: Option<&'a Viewer>,
+    /// The scanner's position, design frame.
+    origin: Point3<f64>,
     station: usize,
     name: &'a str,
     view_step: usize,
@@ -643,7 +646,7 @@ impl OutputStage<'_> {
             self.maps.points((0, n as u32), &devs);
             if let Some(f) = self.flatness.as_deref_mut() {
                 // One scan set: every station is the same scan layer.
-                f.points(0, f64::NAN, &devs);
+                f.points(0, f64::NAN, Some(self.origin), &devs);
             }
             if let Some(v) = self.viewer {
                 let (positions, distances) = viewer::decimate(&devs, self.view_step);

@@ -122,6 +122,10 @@ struct Collected {
     flatness: Option<FlatnessCollector>,
     /// Each station's printed height, from its Begin (for the flatness).
     heights: BTreeMap<(u64, u32), f64>,
+    /// Each station's scanner position, from its pose through the job's frames (for the
+    /// flatness).
+    origins: BTreeMap<(u64, u32), nalgebra::Point3<f64>>,
+    frames: Option<FrameChain>,
 }
 
 impl Collected {
@@ -139,6 +143,8 @@ impl Collected {
             maps,
             flatness: None,
             heights: BTreeMap::new(),
+            origins: BTreeMap::new(),
+            frames: None,
         }
     }
 }
@@ -146,10 +152,23 @@ impl Collected {
 impl Collected {
     /// With [`read_back`], a station's recorded inputs: its Begin, pose and scan chunks.
     fn keep_input(&mut self, m: &Recorded) {
-        if let (Recorded::Event(e), Some(_)) = (m, &self.flatness)
-            && e.kind() == Some(StationEventKind::Begin)
-        {
-            self.heights.insert((e.job, e.station), e.printed_height);
+        if self.flatness.is_some() {
+            match m {
+                Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                    self.heights.insert((e.job, e.station), e.printed_height);
+                }
+                Recorded::Pose(p) => {
+                    if let Some(t) = self
+                        .frames
+                        .as_ref()
+                        .and_then(|f| f.t_design_scanner(p).ok())
+                    {
+                        let origin = nalgebra::Point3::from(t.translation.vector);
+                        self.origins.insert((p.job, p.station), origin);
+                    }
+                }
+                _ => {}
+            }
         }
         let Some(k) = &mut self.kept else { return };
         match m {
@@ -176,8 +195,9 @@ impl Outputs for Collected {
         let h = fill(&mut self.buffer);
         self.maps.points((h.job, h.station), &self.buffer);
         if let Some(f) = &mut self.flatness {
-            let height = self.heights.get(&(h.job, h.station)).copied();
-            f.points(h.job, height.unwrap_or(f64::NAN), &self.buffer);
+            let key = (h.job, h.station);
+            let height = self.heights.get(&key).copied().unwrap_or(f64::NAN);
+            f.points(h.job, height, self.origins.get(&key).copied(), &self.buffer);
         }
         if let Some(k) = &mut self.kept {
             let s = k.entry((h.job, h.station)).or_default();
@@ -653,6 +673,7 @@ fn replay_stations(
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
     out.flatness = FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions);
+    out.frames = Some(job.frames.clone());
     if keep {
         out.kept = Some(BTreeMap::new());
     }

@@ -34,6 +34,9 @@ pub const BIN: f64 = 0.01;
 pub const LANE: f64 = 0.03;
 /// The share of a straightedge's bins that must be measured for its position to count.
 pub const MIN_FILLED: f64 = 0.7;
+/// Views steeper than this (between the face's normal and the ray from the scanner) are left
+/// out: at grazing incidence a point's range noise and mixed returns land across the surface.
+pub const MAX_INCIDENCE_DEG: f64 = 75.0;
 /// A face's cells at most; a larger face takes larger cells.
 const MAX_CELLS: usize = 4 << 20;
 
@@ -145,8 +148,11 @@ impl FlatnessGrid {
         }
     }
 
-    /// Adds a chunk's deviations: each matched point goes to its triangle's face.
-    pub fn add(&mut self, devs: &[PointDeviation]) {
+    /// Adds a chunk's deviations of a station scanned from `origin` (design frame; `None`
+    /// when unknown): each matched point goes to its triangle's face, unless the face was seen
+    /// at more than [`MAX_INCIDENCE_DEG`] from there.
+    pub fn add(&mut self, devs: &[PointDeviation], origin: Option<Point3<f64>>) {
+        let min_cos = MAX_INCIDENCE_DEG.to_radians().cos();
         for d in devs {
             if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
                 continue;
@@ -154,7 +160,15 @@ impl FlatnessGrid {
             let Some(Some(f)) = self.faces.of_triangle.get(d.triangle as usize) else {
                 continue;
             };
-            self.add_point(*f as usize, &Point3::from(d.position));
+            let p = Point3::from(d.position);
+            if let Some(o) = origin {
+                let ray = o - p;
+                let n = ray.norm();
+                if n > 0.0 && ray.dot(&self.faces.faces[*f as usize].normal) < min_cos * n {
+                    continue;
+                }
+            }
+            self.add_point(*f as usize, &p);
         }
     }
 

@@ -126,3 +126,40 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
         "{g:?}"
     );
 }
+
+#[test]
+fn points_seen_at_grazing_incidence_are_left_out() {
+    let design = crate::design::shapes::study_wall();
+    let mut grid = FlatnessGrid::new(&design);
+    let face = grid
+        .faces()
+        .iter()
+        .position(|f| f.normal.y > 0.99)
+        .unwrap();
+    let triangle = grid
+        .faces
+        .of_triangle
+        .iter()
+        .position(|t| *t == Some(face as u32))
+        .unwrap() as u32;
+    let y = grid.faces()[face].origin.y;
+    let devs: Vec<PointDeviation> = (0..100)
+        .map(|i| PointDeviation {
+            position: [-0.9 + 0.018 * i as f64, y, 0.5],
+            distance: 0.0,
+            triangle,
+            ..Default::default()
+        })
+        .collect();
+    let counted = |g: &FlatnessGrid| g.cells[face].count.iter().sum::<u32>();
+    // From 2 m in front: every point.
+    grid.add(&devs, Some(Point3::new(0.0, y + 2.0, 0.5)));
+    assert_eq!(counted(&grid), 100);
+    // From beyond the wall's end, 5 cm off its face: all beyond 75°.
+    grid.clear();
+    grid.add(&devs, Some(Point3::new(1.5, y + 0.05, 0.5)));
+    assert_eq!(counted(&grid), 0);
+    // Without a known origin, every point.
+    grid.add(&devs, None);
+    assert_eq!(counted(&grid), 100);
+}

@@ -84,9 +84,16 @@ impl FlatnessCollector {
         })
     }
 
-    /// Points of a station of `job` scanned at `printed_height`: a later scan layer starts the
-    /// faces over, an earlier one's late station is left out.
-    pub fn points(&mut self, job: u64, printed_height: f64, devs: &[PointDeviation]) {
+    /// Points of a station of `job` scanned at `printed_height` from `origin` (design frame,
+    /// when known): a later scan layer starts the faces over, an earlier one's late station is
+    /// left out.
+    pub fn points(
+        &mut self,
+        job: u64,
+        printed_height: f64,
+        origin: Option<nalgebra::Point3<f64>>,
+        devs: &[PointDeviation],
+    ) {
         let height = if printed_height.is_finite() {
             printed_height
         } else {
@@ -100,7 +107,7 @@ impl FlatnessCollector {
                 self.layer = Some((job, height));
             }
         }
-        self.grid.add(devs);
+        self.grid.add(devs, origin);
     }
 
     /// The faces gathered, judged: their flatness and their dimensions and plumb, as asked.

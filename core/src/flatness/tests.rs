@@ -9,15 +9,20 @@ const NOISE: f64 = 0.0003;
 /// What bin means of a few points leave of the noise in the deepest gap over a face.
 const SLACK: f64 = 0.0006;
 
-/// The wall's +y face scanned every 3 mm, its height off the plane `w(x, z)` plus noise.
-fn scanned(w: impl Fn(f64, f64) -> f64) -> (FlatnessGrid, u32) {
-    let design = crate::design::shapes::study_wall();
-    let mut grid = FlatnessGrid::new(&design);
+/// Empty cells over the study wall, and the index of its +y face.
+fn wall() -> (FlatnessGrid, usize) {
+    let grid = FlatnessGrid::new(&crate::design::shapes::study_wall());
     let face = grid
         .faces()
         .iter()
         .position(|f| f.normal.y > 0.99)
         .expect("the wall has a +y face");
+    (grid, face)
+}
+
+/// The wall's +y face scanned every 3 mm, its height off the plane `w(x, z)` plus noise.
+fn scanned(w: impl Fn(f64, f64) -> f64) -> (FlatnessGrid, u32) {
+    let (mut grid, face) = wall();
     let y = grid.faces()[face].origin.y;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let noise = Normal::new(0.0, NOISE).unwrap();
@@ -129,13 +134,7 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
 
 #[test]
 fn points_seen_at_grazing_incidence_are_left_out() {
-    let design = crate::design::shapes::study_wall();
-    let mut grid = FlatnessGrid::new(&design);
-    let face = grid
-        .faces()
-        .iter()
-        .position(|f| f.normal.y > 0.99)
-        .unwrap();
+    let (mut grid, face) = wall();
     let triangle = grid
         .faces
         .of_triangle

@@ -418,13 +418,13 @@ fn advise_path(
     }
 }
 
-/// The sample standard deviation; NaN below two values.
+/// The sample standard deviation (m3c2's running statistics); NaN below two values.
 fn spread(v: &[f64]) -> f64 {
-    if v.len() < 2 {
-        return f64::NAN;
+    let mut r = crate::m3c2::Running::default();
+    for &x in v {
+        r.push(x);
     }
-    let mean = v.iter().sum::<f64>() / v.len() as f64;
-    (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+    r.std().unwrap_or(f64::NAN)
 }
 
 #[cfg(test)]

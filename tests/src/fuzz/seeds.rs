@@ -242,6 +242,23 @@ fn wire_messages() -> Vec<Recorded> {
         Recorded::Report(Box::new(report)),
         Recorded::Status(Box::new(AgentStatus::new(42))),
         Recorded::Findings(Box::new(StationFindings::new(3, 1))),
+        Recorded::Correction(Box::new(asbuilt_protocol::LayerCorrection::neutral(
+            3, 1, 1, 0,
+        ))),
+        Recorded::Surface(Box::new({
+            let mut s = asbuilt_protocol::SurfaceFindings::new(3, 1);
+            s.flatness_standard = asbuilt_protocol::FixedText::truncated("din18202:6");
+            let _ = s.flatness.push(asbuilt_protocol::FlatnessRow {
+                face: 0,
+                direction: 1,
+                pass: false,
+                span: 0.1,
+                gap: 0.004,
+                limit: 0.003,
+                at: [0.0, 0.0, 0.1],
+            });
+            s
+        })),
     ]
 }
 

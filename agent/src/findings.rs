@@ -5,12 +5,19 @@
 //! A scan layer's stations are scanned one after the other; a station that starts sending while
 //! another of its scan layer still sends is left out of the findings (and says so), because the
 //! per-station state is shared.
+//!
+//! A station sent again straight after it closed (the cell's next attempt after an incomplete
+//! report, or a cell process started again that sends it anew) replaces what its attempt before
+//! added: the scan layer keeps its state from before the last station closed, and goes back to
+//! it when that station begins again. Without this, the points an incomplete attempt got
+//! through would count twice, and the findings (and the advice drawn from them) would differ
+//! from a run where the attempt was complete the first time.
 
 use std::sync::Arc;
 
 use asbuilt_core::printed::PrintedDesign;
 use asbuilt_core::sampling::DesignSamples;
-use asbuilt_core::scan_layer::{SampleState, ScanLayer, defaults};
+use asbuilt_core::scan_layer::{SampleState, ScanLayer, ScanLayerState, defaults};
 use asbuilt_protocol::{DeviationFlags, PointDeviation, StationFindings, StationReport};
 use nalgebra::Point3;
 
@@ -29,6 +36,9 @@ pub(crate) struct Epoch {
     layer: ScanLayer,
     /// The station sending now.
     active: Option<u32>,
+    /// The last station closed and the state from before it closed, until another station
+    /// begins: that station begun again goes back to it.
+    before_last: Option<(u32, ScanLayerState)>,
 }
 
 impl Epoch {
@@ -88,6 +98,7 @@ impl EpochMaker {
                     design: design.clone(),
                     layer,
                     active: None,
+                    before_last: None,
                 })
             }
             Err(e) => {
@@ -156,6 +167,17 @@ impl FindingsStage {
                 false
             }
             _ => {
+                if let Some((station, before)) = e.before_last.take()
+                    && station == key.1
+                {
+                    // Same samples, same methods: the state always fits.
+                    e.layer.restore(&before);
+                    info!(
+                        "job {} station {}: sent again; what its attempt before added to the \
+                         findings of its scan layer is taken back",
+                        key.0, key.1
+                    );
+                }
                 e.active = Some(key.1);
                 e.layer.begin_station();
                 true
@@ -169,7 +191,7 @@ impl FindingsStage {
         &self,
         job: u64,
         design: &Arc<PrintedDesign>,
-    ) -> Option<asbuilt_core::scan_layer::ScanLayerState> {
+    ) -> Option<ScanLayerState> {
         self.epochs
             .iter()
             .find(|e| e.is(job, design))
@@ -199,19 +221,33 @@ impl FindingsStage {
     }
 
     /// Takes up a scan layer of `job` over `design` from a state its agent recorded; false
-    /// when the state does not fit (another design or other settings).
+    /// when the state does not fit (another design or other settings). `last` is the station
+    /// whose close that state followed and the state recorded before it (`None`: it was the
+    /// scan layer's first), so that the station sent again replaces what it added.
     pub fn restore(
         &mut self,
         job: u64,
         design: &Arc<PrintedDesign>,
-        state: &asbuilt_core::scan_layer::ScanLayerState,
+        state: &ScanLayerState,
+        last: Option<(u32, Option<&ScanLayerState>)>,
     ) -> bool {
         let Some(mut epoch) = self.maker.make(job, design) else {
             return false;
         };
+        let before_last = match last {
+            Some((station, Some(before))) => {
+                if !epoch.layer.restore(before) {
+                    return false;
+                }
+                Some((station, epoch.layer.state()))
+            }
+            Some((station, None)) => Some((station, epoch.layer.state())),
+            None => None,
+        };
         if !epoch.layer.restore(state) {
             return false;
         }
+        epoch.before_last = before_last;
         self.epochs.retain(|e| !e.is(job, design));
         self.keep(epoch);
         true
@@ -281,6 +317,7 @@ impl FindingsStage {
         } else {
             0.0
         };
+        e.before_last = Some((key.1, e.layer.state()));
         e.layer.end_station(origin, sigma, &*e.design);
         let (f, samples) = e.layer.measure(sigma, &*e.design, self.keep_samples)?;
         self.samples = samples;

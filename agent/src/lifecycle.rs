@@ -17,6 +17,7 @@ use std::sync::mpsc;
 use asbuilt_core::corrections::{CorrectionLimits, Corrector};
 use asbuilt_core::layers::CutError;
 use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
+use asbuilt_core::scan_layer::ScanLayerState;
 use asbuilt_core::station::{InspectParams, StationInspector, Tally};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, InputRejects, LayerCorrection, Message,
@@ -747,12 +748,15 @@ impl<C: ChunkSource> Lifecycle<C> {
 
     /// Takes up the scan layer of `job` at `printed_height` (NaN: the whole design) from the
     /// state the agent before recorded after its last station: the printed design is prepared
-    /// here and now, and the layer's next stations go on from that state.
+    /// here and now, and the layer's next stations go on from that state. `last` is that
+    /// station and the state recorded before it first closed (`None`: it was the layer's first),
+    /// so that it can be sent again (see [`FindingsStage`]).
     pub fn restore_scan_layer(
         &mut self,
         job: u64,
         printed_height: f64,
-        state: &asbuilt_core::scan_layer::ScanLayerState,
+        state: &ScanLayerState,
+        last: Option<(u32, Option<&ScanLayerState>)>,
     ) -> Result<(), String> {
         let design = if printed_height.is_finite() {
             self.designs.at(printed_height).map_err(|e| e.to_string())?
@@ -763,7 +767,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             .findings
             .as_mut()
             .ok_or("findings are off in this configuration")?;
-        if stage.restore(job, &design, state) {
+        if stage.restore(job, &design, state, last) {
             Ok(())
         } else {
             Err("the recorded state does not fit this design and these [findings] settings".into())
@@ -1725,12 +1729,27 @@ mod tests {
 
     /// A station of 4 chunks of 100 points on the cube's top, 2 mm above it, shifted by `dx`.
     fn station_on_top(lc: &mut Lifecycle<Owned>, out: &mut WithStates, station: u32, dx: f32) {
+        attempt_on_top(lc, out, (station, 1), dx, 4);
+    }
+
+    /// Attempt `key.1` of station `key.0` as [`station_on_top`] sends it, of which only the
+    /// first `sent` chunks arrive; a station with chunks missing closes incomplete.
+    fn attempt_on_top(
+        lc: &mut Lifecycle<Owned>,
+        out: &mut WithStates,
+        (station, attempt): (u32, u8),
+        dx: f32,
+        sent: u64,
+    ) {
         let t = Instant::now();
         let mut p = pose(station);
         p.translation = [0.0, 0.0, 2.0];
-        lc.on_event(&event(StationEventKind::Begin, station, 4), t, out);
+        p.attempt = attempt;
+        let mut begin = event(StationEventKind::Begin, station, 4);
+        begin.attempt = attempt;
+        lc.on_event(&begin, t, out);
         lc.on_pose(&p, t, out);
-        for seq in 0..4u64 {
+        for seq in 0..sent {
             let pts = (0..100)
                 .map(|i| {
                     let x = -0.45 + 0.009 * i as f32 + dx;
@@ -1738,9 +1757,64 @@ mod tests {
                     ScanPoint::new(x, y, -1.498)
                 })
                 .collect();
-            lc.on_chunk(Owned(ChunkHeader::new(1, station, seq, 100), pts), t, out);
+            let c = Owned(ChunkHeader::new(1, station, seq, 100), pts);
+            lc.on_chunk(with_attempt(c, attempt.into()), t, out);
         }
-        lc.on_event(&event(StationEventKind::End, station, 4), t, out);
+        let mut end = event(StationEventKind::End, station, 4);
+        end.attempt = attempt;
+        lc.on_event(&end, t, out);
+        lc.on_idle(t + END_GRACE, out);
+    }
+
+    /// A station whose first attempt got half its chunks through, reported incomplete and sent
+    /// again, counts once in its scan layer: the findings after it and after the next station
+    /// are those of a job whose station was complete the first time, bit for bit. An agent that
+    /// takes the layer up from the state recorded after the incomplete attempt does the same.
+    #[test]
+    fn an_incomplete_attempt_sent_again_counts_once_in_the_findings() {
+        let bytes = |f: &StationFindings| asbuilt_protocol::codec::encode(f);
+        let mut clean = with_findings();
+        let mut out_clean = WithStates::default();
+        for (station, dx) in [(1, 0.0), (2, 0.004), (3, 0.002)] {
+            station_on_top(&mut clean, &mut out_clean, station, dx);
+        }
+        let mut retried = with_findings();
+        let mut out_retried = WithStates::default();
+        station_on_top(&mut retried, &mut out_retried, 1, 0.0);
+        attempt_on_top(&mut retried, &mut out_retried, (2, 1), 0.004, 2);
+        let r = out_retried.inner.reports[1];
+        assert_eq!((r.status(), r.attempt), (Some(StationStatus::Incomplete), 1));
+        // The incomplete attempt's points are in the findings until the station comes again.
+        assert_eq!(out_retried.findings[1].stations, 2);
+        assert_ne!(bytes(&out_retried.findings[1]), bytes(&out_clean.findings[1]));
+        attempt_on_top(&mut retried, &mut out_retried, (2, 2), 0.004, 4);
+        station_on_top(&mut retried, &mut out_retried, 3, 0.002);
+        assert_eq!(out_retried.findings.len(), 4);
+        for (a, b) in [(2, 1), (3, 2)] {
+            assert_eq!(bytes(&out_retried.findings[a]), bytes(&out_clean.findings[b]));
+            assert_eq!(out_retried.states[a], out_clean.states[b]);
+        }
+
+        // Killed after the incomplete attempt: the next agent takes up the state recorded after
+        // it, and the one before it, and goes on as the agent that never stopped.
+        let mut resumed = with_findings();
+        let mut out_resumed = WithStates::default();
+        let (after, before) = (&out_retried.states[1], &out_retried.states[0]);
+        resumed
+            .restore_scan_layer(1, f64::NAN, after, Some((2, Some(before))))
+            .unwrap();
+        resumed.remember_reported((1, 2), 1, 0);
+        attempt_on_top(&mut resumed, &mut out_resumed, (2, 2), 0.004, 4);
+        station_on_top(&mut resumed, &mut out_resumed, 3, 0.002);
+        assert_eq!(out_resumed.findings.len(), 2);
+        assert_eq!(bytes(&out_resumed.findings[1]), bytes(&out_clean.findings[2]));
+
+        // A station that was the scan layer's first goes back to the layer's start.
+        let mut first = with_findings();
+        let mut out_first = WithStates::default();
+        attempt_on_top(&mut first, &mut out_first, (1, 1), 0.0, 1);
+        attempt_on_top(&mut first, &mut out_first, (1, 2), 0.0, 4);
+        assert_eq!(bytes(&out_first.findings[1]), bytes(&out_clean.findings[0]));
     }
 
     /// An agent that takes up a scan layer from the state recorded after its second station
@@ -1762,7 +1836,7 @@ mod tests {
 
         let mut b = with_findings();
         let mut out_b = WithStates::default();
-        b.restore_scan_layer(1, f64::NAN, &decoded).unwrap();
+        b.restore_scan_layer(1, f64::NAN, &decoded, None).unwrap();
         station_on_top(&mut a, &mut out_a, 3, 0.002);
         station_on_top(&mut b, &mut out_b, 3, 0.002);
         let bytes = |f: &StationFindings| asbuilt_protocol::codec::encode(f);
@@ -1776,7 +1850,7 @@ mod tests {
         other.samples += 1;
         assert!(
             with_findings()
-                .restore_scan_layer(1, f64::NAN, &other)
+                .restore_scan_layer(1, f64::NAN, &other, None)
                 .is_err()
         );
     }

@@ -261,12 +261,18 @@ where
     if let (Some(height), Some(done)) = (seen.current, last_done)
         && lifecycle.has_findings()
     {
-        let restored = seen
-            .states
-            .iter()
-            .rev()
-            .find(|r| r.printed_height.to_bits() == height && (r.station, r.attempt) == done)
-            .map(|r| restore(lifecycle, r));
+        let at = seen.states.iter().rposition(|r| {
+            r.printed_height.to_bits() == height && (r.station, r.attempt) == done
+        });
+        // The state from before the last station closed: the one recorded before its first
+        // attempt (the scan layer's start when there is none), for that station sent again.
+        let before = at.and_then(|at| {
+            seen.states[..at]
+                .iter()
+                .rev()
+                .find(|r| r.printed_height.to_bits() == height && r.station != done.0)
+        });
+        let restored = at.map(|at| restore(lifecycle, &seen.states[at], before));
         match restored {
             Some(Ok(bytes)) => resumed.state_bytes = Some(bytes),
             Some(Err(e)) => {
@@ -399,15 +405,26 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
     seen
 }
 
-/// Takes up the scan layer from a recorded state; the state's bytes.
+/// Takes up the scan layer from a recorded state, `r`, and `before`, the one recorded before
+/// `r`'s station first closed (`None`: the scan layer's first station); the states' bytes.
 fn restore<C: ChunkSource>(
     lifecycle: &mut Lifecycle<C>,
     r: &ScanLayerStateRecord,
+    before: Option<&ScanLayerStateRecord>,
 ) -> Result<usize, String> {
-    let state: ScanLayerState =
-        postcard::from_bytes(&r.state).map_err(|e| format!("it does not decode: {e}"))?;
-    lifecycle.restore_scan_layer(r.job, r.printed_height, &state)?;
-    Ok(r.state.len())
+    let decode = |r: &ScanLayerStateRecord| {
+        postcard::from_bytes::<ScanLayerState>(&r.state)
+            .map_err(|e| format!("it does not decode: {e}"))
+    };
+    let state = decode(r)?;
+    let before_state = before.map(decode).transpose()?;
+    lifecycle.restore_scan_layer(
+        r.job,
+        r.printed_height,
+        &state,
+        Some((r.station, before_state.as_ref())),
+    )?;
+    Ok(r.state.len() + before.map_or(0, |b| b.state.len()))
 }
 
 /// Feeds the current scan layer's recorded inputs through the lifecycle again, in the order

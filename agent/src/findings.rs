@@ -187,11 +187,7 @@ impl FindingsStage {
 
     /// What the scan layer of `job` over `design` gathered from its closed stations, when it is
     /// kept.
-    pub fn layer_state(
-        &self,
-        job: u64,
-        design: &Arc<PrintedDesign>,
-    ) -> Option<ScanLayerState> {
+    pub fn layer_state(&self, job: u64, design: &Arc<PrintedDesign>) -> Option<ScanLayerState> {
         self.epochs
             .iter()
             .find(|e| e.is(job, design))

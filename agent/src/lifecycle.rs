@@ -1783,15 +1783,24 @@ mod tests {
         station_on_top(&mut retried, &mut out_retried, 1, 0.0);
         attempt_on_top(&mut retried, &mut out_retried, (2, 1), 0.004, 2);
         let r = out_retried.inner.reports[1];
-        assert_eq!((r.status(), r.attempt), (Some(StationStatus::Incomplete), 1));
+        assert_eq!(
+            (r.status(), r.attempt),
+            (Some(StationStatus::Incomplete), 1)
+        );
         // The incomplete attempt's points are in the findings until the station comes again.
         assert_eq!(out_retried.findings[1].stations, 2);
-        assert_ne!(bytes(&out_retried.findings[1]), bytes(&out_clean.findings[1]));
+        assert_ne!(
+            bytes(&out_retried.findings[1]),
+            bytes(&out_clean.findings[1])
+        );
         attempt_on_top(&mut retried, &mut out_retried, (2, 2), 0.004, 4);
         station_on_top(&mut retried, &mut out_retried, 3, 0.002);
         assert_eq!(out_retried.findings.len(), 4);
         for (a, b) in [(2, 1), (3, 2)] {
-            assert_eq!(bytes(&out_retried.findings[a]), bytes(&out_clean.findings[b]));
+            assert_eq!(
+                bytes(&out_retried.findings[a]),
+                bytes(&out_clean.findings[b])
+            );
             assert_eq!(out_retried.states[a], out_clean.states[b]);
         }
 
@@ -1807,7 +1816,10 @@ mod tests {
         attempt_on_top(&mut resumed, &mut out_resumed, (2, 2), 0.004, 4);
         station_on_top(&mut resumed, &mut out_resumed, 3, 0.002);
         assert_eq!(out_resumed.findings.len(), 2);
-        assert_eq!(bytes(&out_resumed.findings[1]), bytes(&out_clean.findings[2]));
+        assert_eq!(
+            bytes(&out_resumed.findings[1]),
+            bytes(&out_clean.findings[2])
+        );
 
         // A station that was the scan layer's first goes back to the layer's start.
         let mut first = with_findings();

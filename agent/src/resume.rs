@@ -261,9 +261,10 @@ where
     if let (Some(height), Some(done)) = (seen.current, last_done)
         && lifecycle.has_findings()
     {
-        let at = seen.states.iter().rposition(|r| {
-            r.printed_height.to_bits() == height && (r.station, r.attempt) == done
-        });
+        let at = seen
+            .states
+            .iter()
+            .rposition(|r| r.printed_height.to_bits() == height && (r.station, r.attempt) == done);
         // The state from before the last station closed: the one recorded before its first
         // attempt (the scan layer's start when there is none), for that station sent again.
         let before = at.and_then(|at| {

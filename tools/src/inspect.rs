@@ -54,22 +54,8 @@ pub struct InspectArgs {
     /// Tolerance band, metres: |d| <= tolerance is within tolerance.
     #[arg(long, default_value_t = 0.005)]
     tolerance: f64,
-    /// A verdict limit, repeatable: KIND=VALUE or KIND=VALUE@FIRST-LAST (layers), KIND one of
-    /// width, top_height, position, surface, missing_area (m², or with cm2), creep; lengths in
-    /// metres or with mm. Kinds left out are held to --tolerance.
-    #[arg(long = "limit", value_name = "KIND=VALUE[@LAYERS]")]
-    limits: Vec<asbuilt_core::verdict::LayerLimit>,
-    /// Also write every map of report.html as a PNG file into OUT/maps.
-    #[arg(long)]
-    png: bool,
-    /// Judge every planar face's flatness with a virtual straightedge by a standard:
-    /// din18202:5|6|7 (DIN 18202 Table 3, walls) or aci117:A|B|C|D (ACI 117, 5 ft straightedge).
-    #[arg(long, value_name = "STANDARD:ROW")]
-    flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
-    /// Judge the element's dimensions (between opposite faces, and to a top seen) and each
-    /// upright face's plumb by a standard: din18202 (Tables 1 and 2).
-    #[arg(long, value_name = "STANDARD")]
-    dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
+    #[command(flatten)]
+    judging: crate::judging::Judging,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]
@@ -185,7 +171,7 @@ impl Plan {
             (None, None) => bail!("give --stations FILE or --scan FILE"),
         };
         let mut limits = asbuilt_core::verdict::Limits::from_tolerance(args.tolerance);
-        for l in &args.limits {
+        for l in &args.judging.limits {
             limits.set(*l);
         }
         limits
@@ -291,7 +277,8 @@ impl Job {
         // The design's counts are all the report needs of it from here: the index takes it over.
         let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
-        let flatness = FlatnessCollector::new(&design, args.flatness, args.dimensions);
+        let flatness =
+            FlatnessCollector::new(&design, args.judging.flatness, args.judging.dimensions);
         let index = C2mIndex::from_design(design, C2mParams::within(plan.suite.reach))?;
         let ix = index.stats();
         eprintln!(
@@ -806,7 +793,7 @@ fn write_report(
 
     print!("{}", summary_table(report));
     print!("{}", asbuilt_report::verdict_text(report));
-    if args.png {
+    if args.judging.png {
         crate::maps_png::write(report, &args.out)?;
     }
     eprintln!(

@@ -8,13 +8,15 @@ mod calibrate;
 mod convert;
 mod demo;
 mod inspect;
+pub mod judging;
 mod maps_png;
 mod pack;
 pub mod publish;
+pub mod read_back;
 mod recording_file;
 mod recover;
 mod replay;
-pub mod report_cmd;
+mod report_cmd;
 pub mod sim_cmd;
 
 use std::path::PathBuf;

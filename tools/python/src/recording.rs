@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use asbuilt_agent::log::{self, Level};
-use asbuilt_tools::report_cmd::{Overrides, StationReadBack, read_back};
+use asbuilt_tools::read_back::{Overrides, StationReadBack, read_back};
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};

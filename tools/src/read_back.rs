@@ -1,0 +1,682 @@
+//! A recording read back: the job's design and settings from the recording itself, every
+//! station fed through the agent's own lifecycle in the order the agent took its inputs, and
+//! what that gives (report.json's content, each station's inputs and outputs). `asbuilt report`
+//! writes it out; the Python package hands it to its caller.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use asbuilt_agent::findings::FindingsStage;
+use asbuilt_agent::lifecycle::{Lifecycle, Outputs};
+use asbuilt_core::frames::FrameChain;
+use asbuilt_core::printed::PrintedDesigns;
+use asbuilt_core::scan_layer::SampleState;
+use asbuilt_core::station::{InspectParams, Tally};
+use asbuilt_core::{C2mParams, Units};
+use asbuilt_protocol::recording::{self, Recorded};
+use asbuilt_protocol::{
+    ChunkHeader, LayerCorrection, PointDeviation, PoseSnapshot, ScanPoint, StationEvent,
+    StationEventKind, StationFindings, StationReport, StationStatus,
+};
+use asbuilt_report::flatness::FlatnessCollector;
+use asbuilt_report::maps::{MapCollector, ScanLayerMaps};
+use asbuilt_report::{DesignSection, Parameters, Report, Section};
+
+/// What the station lifecycle hands out while a recording is read back: each station's
+/// section, and every station's statistics merged.
+struct Collected {
+    /// Every station's inputs and outputs, for [`read_back`]; `None` for the command.
+    kept: Option<BTreeMap<(u64, u32), Kept>>,
+    /// Every station attempt's section, as reported.
+    done: Vec<((u64, u32), Section)>,
+    total: Tally,
+    /// The tally of the station closing now, until its report says whether it counts.
+    closing: Option<Tally>,
+    /// Each station's tally, of its latest attempt that was not interrupted: a station counts
+    /// once in the overall section, however often it was tried.
+    tallies: BTreeMap<(u64, u32), Tally>,
+    /// Station attempts reported interrupted: (job, station, attempt, name).
+    interrupted: Vec<(u64, u32, u8, String)>,
+    buffer: Vec<PointDeviation>,
+    /// The latest findings of each scan layer (by job and printed height).
+    findings: BTreeMap<(u64, u64), StationFindings>,
+    /// The latest advice after each scan layer (by job and layer).
+    corrections: BTreeMap<(u64, u32), LayerCorrection>,
+    maps: MapCollector,
+    /// The faces' points of the latest scan layer, with a flatness standard.
+    flatness: Option<FlatnessCollector>,
+    /// Each station's printed height, from its Begin (for the flatness).
+    heights: BTreeMap<(u64, u32), f64>,
+    /// Each station's scanner position, from its pose through the job's frames (for the
+    /// flatness).
+    origins: BTreeMap<(u64, u32), nalgebra::Point3<f64>>,
+    frames: Option<FrameChain>,
+}
+
+impl Collected {
+    fn new(stats: asbuilt_core::stats::StatsConfig, maps: MapCollector) -> Self {
+        Self {
+            kept: None,
+            done: Vec::new(),
+            total: Tally::new(stats),
+            closing: None,
+            tallies: BTreeMap::new(),
+            interrupted: Vec::new(),
+            buffer: Vec::new(),
+            findings: BTreeMap::new(),
+            corrections: BTreeMap::new(),
+            maps,
+            flatness: None,
+            heights: BTreeMap::new(),
+            origins: BTreeMap::new(),
+            frames: None,
+        }
+    }
+}
+
+impl Collected {
+    /// With [`read_back`], a station's recorded inputs: its Begin, pose and scan chunks.
+    fn keep_input(&mut self, m: &Recorded) {
+        if self.flatness.is_some() {
+            match m {
+                Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                    self.heights.insert((e.job, e.station), e.printed_height);
+                }
+                Recorded::Pose(p) => {
+                    if let Some(t) = self
+                        .frames
+                        .as_ref()
+                        .and_then(|f| f.t_design_scanner(p).ok())
+                    {
+                        let origin = nalgebra::Point3::from(t.translation.vector);
+                        self.origins.insert((p.job, p.station), origin);
+                    }
+                }
+                _ => {}
+            }
+        }
+        let Some(k) = &mut self.kept else { return };
+        match m {
+            Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                k.entry((e.job, e.station)).or_default().begin = Some(*e);
+            }
+            Recorded::Pose(p) => k.entry((p.job, p.station)).or_default().pose = Some(*p),
+            Recorded::Chunk(h, pts) => {
+                let s = k.entry((h.job, h.station)).or_default();
+                s.chunks.insert(h.sequence, pts.clone());
+            }
+            _ => {}
+        }
+    }
+}
+
+impl Outputs for Collected {
+    fn deviations(
+        &mut self,
+        n: usize,
+        fill: &mut dyn FnMut(&mut [PointDeviation]) -> asbuilt_protocol::DeviationHeader,
+    ) {
+        self.buffer.resize(n, PointDeviation::default());
+        let h = fill(&mut self.buffer);
+        self.maps.points((h.job, h.station), &self.buffer);
+        if let Some(f) = &mut self.flatness {
+            let key = (h.job, h.station);
+            let height = self.heights.get(&key).copied().unwrap_or(f64::NAN);
+            f.points(h.job, height, self.origins.get(&key).copied(), &self.buffer);
+        }
+        if let Some(k) = &mut self.kept {
+            let s = k.entry((h.job, h.station)).or_default();
+            s.deviations.insert(h.sequence, self.buffer.clone());
+        }
+    }
+
+    fn tally(&mut self, tally: &Tally) {
+        self.closing = Some(tally.clone());
+    }
+
+    fn report(&mut self, r: &StationReport) {
+        let key = (r.job, r.station);
+        let status = r.status();
+        let closing = self.closing.take();
+        if status == Some(StationStatus::Interrupted) {
+            // Its next attempt sends the station again: what this one sent counts nowhere.
+            self.maps.station_dropped(key);
+            self.interrupted
+                .push((r.job, r.station, r.attempt, r.name.as_str().to_string()));
+        } else {
+            self.maps.station_done(key, r.printed_height);
+            if let Some(t) = closing {
+                self.tallies.insert(key, t);
+            }
+        }
+        if let Some(k) = &mut self.kept {
+            k.entry(key).or_default().report = Some(*r);
+        }
+        let mut section = Section::from_report(r, None, 0);
+        section.attempt = (r.attempt > 1).then_some(r.attempt);
+        section.status = status
+            .filter(|s| *s != StationStatus::Complete)
+            .map(|s| format!("{s:?}"));
+        self.done.push((key, section));
+    }
+
+    fn findings(&mut self, f: &StationFindings) {
+        if let Some(k) = &mut self.kept {
+            k.entry((f.job, f.station)).or_default().findings = Some(f.clone());
+        }
+        self.findings
+            .insert((f.job, f.printed_height.to_bits()), f.clone());
+    }
+
+    fn correction(&mut self, c: &LayerCorrection) {
+        self.corrections.insert((c.job, c.layer), *c);
+    }
+
+    fn samples(&mut self, f: &StationFindings, samples: &[SampleState]) {
+        self.maps.samples(f.job, f.printed_height, samples);
+    }
+}
+
+/// What the command line sets over the recording's configuration.
+#[derive(Default)]
+pub struct Overrides {
+    /// The tolerance to judge with instead of the recorded one, metres.
+    pub tolerance: Option<f64>,
+    /// The maximum distance instead of the recorded one, metres.
+    pub max_distance: Option<f64>,
+    /// With a recording folder, the job to read instead of the newest.
+    pub job: Option<u64>,
+    /// Limits and standards instead of the recorded ones, and the maps as PNG files.
+    pub judging: crate::judging::Judging,
+}
+
+/// One station of a recording as the report reads it back: what came in and what the agent's
+/// lifecycle made of it.
+#[derive(Default)]
+pub struct StationReadBack {
+    /// The job the station belongs to.
+    pub job: u64,
+    /// The station's number within the job.
+    pub station: u32,
+    /// The station's Begin as recorded (name, layer, printed height).
+    pub begin: Option<StationEvent>,
+    /// The pose the station's points were placed with (the last recorded).
+    pub pose: Option<PoseSnapshot>,
+    /// The recorded scan chunks, scanner frame, by sequence number.
+    pub chunks: BTreeMap<u64, Vec<ScanPoint>>,
+    /// The deviations of each inspected chunk, by sequence number: entry i is chunk point i's.
+    pub deviations: BTreeMap<u64, Vec<PointDeviation>>,
+    /// The agent's report of the station, as recorded.
+    pub report: Option<StationReport>,
+    /// The findings of the station's scan layer drawn after this station.
+    pub findings: Option<StationFindings>,
+}
+
+type Kept = StationReadBack;
+
+/// A recording read back as `asbuilt report` reads it: report.json's content and every station's
+/// inputs and outputs, in (job, station) order.
+pub fn read_back(
+    recording_path: &std::path::Path,
+    overrides: Overrides,
+) -> Result<(Report, Vec<StationReadBack>)> {
+    let files = crate::recording_file::job_files(&[recording_path.to_path_buf()], overrides.job)?;
+    read(&files, overrides, true)
+}
+
+/// The job of `files` (oldest first), read back: its settings and design from the first file,
+/// its stations from all of them in turn.
+pub(crate) fn read(
+    files: &[PathBuf],
+    overrides: Overrides,
+    keep: bool,
+) -> Result<(Report, Vec<StationReadBack>)> {
+    let first = &files[0];
+    let bytes = crate::recording_file::map(first)?;
+    let (job, designs) = RecordedJob::read(first, &bytes, overrides)?;
+    same_design(files, &bytes)?;
+    drop(bytes);
+    let mut replayed = replay_stations(files, &job, designs, keep)?;
+    let kept = std::mem::take(&mut replayed.kept);
+    let stations = kept
+        .into_iter()
+        .map(|((job, station), mut s)| {
+            s.job = job;
+            s.station = station;
+            s
+        })
+        .collect();
+    Ok((job.report(replayed), stations))
+}
+
+/// What a recording says of its job: the design as attached, the agent's settings and limits
+/// as recorded (or the defaults), and the tolerance and maximum distance to use.
+struct RecordedJob {
+    design_path: String,
+    units: Units,
+    /// The whole design and its index, for the report's design section.
+    full: std::sync::Arc<asbuilt_core::printed::PrintedDesign>,
+    frames: FrameChain,
+    params: InspectParams,
+    limits: asbuilt_agent::config::Limits,
+    /// The agent's `[findings]` when it drew findings: the report draws them again.
+    findings: Option<asbuilt_agent::config::FindingsConfig>,
+    /// The agent's `[corrections]` when it advised: the report advises again.
+    corrections: Option<asbuilt_agent::config::CorrectionsConfig>,
+    /// What the verdicts hold the findings to.
+    verdict_limits: asbuilt_core::verdict::Limits,
+    /// The standard the faces' flatness is judged by, if any.
+    flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
+    /// The standard the dimensions and plumb are judged by, if any.
+    dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
+    tolerance: f64,
+    max_distance: f64,
+}
+
+impl RecordedJob {
+    fn read(
+        path: &std::path::Path,
+        bytes: &[u8],
+        overrides: Overrides,
+    ) -> Result<(Self, PrintedDesigns)> {
+        let bad = |e| crate::recording_file::unreadable(path, e);
+        let (meta, attachments) = recording::job(bytes).map_err(bad)?;
+        let meta = meta.with_context(|| {
+            format!(
+                "{} has no asbuilt.job metadata: it was not written by asbuilt",
+                path.display()
+            )
+        })?;
+        let (name, design_bytes) = attachments
+            .into_iter()
+            .find(|(n, _)| n.starts_with(recording::ATTACHMENT_DESIGN))
+            .with_context(|| format!("{} carries no design attachment", path.display()))?;
+        // "m" or "mm"; older recordings wrote "Metres" or "Millimetres".
+        let units: Units = meta
+            .design_units
+            .to_ascii_lowercase()
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!("the recording's design units: {e}"))?;
+        // The design as it was, read from the recording's bytes; its name gives the format.
+        let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
+            .with_context(|| format!("the design recorded in {}", path.display()))?;
+        let (frames, settings, limits, findings, tolerances, corrections) = if meta.writer
+            == "asbuilt-agent"
+        {
+            use asbuilt_agent::config::{
+                recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
+                recorded_tolerances,
+            };
+            let problems =
+                |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
+            let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
+            let limits = recorded_limits(&meta.config).map_err(problems)?;
+            let findings = recorded_findings(&meta.config).map_err(problems)?;
+            let tolerances = recorded_tolerances(&meta.config).map_err(problems)?;
+            let corrections = recorded_corrections(&meta.config).map_err(problems)?;
+            (
+                frames,
+                settings,
+                limits,
+                findings.enabled.then_some(findings),
+                tolerances,
+                corrections.enabled.then_some(corrections),
+            )
+        } else {
+            Default::default()
+        };
+        let tolerance = overrides.tolerance.unwrap_or(settings.tolerance);
+        let max_distance = overrides
+            .max_distance
+            .unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
+        let verdict_limits = tolerances
+            .limits_with(tolerance, &overrides.judging.limits)
+            .map_err(|e| anyhow::anyhow!("the verdicts' limits ([tolerances], --limit): {e}"))?;
+        let recorded =
+            |e: &dyn std::fmt::Display| anyhow::anyhow!("the recording's [tolerances]: {e}");
+        let flatness = match overrides.judging.flatness {
+            Some(f) => Some(f),
+            None => tolerances.flatness().map_err(|e| recorded(&e))?,
+        };
+        let dimensions = match overrides.judging.dimensions {
+            Some(d) => Some(d),
+            None => tolerances.dimensions().map_err(|e| recorded(&e))?,
+        };
+        if !(tolerance > 0.0 && max_distance > 0.0) {
+            bail!("--tolerance and --max-distance must be positive metres");
+        }
+        // Stations scanned while printing were compared with the design as printed then.
+        let designs = PrintedDesigns::new(
+            design,
+            C2mParams {
+                max_distance,
+                cell_size: settings.cell_size,
+            },
+        )?;
+        let mut params = InspectParams::with_tolerance(tolerance);
+        params.max_range = settings.max_range;
+        let job = Self {
+            design_path: meta.design_path,
+            units,
+            full: designs.full().clone(),
+            frames,
+            params,
+            limits,
+            findings,
+            corrections,
+            verdict_limits,
+            flatness,
+            dimensions,
+            tolerance,
+            max_distance,
+        };
+        Ok((job, designs))
+    }
+
+    /// report.json's content: the stations as replayed, the agent's recorded findings.
+    fn report(self, replayed: Replayed) -> Report {
+        let ix = self.full.index.stats();
+        let design = self.full.design();
+        let mut warnings = design.report.warnings();
+        if replayed.findings_differ {
+            warnings.push(
+                "the findings drawn from the recorded chunks differ from those the agent \
+                 recorded: a --tolerance or --max-distance given here, or another asbuilt \
+                 version than the agent's"
+                    .to_string(),
+            );
+        }
+        if replayed.corrections_differ {
+            warnings.push(
+                "the advice drawn again from the recorded chunks differs from the advice the \
+                 agent recorded: a --tolerance or --max-distance given here, or another asbuilt \
+                 version than the agent's"
+                    .to_string(),
+            );
+        }
+        warnings.extend(replayed.cut.iter().cloned());
+        if !replayed.interrupted.is_empty() {
+            let names: Vec<String> = replayed
+                .interrupted
+                .iter()
+                .map(|(_, station, attempt, name)| {
+                    let name = if name.is_empty() {
+                        format!("station {station}")
+                    } else {
+                        name.clone()
+                    };
+                    format!("{name} attempt {attempt}")
+                })
+                .collect();
+            warnings.push(format!(
+                "{} station attempt(s) were interrupted (the agent stopped, or started while they \
+                 were sending) and count nowhere; each station counts its latest attempt: {}",
+                names.len(),
+                names.join(", ")
+            ));
+        }
+        if replayed.unfinished > 0 {
+            warnings.push(format!(
+                "{} station(s) have no end in the recording: reported as far as recorded",
+                replayed.unfinished
+            ));
+        }
+        let mut findings: Vec<_> = replayed.findings.into_values().collect();
+        findings.sort_by_key(|a| (a.job, a.layer));
+        let mut report = Report {
+            asbuilt_version: env!("CARGO_PKG_VERSION"),
+            design: DesignSection {
+                path: self.design_path,
+                units: self.units.to_string(),
+                vertices: design.vertices.len(),
+                triangles: design.triangles.len(),
+                warnings: design.report.warnings(),
+                index_cell_size_m: ix.cell_size,
+                index_cells: ix.cells,
+                index_bytes: ix.bytes,
+            },
+            parameters: Parameters {
+                tolerance_m: self.tolerance,
+                max_distance_m: self.max_distance,
+                histogram_range_m: self.params.stats.histogram_range,
+                spacing_m: 0.0,
+                coverage_threshold_m: 0.0,
+                coverage_spacing: String::new(),
+                projection_diameter_m: 0.0,
+                max_depth_m: 0.0,
+                printed_height_m: None,
+                layer_height_m: None,
+                reference: None,
+            },
+            methods: vec!["c2m"],
+            stations: replayed.stations,
+            overall: Section::from_report(&replayed.total.report(0, u32::MAX, "overall"), None, 0),
+            layers: None,
+            m3c2_two_cloud: None,
+            findings,
+            corrections: replayed.corrections,
+            flatness: replayed.judged.0,
+            dimensions: replayed.judged.1,
+            assessment: None,
+            warnings,
+            maps: replayed.maps,
+        };
+        report.assess(&self.verdict_limits);
+        report
+    }
+}
+
+/// A scan layer's key (job, printed height's bits): its latest findings cover all its stations.
+fn scan_layer_of(f: &StationFindings) -> (u64, u64) {
+    (f.job, f.printed_height.to_bits())
+}
+
+/// The stations as the agent's lifecycle gives them back from the recording.
+struct Replayed {
+    stations: Vec<Section>,
+    total: Tally,
+    /// The latest findings of each scan layer (by job and printed height).
+    findings: BTreeMap<(u64, u64), StationFindings>,
+    /// The findings drawn again differ from those the agent recorded.
+    findings_differ: bool,
+    /// The latest advice after each scan layer, drawn again.
+    corrections: Vec<LayerCorrection>,
+    /// The advice drawn again differs from what the agent recorded.
+    corrections_differ: bool,
+    /// The faces' flatness, and the dimensions and plumb, with their standards.
+    judged: (
+        Option<asbuilt_report::flatness::FlatnessSection>,
+        Option<asbuilt_report::flatness::DimensionsSection>,
+    ),
+    unfinished: usize,
+    /// Station attempts the agent reported interrupted: (job, station, attempt, name).
+    interrupted: Vec<(u64, u32, u8, String)>,
+    /// Files of the job read only as far as they go.
+    cut: Vec<String>,
+    maps: Vec<ScanLayerMaps>,
+    kept: BTreeMap<(u64, u32), Kept>,
+}
+
+/// Every file of a job was recorded against the design of the first: an agent started again
+/// with another design file cannot go on with the same job.
+fn same_design(files: &[PathBuf], first: &[u8]) -> Result<()> {
+    let sha = |path: &std::path::Path, bytes: &[u8]| -> Result<String> {
+        let (meta, _) =
+            recording::job(bytes).map_err(|e| crate::recording_file::unreadable(path, e))?;
+        Ok(meta.map(|m| m.design_sha256).unwrap_or_default())
+    };
+    let expected = sha(&files[0], first)?;
+    for f in &files[1..] {
+        // A later file whose writer died is read as far as it goes (and said so) below.
+        let Ok(found) = sha(f, &crate::recording_file::map(f)?) else {
+            continue;
+        };
+        if found != expected {
+            bail!(
+                "{} was recorded against another design (sha256 {found}) than {} ({expected}): \
+                 the files are not one job",
+                f.display(),
+                files[0].display()
+            );
+        }
+    }
+    Ok(())
+}
+
+impl RecordedJob {
+    /// The agent's station lifecycle with its settings and, when it drew findings, its
+    /// findings stage as the agent ran it: the findings are drawn again from the recorded
+    /// chunks, not copied from the recording.
+    fn lifecycle(&self, designs: PrintedDesigns) -> Lifecycle<(ChunkHeader, Vec<ScanPoint>)> {
+        let lifecycle = Lifecycle::new(
+            designs,
+            self.frames.clone(),
+            self.params,
+            self.limits.lifecycle(),
+        );
+        let lifecycle = match &self.findings {
+            Some(f) => lifecycle.with_findings(
+                FindingsStage::new(
+                    f.clone(),
+                    self.tolerance,
+                    self.max_distance,
+                    self.limits.max_points_per_chunk,
+                )
+                .keeping_samples(),
+            ),
+            None => lifecycle,
+        };
+        match &self.corrections {
+            Some(c) => lifecycle.with_corrections(c.limits()),
+            None => lifecycle,
+        }
+    }
+}
+
+/// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
+/// recording read back gives what the live agent gave, whatever order its file holds. The
+/// files of a job are read in turn, as the agents that wrote them took their inputs.
+fn replay_stations(
+    files: &[PathBuf],
+    job: &RecordedJob,
+    designs: PrintedDesigns,
+    keep: bool,
+) -> Result<Replayed> {
+    let mut lifecycle = job.lifecycle(designs);
+    let spacing = job
+        .findings
+        .as_ref()
+        .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
+    let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
+    let mut out = Collected::new(job.params.stats, maps);
+    out.flatness = FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions);
+    out.frames = Some(job.frames.clone());
+    if keep {
+        out.kept = Some(BTreeMap::new());
+    }
+    let mut recorded = BTreeMap::new();
+    let mut advised = BTreeMap::new();
+    let mut first_time = None;
+    let start = Instant::now();
+    let mut cut = Vec::new();
+    for path in files {
+        let bytes = crate::recording_file::map(path)?;
+        let bad = |e| crate::recording_file::unreadable(path, e);
+        for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
+            // Of a job in several files, one whose writer died (an agent killed and not started
+            // again, which would have recovered it) is read as far as it goes.
+            let (log_time, m) = match m {
+                Ok(m) => m,
+                Err(e) if files.len() > 1 => {
+                    cut.push(format!(
+                        "{} ends damaged ({e}): read as far as it goes; `asbuilt recover` \
+                         rewrites it",
+                        path.display()
+                    ));
+                    break;
+                }
+                Err(e) => return Err(bad(e)),
+            };
+            // The recording's clock, so that a chunk's wait for its pose is measured as it was.
+            let t0 = *first_time.get_or_insert(log_time);
+            let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
+            out.keep_input(&m);
+            match m {
+                // The latest findings of each scan layer cover all its stations so far.
+                Recorded::Findings(f) => {
+                    recorded.insert(scan_layer_of(&f), *f);
+                }
+                Recorded::Correction(c) => {
+                    advised.insert((c.job, c.layer), *c);
+                }
+                m => asbuilt_agent::replay::feed(&mut lifecycle, m, now, &mut out),
+            }
+        }
+    }
+    lifecycle.wait_designs(Instant::now(), &mut out);
+    // The file is over: stations that said they were done close as the idle agent closes them,
+    // the others (the agent stopped, a publisher died) as far as recorded.
+    lifecycle.on_idle(
+        Instant::now() + asbuilt_agent::lifecycle::END_GRACE,
+        &mut out,
+    );
+    let unfinished = lifecycle.stations_open();
+    lifecycle.shutdown(&mut out);
+    let Collected {
+        done,
+        mut total,
+        tallies,
+        interrupted,
+        findings: drawn,
+        corrections: drawn_advice,
+        maps,
+        kept,
+        flatness,
+        ..
+    } = out;
+    // A station counts once: its latest attempt (attempts are reported in order).
+    let done: BTreeMap<(u64, u32), Section> = done.into_iter().collect();
+    for t in tallies.values() {
+        total.merge(t);
+    }
+    if done.is_empty() {
+        bail!("{} holds no station", files[0].display());
+    }
+    let (findings, findings_differ) = drawn_or_recorded(job.findings.is_some(), drawn, recorded);
+    let (corrections, corrections_differ) =
+        drawn_or_recorded(job.corrections.is_some(), drawn_advice, advised);
+    Ok(Replayed {
+        maps: maps.finish(),
+        stations: done.into_values().collect(),
+        total,
+        findings,
+        findings_differ,
+        corrections: corrections.into_values().collect(),
+        corrections_differ,
+        judged: flatness.map(FlatnessCollector::finish).unwrap_or_default(),
+        unfinished,
+        interrupted,
+        cut,
+        kept: kept.unwrap_or_default(),
+    })
+}
+
+/// What the lifecycle drew again when it `drew` (and whether it differs from what the agent
+/// recorded), else what was recorded.
+fn drawn_or_recorded<K: Ord, M: asbuilt_protocol::Message>(
+    drew: bool,
+    drawn: BTreeMap<K, M>,
+    recorded: BTreeMap<K, M>,
+) -> (BTreeMap<K, M>, bool) {
+    if !drew {
+        return (recorded, false);
+    }
+    // Bytes, not floats: NaN fields compare equal as bytes.
+    let bytes = |m: &BTreeMap<K, M>| -> Vec<Vec<u8>> {
+        m.values().map(asbuilt_protocol::codec::encode).collect()
+    };
+    let differ = bytes(&drawn) != bytes(&recorded);
+    (drawn, differ)
+}

@@ -226,6 +226,22 @@ pub fn read_back(
     read(&files, overrides, true)
 }
 
+/// report.json's content for the job `recordings` name (one job's files in any order, or the
+/// agent's folder), as `asbuilt report` draws it, without keeping any station's points; and
+/// when the job started: the first station event's time in its first file (Unix ns), if any.
+pub fn report(recordings: &[PathBuf], overrides: Overrides) -> Result<(Report, Option<u64>)> {
+    let files = crate::recording_file::job_files(recordings, overrides.job)?;
+    let (report, _) = read(&files, overrides, false)?;
+    Ok((report, started_ns(&files[0])))
+}
+
+/// The time of the first station event of a recording, when it has one.
+fn started_ns(path: &std::path::Path) -> Option<u64> {
+    let bytes = crate::recording_file::map(path).ok()?;
+    let mut events = recording::messages_on(&bytes, &[recording::Channel::StationEvents]).ok()?;
+    events.find_map(|m| m.ok()).map(|(log_time, _)| log_time)
+}
+
 /// The job of `files` (oldest first), read back: its settings and design from the first file,
 /// its stations from all of them in turn.
 pub(crate) fn read(

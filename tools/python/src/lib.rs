@@ -25,6 +25,7 @@ fn _asbuilt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(commands::run, m)?)?;
     m.add_function(wrap_pyfunction!(suite::suite, m)?)?;
     m.add_function(wrap_pyfunction!(recording::read_recording_parts, m)?)?;
+    m.add_function(wrap_pyfunction!(recording::report_job, m)?)?;
     m.add_class::<cell::SimulatedJob>()?;
     Ok(())
 }

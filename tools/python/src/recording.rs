@@ -5,7 +5,9 @@
 use std::path::PathBuf;
 
 use asbuilt_agent::log::{self, Level};
+use asbuilt_tools::judging::Judging;
 use asbuilt_tools::read_back::{Overrides, StationReadBack, read_back};
+use pyo3::exceptions::PyValueError;
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -87,4 +89,54 @@ fn station<'py>(py: Python<'py>, s: &StationReadBack) -> PyResult<Bound<'py, PyD
         d.set_item(key, value.transpose()?.unwrap_or_else(|| py.None()))?;
     }
     Ok(d)
+}
+
+/// `(report, started_ns)`: report.json's content for the job of `paths` (one job's files, in
+/// any order), as `asbuilt report` draws it, holding no station's points; and the Unix time in
+/// ns of the job's first station event (`None` when it has none). `limits` are `--limit`
+/// values (`"width=4mm@1-10"`), `flatness` and `dimensions` the standards as the command line
+/// spells them; each overrides the recording's own.
+#[pyfunction]
+#[pyo3(signature = (paths, tolerance = None, max_distance = None, limits = None, flatness = None,
+                    dimensions = None))]
+pub fn report_job(
+    py: Python<'_>,
+    paths: Vec<PathBuf>,
+    tolerance: Option<f64>,
+    max_distance: Option<f64>,
+    limits: Option<Vec<String>>,
+    flatness: Option<String>,
+    dimensions: Option<String>,
+) -> PyResult<(Py<PyAny>, Option<u64>)> {
+    fn parsed<T: std::str::FromStr>(what: &str, v: &str) -> PyResult<T>
+    where
+        T::Err: std::fmt::Display,
+    {
+        v.parse()
+            .map_err(|e| PyValueError::new_err(format!("{what} {v:?}: {e}")))
+    }
+    let overrides = Overrides {
+        tolerance,
+        max_distance,
+        job: None,
+        judging: Judging {
+            limits: limits
+                .unwrap_or_default()
+                .iter()
+                .map(|l| parsed("limit", l))
+                .collect::<PyResult<_>>()?,
+            png: false,
+            flatness: flatness.map(|f| parsed("flatness", &f)).transpose()?,
+            dimensions: dimensions.map(|d| parsed("dimensions", &d)).transpose()?,
+        },
+    };
+    let (report, started) = py
+        .detach(|| {
+            let before = log::set_min_level(Level::Warn);
+            let read = asbuilt_tools::read_back::report(&paths, overrides);
+            log::set_min_level(before);
+            read
+        })
+        .map_err(anyhow_err)?;
+    Ok((convert::to_json(py, &report)?, started))
 }

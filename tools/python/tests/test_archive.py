@@ -1,0 +1,178 @@
+"""asbuilt.archive: a fleet's recordings inspected again on a 2-worker LocalCluster, into
+Parquet rows that equal `asbuilt report` on each file, with a damaged file as an error row."""
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import pytest
+
+import asbuilt
+
+archive = pytest.importorskip("asbuilt.archive", reason="the archive extra is not installed")
+
+from test_cell import agent_config  # noqa: E402  (the agent settings of the cell tests)
+
+WALL_DEFECTS = [
+    ["bulge:x=-0.5,y=-0.0867,z=0.08,radius=0.1,height=15mm"],
+    [],
+    ["over-extrusion:layers=2-4,width=12mm"],
+]
+
+
+def simulated_jobs(folder, prefix):
+    """Three short wall jobs (2 stations after 8 layers, coarse scans) recorded by one agent,
+    one recording each."""
+    jobs = [asbuilt.SimulatedJob(part="wall", scan_after=[8], stations=2, step_deg=0.3,
+                                 defect=d, job=n + 1, seed=n + 1)
+            for n, d in enumerate(WALL_DEFECTS)]
+    (folder / "cell").mkdir()
+    jobs[0].design.write_stl(folder / "cell" / "design.stl")
+    with asbuilt.Agent(agent_config(prefix, jobs[0]), folder / "cell") as agent:
+        agent.wait_until_serving()
+        cell = asbuilt.Cell(prefix, wait=30.0)
+        for job in jobs:
+            for st in job.stations():
+                scan = job.scan(st["index"])
+                report = cell.deliver_station(
+                    st["index"], scan["points"], st["translation"], st["rotation_xyzw"],
+                    job=job.job, name=st["name"], layer=st["printed"] - 1,
+                    printed_height=st["printed_height"], position_sigma=st["position_sigma"],
+                    pose_mode=st["pose_mode"], intensity=scan["intensity"], flags=scan["flags"])
+                assert cell.STATUS[report["status"]] == "Complete", agent.log()
+        # The last findings are on disk before the agent stops.
+        time.sleep(1.0)
+        assert agent.alive(), agent.log()
+    return sorted((folder / "cell" / "recording").glob("job-*.mcap"))
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory, bunny_recording, bunny_path):
+    """Six recordings: three simulated jobs, the packed bunny and a pack of three of its
+    stations, and a damaged file."""
+    folder = tmp_path_factory.mktemp("fleet")
+    sims = simulated_jobs(folder, f"asbuilt-pytest-archive-{os.getpid()}")
+    assert len(sims) == 3, sims
+    files = list(sims)
+    files.append(shutil.copy(bunny_recording, folder / "bunny.mcap"))
+    stations = (folder / "three.toml")
+    from conftest import BUNNY_STATIONS
+    text = BUNNY_STATIONS.read_text()
+    blocks = text.split("[[station]]")
+    scans_dir = BUNNY_STATIONS.parent
+    three = "".join("[[station]]" + b for b in blocks[1:4])
+    stations.write_text(three.replace('scan = "', f'scan = "{scans_dir}/'))
+    assert asbuilt.run("pack", "--stations", stations, "--design", bunny_path, "--units", "m",
+                       "--out", folder / "bunny-three.mcap") == 0
+    files.append(folder / "bunny-three.mcap")
+    damaged = folder / "damaged.mcap"
+    damaged.write_bytes(b"\x89MCAP0\r\n" + b"\0" * 4096)
+    files.append(damaged)
+    return folder, [str(f) for f in files]
+
+
+def report_of(files, out):
+    assert asbuilt.run("report", *files, "--out", out) in (0, 1)
+    with open(os.path.join(out, "report.json"), encoding="utf-8") as f:
+        return json.load(f)
+
+
+def same(a, b):
+    if isinstance(b, float) and math.isnan(b):
+        return a is None or math.isnan(a)
+    if b is None:
+        return a is None or (isinstance(a, float) and math.isnan(a))
+    return a == b
+
+
+def test_a_fleet_on_a_two_worker_cluster_equals_report_on_each_file(tmp_path, fleet):
+    folder, files = fleet
+    out = tmp_path / "dataset"
+    result = archive.analyse(files, out, workers=2)
+    assert result.jobs == 6
+    # The damaged file is an error row, and the rest went on.
+    assert [e["file"] for e in result.errors] == [files[-1]]
+    errors = result.table("errors").to_pylist()
+    assert len(errors) == 1 and "damaged.mcap" in errors[0]["error"]
+
+    stations = result.table("stations").to_pylist()
+    findings = result.table("findings").to_pylist()
+    history = result.table("layer_history").to_pylist()
+    jobs = {j["file"]: j for j in result.table("jobs").to_pylist()}
+    assert len(jobs) == 5
+    for i, f in enumerate(files[:-1]):
+        expected = report_of([f], str(tmp_path / f"report-{i}"))
+        job = jobs[f]
+        assert job["verdict"] == expected["assessment"]["verdict"]
+        assert job["design"] == expected["design"]["path"]
+        assert job["units"] == expected["design"]["units"]
+        assert job["tolerance_m"] == expected["parameters"]["tolerance_m"]
+        assert job["started"] is not None
+        mine = [s for s in stations if s["job"] == job["job"]]
+        assert [s["station"] for s in mine] == [s["id"] for s in expected["stations"]]
+        verdicts = {v["id"]: v for v in expected["assessment"]["stations"]}
+        for row, section in zip(mine, expected["stations"]):
+            for key in ("points", "valid", "rejected", "matched", "no_match", "mean", "std",
+                        "rms", "min", "max", "median_abs", "p95_abs", "within_tolerance"):
+                assert same(row[key], section[key]), (f, key, row[key], section[key])
+            assert row["verdict"] == verdicts[section["id"]]["verdict"]
+            assert row["reason"] == verdicts[section["id"]]["reason"]
+        items = [(sl["layer"], it["label"], it["kind"], it["verdict"], it["value"], it["text"])
+                 for sl in expected["assessment"]["scan_layers"] for it in sl["items"]]
+        got = [(r["scan_layer"], r["label"], r["kind"], r["verdict"], r["value"], r["text"])
+               for r in findings if r["job"] == job["job"]]
+        assert got == items, f
+        bands = sum(len(b["scans"]) for b in expected["assessment"]["layer_history"])
+        assert len([h for h in history if h["job"] == job["job"]]) == bands
+    # The simulated jobs drew findings; the bulge fails its job, the clean wall's has no
+    # finding out of tolerance.
+    sims = [jobs[f] for f in files[:3]]
+    assert all(j["scan_layers"] == 1 for j in sims)
+    assert [j["job_number"] for j in sims] == [1, 2, 3]
+    assert sims[0]["findings_fail"] >= 1 and sims[0]["verdict"] == "fail"
+    assert sims[1]["findings_fail"] == 0
+    assert len([h for h in history if h["job"] == sims[0]["job"]]) == 8
+    page = (out / "summary.html").read_text()
+    assert page.count("<svg") == 2 and "damaged.mcap" in page
+    for j in jobs.values():
+        assert j["job"] in page
+
+
+def test_the_command_line_archives_a_glob_with_one_worker(tmp_path, fleet):
+    folder, files = fleet
+    out = tmp_path / "cli"
+    run = subprocess.run([sys.executable, "-m", "asbuilt", "archive", str(folder / "bunny*.mcap"),
+                          "--out", str(out), "--workers", "1", "--limit", "surface=2mm"],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert "2 of 2 job(s) inspected" in run.stdout
+    assert "archive [" in run.stderr
+    import pyarrow.parquet as pq
+
+    jobs = pq.read_table(out / "jobs").to_pylist()
+    assert sorted(j["job"] for j in jobs) == ["bunny", "bunny-three"]
+    assert all(json.loads(j["limits"])["surface_m"] == 0.002 for j in jobs)
+    # A bad limit is refused once, before any job runs.
+    bad = subprocess.run([sys.executable, "-m", "asbuilt", "archive", files[3], "--out",
+                          str(out), "--workers", "1", "--limit", "wobble=3mm"],
+                         capture_output=True, text=True, timeout=600)
+    assert bad.returncode == 2 and "wobble" in bad.stderr, bad.stderr
+
+
+def test_an_agents_files_of_one_job_go_together(tmp_path):
+    for name in ["job-1-100.mcap", "job-1-100-part2.mcap", "job-1-250.mcap", "job-2-300.mcap",
+                 "other.mcap", "notes.txt"]:
+        (tmp_path / name).write_bytes(b"")
+    jobs = archive.find_jobs([tmp_path])
+    assert [(j.name, [os.path.basename(f) for f in j.files], j.number) for j in jobs] == [
+        ("job-1-100", ["job-1-100.mcap", "job-1-100-part2.mcap", "job-1-250.mcap"], 1),
+        ("job-2-300", ["job-2-300.mcap"], 2),
+        ("other", ["other.mcap"], None),
+    ]
+    # A glob and a file named twice give the same jobs once.
+    again = archive.find_jobs([str(tmp_path / "job-2-*.mcap"), tmp_path / "job-2-300.mcap"])
+    assert [j.name for j in again] == ["job-2-300"]

@@ -476,7 +476,7 @@ def analyse(sources: Iterable[Any], out: Any, *, workers: Optional[int] = None,
         else:
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1,
                                    threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
+                                   dashboard_address=":0")
             owned.append(cluster)
             client = Client(cluster)
         owned.insert(0, client)
@@ -530,15 +530,24 @@ def summary_page(jobs: List[Dict[str, Any]], errors: List[Dict[str, Any]]) -> st
     plots = []
     if jobs:
         fig, ax = plt.subplots(figsize=(8, 3.2))
-        x = [j["started"] or i for i, j in enumerate(jobs)]
+        # By start time; by order when a job's start is not known (no station event).
+        timed = all(j["started"] is not None for j in jobs)
+        x = [j["started"] if timed else i for i, j in enumerate(jobs)]
         fails = [j["findings_fail"] for j in jobs]
         warns = [j["findings_warn"] for j in jobs]
         ax.plot(x, fails, "o-", color=_COLOURS["fail"], label="out of tolerance")
         ax.plot(x, warns, "s--", color=_COLOURS["warn"], label="to watch")
         ax.set_ylabel("findings at the last scan")
+        if not timed:
+            ax.set_xticks(range(len(jobs)), [j["job"] for j in jobs])
         ax.set_title("Findings per job over time")
         ax.legend(loc="upper left")
-        fig.autofmt_xdate()
+        if timed:
+            import matplotlib.dates as mdates
+
+            locator = mdates.AutoDateLocator()
+            ax.xaxis.set_major_locator(locator)
+            ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(locator))
         plots.append(_svg(fig))
         plt.close(fig)
 

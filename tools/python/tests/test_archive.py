@@ -25,9 +25,9 @@ WALL_DEFECTS = [
 
 
 def simulated_jobs(folder, prefix):
-    """Three short wall jobs (2 stations after 8 layers, coarse scans) recorded by one agent,
+    """Three short wall jobs (2 stations after 8 layers) recorded by one agent,
     one recording each."""
-    jobs = [asbuilt.SimulatedJob(part="wall", scan_after=[8], stations=2, step_deg=0.3,
+    jobs = [asbuilt.SimulatedJob(part="wall", scan_after=[8], stations=2, step_deg=0.15,
                                  defect=d, job=n + 1, seed=n + 1)
             for n, d in enumerate(WALL_DEFECTS)]
     (folder / "cell").mkdir()
@@ -128,13 +128,18 @@ def test_a_fleet_on_a_two_worker_cluster_equals_report_on_each_file(tmp_path, fl
         assert got == items, f
         bands = sum(len(b["scans"]) for b in expected["assessment"]["layer_history"])
         assert len([h for h in history if h["job"] == job["job"]]) == bands
-    # The simulated jobs drew findings; the bulge fails its job, the clean wall's has no
-    # finding out of tolerance.
+    # The simulated jobs drew findings: the bulge is an excess, the over-extrusion of layers
+    # 2-4 is their width, and the wall printed as designed has neither. (Two stations leave a
+    # patch of its long faces unseen, which coverage calls missing in every job alike.)
     sims = [jobs[f] for f in files[:3]]
     assert all(j["scan_layers"] == 1 for j in sims)
     assert [j["job_number"] for j in sims] == [1, 2, 3]
-    assert sims[0]["findings_fail"] >= 1 and sims[0]["verdict"] == "fail"
-    assert sims[1]["findings_fail"] == 0
+    kinds = [{(r["kind"], r["layer_first"]) for r in findings
+              if r["job"] == j["job"] and r["verdict"] == "fail"} for j in sims]
+    assert any(k == "excess" for k, _ in kinds[0]) and sims[0]["verdict"] == "fail"
+    assert {("width", 2), ("width", 3), ("width", 4)} <= kinds[2]
+    assert not any(k in ("excess", "width", "deficit") for k, _ in kinds[1]), kinds[1]
+    assert sims[2]["layers_out_of_tolerance"] >= 3
     assert len([h for h in history if h["job"] == sims[0]["job"]]) == 8
     page = (out / "summary.html").read_text()
     assert page.count("<svg") == 2 and "damaged.mcap" in page
@@ -147,7 +152,7 @@ def test_the_command_line_archives_a_glob_with_one_worker(tmp_path, fleet):
     out = tmp_path / "cli"
     run = subprocess.run([sys.executable, "-m", "asbuilt", "archive", str(folder / "bunny*.mcap"),
                           "--out", str(out), "--workers", "1", "--limit", "surface=2mm"],
-                         capture_output=True, text=True, timeout=600)
+                         capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "2 of 2 job(s) inspected" in run.stdout
     assert "archive [" in run.stderr
@@ -159,7 +164,7 @@ def test_the_command_line_archives_a_glob_with_one_worker(tmp_path, fleet):
     # A bad limit is refused once, before any job runs.
     bad = subprocess.run([sys.executable, "-m", "asbuilt", "archive", files[3], "--out",
                           str(out), "--workers", "1", "--limit", "wobble=3mm"],
-                         capture_output=True, text=True, timeout=600)
+                         capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert bad.returncode == 2 and "wobble" in bad.stderr, bad.stderr
 
 

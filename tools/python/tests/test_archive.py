@@ -181,3 +181,25 @@ def test_an_agents_files_of_one_job_go_together(tmp_path):
     # A glob and a file named twice give the same jobs once.
     again = archive.find_jobs([str(tmp_path / "job-2-*.mcap"), tmp_path / "job-2-300.mcap"])
     assert [j.name for j in again] == ["job-2-300"]
+
+
+def test_a_recording_behind_an_fsspec_url_is_copied_for_its_task(fleet):
+    """The task's remote path (as for s3://), in this process: fsspec's memory filesystem
+    holds a recording; the task copies it, reads it, and gives report's rows."""
+    import fsspec
+
+    folder, files = fleet
+    fs = fsspec.filesystem("memory")
+    with open(files[3], "rb") as src:
+        fs.pipe("/fleet/bunny.mcap", src.read())
+    fs.pipe("/fleet/damaged.mcap", b"\x89MCAP0\r\n" + b"\0" * 64)
+    jobs = archive.find_jobs(["memory://fleet/*.mcap"])
+    assert [(j.name, j.files) for j in jobs] == [
+        ("bunny", ["memory:///fleet/bunny.mcap"]), ("damaged", ["memory:///fleet/damaged.mcap"])]
+    rows = archive.inspect_job(jobs[0])
+    local = archive.inspect_job(archive.Job("bunny", [files[3]]))
+    for table in ("stations", "findings", "layer_history"):
+        strip = lambda rs: [{k: v for k, v in r.items() if k != "file"} for r in rs]  # noqa: E731
+        assert strip(rows[table]) == strip(local[table])
+    assert rows["jobs"][0]["file"] == "memory:///fleet/bunny.mcap"
+    assert "errors" in archive.inspect_job(jobs[1])

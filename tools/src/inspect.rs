@@ -29,99 +29,145 @@ const CHUNK: usize = 1 << 16;
 /// Chunks the reader thread parses ahead of the one being inspected.
 const READ_AHEAD: usize = 2;
 
+/// `asbuilt inspect`'s arguments. The command line fills them through clap; the Python package
+/// fills the same fields from keywords, over [`InspectArgs::new`]'s defaults.
 #[derive(Args)]
 pub struct InspectArgs {
     /// The design model: STL (binary or ASCII), OBJ or PLY triangle mesh.
     #[arg(long)]
-    design: PathBuf,
+    pub design: PathBuf,
     /// Units the design file is written in (m or mm). Never guessed.
     #[arg(long)]
-    units: Units,
+    pub units: Units,
     /// Stations file: [[station]] with id, scan, translation, rotation_xyzw.
     #[arg(long, conflicts_with = "scan", required_unless_present = "scan")]
-    stations: Option<PathBuf>,
+    pub stations: Option<PathBuf>,
     /// A single scan file instead of a stations file: E57, LAS/LAZ, PTX, PLY or XYZ (metres).
     /// A file that holds poses (E57, PTX, LAS) needs no --translation/--rotation-xyzw; every
     /// scan in it becomes a station.
     #[arg(long)]
-    scan: Option<PathBuf>,
+    pub scan: Option<PathBuf>,
     /// With --scan: x,y,z of the scanner in the design frame, metres.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
-    translation: Option<Vec<f64>>,
+    pub translation: Option<Vec<f64>>,
     /// With --scan: the scanner's rotation as a unit quaternion x,y,z,w.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
-    rotation_xyzw: Option<Vec<f64>>,
+    pub rotation_xyzw: Option<Vec<f64>>,
     /// Tolerance band, metres: |d| <= tolerance is within tolerance.
-    #[arg(long, default_value_t = 0.005)]
-    tolerance: f64,
+    #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
+    pub tolerance: f64,
+    /// Verdict limits, standards and the maps as PNG files.
     #[command(flatten)]
-    judging: crate::judging::Judging,
+    pub judging: crate::judging::Judging,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]
-    max_distance: Option<f64>,
+    pub max_distance: Option<f64>,
     /// Output folder for report.json, deviations.ply, and with coverage or M3C2, missing.ply
     /// and m3c2.ply.
-    #[arg(long, default_value = "out/inspect")]
-    out: PathBuf,
+    #[arg(long, default_value = DEFAULT_OUT)]
+    pub out: PathBuf,
     /// Comparisons to run: any of c2m, c2c, coverage, m3c2 (comma-separated), or all. C2M
     /// always runs: it places and validates every point.
-    #[arg(long, default_value = "c2m", value_parser = suite::parse_methods)]
-    method: Methods,
+    #[arg(long, default_value = DEFAULT_METHODS, value_parser = suite::parse_methods)]
+    pub method: Methods,
     /// Design sampling for coverage, M3C2 core points and C2C without a reference, metres.
     /// Default 0.01, as the agent's [findings].
     #[arg(long, default_value_t = asbuilt_core::scan_layer::defaults::SPACING)]
-    spacing: f64,
+    pub spacing: f64,
     /// M3C2 cylinder diameter, metres. Default, as the agent's: twice the spacing, at most half
     /// the layer height.
     #[arg(long)]
-    projection_diameter: Option<f64>,
+    pub projection_diameter: Option<f64>,
     /// M3C2 cylinder half-length: the largest deviation it can measure. Metres; default the
     /// maximum distance.
     #[arg(long)]
-    max_depth: Option<f64>,
+    pub max_depth: Option<f64>,
     /// Normal scale (diameter) for two-cloud M3C2 against --reference. Metres; default the
     /// projection diameter.
     #[arg(long)]
-    normal_diameter: Option<f64>,
+    pub normal_diameter: Option<f64>,
     /// A design sample with no scan point this close, that a station should have seen, is
     /// missing. Metres; default 3 × the default pose σ (1 mm), at least the tolerance / 2,
     /// raised to the scan's point spacing where that is wider (measured per station, or from
     /// --scanner-step). Given here, it is used as it is.
     #[arg(long)]
-    coverage_threshold: Option<f64>,
+    pub coverage_threshold: Option<f64>,
     /// The scanner's angular step, milliradians (0.31 for a Z+F IMAGER at "high"): coverage
     /// expects points step × range apart instead of measuring the spacing.
     #[arg(long)]
-    scanner_step_mrad: Option<f64>,
+    pub scanner_step_mrad: Option<f64>,
     /// Compare with the design as printed so far: cut at this height (design frame z,
     /// metres) and capped. Points above it count as excess.
     #[arg(long)]
-    printed_height: Option<f64>,
+    pub printed_height: Option<f64>,
     /// Statistics per layer band of this height (metres), from the design's lowest point.
     #[arg(long)]
-    layer_height: Option<f64>,
+    pub layer_height: Option<f64>,
     /// A reference cloud in the design frame (PLY, LAS, XYZ; metres) for C2C and two-cloud
     /// M3C2. Without it C2C measures to design samples.
     #[arg(long)]
-    reference: Option<PathBuf>,
+    pub reference: Option<PathBuf>,
     /// Write the rerun view to this .rrd file (`rerun FILE.rrd` opens it).
     #[arg(long)]
-    rerun: Option<PathBuf>,
+    pub rerun: Option<PathBuf>,
     /// Stream the rerun view to a viewer: rerun+http://HOST:PORT/proxy.
     #[arg(long)]
-    rerun_url: Option<String>,
+    pub rerun_url: Option<String>,
     /// Points shown per station in the rerun view, at most (decimated evenly).
-    #[arg(long, default_value_t = 200_000)]
-    rerun_points: usize,
+    #[arg(long, default_value_t = DEFAULT_RERUN_POINTS)]
+    pub rerun_points: usize,
     /// Also write deviations.txt: the same points as ASCII with a header line.
     #[arg(long)]
-    ascii: bool,
+    pub ascii: bool,
     /// C2C local model: a least-squares plane through this many nearest reference points (the
     /// smaller of the plane and nearest-point distances is kept). 0 for nearest point only.
     /// Default 6 against design samples, 0 against --reference.
     #[arg(long)]
-    local_plane: Option<usize>,
+    pub local_plane: Option<usize>,
+}
+
+/// `--tolerance` unless given, metres.
+pub const DEFAULT_TOLERANCE: f64 = 0.005;
+/// `--out` unless given.
+pub const DEFAULT_OUT: &str = "out/inspect";
+/// `--method` unless given.
+pub const DEFAULT_METHODS: &str = "c2m";
+/// `--rerun-points` unless given.
+pub const DEFAULT_RERUN_POINTS: usize = 200_000;
+
+impl InspectArgs {
+    /// `design` in `units` with every other argument at the command line's default (a
+    /// stations file or a scan still to name).
+    pub fn new(design: PathBuf, units: Units) -> Self {
+        Self {
+            design,
+            units,
+            stations: None,
+            scan: None,
+            translation: None,
+            rotation_xyzw: None,
+            tolerance: DEFAULT_TOLERANCE,
+            judging: Default::default(),
+            max_distance: None,
+            out: DEFAULT_OUT.into(),
+            method: suite::parse_methods(DEFAULT_METHODS).expect("the default methods parse"),
+            spacing: asbuilt_core::scan_layer::defaults::SPACING,
+            projection_diameter: None,
+            max_depth: None,
+            normal_diameter: None,
+            coverage_threshold: None,
+            scanner_step_mrad: None,
+            printed_height: None,
+            layer_height: None,
+            reference: None,
+            rerun: None,
+            rerun_url: None,
+            rerun_points: DEFAULT_RERUN_POINTS,
+            ascii: false,
+            local_plane: None,
+        }
+    }
 }
 
 /// `asbuilt inspect`: the arguments checked into a plan, then the job's steps in order.
@@ -166,7 +212,8 @@ impl Plan {
         }
         .resolve()?;
         let stations = match (&args.stations, &args.scan) {
-            (Some(path), _) => stations::load(path)?,
+            (Some(_), Some(_)) => bail!("give --stations FILE or --scan FILE, not both"),
+            (Some(path), None) => stations::load(path)?,
             (None, Some(scan)) => single_station(&args, scan)?,
             (None, None) => bail!("give --stations FILE or --scan FILE"),
         };

@@ -7,7 +7,7 @@
 mod calibrate;
 mod convert;
 mod demo;
-mod inspect;
+pub mod inspect;
 pub mod judging;
 mod maps_png;
 mod pack;

@@ -22,6 +22,7 @@ from typing import Any, Dict, List, Optional
 
 from ._asbuilt import Cell as _Cell, Design, SimulatedJob as _SimulatedJob, __version__
 from ._asbuilt import read_recording_parts as _read_recording_parts
+from ._asbuilt import inspect as _inspect
 from ._asbuilt import run as _run
 from ._asbuilt import suite
 from .agent import Agent
@@ -79,16 +80,18 @@ def run(*args: str) -> int:
 def inspect(design, units: str, *, out=None, **options: Any) -> Dict[str, Any]:
     """`asbuilt inspect` in this process; returns report.json as a dict.
 
-    Keywords are the command's flags (`stations=`, `scan=`, `translation=`, `rotation_xyzw=`,
-    `tolerance=`, `max_distance=`, `method=["c2m", "coverage", "m3c2"]`, `layer_height=`,
-    `printed_height=`, ...). Outputs (deviations.ply, report.json, ...) go to `out`, a temporary
-    folder when not given. The exit code (1 when out of tolerance) is the report's
-    `assessment`; a refused argument raises ValueError, a failure RuntimeError.
+    Keywords are the command's flags, typed, with `_` for `-` (`stations=`, `scan=`,
+    `translation=[x, y, z]`, `rotation_xyzw=[x, y, z, w]`, `tolerance=`, `max_distance=`,
+    `method=["c2m", "coverage", "m3c2"]`, `limit=["width=4mm"]`, `layer_height=`,
+    `printed_height=`, `png=True`, ...); one left out takes the command's default. Outputs
+    (deviations.ply, report.json, ...) go to `out`, a temporary folder when not given. The exit
+    code (1 when out of tolerance) is the report's `assessment`; a refused value raises
+    ValueError, an unknown keyword TypeError, a failure RuntimeError.
     """
     with tempfile.TemporaryDirectory(prefix="asbuilt-inspect-") as scratch:
         folder = os.fspath(out) if out is not None else scratch
-        _run(["inspect", "--design", os.fspath(design), "--units", units, "--out", folder]
-             + argv(**options))
+        paths = {k: os.fspath(v) for k, v in options.items() if hasattr(v, "__fspath__")}
+        _inspect(os.fspath(design), units, out=folder, **{**options, **paths})
         with open(os.path.join(folder, "report.json"), encoding="utf-8") as f:
             return json.load(f)
 

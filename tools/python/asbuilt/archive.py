@@ -162,6 +162,7 @@ def inspect_job(job: Job, options: Optional[Dict[str, Any]] = None) -> Dict[str,
                 limits=opts.limits,
                 flatness=opts.flatness,
                 dimensions=opts.dimensions,
+                quiet=True,
             )
     except Exception as e:  # a damaged file, a missing one, a refused option: one error row
         return {"errors": [_error_row(job, e)]}
@@ -199,9 +200,6 @@ def _num(v: Any) -> Optional[float]:
 
 def _triple(v: Any, i: int) -> Optional[float]:
     return None if v is None else _num(v[i])
-
-
-_WORST = {"pass": 0, "warn": 1, "fail": 2}
 
 
 def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
@@ -311,20 +309,15 @@ def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
     return {"jobs": jobs, "stations": stations, "findings": findings, "layer_history": history}
 
 
-def _band_verdict(scan_layers: List[Dict], scan_layer: Any, layer: Any) -> str:
-    """A band's verdict at a scan layer: the worst of that scan layer's judged findings whose
-    layers cover it (the report's own verdicts, not judged again), "pass" when none does."""
-    worst = "pass"
+def _band_verdict(scan_layers: List[Dict], scan_layer: Any, layer: Any) -> Optional[str]:
+    """A band's verdict at a scan layer, as the report judged it (`scan_layers[].layers`: the
+    worst verdict of what touches the band); None when that scan layer did not judge it."""
     for sl in scan_layers:
-        if sl.get("layer") != scan_layer:
-            continue
-        for item in sl.get("items", []):
-            lo, hi = (item.get("layers") or [None, None])[:2]
-            if lo is not None and hi is not None and lo <= layer <= hi:
-                v = item.get("verdict", "pass")
-                if _WORST.get(v, 0) > _WORST[worst]:
-                    worst = v
-    return worst
+        if sl.get("layer") == scan_layer:
+            for v in sl.get("layers", []):
+                if v.get("layer") == layer:
+                    return v.get("verdict")
+    return None
 
 
 _COUNTS = {"points", "valid", "rejected", "matched", "no_match", "within_tolerance",

@@ -23,6 +23,7 @@ fn _asbuilt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<design::Design>()?;
     m.add_class::<cell::Cell>()?;
     m.add_function(wrap_pyfunction!(commands::run, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::inspect, m)?)?;
     m.add_function(wrap_pyfunction!(suite::suite, m)?)?;
     m.add_function(wrap_pyfunction!(recording::read_recording_parts, m)?)?;
     m.add_function(wrap_pyfunction!(recording::report_job, m)?)?;

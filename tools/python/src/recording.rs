@@ -7,11 +7,11 @@ use std::path::PathBuf;
 use asbuilt_agent::log::{self, Level};
 use asbuilt_tools::judging::Judging;
 use asbuilt_tools::read_back::{Overrides, StationReadBack, read_back};
-use pyo3::exceptions::PyValueError;
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
+use crate::commands::parsed;
 use crate::convert::{self, anyhow_err};
 
 /// `(report, stations)`: report.json's content as `asbuilt report` writes it, and a dict per
@@ -95,10 +95,13 @@ fn station<'py>(py: Python<'py>, s: &StationReadBack) -> PyResult<Bound<'py, PyD
 /// any order), as `asbuilt report` draws it, holding no station's points; and the Unix time in
 /// ns of the job's first station event (`None` when it has none). `limits` are `--limit`
 /// values (`"width=4mm@1-10"`), `flatness` and `dimensions` the standards as the command line
-/// spells them; each overrides the recording's own.
+/// spells them; each overrides the recording's own. `quiet` keeps the lifecycle's warnings
+/// back too (what the report itself warns of is in report.json's `warnings`): a fleet's
+/// worker logs stay readable.
 #[pyfunction]
 #[pyo3(signature = (paths, tolerance = None, max_distance = None, limits = None, flatness = None,
-                    dimensions = None))]
+                    dimensions = None, quiet = false))]
+#[allow(clippy::too_many_arguments)] // one keyword per option, as Python calls it
 pub fn report_job(
     py: Python<'_>,
     paths: Vec<PathBuf>,
@@ -107,14 +110,8 @@ pub fn report_job(
     limits: Option<Vec<String>>,
     flatness: Option<String>,
     dimensions: Option<String>,
+    quiet: bool,
 ) -> PyResult<(Py<PyAny>, Option<u64>)> {
-    fn parsed<T: std::str::FromStr>(what: &str, v: &str) -> PyResult<T>
-    where
-        T::Err: std::fmt::Display,
-    {
-        v.parse()
-            .map_err(|e| PyValueError::new_err(format!("{what} {v:?}: {e}")))
-    }
     let overrides = Overrides {
         tolerance,
         max_distance,
@@ -132,7 +129,7 @@ pub fn report_job(
     };
     let (report, started) = py
         .detach(|| {
-            let before = log::set_min_level(Level::Warn);
+            let before = log::set_min_level(if quiet { Level::Error } else { Level::Warn });
             let read = asbuilt_tools::read_back::report(&paths, overrides);
             log::set_min_level(before);
             read

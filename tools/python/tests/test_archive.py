@@ -127,7 +127,12 @@ def test_a_fleet_on_a_two_worker_cluster_equals_report_on_each_file(tmp_path, fl
                for r in findings if r["job"] == job["job"]]
         assert got == items, f
         bands = sum(len(b["scans"]) for b in expected["assessment"]["layer_history"])
-        assert len([h for h in history if h["job"] == job["job"]]) == bands
+        mine = [h for h in history if h["job"] == job["job"]]
+        assert len(mine) == bands
+        judged = {(sl["layer"], v["layer"]): v["verdict"]
+                  for sl in expected["assessment"]["scan_layers"] for v in sl["layers"]}
+        assert [h["verdict"] for h in mine] == [judged.get((h["scan_layer"], h["layer"]))
+                                                 for h in mine]
     # The simulated jobs drew findings: the bulge is an excess, the over-extrusion of layers
     # 2-4 is their width, and the wall printed as designed has neither. (Two stations leave a
     # patch of its long faces unseen, which coverage calls missing in every job alike.)

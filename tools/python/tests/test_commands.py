@@ -25,11 +25,32 @@ def test_c2m_equals_inspect_on_the_bunny(tmp_path, bunny_path, bunny):
     assert matched == report["overall"]["matched"]
 
 
-def test_inspect_refuses_bad_flags_with_the_usage(bunny_path):
-    with pytest.raises(ValueError, match="--no-such-flag"):
+def test_inspect_takes_typed_keywords_and_refuses_bad_ones(bunny_path):
+    # Keywords are the command's flags, checked by Python's call and the flags' own parsers.
+    with pytest.raises(TypeError, match="no_such_flag"):
         asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, no_such_flag=1)
+    with pytest.raises(ValueError, match="units"):
+        asbuilt.inspect(bunny_path, "inches", stations=BUNNY_STATIONS)
+    with pytest.raises(ValueError, match="method"):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, method=["c2m", "icp"])
+    with pytest.raises(ValueError, match="limit"):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, limit=["wobble=3mm"])
+    with pytest.raises(TypeError):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, tolerance="5mm")
     with pytest.raises(RuntimeError, match="tolerance"):
         asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, tolerance=-1)
+    with pytest.raises(RuntimeError, match="not both"):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, scan=bunny_path)
+
+
+def test_inspect_methods_as_a_list_or_a_string_are_the_same(tmp_path, bunny_path):
+    scan = BUNNY_STATIONS.parent / "../../../../shared/data/stanford-bunny/scans/bun000.ply"
+    a = asbuilt.inspect(bunny_path, "m", scan=scan, translation=[0, 0, 0],
+                        rotation_xyzw=[0, 0, 0, 1], method=["coverage", "c2m"])
+    b = asbuilt.inspect(bunny_path, "m", scan=scan, translation=[0, 0, 0],
+                        rotation_xyzw=[0, 0, 0, 1], method="c2m,coverage")
+    assert a["methods"] == b["methods"] == ["c2m", "coverage"]
+    assert a["overall"] == b["overall"]
 
 
 def test_argv_spells_flags_as_the_command_line():

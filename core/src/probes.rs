@@ -1,11 +1,19 @@
 //! Fixed probes on the design (samples or core points) meeting a stream of scan points.
 //!
 //! Reverse C2C and streaming M3C2 both ask, for every probe, about the scan points within a
-//! fixed reach of it. The probes are bucketed once into cubic cells as wide as that reach; each
-//! chunk of scan points is bucketed into the same cells, and every probe cell next to an occupied
-//! point cell visits the points of its 27 neighbours. Each probe's state is touched by one task
-//! only, so cells run in parallel without locks, and the result does not depend on how the scan
-//! is cut into chunks. State is per probe; the only per-point memory is the chunk's own scratch.
+//! fixed region around it: a ball for coverage, a cylinder along the probe's normal for M3C2.
+//! The probes are bucketed once into cubic cells as wide as the region's reach; each chunk of
+//! scan points is bucketed too, and every probe cell next to an occupied point cell is active.
+//! Each probe's state is touched by one task only, so cells run in parallel without locks, and
+//! which points a probe is offered does not depend on how the scan is cut into chunks. State is
+//! per probe; the only per-point memory is the chunk's own scratch.
+//!
+//! A ball's probe visits the points of its cell's 27 neighbours. A cylinder is long and thin
+//! (M3C2's is 2 to 5 times longer than wide, and the probes sit on a surface): the points of 27
+//! cells as wide as its length are mostly far to its side, and testing them was nearly all of
+//! M3C2's time. So for cylinders the points are bucketed into fine cells as wide as the
+//! cylinder's radius, and each probe visits only the fine cells its cylinder's bounding box
+//! touches: every point inside the cylinder is in that box, so nothing is missed.
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -22,6 +30,33 @@ struct Cell {
     end: u32,
 }
 
+/// The region around a probe in which a scan point can matter to it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Region {
+    /// A ball of this radius.
+    Ball(f64),
+    /// A cylinder along the probe's normal, centred on the probe.
+    Cylinder {
+        /// Its radius.
+        radius: f64,
+        /// Half its length, along the normal each way.
+        half_length: f64,
+    },
+}
+
+impl Region {
+    /// The farthest a point of the region is from its probe.
+    pub fn reach(self) -> f64 {
+        match self {
+            Region::Ball(r) => r,
+            Region::Cylinder {
+                radius,
+                half_length,
+            } => radius.hypot(half_length),
+        }
+    }
+}
+
 /// Probes sorted by cell. Every per-probe array a caller keeps must follow [`ProbeGrid::ids`]
 /// order, which is the order of [`ProbeGrid::points`].
 pub struct ProbeGrid {
@@ -32,6 +67,23 @@ pub struct ProbeGrid {
     ids: Vec<u32>,
     cells: Vec<Cell>,
     lookup: FxHashMap<u64, u32>,
+    /// For cylinders: the fine cell's width, how many fine cells make a cell along each axis,
+    /// and each probe's cylinder's bounding box half-widths, in grid order.
+    fine: Option<Fine>,
+}
+
+struct Fine {
+    width: f64,
+    per_cell: i64,
+    half_box: Vec<Vector3<f64>>,
+}
+
+impl Fine {
+    /// The cell a fine cell lies in.
+    #[inline]
+    fn cell_of(&self, c: [i64; 3]) -> [i64; 3] {
+        c.map(|v| v.div_euclid(self.per_cell))
+    }
 }
 
 /// Per-chunk buffers, sized by the largest chunk and the number of probe cells, and reused:
@@ -39,6 +91,8 @@ pub struct ProbeGrid {
 #[derive(Default)]
 pub struct Scratch {
     keyed: Vec<(u64, u32)>,
+    /// For cylinders: each point's cell, column within it, and place in the chunk.
+    columned: Vec<(u64, u32, u32)>,
     sorted: Vec<Point3<f64>>,
     runs: FxHashMap<u64, (u32, u32)>,
     active: Vec<u32>,
@@ -51,6 +105,7 @@ impl Scratch {
     /// Memory held, bytes.
     pub fn bytes(&self) -> usize {
         self.keyed.capacity() * size_of::<(u64, u32)>()
+            + self.columned.capacity() * size_of::<(u64, u32, u32)>()
             + self.sorted.capacity() * size_of::<Point3<f64>>()
             + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32)>())
             + (self.active.capacity() + self.mark.capacity()) * size_of::<u32>()
@@ -60,7 +115,13 @@ impl Scratch {
 impl ProbeGrid {
     /// `reach` is the largest distance from a probe at which a scan point can matter.
     pub fn new(points: &[Point3<f64>], normals: &[Vector3<f64>], reach: f64) -> Self {
+        Self::around(points, normals, Region::Ball(reach))
+    }
+
+    /// Probes that each care about the scan points in `region` around them (normals unit).
+    pub fn around(points: &[Point3<f64>], normals: &[Vector3<f64>], region: Region) -> Self {
         assert_eq!(points.len(), normals.len(), "one normal per probe");
+        let reach = region.reach();
         let (mut lo, mut hi) = (Point3::origin(), Point3::origin());
         if let Some(first) = points.first() {
             (lo, hi) = (*first, *first);
@@ -71,9 +132,24 @@ impl ProbeGrid {
         }
         let extent = (hi - lo).max();
         // Keep the whole design plus a margin of cells addressable.
-        let cell = reach
-            .max(extent / (AXIS_BIAS as f64 - 4.0))
-            .max(f64::MIN_POSITIVE);
+        let smallest = (extent / (AXIS_BIAS as f64 - 4.0)).max(f64::MIN_POSITIVE);
+        // A cylinder's fine cells are as wide as its radius, and a whole number of them make a
+        // cell as wide as its reach (a fine cell's coordinates then give its cell's).
+        let fine = match region {
+            Region::Cylinder { radius, .. } if radius < reach => Some(
+                radius
+                    .max((extent + 2.0 * reach) / (AXIS_BIAS as f64 - 4.0))
+                    .max(f64::MIN_POSITIVE),
+            ),
+            _ => None,
+        };
+        // Strictly wider than the reach, so that rounding never puts a point within reach two
+        // cells away.
+        let per_cell = fine.map_or(1, |f| (reach / f).floor() as i64 + 1);
+        let cell = match fine {
+            Some(f) => f * per_cell as f64,
+            None => reach.max(smallest),
+        };
         let origin = Point3::from((lo.coords + hi.coords) * 0.5);
         let mut grid = Self {
             cell,
@@ -83,7 +159,16 @@ impl ProbeGrid {
             ids: Vec::new(),
             cells: Vec::new(),
             lookup: FxHashMap::default(),
+            fine: None,
         };
+        if let Some(width) = fine {
+            // Set now: probes and points find their cells the same way, through fine cells.
+            grid.fine = Some(Fine {
+                width,
+                per_cell,
+                half_box: Vec::new(),
+            });
+        }
         let mut keyed: Vec<(u64, u32)> = points
             .iter()
             .enumerate()
@@ -101,6 +186,22 @@ impl ProbeGrid {
         for (key, start, end) in runs_of(&keyed) {
             grid.lookup.insert(key, grid.cells.len() as u32);
             grid.cells.push(Cell { key, start, end });
+        }
+        if let Region::Cylinder {
+            radius,
+            half_length,
+        } = region
+        {
+            // Along axis k a cylinder reaches h·|n_k| with its axis and r·√(1 − n_k²) with its
+            // disc; a hair more, so that rounding cannot leave a point of its rim outside.
+            let pad = reach * 1e-9;
+            let half = |n: &Vector3<f64>| {
+                n.map(|c| half_length * c.abs() + radius * (1.0 - c * c).max(0.0).sqrt() + pad)
+            };
+            let boxes = grid.normals.iter().map(half).collect();
+            if let Some(f) = grid.fine.as_mut() {
+                f.half_box = boxes;
+            }
         }
         grid
     }
@@ -137,13 +238,24 @@ impl ProbeGrid {
             + self.ids.capacity() * size_of::<u32>()
             + self.cells.capacity() * size_of::<Cell>()
             + self.lookup.capacity() * (size_of::<u64>() + size_of::<u32>())
+            + self
+                .fine
+                .as_ref()
+                .map_or(0, |f| f.half_box.capacity() * size_of::<Vector3<f64>>())
     }
 
     #[inline]
     fn coords(&self, p: &Point3<f64>) -> Option<[i64; 3]> {
+        self.coords_at(p, self.cell)
+    }
+
+    /// `p`'s cell coordinates in cells `width` wide; `None` for a point far outside the
+    /// design (or not finite).
+    #[inline]
+    fn coords_at(&self, p: &Point3<f64>, width: f64) -> Option<[i64; 3]> {
         let mut c = [0i64; 3];
         for k in 0..3 {
-            let v = ((p[k] - self.origin[k]) / self.cell).floor();
+            let v = ((p[k] - self.origin[k]) / width).floor();
             // NaN fails both comparisons and is refused with the far points.
             if !(v > -(AXIS_BIAS as f64) + 2.0 && v < AXIS_BIAS as f64 - 2.0) {
                 return None;
@@ -171,7 +283,10 @@ impl ProbeGrid {
 
     #[inline]
     fn key(&self, p: &Point3<f64>) -> Option<u64> {
-        self.coords(p).map(Self::pack)
+        match &self.fine {
+            Some(f) => self.coords_at(p, f.width).map(|c| Self::pack(f.cell_of(c))),
+            None => self.coords(p).map(Self::pack),
+        }
     }
 
     fn neighbours(key: u64) -> impl Iterator<Item = u64> {
@@ -197,6 +312,9 @@ impl ProbeGrid {
         F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
     {
         assert_eq!(state.len(), self.points.len(), "one state per probe");
+        if let Some(fine) = &self.fine {
+            return self.offer_fine(fine, scratch, state, chunk, visit);
+        }
         let Scratch {
             keyed,
             sorted,
@@ -204,6 +322,7 @@ impl ProbeGrid {
             active,
             mark,
             generation,
+            ..
         } = scratch;
         if mark.len() != self.cells.len() {
             *mark = vec![0; self.cells.len()];
@@ -276,6 +395,127 @@ impl ProbeGrid {
             }
         });
     }
+
+    /// [`Self::offer`] for cylinders. A chunk's points are sorted by cell, then by column
+    /// (their fine cell's x and y within the cell), then chunk order. A probe takes, in each of
+    /// its cell's 27 neighbours, the columns its cylinder's bounding box touches, and visits
+    /// their points: the searches stay inside one cell's few points.
+    fn offer_fine<S, F>(
+        &self,
+        fine: &Fine,
+        scratch: &mut Scratch,
+        state: &mut [S],
+        chunk: &[Point3<f64>],
+        visit: F,
+    ) where
+        S: Send,
+        F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
+    {
+        let Scratch {
+            columned,
+            sorted,
+            runs,
+            active,
+            mark,
+            generation,
+            ..
+        } = scratch;
+        if mark.len() != self.cells.len() {
+            *mark = vec![0; self.cells.len()];
+            *generation = 0;
+        }
+        *generation = generation.wrapping_add(1);
+        if *generation == 0 {
+            mark.fill(0);
+            *generation = 1;
+        }
+        columned.clear();
+        sorted.clear();
+        runs.clear();
+        active.clear();
+        columned.reserve(chunk.len());
+        sorted.reserve(chunk.len());
+        runs.reserve(chunk.len());
+        active.reserve(self.cells.len());
+        let m = fine.per_cell;
+        columned.extend(chunk.iter().enumerate().filter_map(|(i, p)| {
+            let f = self.coords_at(p, fine.width)?;
+            let c = fine.cell_of(f);
+            let column = (f[0] - c[0] * m) * m + (f[1] - c[1] * m);
+            Some((Self::pack(c), column as u32, i as u32))
+        }));
+        columned.sort_unstable();
+        sorted.extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
+        let mut start = 0u32;
+        for run in columned.chunk_by(|a, b| a.0 == b.0) {
+            let key = run[0].0;
+            runs.insert(key, (start, start + run.len() as u32));
+            start += run.len() as u32;
+            for k in Self::neighbours(key) {
+                if let Some(&c) = self.lookup.get(&k)
+                    && mark[c as usize] != *generation
+                {
+                    mark[c as usize] = *generation;
+                    active.push(c);
+                }
+            }
+        }
+        active.sort_unstable();
+
+        let mut jobs: Vec<(&Cell, &mut [S])> = Vec::with_capacity(active.len());
+        let mut rest = state;
+        let mut offset = 0usize;
+        for &c in active.iter() {
+            let cell = &self.cells[c as usize];
+            let (_, tail) = rest.split_at_mut(cell.start as usize - offset);
+            let (mine, tail) = tail.split_at_mut((cell.end - cell.start) as usize);
+            jobs.push((cell, mine));
+            rest = tail;
+            offset = cell.end as usize;
+        }
+        let (columned, sorted, runs) = (&*columned, &*sorted, &*runs);
+        jobs.into_par_iter().for_each(|(cell, states)| {
+            // The neighbours holding points, with their first fine cell.
+            let near: Vec<([i64; 3], usize, usize)> = Self::neighbours(cell.key)
+                .filter_map(|k| {
+                    let &(s, e) = runs.get(&k)?;
+                    Some((Self::unpack(k).map(|v| v * m), s as usize, e as usize))
+                })
+                .collect();
+            let range = cell.start as usize..cell.end as usize;
+            for (((p, n), e), st) in self.points[range.clone()]
+                .iter()
+                .zip(&self.normals[range.clone()])
+                .zip(&fine.half_box[range])
+                .zip(states.iter_mut())
+            {
+                let (Some(lo), Some(hi)) = (
+                    self.coords_at(&(p - e), fine.width),
+                    self.coords_at(&(p + e), fine.width),
+                ) else {
+                    continue;
+                };
+                for &(first, s, end) in &near {
+                    let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
+                    let hi = [0, 1, 2].map(|k| hi[k].min(first[k] + m - 1));
+                    if (0..3).any(|k| lo[k] > hi[k]) {
+                        continue;
+                    }
+                    let run = &columned[s..end];
+                    for x in lo[0]..=hi[0] {
+                        let row = (x - first[0]) * m - first[1];
+                        let (a, b) = ((row + lo[1]) as u32, (row + hi[1]) as u32);
+                        // Columns a..=b of this x are one stretch of the run.
+                        let from = run.partition_point(|t| t.1 < a);
+                        let to = from + run[from..].partition_point(|t| t.1 <= b);
+                        for q in &sorted[s + from..s + to] {
+                            visit(q - p, n, st);
+                        }
+                    }
+                }
+            }
+        });
+    }
 }
 
 /// The runs of equal keys in a key-sorted list: key, first index, one past the last.
@@ -316,5 +556,62 @@ mod tests {
             let truth = points.iter().filter(|q| (*q - p).norm() <= reach).count() as u32;
             assert_eq!(state[i], truth, "probe {id}");
         }
+    }
+
+    /// Cylinders along random unit normals: every point inside a probe's cylinder is offered
+    /// to it exactly once (none missed, none twice), as brute force over all points finds;
+    /// points on the cylinder's rim and end caps count.
+    #[test]
+    fn every_point_inside_a_cylinder_is_offered_to_its_probe_exactly_once() {
+        let mut rng = seeded(5);
+        let probes = random_points(&mut rng, 400, 0.0..1.0);
+        let normals: Vec<Vector3<f64>> = random_points(&mut rng, probes.len(), -1.0..1.0)
+            .into_iter()
+            .map(|p| p.coords.try_normalize(1e-6).unwrap_or(Vector3::x()))
+            .chain([Vector3::x(), Vector3::y(), Vector3::z()])
+            .take(probes.len())
+            .collect();
+        let (radius, half_length) = (0.03, 0.12);
+        let inside = |v: Vector3<f64>, n: &Vector3<f64>| {
+            let a = v.dot(n);
+            a.abs() <= half_length && v.norm_squared() - a * a <= radius * radius
+        };
+        let grid = ProbeGrid::around(
+            &probes,
+            &normals,
+            Region::Cylinder {
+                radius,
+                half_length,
+            },
+        );
+        let mut points: Vec<Point3<f64>> = random_points(&mut rng, 20_000, -0.2..1.2);
+        // Points on the rims and caps of a few cylinders.
+        for (p, n) in probes.iter().zip(&normals).take(20) {
+            let side = n.cross(&Vector3::new(0.3, -0.7, 0.2)).normalize() * radius;
+            points.push(p + n * half_length + side);
+            points.push(p - n * half_length);
+        }
+        points.extend([Point3::new(f64::NAN, 0.0, 0.0), Point3::new(1e12, 0.0, 0.0)]);
+        let mut state = vec![(0u32, 0u32); grid.len()];
+        let mut scratch = Scratch::default();
+        for chunk in points.chunks(1500) {
+            grid.offer(&mut scratch, &mut state, chunk, |v, n, s| {
+                s.0 += u32::from(inside(v, n));
+                s.1 += 1;
+            });
+        }
+        let mut offered = 0u64;
+        for (i, &id) in grid.ids().iter().enumerate() {
+            let (p, n) = (probes[id as usize], normals[id as usize]);
+            assert_eq!(grid.normals()[i], n);
+            let truth = points.iter().filter(|q| inside(*q - p, &n)).count() as u32;
+            assert_eq!(state[i].0, truth, "probe {id}");
+            offered += u64::from(state[i].1);
+        }
+        // The fine cells keep the offers near the cylinders: a small share of all pairs.
+        assert!(
+            offered < (points.len() * probes.len()) as u64 / 20,
+            "{offered}"
+        );
     }
 }

@@ -164,7 +164,7 @@ impl ScanLayer {
         ScanLayerState {
             samples: self.samples,
             stations: self.stations,
-            m3c2: self.m3c2.as_ref().map(|m| m.total_state().to_vec()),
+            m3c2: self.m3c2.as_ref().map(|m| m.total_state()),
             coverage: self.coverage.as_ref().map(|c| c.state()),
         }
     }
@@ -178,7 +178,7 @@ impl ScanLayer {
             && s.m3c2
                 .as_ref()
                 .zip(self.m3c2.as_ref())
-                .is_none_or(|(a, m)| a.len() == m.total_state().len())
+                .is_none_or(|(a, m)| a.len() == m.len())
             && s.coverage
                 .as_ref()
                 .zip(self.coverage.as_ref())

@@ -63,8 +63,10 @@ pub struct ScanLayerStateRecord {
 }
 
 impl ScanLayerStateRecord {
-    /// The version this build writes and reads.
-    pub const VERSION: u16 = 1;
+    /// The version this build writes and reads. 2: M3C2's cylinders in core point order (1
+    /// held them in the order of a grid that has changed since; a version 1 state is skipped,
+    /// and an agent resuming replays the scan layer's inputs instead).
+    pub const VERSION: u16 = 2;
 }
 
 /// The channels of a recording.

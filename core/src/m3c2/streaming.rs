@@ -9,7 +9,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::{Running, lod95};
-use crate::probes::{ProbeGrid, Scratch};
+use crate::probes::{ProbeGrid, Region, Scratch};
 use crate::sampling::DesignSamples;
 
 /// The parameters of M3C2 at design samples, along the design's normals.
@@ -95,9 +95,14 @@ impl StreamingM3c2 {
                 max_depth: params.max_depth,
             });
         }
-        let r = 0.5 * params.projection_diameter;
-        let reach = (r * r + params.max_depth * params.max_depth).sqrt();
-        let grid = ProbeGrid::new(&core.points, &core.normals, reach);
+        let grid = ProbeGrid::around(
+            &core.points,
+            &core.normals,
+            Region::Cylinder {
+                radius: 0.5 * params.projection_diameter,
+                half_length: params.max_depth,
+            },
+        );
         let n = grid.len();
         Ok(Self {
             grid,
@@ -148,10 +153,15 @@ impl StreamingM3c2 {
             });
     }
 
-    /// The job's cylinders over the closed stations, by core point: what [`Self::restore`]
-    /// takes to go on from here.
-    pub fn total_state(&self) -> &[Running] {
-        &self.total
+    /// The job's cylinders over the closed stations, in core point order (not the grid's, so
+    /// that a state recorded by one build fits another): what [`Self::restore`] takes to go on
+    /// from here.
+    pub fn total_state(&self) -> Vec<Running> {
+        let mut out = vec![Running::default(); self.total.len()];
+        for (&id, r) in self.grid.ids().iter().zip(&self.total) {
+            out[id as usize] = *r;
+        }
+        out
     }
 
     /// Goes on from `total`, a [`Self::total_state`] of the same core points; false (and
@@ -160,7 +170,9 @@ impl StreamingM3c2 {
         if total.len() != self.total.len() {
             return false;
         }
-        self.total.copy_from_slice(total);
+        for (&id, r) in self.grid.ids().iter().zip(self.total.iter_mut()) {
+            *r = total[id as usize];
+        }
         true
     }
 
@@ -178,11 +190,13 @@ impl StreamingM3c2 {
         self.summary_of(&self.total, registration_sigma)
     }
 
-    /// Every core point over the job so far.
+    /// Every core point over the job so far, in core point order.
     pub fn results(&self, registration_sigma: f64) -> Vec<CoreResult> {
-        (0..self.grid.len())
+        let mut out: Vec<CoreResult> = (0..self.grid.len())
             .map(|i| self.result(i, &self.total[i], registration_sigma))
-            .collect()
+            .collect();
+        out.sort_unstable_by_key(|r| r.sample);
+        out
     }
 
     fn result(&self, i: usize, r: &Running, reg: f64) -> CoreResult {
@@ -328,7 +342,9 @@ mod tests {
         }
         assert_eq!(m.bytes(), before);
         m.end_station(0.0);
-        let r = m.results(0.0)[0];
+        let id = m.grid.ids()[0];
+        let r = m.results(0.0)[id as usize];
+        assert_eq!(r.sample, id);
         assert_eq!(r.count, 51 * 3);
         let mean = (0.005 + 0.0 - 0.009) / 3.0;
         assert!((r.distance.unwrap() - mean).abs() < 1e-12);

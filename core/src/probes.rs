@@ -297,6 +297,36 @@ impl ProbeGrid {
         })
     }
 
+    /// A new chunk: a new mark for the probe cells it activates.
+    fn next_generation(&self, mark: &mut Vec<u32>, generation: &mut u32) {
+        if mark.len() != self.cells.len() {
+            *mark = vec![0; self.cells.len()];
+            *generation = 0;
+        }
+        *generation = generation.wrapping_add(1);
+        if *generation == 0 {
+            mark.fill(0);
+            *generation = 1;
+        }
+    }
+
+    /// The active cells (sorted) with their probes' states: cells are sorted by key and hold
+    /// consecutive probes, so they cut `state` into disjoint slices in order.
+    fn jobs<'a, S>(&'a self, active: &[u32], state: &'a mut [S]) -> Vec<(&'a Cell, &'a mut [S])> {
+        let mut jobs = Vec::with_capacity(active.len());
+        let mut rest = state;
+        let mut offset = 0usize;
+        for &c in active {
+            let cell = &self.cells[c as usize];
+            let (_, tail) = rest.split_at_mut(cell.start as usize - offset);
+            let (mine, tail) = tail.split_at_mut((cell.end - cell.start) as usize);
+            jobs.push((cell, mine));
+            rest = tail;
+            offset = cell.end as usize;
+        }
+        jobs
+    }
+
     /// Offers `chunk` to every probe: `visit(offset, normal, state)` runs for each point in the
     /// probe's cell and its neighbours, with the point's offset from the probe (some beyond the
     /// reach: the visitor applies its own test). `state` holds one entry per probe in grid
@@ -324,15 +354,7 @@ impl ProbeGrid {
             generation,
             ..
         } = scratch;
-        if mark.len() != self.cells.len() {
-            *mark = vec![0; self.cells.len()];
-            *generation = 0;
-        }
-        *generation = generation.wrapping_add(1);
-        if *generation == 0 {
-            mark.fill(0);
-            *generation = 1;
-        }
+        self.next_generation(mark, generation);
         keyed.clear();
         sorted.clear();
         runs.clear();
@@ -362,19 +384,7 @@ impl ProbeGrid {
         }
         active.sort_unstable();
 
-        // Cells are sorted by key and hold consecutive probes, so the active cells cut `state`
-        // into disjoint slices in order.
-        let mut jobs: Vec<(&Cell, &mut [S])> = Vec::with_capacity(active.len());
-        let mut rest = state;
-        let mut offset = 0usize;
-        for &c in active.iter() {
-            let cell = &self.cells[c as usize];
-            let (_, tail) = rest.split_at_mut(cell.start as usize - offset);
-            let (mine, tail) = tail.split_at_mut((cell.end - cell.start) as usize);
-            jobs.push((cell, mine));
-            rest = tail;
-            offset = cell.end as usize;
-        }
+        let jobs = self.jobs(active, state);
         let (sorted, runs) = (&*sorted, &*runs);
         jobs.into_par_iter().for_each(|(cell, states)| {
             for nk in Self::neighbours(cell.key) {
@@ -420,15 +430,7 @@ impl ProbeGrid {
             generation,
             ..
         } = scratch;
-        if mark.len() != self.cells.len() {
-            *mark = vec![0; self.cells.len()];
-            *generation = 0;
-        }
-        *generation = generation.wrapping_add(1);
-        if *generation == 0 {
-            mark.fill(0);
-            *generation = 1;
-        }
+        self.next_generation(mark, generation);
         columned.clear();
         sorted.clear();
         runs.clear();
@@ -462,17 +464,7 @@ impl ProbeGrid {
         }
         active.sort_unstable();
 
-        let mut jobs: Vec<(&Cell, &mut [S])> = Vec::with_capacity(active.len());
-        let mut rest = state;
-        let mut offset = 0usize;
-        for &c in active.iter() {
-            let cell = &self.cells[c as usize];
-            let (_, tail) = rest.split_at_mut(cell.start as usize - offset);
-            let (mine, tail) = tail.split_at_mut((cell.end - cell.start) as usize);
-            jobs.push((cell, mine));
-            rest = tail;
-            offset = cell.end as usize;
-        }
+        let jobs = self.jobs(active, state);
         let (columned, sorted, runs) = (&*columned, &*sorted, &*runs);
         jobs.into_par_iter().for_each(|(cell, states)| {
             // The neighbours holding points, with their first fine cell.

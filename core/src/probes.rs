@@ -23,6 +23,12 @@ use rustc_hash::FxHashMap;
 const AXIS_BITS: u32 = 21;
 const AXIS_BIAS: i64 = 1 << (AXIS_BITS - 1);
 
+/// A cell of at most this many fine cells gets a table of where each starts, per chunk (a
+/// column's points are then two reads away); a larger one is searched.
+const DENSE_FINE_CELLS: usize = 4096;
+/// The tables of a chunk hold at most this many entries per point (plus a fixed 64 k).
+const DENSE_ENTRIES_PER_POINT: usize = 16;
+
 #[derive(Debug, Clone, Copy)]
 struct Cell {
     key: u64,
@@ -91,10 +97,13 @@ impl Fine {
 #[derive(Default)]
 pub struct Scratch {
     keyed: Vec<(u64, u32)>,
-    /// For cylinders: each point's cell, column within it, and place in the chunk.
+    /// For cylinders: each point's cell, fine cell within it, and place in the chunk.
     columned: Vec<(u64, u32, u32)>,
+    /// For cylinders: per occupied cell, where each of its fine cells starts in `sorted`
+    /// (and one past the last), when a cell has few enough fine cells ([`DENSE_FINE_CELLS`]).
+    starts: Vec<u32>,
     sorted: Vec<Point3<f64>>,
-    runs: FxHashMap<u64, (u32, u32)>,
+    runs: FxHashMap<u64, (u32, u32, u32)>,
     active: Vec<u32>,
     /// Per probe cell, the chunk that last activated it.
     mark: Vec<u32>,
@@ -106,8 +115,9 @@ impl Scratch {
     pub fn bytes(&self) -> usize {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.columned.capacity() * size_of::<(u64, u32, u32)>()
+            + self.starts.capacity() * size_of::<u32>()
             + self.sorted.capacity() * size_of::<Point3<f64>>()
-            + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32)>())
+            + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32, u32)>())
             + (self.active.capacity() + self.mark.capacity()) * size_of::<u32>()
     }
 }
@@ -146,6 +156,12 @@ impl ProbeGrid {
         // Strictly wider than the reach, so that rounding never puts a point within reach two
         // cells away.
         let per_cell = fine.map_or(1, |f| (reach / f).floor() as i64 + 1);
+        // A fine cell's index within its cell is a u32: a cylinder over 1600 times longer than
+        // wide is searched as a ball.
+        let (fine, per_cell) = match fine {
+            Some(_) if per_cell.checked_pow(3).is_none_or(|c| c >= u32::MAX as i64) => (None, 1),
+            _ => (fine, per_cell),
+        };
         let cell = match fine {
             Some(f) => f * per_cell as f64,
             None => reach.max(smallest),
@@ -372,7 +388,7 @@ impl ProbeGrid {
         keyed.sort_unstable();
         sorted.extend(keyed.iter().map(|&(_, i)| chunk[i as usize]));
         for (key, start, end) in runs_of(keyed) {
-            runs.insert(key, (start, end));
+            runs.insert(key, (start, end, 0));
             for k in Self::neighbours(key) {
                 if let Some(&c) = self.lookup.get(&k)
                     && mark[c as usize] != *generation
@@ -388,7 +404,7 @@ impl ProbeGrid {
         let (sorted, runs) = (&*sorted, &*runs);
         jobs.into_par_iter().for_each(|(cell, states)| {
             for nk in Self::neighbours(cell.key) {
-                let Some(&(s, e)) = runs.get(&nk) else {
+                let Some(&(s, e, _)) = runs.get(&nk) else {
                     continue;
                 };
                 let pts = &sorted[s as usize..e as usize];
@@ -406,10 +422,10 @@ impl ProbeGrid {
         });
     }
 
-    /// [`Self::offer`] for cylinders. A chunk's points are sorted by cell, then by column
-    /// (their fine cell's x and y within the cell), then chunk order. A probe takes, in each of
-    /// its cell's 27 neighbours, the columns its cylinder's bounding box touches, and visits
-    /// their points: the searches stay inside one cell's few points.
+    /// [`Self::offer`] for cylinders. A chunk's points are sorted by cell, then by fine cell
+    /// within it (x, then y, then z), then chunk order. A probe takes, in each of its cell's 27
+    /// neighbours, the fine cells its cylinder's bounding box touches, a column along z at a
+    /// time, and visits their points.
     fn offer_fine<S, F>(
         &self,
         fine: &Fine,
@@ -421,57 +437,25 @@ impl ProbeGrid {
         S: Send,
         F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
     {
+        let dense = self.bucket_fine(fine, scratch, chunk);
         let Scratch {
             columned,
             sorted,
             runs,
+            starts,
             active,
-            mark,
-            generation,
             ..
         } = scratch;
-        self.next_generation(mark, generation);
-        columned.clear();
-        sorted.clear();
-        runs.clear();
-        active.clear();
-        columned.reserve(chunk.len());
-        sorted.reserve(chunk.len());
-        runs.reserve(chunk.len());
-        active.reserve(self.cells.len());
-        let m = fine.per_cell;
-        columned.extend(chunk.iter().enumerate().filter_map(|(i, p)| {
-            let f = self.coords_at(p, fine.width)?;
-            let c = fine.cell_of(f);
-            let column = (f[0] - c[0] * m) * m + (f[1] - c[1] * m);
-            Some((Self::pack(c), column as u32, i as u32))
-        }));
-        columned.sort_unstable();
-        sorted.extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
-        let mut start = 0u32;
-        for run in columned.chunk_by(|a, b| a.0 == b.0) {
-            let key = run[0].0;
-            runs.insert(key, (start, start + run.len() as u32));
-            start += run.len() as u32;
-            for k in Self::neighbours(key) {
-                if let Some(&c) = self.lookup.get(&k)
-                    && mark[c as usize] != *generation
-                {
-                    mark[c as usize] = *generation;
-                    active.push(c);
-                }
-            }
-        }
-        active.sort_unstable();
-
         let jobs = self.jobs(active, state);
-        let (columned, sorted, runs) = (&*columned, &*sorted, &*runs);
+        let m = fine.per_cell;
+        let (columned, sorted, runs, starts) = (&*columned, &*sorted, &*runs, &*starts);
         jobs.into_par_iter().for_each(|(cell, states)| {
             // The neighbours holding points, with their first fine cell.
-            let near: Vec<([i64; 3], usize, usize)> = Self::neighbours(cell.key)
+            let near: Vec<([i64; 3], usize, usize, usize)> = Self::neighbours(cell.key)
                 .filter_map(|k| {
-                    let &(s, e) = runs.get(&k)?;
-                    Some((Self::unpack(k).map(|v| v * m), s as usize, e as usize))
+                    let &(s, e, t) = runs.get(&k)?;
+                    let first = Self::unpack(k).map(|v| v * m);
+                    Some((first, s as usize, e as usize, t as usize))
                 })
                 .collect();
             let range = cell.start as usize..cell.end as usize;
@@ -487,26 +471,101 @@ impl ProbeGrid {
                 ) else {
                     continue;
                 };
-                for &(first, s, end) in &near {
+                for &(first, s, end, table) in &near {
                     let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
                     let hi = [0, 1, 2].map(|k| hi[k].min(first[k] + m - 1));
                     if (0..3).any(|k| lo[k] > hi[k]) {
                         continue;
                     }
                     let run = &columned[s..end];
+                    let mut from = 0;
                     for x in lo[0]..=hi[0] {
-                        let row = (x - first[0]) * m - first[1];
-                        let (a, b) = ((row + lo[1]) as u32, (row + hi[1]) as u32);
-                        // Columns a..=b of this x are one stretch of the run.
-                        let from = run.partition_point(|t| t.1 < a);
-                        let to = from + run[from..].partition_point(|t| t.1 <= b);
-                        for q in &sorted[s + from..s + to] {
-                            visit(q - p, n, st);
+                        for y in lo[1]..=hi[1] {
+                            let column = ((x - first[0]) * m + (y - first[1])) * m - first[2];
+                            let (a, b) = ((column + lo[2]) as usize, (column + hi[2]) as usize);
+                            // The fine cells a..=b of this column are one stretch of the run.
+                            let points = if dense {
+                                starts[table + a] as usize..starts[table + b + 1] as usize
+                            } else {
+                                from += run[from..].partition_point(|t| (t.1 as usize) < a);
+                                let to = from + run[from..].partition_point(|t| t.1 as usize <= b);
+                                let points = s + from..s + to;
+                                from = to;
+                                points
+                            };
+                            for q in &sorted[points] {
+                                visit(q - p, n, st);
+                            }
                         }
                     }
                 }
             }
         });
+    }
+
+    /// Sorts a chunk for [`Self::offer_fine`]: its points by cell and fine cell, each occupied
+    /// cell's run, and the probe cells it activates. Returns whether each run has its table of
+    /// where its fine cells start: only while the tables stay within a few entries per point
+    /// of the chunk, so memory follows the chunk, never its spread.
+    fn bucket_fine(&self, fine: &Fine, scratch: &mut Scratch, chunk: &[Point3<f64>]) -> bool {
+        let Scratch {
+            columned,
+            sorted,
+            runs,
+            starts,
+            active,
+            mark,
+            generation,
+            ..
+        } = scratch;
+        self.next_generation(mark, generation);
+        columned.clear();
+        sorted.clear();
+        runs.clear();
+        starts.clear();
+        active.clear();
+        columned.reserve(chunk.len());
+        sorted.reserve(chunk.len());
+        active.reserve(self.cells.len());
+        let m = fine.per_cell;
+        columned.extend(chunk.iter().enumerate().filter_map(|(i, p)| {
+            let f = self.coords_at(p, fine.width)?;
+            let c = fine.cell_of(f);
+            let local = ((f[0] - c[0] * m) * m + (f[1] - c[1] * m)) * m + (f[2] - c[2] * m);
+            Some((Self::pack(c), local as u32, i as u32))
+        }));
+        columned.sort_unstable();
+        sorted.extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
+        let fine_cells = (m * m * m) as usize;
+        let occupied = columned.chunk_by(|a, b| a.0 == b.0).count();
+        let dense = fine_cells <= DENSE_FINE_CELLS
+            && occupied * (fine_cells + 1) <= DENSE_ENTRIES_PER_POINT * chunk.len() + (1 << 16);
+        runs.reserve(occupied);
+        let mut start = 0u32;
+        for run in columned.chunk_by(|a, b| a.0 == b.0) {
+            let key = run[0].0;
+            runs.insert(key, (start, start + run.len() as u32, starts.len() as u32));
+            if dense {
+                let mut j = 0;
+                for local in 0..=fine_cells as u32 {
+                    while j < run.len() && run[j].1 < local {
+                        j += 1;
+                    }
+                    starts.push(start + j as u32);
+                }
+            }
+            start += run.len() as u32;
+            for k in Self::neighbours(key) {
+                if let Some(&c) = self.lookup.get(&k)
+                    && mark[c as usize] != *generation
+                {
+                    mark[c as usize] = *generation;
+                    active.push(c);
+                }
+            }
+        }
+        active.sort_unstable();
+        dense
     }
 }
 
@@ -552,9 +611,20 @@ mod tests {
 
     /// Cylinders along random unit normals: every point inside a probe's cylinder is offered
     /// to it exactly once (none missed, none twice), as brute force over all points finds;
-    /// points on the cylinder's rim and end caps count.
+    /// points on the cylinder's rim and end caps count. Short and long cylinders, small and
+    /// large chunks: the fine cells' tables and their search both serve.
     #[test]
     fn every_point_inside_a_cylinder_is_offered_to_its_probe_exactly_once() {
+        for (radius, half_length, chunk) in [
+            (0.03, 0.12, 1500),
+            (0.03, 0.12, 30_000),
+            (0.005, 0.12, 30_000),
+        ] {
+            cylinders_offer_what_brute_force_finds(radius, half_length, chunk);
+        }
+    }
+
+    fn cylinders_offer_what_brute_force_finds(radius: f64, half_length: f64, chunk: usize) {
         let mut rng = seeded(5);
         let probes = random_points(&mut rng, 400, 0.0..1.0);
         let normals: Vec<Vector3<f64>> = random_points(&mut rng, probes.len(), -1.0..1.0)
@@ -563,7 +633,6 @@ mod tests {
             .chain([Vector3::x(), Vector3::y(), Vector3::z()])
             .take(probes.len())
             .collect();
-        let (radius, half_length) = (0.03, 0.12);
         let inside = |v: Vector3<f64>, n: &Vector3<f64>| {
             let a = v.dot(n);
             a.abs() <= half_length && v.norm_squared() - a * a <= radius * radius
@@ -576,7 +645,7 @@ mod tests {
                 half_length,
             },
         );
-        let mut points: Vec<Point3<f64>> = random_points(&mut rng, 20_000, -0.2..1.2);
+        let mut points: Vec<Point3<f64>> = random_points(&mut rng, 60_000, -0.2..1.2);
         // Points on the rims and caps of a few cylinders.
         for (p, n) in probes.iter().zip(&normals).take(20) {
             let side = n.cross(&Vector3::new(0.3, -0.7, 0.2)).normalize() * radius;
@@ -586,7 +655,7 @@ mod tests {
         points.extend([Point3::new(f64::NAN, 0.0, 0.0), Point3::new(1e12, 0.0, 0.0)]);
         let mut state = vec![(0u32, 0u32); grid.len()];
         let mut scratch = Scratch::default();
-        for chunk in points.chunks(1500) {
+        for chunk in points.chunks(chunk) {
             grid.offer(&mut scratch, &mut state, chunk, |v, n, s| {
                 s.0 += u32::from(inside(v, n));
                 s.1 += 1;
@@ -597,7 +666,10 @@ mod tests {
             let (p, n) = (probes[id as usize], normals[id as usize]);
             assert_eq!(grid.normals()[i], n);
             let truth = points.iter().filter(|q| inside(*q - p, &n)).count() as u32;
-            assert_eq!(state[i].0, truth, "probe {id}");
+            assert_eq!(
+                state[i].0, truth,
+                "probe {id}, radius {radius}, chunk {chunk}"
+            );
             offered += u64::from(state[i].1);
         }
         // The fine cells keep the offers near the cylinders: a small share of all pairs.
@@ -605,5 +677,7 @@ mod tests {
             offered < (points.len() * probes.len()) as u64 / 20,
             "{offered}"
         );
+        // Scratch stays within the tables' bound for the largest chunk.
+        assert!(scratch.starts.len() <= DENSE_ENTRIES_PER_POINT * chunk + (1 << 16));
     }
 }

@@ -313,8 +313,19 @@ impl ProbeGrid {
         })
     }
 
-    /// A new chunk: a new mark for the probe cells it activates.
-    fn next_generation(&self, mark: &mut Vec<u32>, generation: &mut u32) {
+    /// A new chunk of `points`: the buffers emptied, and a new mark for the probe cells it
+    /// activates.
+    fn restart(&self, scratch: &mut Scratch, points: usize) {
+        let Scratch {
+            keyed,
+            columned,
+            sorted,
+            runs,
+            starts,
+            active,
+            mark,
+            generation,
+        } = scratch;
         if mark.len() != self.cells.len() {
             *mark = vec![0; self.cells.len()];
             *generation = 0;
@@ -323,6 +334,26 @@ impl ProbeGrid {
         if *generation == 0 {
             mark.fill(0);
             *generation = 1;
+        }
+        keyed.clear();
+        columned.clear();
+        sorted.clear();
+        runs.clear();
+        starts.clear();
+        active.clear();
+        sorted.reserve(points);
+        active.reserve(self.cells.len());
+    }
+
+    /// Marks active the probe cells next to the point cell `key`, once a chunk.
+    fn activate(&self, key: u64, mark: &mut [u32], generation: u32, active: &mut Vec<u32>) {
+        for k in Self::neighbours(key) {
+            if let Some(&c) = self.lookup.get(&k)
+                && mark[c as usize] != generation
+            {
+                mark[c as usize] = generation;
+                active.push(c);
+            }
         }
     }
 
@@ -361,6 +392,7 @@ impl ProbeGrid {
         if let Some(fine) = &self.fine {
             return self.offer_fine(fine, scratch, state, chunk, visit);
         }
+        self.restart(scratch, chunk.len());
         let Scratch {
             keyed,
             sorted,
@@ -370,15 +402,8 @@ impl ProbeGrid {
             generation,
             ..
         } = scratch;
-        self.next_generation(mark, generation);
-        keyed.clear();
-        sorted.clear();
-        runs.clear();
-        active.clear();
         keyed.reserve(chunk.len());
-        sorted.reserve(chunk.len());
         runs.reserve(chunk.len());
-        active.reserve(self.cells.len());
         keyed.extend(
             chunk
                 .iter()
@@ -389,14 +414,7 @@ impl ProbeGrid {
         sorted.extend(keyed.iter().map(|&(_, i)| chunk[i as usize]));
         for (key, start, end) in runs_of(keyed) {
             runs.insert(key, (start, end, 0));
-            for k in Self::neighbours(key) {
-                if let Some(&c) = self.lookup.get(&k)
-                    && mark[c as usize] != *generation
-                {
-                    mark[c as usize] = *generation;
-                    active.push(c);
-                }
-            }
+            self.activate(key, mark, *generation, active);
         }
         active.sort_unstable();
 
@@ -508,6 +526,7 @@ impl ProbeGrid {
     /// where its fine cells start: only while the tables stay within a few entries per point
     /// of the chunk, so memory follows the chunk, never its spread.
     fn bucket_fine(&self, fine: &Fine, scratch: &mut Scratch, chunk: &[Point3<f64>]) -> bool {
+        self.restart(scratch, chunk.len());
         let Scratch {
             columned,
             sorted,
@@ -518,15 +537,7 @@ impl ProbeGrid {
             generation,
             ..
         } = scratch;
-        self.next_generation(mark, generation);
-        columned.clear();
-        sorted.clear();
-        runs.clear();
-        starts.clear();
-        active.clear();
         columned.reserve(chunk.len());
-        sorted.reserve(chunk.len());
-        active.reserve(self.cells.len());
         let m = fine.per_cell;
         columned.extend(chunk.iter().enumerate().filter_map(|(i, p)| {
             let f = self.coords_at(p, fine.width)?;
@@ -555,14 +566,7 @@ impl ProbeGrid {
                 }
             }
             start += run.len() as u32;
-            for k in Self::neighbours(key) {
-                if let Some(&c) = self.lookup.get(&k)
-                    && mark[c as usize] != *generation
-                {
-                    mark[c as usize] = *generation;
-                    active.push(c);
-                }
-            }
+            self.activate(key, mark, *generation, active);
         }
         active.sort_unstable();
         dense

@@ -145,14 +145,18 @@ impl ProbeGrid {
         let smallest = (extent / (AXIS_BIAS as f64 - 4.0)).max(f64::MIN_POSITIVE);
         // A cylinder's fine cells are as wide as its radius, and a whole number of them make a
         // cell as wide as its reach (a fine cell's coordinates then give its cell's).
-        let fine = match region {
-            Region::Cylinder { radius, .. } if radius < reach => Some(
-                radius
-                    .max((extent + 2.0 * reach) / (AXIS_BIAS as f64 - 4.0))
-                    .max(f64::MIN_POSITIVE),
-            ),
+        let cylinder = match region {
+            Region::Cylinder {
+                radius,
+                half_length,
+            } if radius < reach => Some((radius, half_length)),
             _ => None,
         };
+        let fine = cylinder.map(|(radius, _)| {
+            radius
+                .max((extent + 2.0 * reach) / (AXIS_BIAS as f64 - 4.0))
+                .max(f64::MIN_POSITIVE)
+        });
         // Strictly wider than the reach, so that rounding never puts a point within reach two
         // cells away.
         let per_cell = fine.map_or(1, |f| (reach / f).floor() as i64 + 1);
@@ -203,21 +207,17 @@ impl ProbeGrid {
             grid.lookup.insert(key, grid.cells.len() as u32);
             grid.cells.push(Cell { key, start, end });
         }
-        if let Region::Cylinder {
-            radius,
-            half_length,
-        } = region
-        {
+        if let (Some(f), Some((radius, half_length))) = (grid.fine.as_mut(), cylinder) {
             // Along axis k a cylinder reaches h·|n_k| with its axis and r·√(1 − n_k²) with its
             // disc; a hair more, so that rounding cannot leave a point of its rim outside.
             let pad = reach * 1e-9;
-            let half = |n: &Vector3<f64>| {
-                n.map(|c| half_length * c.abs() + radius * (1.0 - c * c).max(0.0).sqrt() + pad)
-            };
-            let boxes = grid.normals.iter().map(half).collect();
-            if let Some(f) = grid.fine.as_mut() {
-                f.half_box = boxes;
-            }
+            f.half_box = grid
+                .normals
+                .iter()
+                .map(|n| {
+                    n.map(|c| half_length * c.abs() + radius * (1.0 - c * c).max(0.0).sqrt() + pad)
+                })
+                .collect();
         }
         grid
     }
@@ -260,11 +260,6 @@ impl ProbeGrid {
                 .map_or(0, |f| f.half_box.capacity() * size_of::<Vector3<f64>>())
     }
 
-    #[inline]
-    fn coords(&self, p: &Point3<f64>) -> Option<[i64; 3]> {
-        self.coords_at(p, self.cell)
-    }
-
     /// `p`'s cell coordinates in cells `width` wide; `None` for a point far outside the
     /// design (or not finite).
     #[inline]
@@ -301,7 +296,7 @@ impl ProbeGrid {
     fn key(&self, p: &Point3<f64>) -> Option<u64> {
         match &self.fine {
             Some(f) => self.coords_at(p, f.width).map(|c| Self::pack(f.cell_of(c))),
-            None => self.coords(p).map(Self::pack),
+            None => self.coords_at(p, self.cell).map(Self::pack),
         }
     }
 
@@ -527,18 +522,9 @@ impl ProbeGrid {
     /// of the chunk, so memory follows the chunk, never its spread.
     fn bucket_fine(&self, fine: &Fine, scratch: &mut Scratch, chunk: &[Point3<f64>]) -> bool {
         self.restart(scratch, chunk.len());
-        let Scratch {
-            columned,
-            sorted,
-            runs,
-            starts,
-            active,
-            mark,
-            generation,
-            ..
-        } = scratch;
-        columned.reserve(chunk.len());
         let m = fine.per_cell;
+        let columned = &mut scratch.columned;
+        columned.reserve(chunk.len());
         columned.extend(chunk.iter().enumerate().filter_map(|(i, p)| {
             let f = self.coords_at(p, fine.width)?;
             let c = fine.cell_of(f);
@@ -546,29 +532,40 @@ impl ProbeGrid {
             Some((Self::pack(c), local as u32, i as u32))
         }));
         columned.sort_unstable();
-        sorted.extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
+        let columned = &scratch.columned;
+        scratch
+            .sorted
+            .extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
         let fine_cells = (m * m * m) as usize;
         let occupied = columned.chunk_by(|a, b| a.0 == b.0).count();
         let dense = fine_cells <= DENSE_FINE_CELLS
             && occupied * (fine_cells + 1) <= DENSE_ENTRIES_PER_POINT * chunk.len() + (1 << 16);
-        runs.reserve(occupied);
+        scratch.runs.reserve(occupied);
         let mut start = 0u32;
         for run in columned.chunk_by(|a, b| a.0 == b.0) {
             let key = run[0].0;
-            runs.insert(key, (start, start + run.len() as u32, starts.len() as u32));
+            let table = scratch.starts.len() as u32;
+            scratch
+                .runs
+                .insert(key, (start, start + run.len() as u32, table));
             if dense {
                 let mut j = 0;
                 for local in 0..=fine_cells as u32 {
                     while j < run.len() && run[j].1 < local {
                         j += 1;
                     }
-                    starts.push(start + j as u32);
+                    scratch.starts.push(start + j as u32);
                 }
             }
             start += run.len() as u32;
-            self.activate(key, mark, *generation, active);
+            self.activate(
+                key,
+                &mut scratch.mark,
+                scratch.generation,
+                &mut scratch.active,
+            );
         }
-        active.sort_unstable();
+        scratch.active.sort_unstable();
         dense
     }
 }

@@ -31,6 +31,8 @@ def read_ply(path):
 
 def main():
     scan_path, core_path, radius, depth, out = sys.argv[1:6]
+    # py4dgeo logs to py4dgeo.log in the working folder unless told: keep it beside the output.
+    py4dgeo.set_py4dgeo_logfile(out + ".log")
     scan = read_ply(scan_path)
     core = read_ply(core_path)
     xyz = np.stack([scan["x"], scan["y"], scan["z"]], axis=1)

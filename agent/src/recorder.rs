@@ -15,6 +15,7 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 
+use asbuilt_protocol::foxglove::cloud_points;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter, ScanLayerStateRecord};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
@@ -32,8 +33,9 @@ const QUEUE: usize = 16_384;
 
 enum Item {
     Message(u64, Recorded),
-    /// A message for Foxglove's channels only (a deviation chunk the asbuilt channel skips).
-    FoxgloveOnly(u64, Recorded),
+    /// The points of a deviation chunk that Foxglove's cloud shows, already selected (the
+    /// asbuilt channel skips deviation chunks).
+    FoxgloveCloud(u64, DeviationHeader, Vec<PointDeviation>),
     /// A scan layer's findings state, attached to the job's file.
     State(u64, Box<ScanLayerStateRecord>),
     Flush,
@@ -64,7 +66,8 @@ pub struct Recorder {
     scan_every: u64,
     seen_chunks: u64,
     deviations: bool,
-    foxglove: bool,
+    /// With Foxglove's channels: one matched point in this many goes into its cloud.
+    foxglove: Option<usize>,
     /// Set by the writer when free disk space is below the guard.
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     /// Flushes asked for so far.
@@ -128,7 +131,7 @@ impl Recorder {
             scan_every: cfg.scan_every as u64,
             seen_chunks: 0,
             deviations: cfg.deviations,
-            foxglove: cfg.foxglove,
+            foxglove: cfg.foxglove.then_some(cfg.foxglove_every.max(1) as usize),
             disk_low,
             flushes_asked: AtomicU64::new(0),
             counters,
@@ -284,20 +287,26 @@ impl Recorder {
     pub fn deviations(&mut self, h: &DeviationHeader, points: &[PointDeviation]) {
         let bytes = std::mem::size_of_val(points);
         // Decimation counts scan chunks only; a deviation chunk is kept when its scan chunk was.
-        if !(self.deviations || self.foxglove)
+        if !(self.deviations || self.foxglove.is_some())
             || self.scan_every == 0
             || self.disk_low.load(Relaxed)
             || self.queued.load(Relaxed).saturating_add(bytes) > self.budget
         {
             return;
         }
-        let msg = Recorded::Deviations(*h, points.to_vec());
-        let item = if self.deviations {
-            Item::Message(unix_time_ns(), msg)
-        } else {
-            Item::FoxgloveOnly(unix_time_ns(), msg)
-        };
-        self.send(item, bytes);
+        let t = unix_time_ns();
+        if self.deviations {
+            self.send(
+                Item::Message(t, Recorded::Deviations(*h, points.to_vec())),
+                bytes,
+            );
+        } else if let Some(every) = self.foxglove {
+            // Only Foxglove's cloud wants them: the one point in `every` it shows is all that
+            // is copied, not the whole chunk.
+            let shown: Vec<PointDeviation> = cloud_points(points, every).copied().collect();
+            let bytes = std::mem::size_of_val(shown.as_slice());
+            self.send(Item::FoxgloveCloud(t, *h, shown), bytes);
+        }
     }
 
     /// Writes what is queued and closes the file with its summary.
@@ -394,15 +403,14 @@ impl Writer {
         self.check_disk();
         let mut since_check = 0u32;
         while let Ok(item) = rx.recv() {
-            let asbuilt = matches!(item, Item::Message(..));
             match item {
-                Item::Message(t, m) | Item::FoxgloveOnly(t, m) => {
+                Item::Message(t, m) => {
                     let bytes = match &m {
                         Recorded::Chunk(_, p) => std::mem::size_of_val(p.as_slice()),
                         Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
                         _ => 256,
                     };
-                    if let Err(e) = self.write(t, &m, asbuilt) {
+                    if let Err(e) = self.write(t, &m) {
                         warn!("recorder: cannot write: {e}; this message is lost");
                     }
                     self.queued.fetch_sub(bytes, Relaxed);
@@ -411,6 +419,19 @@ impl Writer {
                         since_check = 0;
                         self.check_disk();
                     }
+                }
+                Item::FoxgloveCloud(t, h, points) => {
+                    let written = self.file_for(Some(h.job)).and_then(|f| match f {
+                        Some(f) => (f.writer)
+                            .write_foxglove_cloud(t, &h, &points)
+                            .map_err(|e| e.to_string()),
+                        None => Ok(()),
+                    });
+                    if let Err(e) = written {
+                        warn!("recorder: cannot write: {e}; this message is lost");
+                    }
+                    self.queued
+                        .fetch_sub(std::mem::size_of_val(points.as_slice()), Relaxed);
                 }
                 Item::State(t, record) => {
                     if let Some(f) = &mut self.file
@@ -462,9 +483,19 @@ impl Writer {
         }
     }
 
-    /// Writes a message (with `asbuilt: false`, only its Foxglove twin).
-    fn write(&mut self, t: u64, m: &Recorded, asbuilt: bool) -> Result<(), String> {
-        if let Some(job) = job_of(m) {
+    /// Writes a message, and its Foxglove twin with Foxglove's channels.
+    fn write(&mut self, t: u64, m: &Recorded) -> Result<(), String> {
+        match self.file_for(job_of(m))? {
+            Some(f) => f.writer.write(t, m).map_err(|e| e.to_string()),
+            None => Ok(()),
+        }
+    }
+
+    /// The file a message of `job` goes to: the open one, or a new one when the job changes or
+    /// the file is full. None for a message without a job before the first job (nothing to
+    /// attach it to).
+    fn file_for(&mut self, job: Option<u64>) -> Result<Option<&mut OpenFile>, String> {
+        if let Some(job) = job {
             let rotate = match &self.file {
                 None => true,
                 Some(f) => f.job != job || f.writer_bytes() - f.preamble > self.max_bytes,
@@ -478,16 +509,7 @@ impl Writer {
                 self.open(job, part)?;
             }
         }
-        let Some(f) = &mut self.file else {
-            // Status before the first job: nothing to attach it to.
-            return Ok(());
-        };
-        if asbuilt {
-            f.writer.write(t, m)
-        } else {
-            f.writer.write_foxglove(t, m)
-        }
-        .map_err(|e| e.to_string())
+        Ok(self.file.as_mut())
     }
 
     fn open(&mut self, job: u64, part: u32) -> Result<(), String> {

@@ -102,15 +102,53 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     Ok(msg)
 }
 
-/// A scan chunk's record: the header, then its points.
+/// The leading version of a scan chunk record whose points are byte planes
+/// ([`crate::scan_planes`]). Records led by 1 or 2 (the header's own versions) hold the points
+/// as a postcard sequence, as releases before this layout wrote them, and still read. The
+/// header inside carries its own version, so a later header version needs the next number
+/// here, not this one.
+pub const SCAN_CHUNK_PLANES: u16 = 3;
+
+/// A scan chunk's record: [`SCAN_CHUNK_PLANES`], the header, then its points as byte planes.
 pub fn encode_scan_chunk(header: &ChunkHeader, points: &[ScanPoint]) -> Vec<u8> {
-    encode_slice(header, points)
+    let mut out = postcard::to_allocvec(&SCAN_CHUNK_PLANES).expect("u16 always encodes");
+    out.extend(postcard::to_allocvec(header).expect("fixed-size header always encodes"));
+    out.reserve_exact(points.len() * crate::scan_planes::POINT_BYTES);
+    crate::scan_planes::encode(points, &mut out);
+    out
 }
 
-/// A scan chunk's record back into its header and points; the header's `point_count` must
-/// match the points that follow.
+/// A scan chunk's record, in either layout, back into its header and points; the header's
+/// `point_count` must match the points that follow.
 pub fn decode_scan_chunk(bytes: &[u8]) -> Result<(ChunkHeader, Vec<ScanPoint>), DecodeError> {
-    decode_slice(bytes, |h: &ChunkHeader| h.point_count)
+    let corrupt = |reason: String| DecodeError::Corrupt {
+        message: ChunkHeader::TYPE_NAME,
+        reason,
+    };
+    let (layout, body): (u16, _) =
+        postcard::take_from_bytes(bytes).map_err(|e| corrupt(e.to_string()))?;
+    if layout != SCAN_CHUNK_PLANES {
+        return decode_slice(bytes, |h: &ChunkHeader| h.point_count);
+    }
+    let (header, planes): (ChunkHeader, _) =
+        postcard::take_from_bytes(body).map_err(|e| corrupt(e.to_string()))?;
+    crate::check_version::<ChunkHeader>(header.version)?;
+    let n = header.point_count as usize;
+    let want = n.saturating_mul(crate::scan_planes::POINT_BYTES);
+    if planes.len() < want {
+        return Err(corrupt(format!(
+            "header declares {n} points but {} follow ({} bytes)",
+            planes.len() / crate::scan_planes::POINT_BYTES,
+            planes.len()
+        )));
+    }
+    if planes.len() > want {
+        return Err(DecodeError::TrailingBytes {
+            message: ChunkHeader::TYPE_NAME,
+            extra: planes.len() - want,
+        });
+    }
+    Ok((header, crate::scan_planes::decode(planes, n)))
 }
 
 /// A deviation chunk's record: the header, then one deviation per point.

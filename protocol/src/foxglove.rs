@@ -20,7 +20,7 @@ use foxglove::messages::{
 };
 
 use crate::recording::Recorded;
-use crate::{DeviationFlags, PointDeviation, PoseSnapshot};
+use crate::{DeviationFlags, DeviationHeader, PointDeviation, PoseSnapshot};
 
 /// The design as a `foxglove.SceneUpdate` (one triangle list), once per recording.
 pub const TOPIC_DESIGN: &str = "/foxglove/design";
@@ -121,10 +121,9 @@ impl FoxgloveChannels {
     pub(crate) fn message(&self, m: &Recorded) -> Option<(u16, Vec<u8>)> {
         match m {
             Recorded::Pose(p) => Some((self.stations, encode(&transform(p)))),
-            Recorded::Deviations(h, points) => Some((
-                self.deviations,
-                encode(&cloud(h.timestamp_ns, points, &self.colour, self.every)),
-            )),
+            Recorded::Deviations(h, points) => {
+                Some(self.cloud(h, cloud_points(points, self.every)))
+            }
             Recorded::Report(r) => Some((self.reports, serde_json::to_vec(r).ok()?)),
             Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
             Recorded::Correction(c) => Some((self.corrections, serde_json::to_vec(c).ok()?)),
@@ -135,6 +134,16 @@ impl FoxgloveChannels {
             )),
             Recorded::Event(_) | Recorded::Status(_) => None,
         }
+    }
+
+    /// The deviations' cloud of `points` already selected, with its channel.
+    pub(crate) fn cloud<'a>(
+        &self,
+        h: &DeviationHeader,
+        points: impl Iterator<Item = &'a PointDeviation>,
+    ) -> (u16, Vec<u8>) {
+        let cloud = cloud(h.timestamp_ns, points, &self.colour);
+        (self.deviations, encode(&cloud))
     }
 }
 
@@ -174,14 +183,29 @@ fn transform(p: &PoseSnapshot) -> FrameTransform {
     }
 }
 
-/// A chunk's matched points in the design frame, coloured by their deviation, one in `every`
-/// (counted over the matched ones); points without a match or rejected are left out.
-fn cloud(time_ns: u64, points: &[PointDeviation], colour: &Colour, every: usize) -> PointCloud {
-    let mut data = Vec::with_capacity(points.len() / every * POINT_STRIDE as usize);
-    let matched = points
+/// The points of a deviation chunk that its Foxglove cloud shows: the matched ones (points
+/// without a match or rejected are left out), one in `every` of them. The agent selects them
+/// before a chunk leaves its event loop when only Foxglove's channel records deviations, so
+/// the rest are never copied.
+pub fn cloud_points(
+    points: &[PointDeviation],
+    every: usize,
+) -> impl Iterator<Item = &PointDeviation> {
+    points
         .iter()
-        .filter(|d| !d.flags.contains(DeviationFlags::REJECTED) && d.distance.is_finite());
-    for d in matched.step_by(every) {
+        .filter(|d| !d.flags.contains(DeviationFlags::REJECTED) && d.distance.is_finite())
+        .step_by(every.max(1))
+}
+
+/// `points`, as [`cloud_points`] selected them, in the design frame, coloured by their
+/// deviation.
+fn cloud<'a>(
+    time_ns: u64,
+    points: impl Iterator<Item = &'a PointDeviation>,
+    colour: &Colour,
+) -> PointCloud {
+    let mut data = Vec::with_capacity(points.size_hint().0 * POINT_STRIDE as usize);
+    for d in points {
         for v in d.position {
             data.extend_from_slice(&(v as f32).to_le_bytes());
         }

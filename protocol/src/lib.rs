@@ -22,6 +22,7 @@ mod pose;
 pub mod recording;
 mod report;
 mod scan;
+mod scan_planes;
 mod sending;
 mod station;
 mod status;

@@ -6,7 +6,7 @@
 //!   (`/scanner/chunks`), message encoding [`MESSAGE_ENCODING`] (the `codec`
 //!   records: a postcard varint version, then the message).
 //! - Each channel's schema is named for the message type and version
-//!   (`asbuilt.ScanChunk.v2`); its data is a text that lists the fields ([`schema_text`]),
+//!   (`asbuilt.ScanChunk.v3`); its data is a text that lists the fields ([`schema_text`]),
 //!   encoding [`SCHEMA_ENCODING`].
 //! - Metadata record [`METADATA_JOB`]: agent version, configuration, design file and its
 //!   SHA-256, calibrations. The design file itself is attached as [`ATTACHMENT_DESIGN`].
@@ -134,7 +134,7 @@ impl Channel {
     pub fn schema_name(self) -> &'static str {
         match self {
             Channel::Poses => PoseSnapshot::TYPE_NAME,
-            Channel::ScanChunks => "asbuilt.ScanChunk.v2",
+            Channel::ScanChunks => "asbuilt.ScanChunk.v3",
             Channel::StationEvents => StationEvent::TYPE_NAME,
             Channel::Deviations => "asbuilt.DeviationChunk.v1",
             Channel::Reports => StationReport::TYPE_NAME,
@@ -156,11 +156,13 @@ pub fn schema_text(channel: Channel) -> &'static str {
              rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m"
         }
         Channel::ScanChunks => {
-            "asbuilt.ScanChunk v2, postcard: version u16 (varint), then ChunkHeader { version \
-             u16, attempt u16, station u32, job u64, sequence u64, timestamp_ns u64, \
-             point_count u32, last u8, _reserved2 [u8; 3] }, then a sequence (varint length) of \
-             ScanPoint { xyz [f32; 3] m scanner frame, intensity f32, flags u16 (bit 0 invalid), \
-             returns u8, _reserved u8 }"
+            "asbuilt.ScanChunk v3: layout u16 (varint; 3), then ChunkHeader in postcard { \
+             version u16, attempt u16, station u32, job u64, sequence u64, timestamp_ns u64, \
+             point_count u32, last u8, _reserved2 [u8; 3] }, then point_count ScanPoints as 20 \
+             byte planes of point_count bytes each: plane 4w+j holds byte j (little-endian) of \
+             word w of every point, the words being x, y, z (f32 m scanner frame), intensity \
+             (f32), then flags u16 (bit 0 invalid), returns u8, _reserved u8. Layout 1 or 2: \
+             the points follow the header as a postcard sequence (varint length) of ScanPoint"
         }
         Channel::StationEvents => {
             "asbuilt.StationEvent v2, postcard: version u16 (varint, also first), kind u8 \
@@ -363,11 +365,10 @@ pub const CHUNK_BYTES: u64 = 4 << 20;
 pub enum ChunkCompression {
     /// Chunks as they are: no CPU spent, the most disk.
     None,
-    /// LZ4: fast, about 10 % smaller on scan points.
+    /// LZ4: the fastest; scan points in 8.9 bytes of their 20 on the demo's chunks.
     Lz4,
-    /// zstd at level 3 on the writer's own thread: about a third smaller on scan points
-    /// (measured on the demo's chunks), for CPU the agent's full rate feels (the agent
-    /// benchmark measures it).
+    /// zstd at level 1 on the writer's own thread: scan points in 8.6 bytes of their 20 on
+    /// the demo's chunks. Level 3 made them 1.5 % smaller for 45 % more time (one run).
     #[default]
     Zstd,
 }
@@ -394,10 +395,10 @@ impl<W: Write + Seek> RecordingWriter<W> {
             .profile(PROFILE)
             .library(format!("asbuilt {}", env!("CARGO_PKG_VERSION")))
             .compression(compression.mcap())
-            // zstd at its own default level 3 (LZ4 at its fast one); on the writer's thread
-            // only, never the cores the inspection needs.
+            // zstd at level 1 (LZ4 at its fast one): the byte planes leave little for a
+            // slower level to find. On the writer's thread only, never the inspection's cores.
             .compression_level(if compression == ChunkCompression::Zstd {
-                3
+                1
             } else {
                 0
             })
@@ -509,6 +510,24 @@ impl<W: Write + Seek> RecordingWriter<W> {
         match self.foxglove.as_ref().and_then(|f| f.message(message)) {
             Some((channel, bytes)) => {
                 self.write_to(channel, log_time, message.timestamp_ns(), &bytes)
+            }
+            None => Ok(()),
+        }
+    }
+
+    /// Writes the Foxglove cloud of a deviation chunk whose `points` were already selected by
+    /// [`crate::foxglove::cloud_points`] (no further decimation); nothing without Foxglove's
+    /// channels.
+    pub fn write_foxglove_cloud(
+        &mut self,
+        log_time: u64,
+        header: &DeviationHeader,
+        points: &[PointDeviation],
+    ) -> Result<(), mcap::McapError> {
+        match &self.foxglove {
+            Some(f) => {
+                let (channel, bytes) = f.cloud(header, points.iter());
+                self.write_to(channel, log_time, header.timestamp_ns, &bytes)
             }
             None => Ok(()),
         }

@@ -227,8 +227,54 @@ fn a_version_1_record_reads_with_its_attempt_zero() {
     let mut h = ChunkHeader::new(3, 4, 0, 1);
     h.version = 1;
     h.attempt = 0;
-    let mut bytes = codec::encode_scan_chunk(&h, &[ScanPoint::new(1.0, 2.0, 3.0)]);
-    bytes[0] = 1;
-    let (back, points) = codec::decode_scan_chunk(&bytes).unwrap();
-    assert_eq!((back.attempt, points.len()), (0, 1));
+    let point = ScanPoint::new(1.0, 2.0, 3.0);
+    let (back, points) = codec::decode_scan_chunk(&postcard_scan_chunk(&h, &[point])).unwrap();
+    assert_eq!((back.attempt, points), (0, vec![point]));
+}
+
+/// A scan chunk record as releases before the byte planes wrote it: the header's version, the
+/// header, then the points as a postcard sequence.
+fn postcard_scan_chunk(h: &ChunkHeader, points: &[ScanPoint]) -> Vec<u8> {
+    let mut bytes = postcard::to_allocvec(&h.version).unwrap();
+    bytes.extend(postcard::to_allocvec(h).unwrap());
+    bytes.extend(postcard::to_allocvec(points).unwrap());
+    bytes
+}
+
+/// Recordings written before the byte planes still read, point for point; the planes record
+/// is the one written now, and is refused when cut short or followed by more.
+#[test]
+fn both_scan_chunk_layouts_read_back() {
+    let points: Vec<ScanPoint> = (0..300)
+        .map(|i| ScanPoint {
+            intensity: i as f32 / 300.0,
+            returns: 0x21,
+            ..ScanPoint::new(i as f32 * 0.01, 1.5, -(i as f32))
+        })
+        .collect();
+    let h = ChunkHeader::new(7, 1, 3, points.len() as u32);
+    let old = postcard_scan_chunk(&h, &points);
+    assert_eq!(codec::decode_scan_chunk(&old).unwrap(), (h, points.clone()));
+    let new = codec::encode_scan_chunk(&h, &points);
+    assert_eq!(new[0] as u16, codec::SCAN_CHUNK_PLANES);
+    assert_eq!(codec::decode_scan_chunk(&new).unwrap(), (h, points.clone()));
+    let cut = codec::decode_scan_chunk(&new[..new.len() - 1]).unwrap_err();
+    assert!(
+        cut.to_string().contains("declares 300 points but 299"),
+        "{cut}"
+    );
+    let mut long = new.clone();
+    long.push(0);
+    assert!(matches!(
+        codec::decode_scan_chunk(&long),
+        Err(DecodeError::TrailingBytes { extra: 1, .. })
+    ));
+    // A header from a newer release is refused by its version, whatever the layout.
+    let mut newer = h;
+    newer.version = 9;
+    let err = codec::decode_scan_chunk(&codec::encode_scan_chunk(&newer, &points)).unwrap_err();
+    assert!(
+        matches!(err, DecodeError::VersionMismatch { found: 9, .. }),
+        "{err}"
+    );
 }

@@ -1,0 +1,117 @@
+//! A scan chunk's points as byte planes, the layout of a v3 scan chunk record.
+//!
+//! A point is five little-endian 32-bit words: x, y, z, intensity (f32 bits), then flags (u16)
+//! with returns and the reserved byte. Plane `4w + j` holds byte `j` of word `w` of every point,
+//! in order. Neighbouring points share their floats' sign, exponent and high mantissa bytes, so
+//! those planes are long runs that the chunk compressor takes almost for free, while only the
+//! noisy low bytes cost. On the demo's chunks, zstd level 1 keeps 8.6 bytes of a point's 20 in
+//! this layout against 14.8 of postcard's 19, and in a seventh of the time (`agent/README.md`).
+//! The layout is lossless: every bit comes back.
+
+use crate::{ScanPoint, ScanPointFlags};
+
+/// Bytes of one point in the planes.
+pub const POINT_BYTES: usize = 20;
+
+/// The five words of a point, in plane order.
+fn words(p: &ScanPoint) -> [u32; 5] {
+    let [lo, hi] = p.flags.0.to_le_bytes();
+    [
+        p.xyz[0].to_bits(),
+        p.xyz[1].to_bits(),
+        p.xyz[2].to_bits(),
+        p.intensity.to_bits(),
+        u32::from_le_bytes([lo, hi, p.returns, p._reserved]),
+    ]
+}
+
+/// Appends `points` to `out` as 20 planes of `points.len()` bytes each.
+pub fn encode(points: &[ScanPoint], out: &mut Vec<u8>) {
+    let n = points.len();
+    let start = out.len();
+    out.resize(start + n * POINT_BYTES, 0);
+    // Word by word, each pass writing four planes in step, over blocks of points small enough
+    // to stay in the first-level cache for the five passes.
+    const BLOCK: usize = 1024;
+    for (b, block) in points.chunks(BLOCK).enumerate() {
+        let at = b * BLOCK;
+        for (w, planes) in out[start..].chunks_exact_mut(4 * n).enumerate() {
+            let (b0, rest) = planes.split_at_mut(n);
+            let (b1, rest) = rest.split_at_mut(n);
+            let (b2, b3) = rest.split_at_mut(n);
+            let end = at + block.len();
+            let lanes = b0[at..end].iter_mut().zip(&mut b1[at..end]);
+            let lanes = lanes.zip(&mut b2[at..end]).zip(&mut b3[at..end]);
+            for ((((x0, x1), x2), x3), p) in lanes.zip(block) {
+                [*x0, *x1, *x2, *x3] = words(p)[w].to_le_bytes();
+            }
+        }
+    }
+}
+
+/// The `n` points whose planes are `bytes`, which must be exactly `n * POINT_BYTES` long
+/// (the caller checks, so nothing is allocated that the input does not hold).
+pub fn decode(bytes: &[u8], n: usize) -> Vec<ScanPoint> {
+    debug_assert_eq!(bytes.len(), n * POINT_BYTES);
+    let mut points = vec![ScanPoint::default(); n];
+    if n == 0 {
+        return points;
+    }
+    for (w, planes) in bytes.chunks_exact(4 * n).enumerate() {
+        let (b0, rest) = planes.split_at(n);
+        let (b1, rest) = rest.split_at(n);
+        let (b2, b3) = rest.split_at(n);
+        let word = (b0.iter().zip(b1).zip(b2).zip(b3))
+            .map(|(((&a, &b), &c), &d)| [a, b, c, d])
+            .zip(points.iter_mut());
+        match w {
+            0..=2 => word.for_each(|(b, p)| p.xyz[w] = f32::from_le_bytes(b)),
+            3 => word.for_each(|(b, p)| p.intensity = f32::from_le_bytes(b)),
+            _ => word.for_each(|([lo, hi, returns, reserved], p)| {
+                p.flags = ScanPointFlags(u16::from_le_bytes([lo, hi]));
+                p.returns = returns;
+                p._reserved = reserved;
+            }),
+        }
+    }
+    points
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every bit of every field comes back, NaNs and signed zeros included, and the planes are
+    /// where the layout says.
+    #[test]
+    fn planes_keep_every_bit() {
+        let points: Vec<ScanPoint> = (0..1000u32)
+            .map(|i| ScanPoint {
+                xyz: [
+                    f32::from_bits(i.wrapping_mul(2_654_435_761)),
+                    -0.0,
+                    f32::from_bits(0x7fc0_0001 + i),
+                ],
+                intensity: i as f32 * 0.25,
+                flags: ScanPointFlags(i as u16 * 3),
+                returns: (i % 251) as u8,
+                _reserved: (i % 7) as u8,
+            })
+            .collect();
+        let mut bytes = vec![0xAB];
+        encode(&points, &mut bytes);
+        assert_eq!(bytes.len(), 1 + points.len() * POINT_BYTES);
+        let back = decode(&bytes[1..], points.len());
+        for (a, b) in points.iter().zip(&back) {
+            assert_eq!(words(a), words(b));
+        }
+        // Byte 3 of word 1 (y = -0.0: 0x8000_0000) of point 5 sits in plane 7.
+        let n = points.len();
+        assert_eq!(bytes[1 + 7 * n + 5], 0x80);
+        assert_eq!(bytes[1 + 16 * n + 5], 15, "flags' low byte of point 5");
+        assert!(decode(&[], 0).is_empty());
+        let mut none = Vec::new();
+        encode(&[], &mut none);
+        assert!(none.is_empty());
+    }
+}

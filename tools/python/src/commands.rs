@@ -51,7 +51,7 @@ fn exit_code(code: ExitCode) -> u8 {
     projection_diameter = None, max_depth = None, normal_diameter = None,
     coverage_threshold = None, scanner_step_mrad = None, printed_height = None,
     layer_height = None, reference = None, rerun = None, rerun_url = None, rerun_points = None,
-    ascii = false, local_plane = None))]
+    ascii = false, local_plane = None, no_maps = false))]
 #[allow(clippy::too_many_arguments)] // one keyword per flag, as Python calls it
 pub fn inspect(
     py: Python<'_>,
@@ -83,6 +83,7 @@ pub fn inspect(
     rerun_points: Option<usize>,
     ascii: bool,
     local_plane: Option<usize>,
+    no_maps: bool,
 ) -> PyResult<u8> {
     let mut a = InspectArgs::new(design, parsed("units", units)?);
     a.out = out;
@@ -109,7 +110,7 @@ pub fn inspect(
     (a.printed_height, a.layer_height, a.reference) = (printed_height, layer_height, reference);
     (a.rerun, a.rerun_url) = (rerun, rerun_url);
     a.rerun_points = rerun_points.unwrap_or(a.rerun_points);
-    (a.ascii, a.local_plane) = (ascii, local_plane);
+    (a.ascii, a.local_plane, a.no_maps) = (ascii, local_plane, no_maps);
     let code = py
         .detach(|| asbuilt_tools::inspect::run(a))
         .map_err(anyhow_err)?;

@@ -41,6 +41,8 @@ def test_inspect_takes_typed_keywords_and_refuses_bad_ones(bunny_path):
         asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, tolerance=-1)
     with pytest.raises(RuntimeError, match="not both"):
         asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, scan=bunny_path)
+    with pytest.raises(RuntimeError, match="--no-maps"):
+        asbuilt.inspect(bunny_path, "m", stations=BUNNY_STATIONS, png=True, no_maps=True)
 
 
 def test_inspect_methods_as_a_list_or_a_string_are_the_same(tmp_path, bunny_path):
@@ -51,6 +53,10 @@ def test_inspect_methods_as_a_list_or_a_string_are_the_same(tmp_path, bunny_path
                         rotation_xyzw=[0, 0, 0, 1], method="c2m,coverage")
     assert a["methods"] == b["methods"] == ["c2m", "coverage"]
     assert a["overall"] == b["overall"]
+    # Without the maps, the same verdicts and statistics.
+    c = asbuilt.inspect(bunny_path, "m", scan=scan, translation=[0, 0, 0],
+                        rotation_xyzw=[0, 0, 0, 1], method="c2m,coverage", no_maps=True)
+    assert c["overall"] == a["overall"]
 
 
 def test_argv_spells_flags_as_the_command_line():

@@ -191,38 +191,113 @@ impl Raster {
         }
     }
 
-    /// Marks the pixels within `radius` pixels of `p`.
-    fn mark(&mut self, p: [f64; 3], mark: Mark, pixel: f64, radius: i64) {
+    /// Where `p` falls: its column, row and nearness; None for a point off the number line.
+    fn locate(&self, p: [f64; 3], pixel: f64) -> Option<(i64, i64, f32)> {
         let [u, v, near] = self.side.project(p);
         if !(u.is_finite() && v.is_finite() && near.is_finite()) {
-            return;
+            return None;
         }
         let (i, j) = self.cell_of(u, v, pixel);
+        Some((i, j, near as f32))
+    }
+
+    /// The cell index of column `i`, row `j`, if inside.
+    fn index(&self, i: i64, j: i64) -> Option<usize> {
+        (i >= 0 && j >= 0 && i < self.w as i64 && j < self.h as i64)
+            .then(|| j as usize * self.w + i as usize)
+    }
+
+    /// Marks the pixels within `radius` pixels of `p`.
+    fn mark(&mut self, p: [f64; 3], mark: Mark, pixel: f64, radius: i64) {
+        let Some((i, j, near)) = self.locate(p, pixel) else {
+            return;
+        };
         let slab = (SLAB_PX * pixel) as f32;
-        let near = near as f32;
         for jj in j.saturating_sub(radius)..=j.saturating_add(radius) {
             for ii in i.saturating_sub(radius)..=i.saturating_add(radius) {
-                if ii < 0 || jj < 0 || ii >= self.w as i64 || jj >= self.h as i64 {
-                    continue;
-                }
-                let c = &mut self.cells[jj as usize * self.w + ii as usize];
-                if near > c.near + slab {
-                    // A nearer surface hides what the pixel held.
-                    *c = Cell { near, ..EMPTY };
-                } else if near < c.near - slab {
-                    continue;
-                }
-                c.near = c.near.max(near);
-                match mark {
-                    Mark::Value(d) => {
-                        c.sum += d as f32;
-                        c.values += 1;
-                    }
-                    Mark::Missing => c.missing += 1,
-                    Mark::Unseen => c.unseen += 1,
+                if let Some(k) = self.index(ii, jj) {
+                    self.mark_cell(k, near, mark, slab);
                 }
             }
         }
+    }
+
+    /// Marks cell `k` with a surface at `near`.
+    fn mark_cell(&mut self, k: usize, near: f32, mark: Mark, slab: f32) {
+        let c = &mut self.cells[k];
+        if near > c.near + slab {
+            // A nearer surface hides what the pixel held.
+            *c = Cell { near, ..EMPTY };
+        } else if near < c.near - slab {
+            return;
+        }
+        c.near = c.near.max(near);
+        match mark {
+            Mark::Value(d) => {
+                c.sum += d as f32;
+                c.values += 1;
+            }
+            Mark::Missing => c.missing += 1,
+            Mark::Unseen => c.unseen += 1,
+        }
+    }
+
+    /// The tile of cell `k`: squares of [`TILE_PX`] pixels, numbered row by row.
+    fn tile(&self, k: usize) -> usize {
+        let tiles_across = self.w.div_ceil(TILE_PX);
+        (k / self.w / TILE_PX) * tiles_across + (k % self.w) / TILE_PX
+    }
+
+    fn tiles(&self) -> usize {
+        self.w.div_ceil(TILE_PX) * self.h.div_ceil(TILE_PX)
+    }
+
+    /// Appends each point (design frame) on the raster, with its deviation, to `batch`.
+    fn locate_all(&self, points: &[([f64; 3], f64)], pixel: f64, batch: &mut TileBatch) {
+        for &(p, d) in points {
+            let Some((i, j, near)) = self.locate(p, pixel) else {
+                continue;
+            };
+            if let Some(k) = self.index(i, j).and_then(|k| u32::try_from(k).ok()) {
+                // The cell adds the deviation as an f32: nothing is lost keeping it so.
+                batch.marks.push((k, near, d as f32));
+            }
+        }
+    }
+
+    /// Marks the cells of `batch` tile by tile, and empties it.
+    ///
+    /// Points arrive in scan order, or in none, and land all over a raster of megabytes: one
+    /// cache miss each, and a chunk's points are too few to meet a pixel twice. A batch of
+    /// many chunks sorted by tile (a counting sort: two passes in order) brings each tile's
+    /// cells into the cache once for many marks. The sort is stable, so every cell takes its
+    /// marks in the order they came, and the raster's bits are those of marking one by one.
+    fn mark_batch(&mut self, batch: &mut TileBatch, pixel: f64) {
+        let TileBatch {
+            marks,
+            starts,
+            sorted,
+        } = batch;
+        starts.clear();
+        starts.resize(self.tiles() + 1, 0);
+        for &(k, ..) in marks.iter() {
+            starts[self.tile(k as usize) + 1] += 1;
+        }
+        for t in 1..starts.len() {
+            starts[t] += starts[t - 1];
+        }
+        sorted.clear();
+        sorted.resize(marks.len(), (0, 0.0, 0.0));
+        for &m in marks.iter() {
+            let t = self.tile(m.0 as usize);
+            sorted[starts[t]] = m;
+            starts[t] += 1;
+        }
+        let slab = (SLAB_PX * pixel) as f32;
+        for &(k, near, d) in sorted.iter() {
+            self.mark_cell(k as usize, near, Mark::Value(f64::from(d)), slab);
+        }
+        marks.clear();
     }
 
     /// Another raster of the same side and frame drawn over this one: where both hold a
@@ -263,9 +338,39 @@ impl Raster {
     /// The column and row of screen coordinates (u, v), row 0 at the top of the picture;
     /// outside the raster for points beyond it (saturating, never wrapping).
     fn cell_of(&self, u: f64, v: f64, pixel: f64) -> (i64, i64) {
-        let i = ((u - self.u0) / pixel).floor() as i64;
-        let j = (self.h as i64 - 1).saturating_sub(((v - self.v0) / pixel).floor() as i64);
+        let i = floor((u - self.u0) / pixel);
+        let j = (self.h as i64 - 1).saturating_sub(floor((v - self.v0) / pixel));
         (i, j)
+    }
+}
+
+/// Pixels along a tile's side: 32 × 32 cells of 20 bytes fit the first-level cache.
+const TILE_PX: usize = 32;
+
+/// Marks waiting to be drawn on one side's raster, and the buffers that sort them, reused.
+#[derive(Debug, Default)]
+struct TileBatch {
+    /// Each point's cell, nearness and deviation, in the order they came.
+    marks: Vec<(u32, f32, f32)>,
+    /// Where each tile's marks start in `sorted`.
+    starts: Vec<usize>,
+    /// The marks in tile order.
+    sorted: Vec<(u32, f32, f32)>,
+}
+
+/// Points batched before their marks are drawn: 12 bytes each, twice (as they came and
+/// sorted), so at most 12 MB whatever the scan.
+const BATCH_POINTS: usize = 1 << 19;
+
+/// `x.floor() as i64`, without the call into the maths library that `floor` is on a
+/// processor without SSE 4.1 (the build's baseline): a cast truncates towards zero and
+/// saturates, so only a negative fraction needs one step down.
+fn floor(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t.saturating_sub(1)
+    } else {
+        t
     }
 }
 
@@ -376,6 +481,12 @@ pub struct MapCollector {
     layers: BTreeMap<LayerKey, ScanLayerMaps>,
     /// A chunk's points (design frame) and distances, side by side, reused chunk after chunk.
     by_side: [Vec<([f64; 3], f64)>; 5],
+    /// Each side's marks not yet drawn, all of the station `batched`.
+    batches: [TileBatch; 5],
+    /// The station whose marks wait in `batches`, and how many points they came from.
+    batched: Option<((u64, u32), usize)>,
+    /// False when the maps are not wanted: everything offered is ignored.
+    on: bool,
 }
 
 impl MapCollector {
@@ -402,20 +513,34 @@ impl MapCollector {
             stations: FxHashMap::default(),
             layers: BTreeMap::new(),
             by_side: Default::default(),
+            batches: Default::default(),
+            batched: None,
+            on: true,
         }
+    }
+
+    /// The collector that draws nothing: `finish` gives no maps, and report.html shows none.
+    pub fn off(mut self) -> Self {
+        self.on = false;
+        self
     }
 
     /// A chunk of `station`'s deviations.
     pub fn points(&mut self, station: (u64, u32), devs: &[PointDeviation]) {
+        if !self.on {
+            return;
+        }
+        if self.batched.is_some_and(|(s, _)| s != station) {
+            self.draw_batched();
+        }
         let frame = self.frame;
         let facing = &self.facing;
         let sides = self
             .stations
             .entry(station)
             .or_insert_with(|| Sides::new(&frame));
-        // The points are sorted by side in one pass, then each side's raster is marked by a
-        // task of its own: the rasters are apart, and the marks of a chunk in no spatial order
-        // scatter over megabytes, so the cores share both the work and the cache.
+        // The points are sorted by side in one pass, then each side's are located by a task of
+        // its own.
         for b in &mut self.by_side {
             b.clear();
         }
@@ -426,13 +551,29 @@ impl MapCollector {
         }
         sides
             .rasters
-            .par_iter_mut()
+            .par_iter()
             .zip(self.by_side.par_iter())
-            .for_each(|(raster, points)| {
-                for &(p, d) in points {
-                    raster.mark(p, Mark::Value(d), frame.pixel, 0);
-                }
-            });
+            .zip(self.batches.par_iter_mut())
+            .for_each(|((raster, points), batch)| raster.locate_all(points, frame.pixel, batch));
+        let waiting = self.batched.map_or(0, |(_, n)| n) + devs.len();
+        self.batched = Some((station, waiting));
+        if waiting >= BATCH_POINTS {
+            self.draw_batched();
+        }
+    }
+
+    /// Draws the batched marks on their station's rasters, each side by a task of its own: the
+    /// rasters are apart, so the cores share both the work and the cache.
+    fn draw_batched(&mut self) {
+        let Some((station, _)) = self.batched.take() else {
+            return;
+        };
+        let pixel = self.frame.pixel;
+        if let Some(sides) = self.stations.get_mut(&station) {
+            (sides.rasters.par_iter_mut())
+                .zip(self.batches.par_iter_mut())
+                .for_each(|(raster, batch)| raster.mark_batch(batch, pixel));
+        }
     }
 
     fn layer(&mut self, job: u64, printed_height: f64) -> &mut ScanLayerMaps {
@@ -452,11 +593,18 @@ impl MapCollector {
 
     /// Forgets a station's points: it was interrupted, and its next attempt sends them again.
     pub fn station_dropped(&mut self, station: (u64, u32)) {
+        if self.batched.is_some_and(|(s, _)| s == station) {
+            self.batched = None;
+            self.batches.iter_mut().for_each(|b| b.marks.clear());
+        }
         self.stations.remove(&station);
     }
 
     /// `station` reported, at `printed_height`: its points join its scan layer's.
     pub fn station_done(&mut self, station: (u64, u32), printed_height: f64) {
+        if self.batched.is_some_and(|(s, _)| s == station) {
+            self.draw_batched();
+        }
         let Some(sides) = self.stations.remove(&station) else {
             return;
         };
@@ -468,6 +616,9 @@ impl MapCollector {
 
     /// The design samples' states of a scan layer's latest findings.
     pub fn samples(&mut self, job: u64, printed_height: f64, samples: &[SampleState]) {
+        if !self.on {
+            return;
+        }
         let frame = self.frame;
         // A sample stands for about a square `spacing` wide; the samples are scattered, not on a
         // grid, so the squares overlap a little to leave no holes.
@@ -866,6 +1017,141 @@ mod tests {
             triangle,
             ..Default::default()
         }
+    }
+
+    /// The cast and step of `floor` give the maths library's floor: whole numbers, fractions
+    /// either side of zero, the edges of the i64 range and beyond, NaN.
+    #[test]
+    fn floor_is_the_libm_floor() {
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            -1.0,
+            -1.0 - f64::EPSILON,
+            1e300,
+            -1e300,
+            9.3e18,
+            -9.3e18,
+            i64::MIN as f64,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        xs.extend((-2000..2000).map(|i| f64::from(i) * 0.37));
+        for x in xs {
+            assert_eq!(floor(x), x.floor() as i64, "{x}");
+        }
+    }
+
+    /// Marks taken tile by tile leave every cell with the bits of marking one point after
+    /// another: points in no order, many to a pixel, at nearnesses inside and beyond the slab
+    /// (so hiding depends on the order), some off the raster, over every side.
+    #[test]
+    fn marks_sorted_by_tile_give_the_bits_of_marks_one_by_one() {
+        let design = cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.8, 1.2));
+        let frame = MapFrame::of(&design, 0.01);
+        let pixel = frame.pixel;
+        // A cheap generator: the order is scrambled, the values repeat often enough to share
+        // pixels.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let points: Vec<([f64; 3], f64)> = (0..40_000)
+            .map(|_| {
+                // Coarse positions crowd many points into a pixel; depths a few slabs apart.
+                let q = |v: f64, span: f64| ((v * 60.0).floor() / 60.0) * span - 0.1;
+                let p = [q(next(), 1.2), q(next(), 0.9), q(next(), 1.3)];
+                (p, (next() - 0.5) * 0.02)
+            })
+            .collect();
+        for side in Side::ALL {
+            let mut one_by_one = Raster::new(side, frame.lo, frame.hi, pixel);
+            for &(p, d) in &points {
+                one_by_one.mark(p, Mark::Value(d), pixel, 0);
+            }
+            // Two chunks in one batch, and in two batches with the buffers reused.
+            let (a, b) = points.split_at(17_000);
+            let mut batch = TileBatch::default();
+            let mut one_batch = Raster::new(side, frame.lo, frame.hi, pixel);
+            one_batch.locate_all(a, pixel, &mut batch);
+            one_batch.locate_all(b, pixel, &mut batch);
+            one_batch.mark_batch(&mut batch, pixel);
+            let mut two_batches = Raster::new(side, frame.lo, frame.hi, pixel);
+            for chunk in [a, b] {
+                two_batches.locate_all(chunk, pixel, &mut batch);
+                two_batches.mark_batch(&mut batch, pixel);
+            }
+            assert!(
+                one_by_one.tiles() > 4,
+                "{side:?}: the raster spans several tiles"
+            );
+            let bits = |c: &Cell| (c.near.to_bits(), c.sum.to_bits(), c.values);
+            let marked = one_by_one.cells.iter().filter(|c| c.values > 1).count();
+            assert!(
+                marked > 100,
+                "{side:?}: pixels hold several marks ({marked})"
+            );
+            for (k, x) in one_by_one.cells.iter().enumerate() {
+                assert_eq!(bits(x), bits(&one_batch.cells[k]), "{side:?}, cell {k}");
+                assert_eq!(bits(x), bits(&two_batches.cells[k]), "{side:?}, cell {k}");
+            }
+        }
+    }
+
+    /// Stations whose chunks alternate, or whose batches fill, draw what stations sent one
+    /// after the other draw; a dropped station's batched points are forgotten with it.
+    #[test]
+    fn batched_marks_follow_their_station() {
+        let design = cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.8, 1.2));
+        let front = face_of(&design, [0.0, -1.0, 0.0]);
+        let chunk = |seed: u32, n: u32| -> Vec<PointDeviation> {
+            (0..n)
+                .map(|i| {
+                    let t = f64::from((i * 7919 + seed * 104_729) % 10_007) / 10_007.0;
+                    let p = [t, -0.001 * f64::from(seed), (t * 37.0).fract() * 1.2];
+                    dev(p, (t - 0.5) * 0.004, front)
+                })
+                .collect()
+        };
+        let (a1, a2, b1, b2) = (
+            chunk(1, 3000),
+            chunk(2, 3000),
+            chunk(3, 3000),
+            chunk(4, 3000),
+        );
+        let layer_cells = |m: MapCollector| -> Vec<(u32, u32, u32)> {
+            let maps = m.finish();
+            assert_eq!(maps.len(), 1);
+            let raster = maps[0].points.side(Side::Front);
+            (raster.cells.iter())
+                .map(|c| (c.near.to_bits(), c.sum.to_bits(), c.values))
+                .collect()
+        };
+        let mut apart = MapCollector::new(&design, 0.002, 0.01);
+        for (st, chunks) in [((1, 1), [&a1, &a2]), ((1, 2), [&b1, &b2])] {
+            for c in chunks {
+                apart.points(st, c);
+            }
+            apart.station_done(st, 1.2);
+        }
+        let mut alternating = MapCollector::new(&design, 0.002, 0.01);
+        alternating.points((1, 1), &a1);
+        alternating.points((1, 2), &b1);
+        alternating.points((1, 9), &b2); // dropped: must leave no mark
+        alternating.station_dropped((1, 9));
+        alternating.points((1, 1), &a2);
+        alternating.points((1, 2), &b2);
+        alternating.station_done((1, 1), 1.2);
+        alternating.station_done((1, 2), 1.2);
+        let want = layer_cells(apart);
+        assert!(want.iter().filter(|c| c.2 > 0).count() > 1000);
+        assert_eq!(want, layer_cells(alternating));
     }
 
     fn face_of(design: &Design, toward: [f64; 3]) -> u32 {

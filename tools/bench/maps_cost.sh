@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# What report.html's deviation maps cost `inspect`: the same job with and without `--no-maps`,
+# alternated RUNS times, whole process, medians compared. The job is the worst case for the
+# maps: 2 M noisy bunny points in no spatial order (c2m_bench_inputs' bunny_shuffled.ply), so
+# every mark lands on a pixel the last one did not touch.
+#
+#   tools/bench/maps_cost.sh            # RUNS=9 OUT=out/maps-bench
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+OUT=${OUT:-out/maps-bench}
+RUNS=${RUNS:-9}
+mkdir -p "$OUT"
+cargo build --release --locked -p asbuilt-tools --bin asbuilt --example c2m_bench_inputs
+[ -f "$OUT/bunny_shuffled.ply" ] || target/release/examples/c2m_bench_inputs "$OUT"
+# One inspect into OUT/NAME, its output into OUT/NAME.log: prints its wall and CPU seconds
+# (user + system, all its threads).
+inspect() {
+    local name=$1
+    python3 -c 'import resource, subprocess, sys, time
+t = time.monotonic()
+with open(sys.argv[1], "w") as log:
+    subprocess.run(sys.argv[2:], stdout=log, stderr=log, check=True)
+r = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(time.monotonic() - t, r.ru_utime + r.ru_stime)' "$OUT/$name.log" \
+        target/release/asbuilt inspect --design ../shared/data/stanford-bunny/bun_zipper.ply \
+        --units m --scan "$OUT/bunny_shuffled.ply" --translation 0,0,0 --rotation-xyzw 0,0,0,1 \
+        --out "$OUT/$name" "${@:2}"
+}
+with_wall=(); with_cpu=(); without_wall=(); without_cpu=()
+for i in $(seq "$RUNS"); do
+    read -r w c < <(inspect maps); with_wall+=("$w"); with_cpu+=("$c")
+    read -r w c < <(inspect no-maps --no-maps); without_wall+=("$w"); without_cpu+=("$c")
+done
+median() { printf '%s\n' "$@" | sort -n | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+cost() {
+    awk -v what="$1" -v m="$(median "${@:2:$RUNS}")" -v n="$(median "${@:$((RUNS + 2))}")" \
+        'BEGIN { printf "%s: median with maps %.3f s, without %.3f s: the maps cost %.1f %%\n", what, m, n, (m / n - 1) * 100 }'
+}
+cost "wall" "${with_wall[@]}" "${without_wall[@]}"
+cost "CPU " "${with_cpu[@]}" "${without_cpu[@]}"

@@ -212,9 +212,14 @@ pub fn advise(
     let mut c = LayerCorrection::neutral(f.job, f.station, attempt, f.layer);
     let mut flags = 0;
     flags |= advise_height(limits, base, f, sigma, &mut c);
-    let bands = latest_bands(limits, base, f);
-    flags |= advise_flow(limits, base, f, &bands, &mut c);
-    flags |= advise_path(limits, base, f, &bands, &mut c);
+    let bands = Bands {
+        limits,
+        base,
+        f,
+        latest: latest_bands(limits, base, f),
+    };
+    flags |= advise_flow(&bands, &mut c);
+    flags |= advise_path(&bands, &mut c);
     c.flags = flags;
     c
 }
@@ -307,15 +312,20 @@ fn latest_bands<'f>(
         .collect()
 }
 
+/// What the flow and path advice read: the findings' layer bands, the latest of them, and
+/// the advice in force.
+struct Bands<'f> {
+    limits: &'f CorrectionLimits,
+    base: Option<&'f LayerCorrection>,
+    f: &'f StationFindings,
+    /// See [`latest_bands`].
+    latest: Vec<&'f asbuilt_protocol::LayerFinding>,
+}
+
 /// The flow that brings the latest bands' width, against the scan layer's median band, back
 /// to the bead's.
-fn advise_flow(
-    limits: &CorrectionLimits,
-    base: Option<&LayerCorrection>,
-    f: &StationFindings,
-    bands: &[&asbuilt_protocol::LayerFinding],
-    c: &mut LayerCorrection,
-) -> u32 {
+fn advise_flow(b: &Bands<'_>, c: &mut LayerCorrection) -> u32 {
+    let (limits, base, f, bands) = (b.limits, b.base, b.f, &b.latest);
     let flow_prev = base.map_or(1.0, |b| b.flow);
     c.flow = flow_prev;
     let Some(reference) = median(f.layers.iter().filter_map(|r| r.width())) else {
@@ -364,13 +374,8 @@ fn advise_flow(
 
 /// The path offset that takes the latest bands' shift, against the scan layer's median band,
 /// back.
-fn advise_path(
-    limits: &CorrectionLimits,
-    base: Option<&LayerCorrection>,
-    f: &StationFindings,
-    bands: &[&asbuilt_protocol::LayerFinding],
-    c: &mut LayerCorrection,
-) -> u32 {
+fn advise_path(b: &Bands<'_>, c: &mut LayerCorrection) -> u32 {
+    let (limits, base, f, bands) = (b.limits, b.base, b.f, &b.latest);
     let path_prev = base.map_or([0.0; 2], |b| b.path_offset);
     c.path_offset = path_prev;
     let all: Vec<[f64; 2]> = f.layers.iter().filter_map(|r| r.shift_xy()).collect();

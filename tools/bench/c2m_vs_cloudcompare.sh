@@ -18,8 +18,7 @@ fi
 if [ ! -x /usr/bin/time ]; then
     apt-get install -y time >/dev/null
 fi
-cargo build --release --locked -p asbuilt-tools --bin asbuilt --example c2m_bench_inputs
-[ -f "$OUT/column_scan.ply" ] || target/release/examples/c2m_bench_inputs "$OUT"
+. tools/bench/inputs.sh
 export QT_QPA_PLATFORM=offscreen
 
 # run NAME CMD... : appends "seconds kilobytes" to $OUT/NAME.times

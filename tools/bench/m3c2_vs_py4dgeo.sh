@@ -13,9 +13,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-out/m3c2-bench}
 RUNS=${RUNS:-3}
-mkdir -p "$OUT"
-cargo build --release --locked -p asbuilt-tools --bin asbuilt --example c2m_bench_inputs
-[ -f "$OUT/bunny_scan.ply" ] || target/release/examples/c2m_bench_inputs "$OUT"
+. tools/bench/inputs.sh
 venv=target/bench-venv
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 "$venv/bin/pip" install --quiet --disable-pip-version-check py4dgeo numpy

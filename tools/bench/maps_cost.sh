@@ -9,9 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-out/maps-bench}
 RUNS=${RUNS:-9}
-mkdir -p "$OUT"
-cargo build --release --locked -p asbuilt-tools --bin asbuilt --example c2m_bench_inputs
-[ -f "$OUT/bunny_shuffled.ply" ] || target/release/examples/c2m_bench_inputs "$OUT"
+. tools/bench/inputs.sh
 # One inspect into OUT/NAME, its output into OUT/NAME.log: prints its wall and CPU seconds
 # (user + system, all its threads).
 inspect() {

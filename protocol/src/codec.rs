@@ -121,26 +121,25 @@ pub fn encode_scan_chunk(header: &ChunkHeader, points: &[ScanPoint]) -> Vec<u8> 
 /// A scan chunk's record, in either layout, back into its header and points; the header's
 /// `point_count` must match the points that follow.
 pub fn decode_scan_chunk(bytes: &[u8]) -> Result<(ChunkHeader, Vec<ScanPoint>), DecodeError> {
-    let corrupt = |reason: String| DecodeError::Corrupt {
-        message: ChunkHeader::TYPE_NAME,
-        reason,
-    };
     let (layout, body): (u16, _) =
-        postcard::take_from_bytes(bytes).map_err(|e| corrupt(e.to_string()))?;
+        postcard::take_from_bytes(bytes).map_err(corrupt::<ChunkHeader>)?;
     if layout != SCAN_CHUNK_PLANES {
         return decode_slice(bytes, |h: &ChunkHeader| h.point_count);
     }
     let (header, planes): (ChunkHeader, _) =
-        postcard::take_from_bytes(body).map_err(|e| corrupt(e.to_string()))?;
+        postcard::take_from_bytes(body).map_err(corrupt::<ChunkHeader>)?;
     crate::check_version::<ChunkHeader>(header.version)?;
     let n = header.point_count as usize;
     let want = n.saturating_mul(crate::scan_planes::POINT_BYTES);
     if planes.len() < want {
-        return Err(corrupt(format!(
-            "header declares {n} points but {} follow ({} bytes)",
-            planes.len() / crate::scan_planes::POINT_BYTES,
-            planes.len()
-        )));
+        return Err(DecodeError::Corrupt {
+            message: ChunkHeader::TYPE_NAME,
+            reason: format!(
+                "header declares {n} points but {} follow ({} bytes)",
+                planes.len() / crate::scan_planes::POINT_BYTES,
+                planes.len()
+            ),
+        });
     }
     if planes.len() > want {
         return Err(DecodeError::TrailingBytes {

@@ -4,9 +4,9 @@
 //! with returns and the reserved byte. Plane `4w + j` holds byte `j` of word `w` of every point,
 //! in order. Neighbouring points share their floats' sign, exponent and high mantissa bytes, so
 //! those planes are long runs that the chunk compressor takes almost for free, while only the
-//! noisy low bytes cost. On the demo's chunks, zstd level 1 keeps 8.6 bytes of a point's 20 in
-//! this layout against 14.8 of postcard's 19, and in a seventh of the time (`agent/README.md`).
-//! The layout is lossless: every bit comes back.
+//! noisy low bytes cost. On the demo's chunks, this layout at zstd level 1 keeps 8.6 bytes of a
+//! point's 20 in 33 ns (laying out and compressing), where postcard's 19 at level 3 kept 12.8
+//! in 168 ns (the README's "Recordings"). The layout is lossless: every bit comes back.
 
 use crate::{ScanPoint, ScanPointFlags};
 

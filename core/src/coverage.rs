@@ -23,7 +23,7 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::c2m::Surface;
-use crate::probes::{ProbeGrid, Scratch};
+use crate::probes::{ProbeGrid, Region, Scratch};
 use crate::sampling::DesignSamples;
 
 /// The parameters of coverage.
@@ -254,7 +254,15 @@ impl Coverage {
     /// Coverage of `samples`, nothing seen yet.
     pub fn new(samples: &DesignSamples, params: CoverageParams) -> Result<Self, CoverageError> {
         params.validate()?;
-        let grid = ProbeGrid::new(&samples.points, &samples.normals, params.reach);
+        // Fine cells as wide as the threshold: the first box a sample searches on a scan
+        // dense enough to observe it holds a point. At least a tenth of the reach, so that a
+        // cell has at most 11³ fine cells and keeps its table.
+        let fine = params.threshold.max(params.reach / 10.0);
+        let region = Region::Narrowing {
+            reach: params.reach,
+            fine,
+        };
+        let grid = ProbeGrid::around(&samples.points, &samples.normals, region);
         let n = grid.len();
         Ok(Self {
             grid,
@@ -337,17 +345,36 @@ impl Coverage {
 
     /// Takes a chunk of scan points already in the design frame.
     pub fn ingest(&mut self, points: &[Point3<f64>]) {
-        let reach2 = self.params.reach * self.params.reach;
-        let t2 = self.params.threshold * self.params.threshold;
-        self.grid
-            .offer(&mut self.scratch, &mut self.station, points, |v, n, st| {
+        let (reach, t) = (self.params.reach, self.params.threshold);
+        let (reach2, t2) = (reach * reach, t * t);
+        // Far above rounding, far below any scan's spacing.
+        let pad = reach * 1e-9;
+        // The points that can still change a sample: those no farther than its nearest so far
+        // (a tie may be kept for its offset), and, until it is buried, those on its normal line
+        // (along axis k a line within t of the normal reaches reach·|n_k| + t·√(1 − n_k²)).
+        // Nearest and buried are a minimum and an or, so a point offered twice changes nothing.
+        let bound = |n: &Vector3<f64>, st: &Nearest| {
+            let ball = Vector3::repeat(st.d2.sqrt().min(reach) + pad);
+            if st.buried {
+                return ball;
+            }
+            let line = n.map(|c| (reach * c.abs() + t * (1.0 - c * c).max(0.0).sqrt()).min(reach));
+            ball.sup(&line.add_scalar(pad))
+        };
+        self.grid.offer_narrowing(
+            &mut self.scratch,
+            &mut self.station,
+            points,
+            bound,
+            |v, n, st| {
                 let d2 = v.norm_squared();
                 if d2 <= reach2 {
                     let along = v.dot(n);
                     st.offer(d2, along);
                     st.buried |= along > 0.0 && d2 - along * along <= t2;
                 }
-            });
+            },
+        );
     }
 
     /// Closes the station scanned from `origin` (design frame): classifies every sample by this

@@ -14,6 +14,13 @@
 //! M3C2's time. So for cylinders the points are bucketed into fine cells as wide as the
 //! cylinder's radius, and each probe visits only the fine cells its cylinder's bounding box
 //! touches: every point inside the cylinder is in that box, so nothing is missed.
+//!
+//! A probe that keeps only its nearest point (coverage) needs none of the points farther than
+//! the nearest it has: its region narrows as it learns. Such probes search fine cells too, in a
+//! box their state gives, first within one fine cell of the probe and then as far as what that
+//! found still leaves open ([`ProbeGrid::offer_narrowing`]). On a dense scan the first box finds
+//! a point a millimetre away, and the second is the probe's own few cells, where a ball of 27
+//! cells held thousands of points.
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -48,6 +55,15 @@ pub enum Region {
         /// Half its length, along the normal each way.
         half_length: f64,
     },
+    /// A ball of radius `reach` for a probe that keeps only what is nearest: its state narrows
+    /// the box it is offered ([`ProbeGrid::offer_narrowing`]), searched in fine cells `fine`
+    /// wide.
+    Narrowing {
+        /// The ball's radius.
+        reach: f64,
+        /// The fine cells' width.
+        fine: f64,
+    },
 }
 
 impl Region {
@@ -59,6 +75,7 @@ impl Region {
                 radius,
                 half_length,
             } => radius.hypot(half_length),
+            Region::Narrowing { reach, .. } => reach,
         }
     }
 }
@@ -66,6 +83,7 @@ impl Region {
 /// Probes sorted by cell. Every per-probe array a caller keeps must follow [`ProbeGrid::ids`]
 /// order, which is the order of [`ProbeGrid::points`].
 pub struct ProbeGrid {
+    region: Region,
     cell: f64,
     origin: Point3<f64>,
     points: Vec<Point3<f64>>,
@@ -81,6 +99,7 @@ pub struct ProbeGrid {
 struct Fine {
     width: f64,
     per_cell: i64,
+    /// For cylinders, each probe's box; empty for narrowing balls, whose box follows the state.
     half_box: Vec<Vector3<f64>>,
 }
 
@@ -90,6 +109,18 @@ impl Fine {
     fn cell_of(&self, c: [i64; 3]) -> [i64; 3] {
         c.map(|v| v.div_euclid(self.per_cell))
     }
+}
+
+/// A neighbour cell holding points of the chunk: its first fine cell, its run in the sorted
+/// points, and where its table of fine cells starts.
+type Near = ([i64; 3], usize, usize, usize);
+
+/// A chunk sorted for the fine cells, as [`ProbeGrid::bucket_fine`] leaves it.
+struct Bucketed<'a> {
+    columned: &'a [(u64, u32, u32)],
+    sorted: &'a [Point3<f64>],
+    starts: &'a [u32],
+    dense: bool,
 }
 
 /// Per-chunk buffers, sized by the largest chunk and the number of probe cells, and reused:
@@ -143,8 +174,9 @@ impl ProbeGrid {
         let extent = (hi - lo).max();
         // Keep the whole design plus a margin of cells addressable.
         let smallest = (extent / (AXIS_BIAS as f64 - 4.0)).max(f64::MIN_POSITIVE);
-        // A cylinder's fine cells are as wide as its radius, and a whole number of them make a
-        // cell as wide as its reach (a fine cell's coordinates then give its cell's).
+        // A cylinder's fine cells are as wide as its radius, a narrowing ball's as it asks, and
+        // a whole number of them make a cell as wide as the reach (a fine cell's coordinates
+        // then give its cell's).
         let cylinder = match region {
             Region::Cylinder {
                 radius,
@@ -152,8 +184,12 @@ impl ProbeGrid {
             } if radius < reach => Some((radius, half_length)),
             _ => None,
         };
-        let fine = cylinder.map(|(radius, _)| {
-            radius
+        let fine = match region {
+            Region::Narrowing { fine, .. } if fine > 0.0 && fine < reach => Some(fine),
+            _ => cylinder.map(|(radius, _)| radius),
+        }
+        .map(|width| {
+            width
                 .max((extent + 2.0 * reach) / (AXIS_BIAS as f64 - 4.0))
                 .max(f64::MIN_POSITIVE)
         });
@@ -172,6 +208,7 @@ impl ProbeGrid {
         };
         let origin = Point3::from((lo.coords + hi.coords) * 0.5);
         let mut grid = Self {
+            region,
             cell,
             origin,
             points: Vec::new(),
@@ -385,7 +422,17 @@ impl ProbeGrid {
     {
         assert_eq!(state.len(), self.points.len(), "one state per probe");
         if let Some(fine) = &self.fine {
-            return self.offer_fine(fine, scratch, state, chunk, visit);
+            return match self.region {
+                // Offered as a ball: the box of the whole reach.
+                Region::Narrowing { reach, .. } => {
+                    let whole = Vector3::repeat(reach * (1.0 + 1e-9));
+                    self.offer_fine(fine, scratch, state, chunk, |_, _, _| whole, false, visit)
+                }
+                _ => {
+                    let boxes = |i: usize, _: &Vector3<f64>, _: &S| fine.half_box[i];
+                    self.offer_fine(fine, scratch, state, chunk, boxes, false, visit)
+                }
+            };
         }
         self.restart(scratch, chunk.len());
         let Scratch {
@@ -435,20 +482,52 @@ impl ProbeGrid {
         });
     }
 
-    /// [`Self::offer`] for cylinders. A chunk's points are sorted by cell, then by fine cell
+    /// Offers `chunk` to probes that keep only what is nearest ([`Region::Narrowing`]): a probe
+    /// is offered the points in the box `bound(normal, state)` gives (half-widths around the
+    /// probe, at most the reach), first cut to one fine cell's width, then whole as that first
+    /// box's points leave it. A point may be offered to a probe twice: `visit` must keep what it
+    /// keeps by a rule a repeat cannot change (a minimum, an or). Any other grid offers as
+    /// [`Self::offer`] does.
+    pub fn offer_narrowing<S, F, B>(
+        &self,
+        scratch: &mut Scratch,
+        state: &mut [S],
+        chunk: &[Point3<f64>],
+        bound: B,
+        visit: F,
+    ) where
+        S: Send,
+        F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
+        B: Fn(&Vector3<f64>, &S) -> Vector3<f64> + Sync,
+    {
+        match (&self.fine, self.region) {
+            (Some(fine), Region::Narrowing { .. }) => {
+                assert_eq!(state.len(), self.points.len(), "one state per probe");
+                let boxes = |_: usize, n: &Vector3<f64>, s: &S| bound(n, s);
+                self.offer_fine(fine, scratch, state, chunk, boxes, true, visit);
+            }
+            _ => self.offer(scratch, state, chunk, visit),
+        }
+    }
+
+    /// [`Self::offer`] in fine cells. A chunk's points are sorted by cell, then by fine cell
     /// within it (x, then y, then z), then chunk order. A probe takes, in each of its cell's 27
-    /// neighbours, the fine cells its cylinder's bounding box touches, a column along z at a
-    /// time, and visits their points.
-    fn offer_fine<S, F>(
+    /// neighbours, the fine cells its box (`bound(probe, normal, state)`) touches, a column along
+    /// z at a time, and visits their points; `narrowing`, a box cut to a fine cell first.
+    #[allow(clippy::too_many_arguments)]
+    fn offer_fine<S, F, B>(
         &self,
         fine: &Fine,
         scratch: &mut Scratch,
         state: &mut [S],
         chunk: &[Point3<f64>],
+        bound: B,
+        narrowing: bool,
         visit: F,
     ) where
         S: Send,
         F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
+        B: Fn(usize, &Vector3<f64>, &S) -> Vector3<f64> + Sync,
     {
         let dense = self.bucket_fine(fine, scratch, chunk);
         let Scratch {
@@ -461,10 +540,17 @@ impl ProbeGrid {
         } = scratch;
         let jobs = self.jobs(active, state);
         let m = fine.per_cell;
-        let (columned, sorted, runs, starts) = (&*columned, &*sorted, &*runs, &*starts);
+        let bucketed = Bucketed {
+            columned,
+            sorted,
+            starts,
+            dense,
+        };
+        let first_cut = Vector3::repeat(fine.width);
+        let runs = &*runs;
         jobs.into_par_iter().for_each(|(cell, states)| {
             // The neighbours holding points, with their first fine cell.
-            let near: Vec<([i64; 3], usize, usize, usize)> = Self::neighbours(cell.key)
+            let near: Vec<Near> = Self::neighbours(cell.key)
                 .filter_map(|k| {
                     let &(s, e, t) = runs.get(&k)?;
                     let first = Self::unpack(k).map(|v| v * m);
@@ -472,48 +558,74 @@ impl ProbeGrid {
                 })
                 .collect();
             let range = cell.start as usize..cell.end as usize;
-            for (((p, n), e), st) in self.points[range.clone()]
-                .iter()
-                .zip(&self.normals[range.clone()])
-                .zip(&fine.half_box[range])
+            for (((i, p), n), st) in range
+                .clone()
+                .zip(&self.points[range.clone()])
+                .zip(&self.normals[range])
                 .zip(states.iter_mut())
             {
-                let (Some(lo), Some(hi)) = (
-                    self.coords_at(&(p - e), fine.width),
-                    self.coords_at(&(p + e), fine.width),
-                ) else {
-                    continue;
-                };
-                for &(first, s, end, table) in &near {
-                    let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
-                    let hi = [0, 1, 2].map(|k| hi[k].min(first[k] + m - 1));
-                    if (0..3).any(|k| lo[k] > hi[k]) {
-                        continue;
+                let e = bound(i, n, st);
+                if narrowing {
+                    let first = e.inf(&first_cut);
+                    self.visit_box(fine, &bucketed, &near, p, &first, |q| visit(q - p, n, st));
+                    let e = bound(i, n, st);
+                    if e.iter().zip(&first).any(|(a, b)| a > b) {
+                        self.visit_box(fine, &bucketed, &near, p, &e, |q| visit(q - p, n, st));
                     }
-                    let run = &columned[s..end];
-                    let mut from = 0;
-                    for x in lo[0]..=hi[0] {
-                        for y in lo[1]..=hi[1] {
-                            let column = ((x - first[0]) * m + (y - first[1])) * m - first[2];
-                            let (a, b) = ((column + lo[2]) as usize, (column + hi[2]) as usize);
-                            // The fine cells a..=b of this column are one stretch of the run.
-                            let points = if dense {
-                                starts[table + a] as usize..starts[table + b + 1] as usize
-                            } else {
-                                from += run[from..].partition_point(|t| (t.1 as usize) < a);
-                                let to = from + run[from..].partition_point(|t| t.1 as usize <= b);
-                                let points = s + from..s + to;
-                                from = to;
-                                points
-                            };
-                            for q in &sorted[points] {
-                                visit(q - p, n, st);
-                            }
-                        }
-                    }
+                } else {
+                    self.visit_box(fine, &bucketed, &near, p, &e, |q| visit(q - p, n, st));
                 }
             }
         });
+    }
+
+    /// Visits the points of a chunk's fine cells that the box of half-widths `e` around `p`
+    /// touches, in the cells `near`.
+    #[inline]
+    fn visit_box(
+        &self,
+        fine: &Fine,
+        chunk: &Bucketed,
+        near: &[Near],
+        p: &Point3<f64>,
+        e: &Vector3<f64>,
+        mut visit: impl FnMut(&Point3<f64>),
+    ) {
+        let m = fine.per_cell;
+        let (Some(lo), Some(hi)) = (
+            self.coords_at(&(p - e), fine.width),
+            self.coords_at(&(p + e), fine.width),
+        ) else {
+            return;
+        };
+        for &(first, s, end, table) in near {
+            let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
+            let hi = [0, 1, 2].map(|k| hi[k].min(first[k] + m - 1));
+            if (0..3).any(|k| lo[k] > hi[k]) {
+                continue;
+            }
+            let run = &chunk.columned[s..end];
+            let mut from = 0;
+            for x in lo[0]..=hi[0] {
+                for y in lo[1]..=hi[1] {
+                    let column = ((x - first[0]) * m + (y - first[1])) * m - first[2];
+                    let (a, b) = ((column + lo[2]) as usize, (column + hi[2]) as usize);
+                    // The fine cells a..=b of this column are one stretch of the run.
+                    let points = if chunk.dense {
+                        chunk.starts[table + a] as usize..chunk.starts[table + b + 1] as usize
+                    } else {
+                        from += run[from..].partition_point(|t| (t.1 as usize) < a);
+                        let to = from + run[from..].partition_point(|t| t.1 as usize <= b);
+                        let points = s + from..s + to;
+                        from = to;
+                        points
+                    };
+                    for q in &chunk.sorted[points] {
+                        visit(q);
+                    }
+                }
+            }
+        }
     }
 
     /// Sorts a chunk for [`Self::offer_fine`]: its points by cell and fine cell, each occupied
@@ -607,6 +719,103 @@ mod tests {
             assert_eq!(grid.points()[i], p);
             let truth = points.iter().filter(|q| (*q - p).norm() <= reach).count() as u32;
             assert_eq!(state[i], truth, "probe {id}");
+        }
+    }
+
+    /// What a sample keeps of the points it is offered: the nearest (a tie to the larger offset
+    /// along the normal) and whether one lies on its normal line, within `t` of it.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    struct Nearest {
+        d2: f64,
+        along: f64,
+        buried: bool,
+        offers: u32,
+    }
+
+    fn keep(st: &mut Nearest, v: Vector3<f64>, n: &Vector3<f64>, reach: f64, t: f64) {
+        st.offers += 1;
+        let d2 = v.norm_squared();
+        if d2 <= reach * reach {
+            let along = v.dot(n);
+            if d2 < st.d2 || (d2 == st.d2 && along > st.along) {
+                (st.d2, st.along) = (d2, along);
+            }
+            st.buried |= along > 0.0 && d2 - along * along <= t * t;
+        }
+    }
+
+    /// Narrowing probes keep, over chunks large and small, exactly what brute force over every
+    /// point keeps: the same nearest point (ties included: points are repeated, and some stand
+    /// at one distance from a probe), the same buried flag; while offered a small share of the
+    /// points. Fine cells with tables and without.
+    #[test]
+    fn narrowing_probes_keep_what_every_point_gives() {
+        for (reach, fine, chunk) in [(0.1, 0.01, 700), (0.1, 0.01, 20_000), (0.1, 0.002, 20_000)] {
+            let t = 0.004;
+            let mut rng = seeded(11);
+            let probes = random_points(&mut rng, 400, 0.0..1.0);
+            let normals: Vec<Vector3<f64>> = random_points(&mut rng, probes.len(), -1.0..1.0)
+                .into_iter()
+                .map(|p| p.coords.try_normalize(1e-6).unwrap_or(Vector3::x()))
+                .chain([Vector3::x(), Vector3::y(), Vector3::z()])
+                .take(probes.len())
+                .collect();
+            let region = Region::Narrowing { reach, fine };
+            let grid = ProbeGrid::around(&probes, &normals, region);
+            // Sparse points everywhere, a dense patch, repeats, points at one distance from a
+            // probe, and points on a few probes' normal lines.
+            let mut points = random_points(&mut rng, 30_000, -0.2..1.2);
+            points.extend(random_points(&mut rng, 20_000, 0.4..0.5));
+            points.extend(points[..2000].to_vec());
+            for (p, n) in probes.iter().zip(&normals).take(40) {
+                let side = n.cross(&Vector3::new(0.3, -0.7, 0.2)).normalize();
+                points.push(p + n * 0.05 + side * (t * 0.99));
+                points.push(p + side * 0.02);
+                points.push(p - side * 0.02);
+                points.push(p + n * 0.02);
+            }
+            points.extend([Point3::new(f64::NAN, 0.0, 0.0), Point3::new(1e12, 0.0, 0.0)]);
+            let none = Nearest {
+                d2: f64::INFINITY,
+                along: 0.0,
+                buried: false,
+                offers: 0,
+            };
+            let mut state = vec![none; grid.len()];
+            let mut scratch = Scratch::default();
+            let pad = reach * 1e-9;
+            for c in points.chunks(chunk) {
+                let bound = |n: &Vector3<f64>, st: &Nearest| {
+                    let ball = Vector3::repeat(st.d2.sqrt().min(reach) + pad);
+                    if st.buried {
+                        return ball;
+                    }
+                    let line = n.map(|c| reach * c.abs() + t * (1.0 - c * c).max(0.0).sqrt());
+                    ball.sup(&line.add_scalar(pad))
+                };
+                grid.offer_narrowing(&mut scratch, &mut state, c, bound, |v, n, st| {
+                    keep(st, v, n, reach, t)
+                });
+            }
+            let mut offered = 0u64;
+            for (i, &id) in grid.ids().iter().enumerate() {
+                let (p, n) = (probes[id as usize], normals[id as usize]);
+                let mut truth = none;
+                for q in points.iter().filter(|q| q.iter().all(|c| c.is_finite())) {
+                    keep(&mut truth, q - p, &n, reach, t);
+                }
+                let got = state[i];
+                assert_eq!(
+                    (got.d2, got.along, got.buried),
+                    (truth.d2, truth.along, truth.buried),
+                    "probe {id}, fine {fine}, chunk {chunk}"
+                );
+                offered += u64::from(got.offers);
+            }
+            assert!(
+                offered < (points.len() * probes.len()) as u64 / 50,
+                "{offered} offers, fine {fine}, chunk {chunk}"
+            );
         }
     }
 

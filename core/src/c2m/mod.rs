@@ -18,6 +18,8 @@ mod grid;
 mod mesh;
 mod normals;
 mod section;
+#[cfg(test)]
+mod tests;
 pub mod triangle;
 
 use std::borrow::Cow;
@@ -300,8 +302,8 @@ impl C2mIndex {
     ) -> Option<(u32, f64)> {
         match self.cell_of(p, cache) {
             Some(cell) if cell.has_list() => {
-                let best = self.grid.closest(&self.mesh, &cell, &cache.center, p);
-                self.confirm(p, &cache.center, best, limit2, &All)
+                let best = self.grid.closest(&self.mesh, &cell, &cache.center, p, &All);
+                self.confirm(p, &cache.center, best, hint, limit2, &All)
             }
             found => self.closest_far(p, found.is_some(), hint, limit2, &All),
         }
@@ -322,28 +324,37 @@ impl C2mIndex {
         cache.cell
     }
 
-    /// A cell's best candidate is the closest when it lies within the grid's band, or deeper
-    /// in the cell by as much as `p` is ([`Grid::sure_within`]); beyond, it bounds (and starts)
-    /// the BVH's search.
+    /// A cell's best candidate (of those `filter` keeps) is the closest when it lies within the
+    /// grid's band, or deeper in the cell by as much as `p` is ([`Grid::sure_within`]): every
+    /// triangle left out of the list is farther. So when even `limit2` is that near, nothing
+    /// beyond the list can come under it. Otherwise the BVH searches, bounded by the best.
     #[inline]
     fn confirm<F: bvh::Filter>(
         &self,
         p: &Point3<f64>,
         center: &Point3<f64>,
-        (t, d2): (u32, f64),
+        best: Option<(u32, f64)>,
+        hint: Option<u32>,
         limit2: f64,
         filter: &F,
     ) -> Option<(u32, f64)> {
         let band = self.grid.band();
-        if d2 <= band * band {
-            return Some((t, d2));
+        if let Some((_, d2)) = best
+            && d2 <= band * band
+        {
+            return best;
         }
         let sure = self.grid.sure_within(center, p);
-        if d2 <= sure * sure {
-            return Some((t, d2));
+        let sure2 = sure * sure;
+        match best {
+            Some((_, d2)) if d2 <= sure2 => best,
+            // The list's best is beyond `sure` too, so beyond the limit.
+            _ if limit2 <= sure2 => None,
+            Some((t, d2)) => self
+                .bvh
+                .closest(&self.mesh, p, limit2.min(d2), Some(t), filter),
+            None => self.bvh.closest(&self.mesh, p, limit2, hint, filter),
         }
-        self.bvh
-            .closest(&self.mesh, p, limit2.min(d2), Some(t), filter)
     }
 
     /// The BVH's answer for a point the grid's lists do not cover. A point outside every kept
@@ -402,13 +413,22 @@ impl C2mIndex {
         }
         let cap = section.closest(p, cursor, limit2);
         let bound2 = cap.map_or(limit2, |c| c.1);
+        // The design's triangles that cross the cut are the section's, clipped: the whole
+        // design answers for those wholly below it.
+        let below = Below(h);
         let whole = match self.cell_of(p, &mut cursor.cell) {
-            // Every candidate lies below the cut: the design's closest is the cut's.
-            Some(cell) if cell.has_list() && self.grid.top(&cell) < h => {
-                let best = self.grid.closest(&self.mesh, &cell, &cursor.cell.center, p);
-                self.confirm(p, &cursor.cell.center, best, bound2, &Below(h))
+            Some(cell) if cell.has_list() => {
+                let center = &cursor.cell.center;
+                // Every candidate below the cut needs no filter.
+                let best = if self.grid.top(&cell) < h {
+                    self.grid.closest(&self.mesh, &cell, center, p, &All)
+                } else {
+                    self.grid.closest(&self.mesh, &cell, center, p, &below)
+                };
+                // The cap, when it is nearer, bounds the search: ties go to it anyway.
+                self.confirm(p, center, best, cursor.last, bound2, &below)
             }
-            found => self.closest_far(p, found.is_some(), cursor.last, bound2, &Below(h)),
+            found => self.closest_far(p, found.is_some(), cursor.last, bound2, &below),
         };
         // Ties go to the section: its normals know the cut.
         match (whole, cap) {

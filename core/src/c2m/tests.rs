@@ -1,0 +1,111 @@
+//! The grid's paths against the BVH's on the same index: the same bits, not just close.
+
+use std::borrow::Cow;
+
+use nalgebra::{Point3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::mesh::NormalSource;
+use super::{C2mIndex, C2mParams, Cursor, GridUse};
+use crate::design::Design;
+use crate::design::shapes::{cuboid, icosphere, study_wall, twisted_column};
+
+fn indexed(design: &Design, max_distance: f64, grid: GridUse) -> C2mIndex {
+    C2mIndex::build_mesh(
+        design.vertices.clone(),
+        Cow::Borrowed(&design.triangles),
+        NormalSource::Own,
+        C2mParams::within(max_distance),
+        grid,
+    )
+    .unwrap()
+}
+
+/// Points on the surface pushed out or in by up to `reach`, points on the rim of the cut, and
+/// points scattered over the design's box and a little beyond.
+fn points(design: &Design, h: f64, reach: f64, n: usize, seed: u64) -> Vec<Point3<f64>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let (lo, hi) = design.bounds();
+    let mut out = Vec::with_capacity(n);
+    while out.len() < n {
+        let t = design.triangles[rng.random_range(0..design.triangles.len())];
+        let [a, b, c] = t.map(|k| design.vertices[k as usize]);
+        let jitter = Vector3::from_fn(|_, _| rng.random_range(-reach..reach));
+        match rng.random_range(0..4) {
+            0 | 1 => {
+                let (u, v) = (rng.random::<f64>(), rng.random::<f64>());
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                out.push(a + (b - a) * u + (c - a) * v + jitter);
+            }
+            2 if (a.z - h) * (b.z - h) < 0.0 => {
+                let s = (h - a.z) / (b.z - a.z);
+                out.push(a + (b - a) * s + jitter * 0.1);
+            }
+            _ => out.push(Point3::from(Vector3::from_fn(|k, _| {
+                rng.random_range(lo[k] - 2.0 * reach..hi[k] + 2.0 * reach)
+            }))),
+        }
+    }
+    out
+}
+
+#[test]
+fn a_cut_answered_from_the_grid_gives_the_bits_of_the_bvh() {
+    // Tall faces that every cut crosses (the wall, the cube), rings of small ones (the column)
+    // and a sphere: cells whose candidates all lie below the cut, cross it, or lie above it.
+    let cases = [
+        (study_wall(), 0.03, vec![0.02, 0.5, 0.97]),
+        (
+            cuboid(Point3::new(-0.3, 0.0, 0.1), Point3::new(0.7, 2.0, 0.5)),
+            0.2,
+            vec![0.3, 0.49],
+        ),
+        (
+            twisted_column(0.15, 0.1, 1.2, 90.0, 96, 40),
+            0.03,
+            vec![0.3, 0.6, 1.1],
+        ),
+        (
+            icosphere(Point3::new(1.0, 2.0, 3.0), 0.5, 3),
+            0.1,
+            vec![2.7, 3.0, 3.41],
+        ),
+    ];
+    let (mut matched, mut total) = (0, 0);
+    for (k, (design, max_distance, heights)) in cases.iter().enumerate() {
+        let grid = indexed(design, *max_distance, GridUse::Cells);
+        let bvh = indexed(design, *max_distance, GridUse::BvhOnly);
+        assert!(grid.stats().cells > 0, "case {k} has a grid");
+        for (j, &h) in heights.iter().enumerate() {
+            let section = grid.section(h).unwrap();
+            let (mut a, mut b) = (Cursor::default(), Cursor::default());
+            for p in points(design, h, *max_distance, 20_000, (10 * k + j) as u64) {
+                let fast = grid.query_cut(&p, &mut a, &section);
+                let slow = bvh.query_cut(&p, &mut b, &section);
+                assert_eq!(fast, slow, "case {k}, cut at {h}, point {p:?}");
+                matched += usize::from(fast.is_some());
+                total += 1;
+            }
+        }
+    }
+    assert!(
+        matched > total / 3,
+        "only {matched} of {total} points matched"
+    );
+}
+
+#[test]
+fn a_whole_design_answered_from_the_grid_gives_the_bits_of_the_bvh() {
+    let column = twisted_column(0.15, 0.1, 1.2, 90.0, 96, 40);
+    let grid = indexed(&column, 0.03, GridUse::Cells);
+    let bvh = indexed(&column, 0.03, GridUse::BvhOnly);
+    let (mut a, mut b) = (Cursor::default(), Cursor::default());
+    for p in points(&column, 0.6, 0.03, 40_000, 99) {
+        assert_eq!(grid.query(&p, &mut a), bvh.query(&p, &mut b), "point {p:?}");
+    }
+}

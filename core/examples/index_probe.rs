@@ -1,8 +1,9 @@
-//! Builds the C2M index of a design and prints its cost and query rates: `index_probe [MESH m|mm]`
-//! (without a mesh: a generated 1,000,000-triangle twisted column).
+//! Builds the C2M index of a design and prints its cost and query rates:
+//! `index_probe [MESH m|mm | wall] [--cut]` (without a mesh: a generated 1,000,000-triangle
+//! twisted column; `wall`: the study's wall, twelve triangles that every cut crosses).
 use std::time::Instant;
 
-use asbuilt_core::design::shapes::twisted_column;
+use asbuilt_core::design::shapes::{study_wall, twisted_column};
 use asbuilt_core::{C2mIndex, C2mParams, Closest};
 use nalgebra::Point3;
 use rand::{SeedableRng, seq::SliceRandom};
@@ -13,7 +14,9 @@ mod points;
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();
-    let design = if a.len() >= 3 {
+    let design = if a.get(1).is_some_and(|m| m == "wall") {
+        study_wall()
+    } else if a.len() >= 3 && a[2] != "--cut" {
         asbuilt_io::read_design(a[1].as_ref(), a[2].parse().expect("m or mm")).expect("design")
     } else {
         twisted_column(0.15, 0.1, 1.2, 90.0, 2000, 250)

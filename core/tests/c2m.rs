@@ -270,3 +270,41 @@ fn an_index_that_takes_the_design_over_answers_as_one_that_borrows_it() {
     }
     assert_eq!(borrowed.stats().bytes, owned.stats().bytes);
 }
+
+#[test]
+fn faces_on_cell_boundaries_keep_their_cells() {
+    // A box's lowest faces lie exactly on cell boundaries (the grid starts two cells below the
+    // design), half a cell from the centres on either side. Cells of a tenth of the box, given
+    // and picked, so that every point near a face is answered from the face's own cells.
+    let wall = cuboid(
+        Point3::new(-1.0, -0.0867, 0.0),
+        Point3::new(1.0, 0.0867, 0.98),
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let points: Vec<Point3<f64>> = probe_points(&wall, 6000, 0.01, 12)
+        .into_iter()
+        .chain((0..2000).map(|_| {
+            Point3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-0.0867..0.0867),
+                rng.random_range(-0.01..0.01),
+            )
+        }))
+        .collect();
+    // Beyond the band a point outside every kept cell has no match, so a missing cell loses
+    // matches.
+    for cell_size in [
+        Some(0.05),
+        Some(0.07),
+        Some(0.1),
+        Some(0.04918011380375202),
+        None,
+    ] {
+        let params = C2mParams {
+            max_distance: 0.02,
+            cell_size,
+        };
+        let idx = C2mIndex::build(&wall, params).unwrap();
+        assert_queries_equal_brute_force(&idx, points.iter());
+    }
+}

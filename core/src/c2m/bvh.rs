@@ -77,6 +77,15 @@ fn up(v: f64) -> f32 {
     if (f as f64) < v { f.next_up() } else { f }
 }
 
+/// A squared distance grown by a hair (absolute, from the coordinates' size) and a relative
+/// 1e-12: the bound a box must lie within to be searched.
+#[inline(always)]
+fn widen(d2: f64, hair: f64) -> f64 {
+    let d = d2.sqrt();
+    let w = d + 1e-12 * d + hair;
+    w * w
+}
+
 #[inline]
 fn box_dist2(n: &Node, p: &Point3<f64>) -> f64 {
     let mut d2 = 0.0;
@@ -189,7 +198,12 @@ impl Bvh {
             // The descent, a leaf's triangles measured four at a time.
             const L: usize = 4;
             let mut best: Option<(u32, f64)> = None;
-            let mut bound2 = limit2;
+            // A box is searched while it lies within the bound and a hair more: where the
+            // closest point is on the box's face (an edge of an axis-aligned face), the box's
+            // distance and the triangle's are one distance rounded two ways, and the box's may
+            // come out an ulp beyond a tie or a nearer triangle's.
+            let hair = 1e-12 * (1.0 + p.coords.amax());
+            let mut bound2 = widen(limit2, hair);
             let mut lanes = Lanes::<L>::default();
             let mut ids = [0u32; L];
             // Not a closure: one left out of line would run without AVX2.
@@ -204,12 +218,13 @@ impl Bvh {
                 ids: &[u32; 4],
                 best: &mut Option<(u32, f64)>,
                 bound2: &mut f64,
+                hair: f64,
             ) {
                 let d2 = lanes.dist2(p);
                 for (&t, &d2) in ids[..m].iter().zip(&d2) {
                     if d2 <= limit2 && super::better_internal(mesh, t, d2, *best) {
                         *best = Some((t, d2));
-                        *bound2 = d2;
+                        *bound2 = widen(d2, hair);
                     }
                 }
             }
@@ -219,7 +234,7 @@ impl Bvh {
             {
                 ids[0] = h;
                 mesh.load(&mut lanes, &ids[..1]);
-                measure(mesh, p, limit2, 1, &lanes, &ids, &mut best, &mut bound2);
+                measure(mesh, p, limit2, 1, &lanes, &ids, &mut best, &mut bound2, hair);
             }
             // Boxes farther than the bound cannot hold a closer triangle; boxes exactly at the
             // bound may hold a tie with a lower id, so they are still searched.
@@ -234,13 +249,13 @@ impl Bvh {
                         m += 1;
                         if m == L {
                             mesh.load(&mut lanes, &ids);
-                            measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
+                            measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2, hair);
                             m = 0;
                         }
                     }
                     if m > 0 {
                         mesh.load(&mut lanes, &ids[..m]);
-                        measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2);
+                        measure(mesh, p, limit2, m, &lanes, &ids, &mut best, &mut bound2, hair);
                     }
                     continue;
                 }

@@ -171,7 +171,9 @@ impl Grid {
         }
     }
 
-    /// No cells: every key finds no cell and the band is empty, so every query goes to the BVH.
+    /// No cells: every key finds no cell and the band is empty, so every query goes to the BVH
+    /// (the reference the grid is checked against).
+    #[cfg(test)]
     pub fn empty() -> Self {
         Self {
             origin: Point3::origin(),
@@ -377,7 +379,10 @@ fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64, limit: f64) -> Vec<u
             for t in chunk {
                 let tri = mesh.triangle(t);
                 let n = tri.ab.cross(&tri.ac);
-                let reach = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs());
+                // A face on a cell boundary (the design's lowest face always is) lies half a
+                // cell from the centres on either side: a hair of slack keeps rounding from
+                // dropping both, and the whole face's cells with them.
+                let reach = 0.5 * h * (n.x.abs() + n.y.abs() + n.z.abs()) * (1.0 + 1e-9);
                 pieces(mesh, t, origin, h, limit, &mut stack, |_, i0, i1| {
                     for i in i0[0]..=i1[0] {
                         for j in i0[1]..=i1[1] {

@@ -147,6 +147,8 @@ pub struct C2mIndex {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum GridUse {
     Cells,
+    /// The reference the grid's answers are checked against.
+    #[cfg(test)]
     BvhOnly,
 }
 
@@ -161,6 +163,8 @@ const CELL_PER_TRIANGLE: f64 = 1.5;
 /// At most this many cells on the surface per triangle, whatever the triangles look like
 /// (slivers, duplicates, long thin faces): the cell size grows until it holds.
 const SURFACE_CELLS_PER_TRIANGLE: f64 = 0.5;
+/// At least about this many cells on the surface, however few and large the triangles.
+const MIN_SURFACE_CELLS: f64 = 2048.0;
 /// At most this many candidates in the cells' lists per triangle (5 bytes each): the longest
 /// lists are left to the BVH beyond it.
 const CANDIDATES_PER_TRIANGLE: f64 = 14.0;
@@ -224,6 +228,7 @@ impl C2mIndex {
                 let candidates = (CANDIDATES_PER_TRIANGLE * mesh.len() as f64) as usize + 65_536;
                 Grid::build(&mesh, &bvh, h, lo, hi, budget, candidates)
             }
+            #[cfg(test)]
             GridUse::BvhOnly => Grid::empty(),
         };
         Ok(Self {
@@ -598,6 +603,10 @@ fn cell_size(mesh: &Mesh, given: Option<f64>, extent: f64) -> f64 {
         })
         .sum();
     let h = CELL_PER_TRIANGLE * (area / mesh.len() as f64).sqrt();
+    // A design of a few large faces (a wall of twelve triangles) would get cells as large as
+    // its faces, each listing every face: cells small enough to tile its surface a few
+    // thousand times tell a face from its neighbours at the cost of a few hundred kilobytes.
+    let h = h.min((area / MIN_SURFACE_CELLS).sqrt());
     let h = h.max(min_address);
     if h > 0.0 && h.is_finite() {
         h

@@ -58,6 +58,7 @@ fn points(design: &Design, h: f64, reach: f64, n: usize, seed: u64) -> Vec<Point
 fn a_cut_answered_from_the_grid_gives_the_bits_of_the_bvh() {
     // Tall faces that every cut crosses (the wall, the cube), rings of small ones (the column)
     // and a sphere: cells whose candidates all lie below the cut, cross it, or lie above it.
+    // The reference indexes neither the design nor the section in a grid.
     let cases = [
         (study_wall(), 0.03, vec![0.02, 0.5, 0.97]),
         (
@@ -83,10 +84,11 @@ fn a_cut_answered_from_the_grid_gives_the_bits_of_the_bvh() {
         assert!(grid.stats().cells > 0, "case {k} has a grid");
         for (j, &h) in heights.iter().enumerate() {
             let section = grid.section(h).unwrap();
+            let reference = bvh.section_indexed(h, GridUse::BvhOnly).unwrap();
             let (mut a, mut b) = (Cursor::default(), Cursor::default());
             for p in points(design, h, *max_distance, 20_000, (10 * k + j) as u64) {
                 let fast = grid.query_cut(&p, &mut a, &section);
-                let slow = bvh.query_cut(&p, &mut b, &section);
+                let slow = bvh.query_cut(&p, &mut b, &reference);
                 assert_eq!(fast, slow, "case {k}, cut at {h}, point {p:?}");
                 matched += usize::from(fast.is_some());
                 total += 1;
@@ -107,5 +109,32 @@ fn a_whole_design_answered_from_the_grid_gives_the_bits_of_the_bvh() {
     let (mut a, mut b) = (Cursor::default(), Cursor::default());
     for p in points(&column, 0.6, 0.03, 40_000, 99) {
         assert_eq!(grid.query(&p, &mut a), bvh.query(&p, &mut b), "point {p:?}");
+    }
+}
+
+#[test]
+fn no_hint_changes_what_the_bvh_finds() {
+    // Points by the rims of cut walls: the closest point is on an edge that bounds a box, where
+    // a box's distance and a triangle's are one distance rounded two ways. Every triangle as the
+    // hint, and none, give one answer.
+    for (design, h) in [
+        (study_wall(), 0.5),
+        (
+            cuboid(Point3::new(-0.3, 0.0, 0.1), Point3::new(0.7, 2.0, 0.5)),
+            0.3,
+        ),
+    ] {
+        let index = indexed(&design, 0.03, GridUse::BvhOnly);
+        let section = index.section_indexed(h, GridUse::BvhOnly).unwrap();
+        let pieces = section.index.as_ref().unwrap();
+        for p in points(&design, h, 0.03, 20_000, 1) {
+            for (mesh, bvh) in [(&index.mesh, &index.bvh), (&pieces.mesh, &pieces.bvh)] {
+                let free = bvh.closest(mesh, &p, 0.03 * 0.03, None, &super::All);
+                for t in 0..mesh.len() as u32 {
+                    let hinted = bvh.closest(mesh, &p, 0.03 * 0.03, Some(t), &super::All);
+                    assert_eq!(hinted, free, "{p:?} with hint {t}");
+                }
+            }
+        }
     }
 }

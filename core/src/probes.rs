@@ -133,6 +133,8 @@ pub struct Scratch {
     /// For cylinders: per occupied cell, where each of its fine cells starts in `sorted`
     /// (and one past the last), when a cell has few enough fine cells ([`DENSE_FINE_CELLS`]).
     starts: Vec<u32>,
+    /// For cylinders: where the next point of each fine cell goes, while they are laid out.
+    fill: Vec<u32>,
     sorted: Vec<Point3<f64>>,
     runs: FxHashMap<u64, (u32, u32, u32)>,
     active: Vec<u32>,
@@ -146,7 +148,7 @@ impl Scratch {
     pub fn bytes(&self) -> usize {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.columned.capacity() * size_of::<(u64, u32, u32)>()
-            + self.starts.capacity() * size_of::<u32>()
+            + (self.starts.capacity() + self.fill.capacity()) * size_of::<u32>()
             + self.sorted.capacity() * size_of::<Point3<f64>>()
             + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32, u32)>())
             + (self.active.capacity() + self.mark.capacity()) * size_of::<u32>()
@@ -354,6 +356,7 @@ impl ProbeGrid {
             sorted,
             runs,
             starts,
+            fill,
             active,
             mark,
             generation,
@@ -372,6 +375,7 @@ impl ProbeGrid {
         sorted.clear();
         runs.clear();
         starts.clear();
+        fill.clear();
         active.clear();
         sorted.reserve(points);
         active.reserve(self.cells.len());
@@ -643,33 +647,35 @@ impl ProbeGrid {
             let local = ((f[0] - c[0] * m) * m + (f[1] - c[1] * m)) * m + (f[2] - c[2] * m);
             Some((Self::pack(c), local as u32, i as u32))
         }));
-        columned.sort_unstable();
-        let columned = &scratch.columned;
-        scratch
-            .sorted
-            .extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
-        let fine_cells = (m * m * m) as usize;
-        let occupied = columned.chunk_by(|a, b| a.0 == b.0).count();
-        let dense = fine_cells <= DENSE_FINE_CELLS
-            && occupied * (fine_cells + 1) <= DENSE_ENTRIES_PER_POINT * chunk.len() + (1 << 16);
-        scratch.runs.reserve(occupied);
-        let mut start = 0u32;
-        for run in columned.chunk_by(|a, b| a.0 == b.0) {
-            let key = run[0].0;
-            let table = scratch.starts.len() as u32;
-            scratch
-                .runs
-                .insert(key, (start, start + run.len() as u32, table));
-            if dense {
-                let mut j = 0;
-                for local in 0..=fine_cells as u32 {
-                    while j < run.len() && run[j].1 < local {
-                        j += 1;
+        // The occupied cells and their points, counted in `runs` (a scan's chunk keeps to a few
+        // cells at a time, so the last one found is tried first).
+        let runs = &mut scratch.runs;
+        let mut last: Option<(u64, u32)> = None;
+        for &(key, _, _) in columned.iter() {
+            match &mut last {
+                Some((k, n)) if *k == key => *n += 1,
+                _ => {
+                    if let Some((k, n)) = last {
+                        runs.entry(k).or_default().1 += n;
                     }
-                    scratch.starts.push(start + j as u32);
+                    last = Some((key, 1));
                 }
             }
-            start += run.len() as u32;
+        }
+        if let Some((k, n)) = last {
+            runs.entry(k).or_default().1 += n;
+        }
+        let mut keys: Vec<u64> = runs.keys().copied().collect();
+        keys.sort_unstable();
+        let fine_cells = (m * m * m) as usize;
+        let dense = fine_cells <= DENSE_FINE_CELLS
+            && keys.len() * (fine_cells + 1) <= DENSE_ENTRIES_PER_POINT * chunk.len() + (1 << 16);
+        if dense {
+            self.count_fine(scratch, &keys, fine_cells, chunk);
+        } else {
+            self.sort_fine(scratch, chunk);
+        }
+        for key in keys {
             self.activate(
                 key,
                 &mut scratch.mark,
@@ -679,6 +685,78 @@ impl ProbeGrid {
         }
         scratch.active.sort_unstable();
         dense
+    }
+
+    /// Lays a chunk's points out by cell (in key order), fine cell, then chunk order, with each
+    /// cell's table of where its fine cells start: a counting sort, as `runs` counted the cells.
+    fn count_fine(
+        &self,
+        scratch: &mut Scratch,
+        keys: &[u64],
+        fine_cells: usize,
+        chunk: &[Point3<f64>],
+    ) {
+        let Scratch {
+            columned,
+            starts,
+            fill,
+            sorted,
+            runs,
+            ..
+        } = scratch;
+        let mut start = 0u32;
+        for (c, key) in keys.iter().enumerate() {
+            let run = runs.get_mut(key).expect("counted");
+            let n = run.1;
+            *run = (start, start + n, (c * (fine_cells + 1)) as u32);
+            start += n;
+        }
+        starts.resize(keys.len() * (fine_cells + 1), 0);
+        let table_of = |key: u64, cached: &mut (u64, usize)| {
+            if cached.0 != key || cached.1 == usize::MAX {
+                *cached = (key, runs[&key].2 as usize);
+            }
+            cached.1
+        };
+        let mut cached = (0, usize::MAX);
+        for &(key, local, _) in columned.iter() {
+            starts[table_of(key, &mut cached) + local as usize + 1] += 1;
+        }
+        for key in keys {
+            let (first, _, table) = runs[key];
+            let table = &mut starts[table as usize..table as usize + fine_cells + 1];
+            table[0] = first;
+            for j in 1..table.len() {
+                table[j] += table[j - 1];
+            }
+        }
+        fill.clear();
+        fill.extend_from_slice(starts);
+        sorted.resize(columned.len(), Point3::origin());
+        let mut cached = (0, usize::MAX);
+        for &(key, local, i) in columned.iter() {
+            let slot = &mut fill[table_of(key, &mut cached) + local as usize];
+            sorted[*slot as usize] = chunk[i as usize];
+            *slot += 1;
+        }
+    }
+
+    /// Lays a chunk's points out by cell, fine cell, then chunk order, by sorting them: for
+    /// cells with too many fine cells for tables, whose runs are then searched.
+    fn sort_fine(&self, scratch: &mut Scratch, chunk: &[Point3<f64>]) {
+        let Scratch {
+            columned,
+            sorted,
+            runs,
+            ..
+        } = scratch;
+        columned.sort_unstable();
+        sorted.extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
+        let mut start = 0u32;
+        for run in columned.chunk_by(|a, b| a.0 == b.0) {
+            runs.insert(run[0].0, (start, start + run.len() as u32, 0));
+            start += run.len() as u32;
+        }
     }
 }
 
@@ -719,6 +797,47 @@ mod tests {
             assert_eq!(grid.points()[i], p);
             let truth = points.iter().filter(|q| (*q - p).norm() <= reach).count() as u32;
             assert_eq!(state[i], truth, "probe {id}");
+        }
+    }
+
+    /// The counting sort lays a chunk out as sorting it does: cells in key order, fine cells,
+    /// then chunk order (the order M3C2's sums are taken in), with the same runs.
+    #[test]
+    fn counting_lays_points_out_as_sorting_does() {
+        let mut rng = seeded(8);
+        let probes = random_points(&mut rng, 300, 0.0..1.0);
+        let normals = vec![Vector3::z(); probes.len()];
+        let region = Region::Cylinder {
+            radius: 0.02,
+            half_length: 0.1,
+        };
+        let grid = ProbeGrid::around(&probes, &normals, region);
+        let fine = grid.fine.as_ref().unwrap();
+        let mut points = random_points(&mut rng, 20_000, -0.1..1.1);
+        // Repeats, so that fine cells hold points whose order only the chunk gives.
+        points.extend(points[..5000].to_vec());
+        points.push(Point3::new(f64::NAN, 0.0, 0.0));
+        let mut counted = Scratch::default();
+        assert!(
+            grid.bucket_fine(fine, &mut counted, &points),
+            "dense tables"
+        );
+        let mut sorted = Scratch::default();
+        grid.restart(&mut sorted, points.len());
+        sorted.columned = counted.columned.clone();
+        grid.sort_fine(&mut sorted, &points);
+        assert_eq!(counted.sorted, sorted.sorted);
+        for (key, (s, e, _)) in &sorted.runs {
+            let (cs, ce, table) = counted.runs[key];
+            assert_eq!((cs, ce), (*s, *e));
+            let m = fine.per_cell as usize;
+            let table = &counted.starts[table as usize..][..m * m * m + 1];
+            assert_eq!((table[0], table[m * m * m]), (cs, ce));
+            for local in 0..m * m * m {
+                let run = &sorted.columned[*s as usize..*e as usize];
+                let first = run.partition_point(|t| (t.1 as usize) < local);
+                assert_eq!(table[local], s + first as u32, "fine cell {local}");
+            }
         }
     }
 

@@ -800,6 +800,18 @@ mod tests {
         }
     }
 
+    /// 400 probes in the unit cube, along random unit normals (a degenerate one along x).
+    fn probes_facing_anywhere(rng: &mut impl rand::Rng) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+        let probes = random_points(rng, 400, 0.0..1.0);
+        let normals = random_points(rng, probes.len(), -1.0..1.0)
+            .into_iter()
+            .map(|p| p.coords.try_normalize(1e-6).unwrap_or(Vector3::x()))
+            .chain([Vector3::x(), Vector3::y(), Vector3::z()])
+            .take(probes.len())
+            .collect();
+        (probes, normals)
+    }
+
     /// The counting sort lays a chunk out as sorting it does: cells in key order, fine cells,
     /// then chunk order (the order M3C2's sums are taken in), with the same runs.
     #[test]
@@ -833,10 +845,10 @@ mod tests {
             let m = fine.per_cell as usize;
             let table = &counted.starts[table as usize..][..m * m * m + 1];
             assert_eq!((table[0], table[m * m * m]), (cs, ce));
-            for local in 0..m * m * m {
-                let run = &sorted.columned[*s as usize..*e as usize];
+            let run = &sorted.columned[*s as usize..*e as usize];
+            for (local, &start) in table[..m * m * m].iter().enumerate() {
                 let first = run.partition_point(|t| (t.1 as usize) < local);
-                assert_eq!(table[local], s + first as u32, "fine cell {local}");
+                assert_eq!(start, s + first as u32, "fine cell {local}");
             }
         }
     }
@@ -872,13 +884,7 @@ mod tests {
         for (reach, fine, chunk) in [(0.1, 0.01, 700), (0.1, 0.01, 20_000), (0.1, 0.002, 20_000)] {
             let t = 0.004;
             let mut rng = seeded(11);
-            let probes = random_points(&mut rng, 400, 0.0..1.0);
-            let normals: Vec<Vector3<f64>> = random_points(&mut rng, probes.len(), -1.0..1.0)
-                .into_iter()
-                .map(|p| p.coords.try_normalize(1e-6).unwrap_or(Vector3::x()))
-                .chain([Vector3::x(), Vector3::y(), Vector3::z()])
-                .take(probes.len())
-                .collect();
+            let (probes, normals) = probes_facing_anywhere(&mut rng);
             let region = Region::Narrowing { reach, fine };
             let grid = ProbeGrid::around(&probes, &normals, region);
             // Sparse points everywhere, a dense patch, repeats, points at one distance from a
@@ -955,13 +961,7 @@ mod tests {
 
     fn cylinders_offer_what_brute_force_finds(radius: f64, half_length: f64, chunk: usize) {
         let mut rng = seeded(5);
-        let probes = random_points(&mut rng, 400, 0.0..1.0);
-        let normals: Vec<Vector3<f64>> = random_points(&mut rng, probes.len(), -1.0..1.0)
-            .into_iter()
-            .map(|p| p.coords.try_normalize(1e-6).unwrap_or(Vector3::x()))
-            .chain([Vector3::x(), Vector3::y(), Vector3::z()])
-            .take(probes.len())
-            .collect();
+        let (probes, normals) = probes_facing_anywhere(&mut rng);
         let inside = |v: Vector3<f64>, n: &Vector3<f64>| {
             let a = v.dot(n);
             a.abs() <= half_length && v.norm_squared() - a * a <= radius * radius

@@ -13,6 +13,7 @@ pub use c2m::{C2mIndex, C2mParams, Closest, Cursor, Surface};
 pub use design::{Design, DesignError, MeshReport, Units};
 pub mod c2c;
 pub mod calibration;
+pub mod cells;
 pub mod cloud;
 pub mod colour;
 pub mod corrections;

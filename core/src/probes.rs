@@ -26,6 +26,8 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
+use crate::cells::floor_i64;
+
 /// Cells per axis are addressed with 21 bits, centred on the probes' bounds.
 const AXIS_BITS: u32 = 21;
 const AXIS_BIAS: i64 = 1 << (AXIS_BITS - 1);
@@ -305,12 +307,13 @@ impl ProbeGrid {
     fn coords_at(&self, p: &Point3<f64>, width: f64) -> Option<[i64; 3]> {
         let mut c = [0i64; 3];
         for k in 0..3 {
-            let v = ((p[k] - self.origin[k]) / width).floor();
-            // NaN fails both comparisons and is refused with the far points.
-            if !(v > -(AXIS_BIAS as f64) + 2.0 && v < AXIS_BIAS as f64 - 2.0) {
+            let v = (p[k] - self.origin[k]) / width;
+            // floor(v) > -BIAS + 2 and floor(v) < BIAS - 2, asked of v itself. NaN fails both
+            // comparisons and is refused with the far points.
+            if !(v >= -(AXIS_BIAS as f64) + 3.0 && v < AXIS_BIAS as f64 - 2.0) {
                 return None;
             }
-            c[k] = v as i64;
+            c[k] = floor_i64(v);
         }
         Some(c)
     }

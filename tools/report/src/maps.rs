@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use asbuilt_core::Design;
+use asbuilt_core::cells::floor_i64;
 use asbuilt_core::colour::deviation_colour;
 use asbuilt_core::coverage::SampleClass;
 use asbuilt_core::scan_layer::SampleState;
@@ -338,8 +339,8 @@ impl Raster {
     /// The column and row of screen coordinates (u, v), row 0 at the top of the picture;
     /// outside the raster for points beyond it (saturating, never wrapping).
     fn cell_of(&self, u: f64, v: f64, pixel: f64) -> (i64, i64) {
-        let i = floor((u - self.u0) / pixel);
-        let j = (self.h as i64 - 1).saturating_sub(floor((v - self.v0) / pixel));
+        let i = floor_i64((u - self.u0) / pixel);
+        let j = (self.h as i64 - 1).saturating_sub(floor_i64((v - self.v0) / pixel));
         (i, j)
     }
 }
@@ -361,18 +362,6 @@ struct TileBatch {
 /// Points batched before their marks are drawn: 12 bytes each, twice (as they came and
 /// sorted), so at most 12 MB whatever the scan.
 const BATCH_POINTS: usize = 1 << 19;
-
-/// `x.floor() as i64`, without the call into the maths library that `floor` is on a
-/// processor without SSE 4.1 (the build's baseline): a cast truncates towards zero and
-/// saturates, so only a negative fraction needs one step down.
-fn floor(x: f64) -> i64 {
-    let t = x as i64;
-    if (t as f64) > x {
-        t.saturating_sub(1)
-    } else {
-        t
-    }
-}
 
 /// The five sides' rasters of one kind of map.
 #[derive(Debug, Clone)]
@@ -1016,32 +1005,6 @@ mod tests {
             distance: d,
             triangle,
             ..Default::default()
-        }
-    }
-
-    /// The cast and step of `floor` give the maths library's floor: whole numbers, fractions
-    /// either side of zero, the edges of the i64 range and beyond, NaN.
-    #[test]
-    fn floor_is_the_libm_floor() {
-        let mut xs = vec![
-            0.0,
-            -0.0,
-            0.5,
-            -0.5,
-            -1.0,
-            -1.0 - f64::EPSILON,
-            1e300,
-            -1e300,
-            9.3e18,
-            -9.3e18,
-            i64::MIN as f64,
-            f64::NAN,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        ];
-        xs.extend((-2000..2000).map(|i| f64::from(i) * 0.37));
-        for x in xs {
-            assert_eq!(floor(x), x.floor() as i64, "{x}");
         }
     }
 

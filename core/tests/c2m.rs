@@ -6,7 +6,7 @@
 mod c2m_checks;
 
 use asbuilt_core::c2m::triangle::Region;
-use asbuilt_core::design::shapes::{cuboid, icosphere, sheet};
+use asbuilt_core::design::shapes::{cuboid, icosphere, sheet, study_wall};
 use asbuilt_core::{C2mIndex, C2mParams, Cursor, Design};
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -273,13 +273,11 @@ fn an_index_that_takes_the_design_over_answers_as_one_that_borrows_it() {
 
 #[test]
 fn faces_on_cell_boundaries_keep_their_cells() {
-    // A box's lowest faces lie exactly on cell boundaries (the grid starts two cells below the
-    // design), half a cell from the centres on either side. Cells of a tenth of the box, given
-    // and picked, so that every point near a face is answered from the face's own cells.
-    let wall = cuboid(
-        Point3::new(-1.0, -0.0867, 0.0),
-        Point3::new(1.0, 0.0867, 0.98),
-    );
+    // The study wall's lowest faces lie exactly on cell boundaries (the grid starts two cells
+    // below the design), half a cell from the centres on either side. Cells of a tenth of the
+    // wall's height, given and picked, so that every point near a face is answered from the
+    // face's own cells.
+    let wall = study_wall();
     let mut rng = ChaCha8Rng::seed_from_u64(12);
     let points: Vec<Point3<f64>> = probe_points(&wall, 6000, 0.01, 12)
         .into_iter()

@@ -27,6 +27,7 @@ pub mod printed;
 pub mod probes;
 pub mod sampling;
 pub mod scan_layer;
+mod simd;
 #[cfg(test)]
 mod test_points;
 pub mod verdict;

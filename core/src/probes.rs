@@ -28,6 +28,10 @@ use rustc_hash::FxHashMap;
 
 use crate::cells::floor_i64;
 
+mod coords;
+pub(crate) use coords::Coords;
+pub use coords::Run;
+
 /// Cells per axis are addressed with 21 bits, centred on the probes' bounds.
 const AXIS_BITS: u32 = 21;
 const AXIS_BIAS: i64 = 1 << (AXIS_BITS - 1);
@@ -120,7 +124,7 @@ type Near = ([i64; 3], usize, usize, usize);
 /// A chunk sorted for the fine cells, as [`ProbeGrid::bucket_fine`] leaves it.
 struct Bucketed<'a> {
     columned: &'a [(u64, u32, u32)],
-    sorted: &'a [Point3<f64>],
+    sorted: &'a Coords,
     starts: &'a [u32],
     dense: bool,
 }
@@ -137,7 +141,7 @@ pub struct Scratch {
     starts: Vec<u32>,
     /// For cylinders: where the next point of each fine cell goes, while they are laid out.
     fill: Vec<u32>,
-    sorted: Vec<Point3<f64>>,
+    sorted: Coords,
     runs: FxHashMap<u64, (u32, u32, u32)>,
     active: Vec<u32>,
     /// Per probe cell, the chunk that last activated it.
@@ -151,7 +155,7 @@ impl Scratch {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.columned.capacity() * size_of::<(u64, u32, u32)>()
             + (self.starts.capacity() + self.fill.capacity()) * size_of::<u32>()
-            + self.sorted.capacity() * size_of::<Point3<f64>>()
+            + self.sorted.bytes()
             + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32, u32)>())
             + (self.active.capacity() + self.mark.capacity()) * size_of::<u32>()
     }
@@ -427,6 +431,26 @@ impl ProbeGrid {
         S: Send,
         F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
     {
+        self.offer_slices(scratch, state, chunk, |p, n, points, st| {
+            for q in points.iter() {
+                visit(q - p, n, st);
+            }
+        });
+    }
+
+    /// [`Self::offer`] a run of points at a time: `visit(probe, normal, points, state)`, the
+    /// points in the order [`Self::offer`] gives them. A visitor that tests many points can then
+    /// test them without a branch per point.
+    pub fn offer_slices<S, F>(
+        &self,
+        scratch: &mut Scratch,
+        state: &mut [S],
+        chunk: &[Point3<f64>],
+        visit: F,
+    ) where
+        S: Send,
+        F: Fn(&Point3<f64>, &Vector3<f64>, Run<'_>, &mut S) + Sync,
+    {
         assert_eq!(state.len(), self.points.len(), "one state per probe");
         if let Some(fine) = &self.fine {
             return match self.region {
@@ -460,7 +484,7 @@ impl ProbeGrid {
                 .filter_map(|(i, p)| self.key(p).map(|k| (k, i as u32))),
         );
         keyed.sort_unstable();
-        sorted.extend(keyed.iter().map(|&(_, i)| chunk[i as usize]));
+        sorted.extend(keyed.iter().map(|&(_, i)| &chunk[i as usize]));
         for (key, start, end) in runs_of(keyed) {
             runs.insert(key, (start, end, 0));
             self.activate(key, mark, *generation, active);
@@ -474,16 +498,14 @@ impl ProbeGrid {
                 let Some(&(s, e, _)) = runs.get(&nk) else {
                     continue;
                 };
-                let pts = &sorted[s as usize..e as usize];
+                let pts = sorted.run(s as usize..e as usize);
                 let range = cell.start as usize..cell.end as usize;
                 for ((p, n), st) in self.points[range.clone()]
                     .iter()
                     .zip(&self.normals[range])
                     .zip(states.iter_mut())
                 {
-                    for q in pts {
-                        visit(q - p, n, st);
-                    }
+                    visit(p, n, pts, st);
                 }
             }
         });
@@ -511,7 +533,12 @@ impl ProbeGrid {
             (Some(fine), Region::Narrowing { .. }) => {
                 assert_eq!(state.len(), self.points.len(), "one state per probe");
                 let boxes = |_: usize, n: &Vector3<f64>, s: &S| bound(n, s);
-                self.offer_fine(fine, scratch, state, chunk, boxes, true, visit);
+                let each = |p: &Point3<f64>, n: &Vector3<f64>, qs: Run<'_>, st: &mut S| {
+                    for q in qs.iter() {
+                        visit(q - p, n, st);
+                    }
+                };
+                self.offer_fine(fine, scratch, state, chunk, boxes, true, each);
             }
             _ => self.offer(scratch, state, chunk, visit),
         }
@@ -533,7 +560,7 @@ impl ProbeGrid {
         visit: F,
     ) where
         S: Send,
-        F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
+        F: Fn(&Point3<f64>, &Vector3<f64>, Run<'_>, &mut S) + Sync,
         B: Fn(usize, &Vector3<f64>, &S) -> Vector3<f64> + Sync,
     {
         let dense = self.bucket_fine(fine, scratch, chunk);
@@ -574,20 +601,20 @@ impl ProbeGrid {
                 let e = bound(i, n, st);
                 if narrowing {
                     let first = e.inf(&first_cut);
-                    self.visit_box(fine, &bucketed, &near, p, &first, |q| visit(q - p, n, st));
+                    self.visit_box(fine, &bucketed, &near, p, &first, |qs| visit(p, n, qs, st));
                     let e = bound(i, n, st);
                     if e.iter().zip(&first).any(|(a, b)| a > b) {
-                        self.visit_box(fine, &bucketed, &near, p, &e, |q| visit(q - p, n, st));
+                        self.visit_box(fine, &bucketed, &near, p, &e, |qs| visit(p, n, qs, st));
                     }
                 } else {
-                    self.visit_box(fine, &bucketed, &near, p, &e, |q| visit(q - p, n, st));
+                    self.visit_box(fine, &bucketed, &near, p, &e, |qs| visit(p, n, qs, st));
                 }
             }
         });
     }
 
     /// Visits the points of a chunk's fine cells that the box of half-widths `e` around `p`
-    /// touches, in the cells `near`.
+    /// touches, in the cells `near`, a column's stretch of fine cells at a time.
     #[inline]
     fn visit_box(
         &self,
@@ -596,7 +623,7 @@ impl ProbeGrid {
         near: &[Near],
         p: &Point3<f64>,
         e: &Vector3<f64>,
-        mut visit: impl FnMut(&Point3<f64>),
+        mut visit: impl FnMut(Run<'_>),
     ) {
         let m = fine.per_cell;
         let (Some(lo), Some(hi)) = (
@@ -627,8 +654,8 @@ impl ProbeGrid {
                         from = to;
                         points
                     };
-                    for q in &chunk.sorted[points] {
-                        visit(q);
+                    if !points.is_empty() {
+                        visit(chunk.sorted.run(points));
                     }
                 }
             }
@@ -735,11 +762,11 @@ impl ProbeGrid {
         }
         fill.clear();
         fill.extend_from_slice(starts);
-        sorted.resize(columned.len(), Point3::origin());
+        sorted.resize(columned.len());
         let mut cached = (0, usize::MAX);
         for &(key, local, i) in columned.iter() {
             let slot = &mut fill[table_of(key, &mut cached) + local as usize];
-            sorted[*slot as usize] = chunk[i as usize];
+            sorted.set(*slot as usize, &chunk[i as usize]);
             *slot += 1;
         }
     }
@@ -754,7 +781,7 @@ impl ProbeGrid {
             ..
         } = scratch;
         columned.sort_unstable();
-        sorted.extend(columned.iter().map(|&(_, _, i)| chunk[i as usize]));
+        sorted.extend(columned.iter().map(|&(_, _, i)| &chunk[i as usize]));
         let mut start = 0u32;
         for run in columned.chunk_by(|a, b| a.0 == b.0) {
             runs.insert(run[0].0, (start, start + run.len() as u32, 0));

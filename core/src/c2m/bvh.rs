@@ -9,7 +9,8 @@
 use nalgebra::{Point3, Vector3};
 
 use super::mesh::Mesh;
-use super::triangle::{Lanes, avx2};
+use super::triangle::Lanes;
+use crate::simd::avx2;
 
 const LEAF_SIZE: usize = 8;
 /// Below this many triangles a subtree is built on one thread.

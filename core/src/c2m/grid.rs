@@ -21,7 +21,8 @@ use rustc_hash::FxHashMap;
 
 use super::bvh::{Bvh, Filter};
 use super::mesh::Mesh;
-use super::triangle::{Lanes, avx2};
+use super::triangle::Lanes;
+use crate::simd::avx2;
 
 /// Cells per axis are addressed with 21 bits each, packed into one u64 key.
 const AXIS_BITS: u32 = 21;

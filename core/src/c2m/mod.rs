@@ -274,7 +274,7 @@ impl C2mIndex {
     /// distance (or not finite).
     #[inline(never)]
     pub fn query(&self, p: &Point3<f64>, cursor: &mut Cursor) -> Option<Closest> {
-        triangle::avx2!([
+        crate::simd::avx2!([
             index: &C2mIndex = self,
             p: &Point3<f64> = p,
             cursor: &mut Cursor = cursor,
@@ -392,7 +392,7 @@ impl C2mIndex {
         cursor: &mut Cursor,
         section: &Section,
     ) -> Option<Closest> {
-        triangle::avx2!([
+        crate::simd::avx2!([
             index: &C2mIndex = self,
             p: &Point3<f64> = p,
             cursor: &mut Cursor = cursor,
@@ -539,7 +539,7 @@ impl C2mIndex {
             .par_chunks(TASK)
             .zip(out.par_chunks_mut(TASK))
             .for_each(|(ps, os)| {
-                triangle::avx2!([
+                crate::simd::avx2!([
                     index: &C2mIndex = self,
                     ps: &[Point3<f64>] = ps,
                     os: &mut [Option<Closest>] = os,

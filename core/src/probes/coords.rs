@@ -1,0 +1,102 @@
+//! A chunk's points laid out coordinate by coordinate.
+//!
+//! A probe tests every point of the fine cells its box touches, and most fail. With the x, y
+//! and z of neighbouring points side by side, one vector instruction tests several points.
+
+use std::ops::Range;
+
+use nalgebra::Point3;
+
+/// Points as three arrays of coordinates, reused from chunk to chunk.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub(crate) struct Coords {
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+}
+
+impl Coords {
+    pub(crate) fn clear(&mut self) {
+        self.x.clear();
+        self.y.clear();
+        self.z.clear();
+    }
+
+    pub(crate) fn reserve(&mut self, n: usize) {
+        self.x.reserve(n);
+        self.y.reserve(n);
+        self.z.reserve(n);
+    }
+
+    /// `n` points, each to be [`Self::set`].
+    pub(crate) fn resize(&mut self, n: usize) {
+        self.x.resize(n, 0.0);
+        self.y.resize(n, 0.0);
+        self.z.resize(n, 0.0);
+    }
+
+    #[inline]
+    pub(crate) fn set(&mut self, i: usize, p: &Point3<f64>) {
+        self.x[i] = p.x;
+        self.y[i] = p.y;
+        self.z[i] = p.z;
+    }
+
+    pub(crate) fn extend<'a>(&mut self, points: impl Iterator<Item = &'a Point3<f64>>) {
+        for p in points {
+            self.x.push(p.x);
+            self.y.push(p.y);
+            self.z.push(p.z);
+        }
+    }
+
+    /// Memory held, bytes.
+    pub(crate) fn bytes(&self) -> usize {
+        (self.x.capacity() + self.y.capacity() + self.z.capacity()) * size_of::<f64>()
+    }
+
+    #[inline]
+    pub(crate) fn run(&self, r: Range<usize>) -> Run<'_> {
+        Run {
+            x: &self.x[r.clone()],
+            y: &self.y[r.clone()],
+            z: &self.z[r],
+        }
+    }
+}
+
+/// Consecutive points of a chunk, coordinate by coordinate: `x[i]`, `y[i]`, `z[i]` is point
+/// `i`. The three slices have one length.
+#[derive(Debug, Clone, Copy)]
+pub struct Run<'a> {
+    /// The points' x.
+    pub x: &'a [f64],
+    /// The points' y.
+    pub y: &'a [f64],
+    /// The points' z.
+    pub z: &'a [f64],
+}
+
+impl Run<'_> {
+    /// Points in the run.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    /// Whether the run holds no point.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// The points in order.
+    #[inline]
+    pub fn iter(&self) -> impl Iterator<Item = Point3<f64>> + '_ {
+        self.x
+            .iter()
+            .zip(self.y)
+            .zip(self.z)
+            .map(|((&x, &y), &z)| Point3::new(x, y, z))
+    }
+}

@@ -614,7 +614,9 @@ impl ProbeGrid {
     }
 
     /// Visits the points of a chunk's fine cells that the box of half-widths `e` around `p`
-    /// touches, in the cells `near`, a column's stretch of fine cells at a time.
+    /// touches, in the cells `near`, a stretch of the laid-out chunk at a time: a column's
+    /// fine cells, or several columns where they follow each other in the layout (a box that
+    /// spans a cell's height).
     #[inline]
     fn visit_box(
         &self,
@@ -632,6 +634,7 @@ impl ProbeGrid {
         ) else {
             return;
         };
+        let mut pending = 0..0;
         for &(first, s, end, table) in near {
             let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
             let hi = [0, 1, 2].map(|k| hi[k].min(first[k] + m - 1));
@@ -654,11 +657,22 @@ impl ProbeGrid {
                         from = to;
                         points
                     };
-                    if !points.is_empty() {
-                        visit(chunk.sorted.run(points));
+                    if points.is_empty() {
+                        continue;
+                    }
+                    if points.start == pending.end {
+                        pending.end = points.end;
+                    } else {
+                        if !pending.is_empty() {
+                            visit(chunk.sorted.run(pending));
+                        }
+                        pending = points;
                     }
                 }
             }
+        }
+        if !pending.is_empty() {
+            visit(chunk.sorted.run(pending));
         }
     }
 

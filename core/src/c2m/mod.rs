@@ -595,8 +595,9 @@ fn cell_size(mesh: &Mesh, given: Option<f64>, extent: f64) -> f64 {
     if let Some(h) = given {
         return h.max(min_address);
     }
+    // Summed in order, on one thread: a parallel sum rounds by how the threads split it, and
+    // moved the cell size, and with it the whole grid, from one run to the next.
     let area: f64 = (0..mesh.len())
-        .into_par_iter()
         .map(|t| {
             let tri = mesh.triangle(t);
             0.5 * tri.ab.cross(&tri.ac).norm()

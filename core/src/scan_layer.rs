@@ -118,8 +118,9 @@ pub struct ScanLayerState {
 ///
 /// Each batch costs every probe it reaches a search of its box, however few of the batch's
 /// points lie there; a scanner's chunk sweeps across the whole part, so small chunks
-/// reach nearly every probe with a few points each. Batches of this size took a third off
-/// M3C2 on the bunny job, for a fixed 3 MB and the probes' scratch that follows it.
+/// reach nearly every probe with a few points each. With batches of this size `inspect
+/// --method m3c2` on the bunny job took 2.5–2.7 s, against 2.7–3.3 s fed the reader's chunks of
+/// 65,536 points, for a fixed 3 MB and the probes' scratch that follows the batch.
 pub const BATCH_POINTS: usize = 1 << 17;
 
 /// A scan layer's state over its design samples: M3C2 and coverage fed with each station's

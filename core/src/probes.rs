@@ -431,11 +431,7 @@ impl ProbeGrid {
         S: Send,
         F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
     {
-        self.offer_slices(scratch, state, chunk, |p, n, points, st| {
-            for q in points.iter() {
-                visit(q - p, n, st);
-            }
-        });
+        self.offer_slices(scratch, state, chunk, each_point(visit));
     }
 
     /// [`Self::offer`] a run of points at a time: `visit(probe, normal, points, state)`, the
@@ -533,12 +529,7 @@ impl ProbeGrid {
             (Some(fine), Region::Narrowing { .. }) => {
                 assert_eq!(state.len(), self.points.len(), "one state per probe");
                 let boxes = |_: usize, n: &Vector3<f64>, s: &S| bound(n, s);
-                let each = |p: &Point3<f64>, n: &Vector3<f64>, qs: Run<'_>, st: &mut S| {
-                    for q in qs.iter() {
-                        visit(q - p, n, st);
-                    }
-                };
-                self.offer_fine(fine, scratch, state, chunk, boxes, true, each);
+                self.offer_fine(fine, scratch, state, chunk, boxes, true, each_point(visit));
             }
             _ => self.offer(scratch, state, chunk, visit),
         }
@@ -800,6 +791,18 @@ impl ProbeGrid {
         for run in columned.chunk_by(|a, b| a.0 == b.0) {
             runs.insert(run[0].0, (start, start + run.len() as u32, 0));
             start += run.len() as u32;
+        }
+    }
+}
+
+/// A visitor of runs that hands `visit` each point of a run in order, as its offset from the
+/// probe.
+fn each_point<S>(
+    visit: impl Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
+) -> impl Fn(&Point3<f64>, &Vector3<f64>, Run<'_>, &mut S) + Sync {
+    move |p, n, run, st| {
+        for q in run.iter() {
+            visit(q - p, n, st);
         }
     }
 }

@@ -275,12 +275,21 @@ impl ScanLayer {
     }
 
     fn take_pending(&mut self) {
-        if let Some(m) = &mut self.m3c2 {
-            m.ingest(&self.pending);
-        }
-        if let Some(c) = &mut self.coverage {
-            c.ingest(&self.pending);
-        }
+        // Side by side: each lays the batch out for its own grid on one thread before its
+        // probes share out, and the two states are apart, so the bits are the same either way.
+        let pending = &self.pending;
+        rayon::join(
+            || {
+                if let Some(m) = &mut self.m3c2 {
+                    m.ingest(pending);
+                }
+            },
+            || {
+                if let Some(c) = &mut self.coverage {
+                    c.ingest(pending);
+                }
+            },
+        );
         self.pending.clear();
     }
 

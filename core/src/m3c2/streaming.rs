@@ -8,7 +8,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::{Running, lod95};
+use super::{Running, Shifted, lod95};
 use crate::probes::{ProbeGrid, Region, Run, Scratch};
 use crate::sampling::DesignSamples;
 
@@ -138,7 +138,7 @@ fn inside_cylinder(
 pub struct StreamingM3c2 {
     grid: ProbeGrid,
     params: StreamingParams,
-    station: Vec<Running>,
+    station: Vec<Shifted>,
     total: Vec<Running>,
     scratch: Scratch,
 }
@@ -165,7 +165,7 @@ impl StreamingM3c2 {
         Ok(Self {
             grid,
             params,
-            station: vec![Running::default(); n],
+            station: vec![Shifted::default(); n],
             total: vec![Running::default(); n],
             scratch: Scratch::default(),
         })
@@ -189,13 +189,14 @@ impl StreamingM3c2 {
     /// Memory held for the whole job: per-core-point state plus the largest chunk's scratch.
     pub fn bytes(&self) -> usize {
         self.grid.bytes()
-            + (self.station.capacity() + self.total.capacity()) * size_of::<Running>()
+            + self.station.capacity() * size_of::<Shifted>()
+            + self.total.capacity() * size_of::<Running>()
             + self.scratch.bytes()
     }
 
     /// Starts a station: its cylinders begin empty.
     pub fn begin_station(&mut self) {
-        self.station.fill(Running::default());
+        self.station.fill(Shifted::default());
     }
 
     /// Takes a chunk of scan points already in the design frame.
@@ -237,10 +238,11 @@ impl StreamingM3c2 {
 
     /// Closes a station: adds its cylinders to the job's and summarises the station alone.
     pub fn end_station(&mut self, registration_sigma: f64) -> StreamingSummary {
-        for (t, s) in self.total.iter_mut().zip(&self.station) {
+        let station: Vec<Running> = self.station.iter().map(Shifted::running).collect();
+        for (t, s) in self.total.iter_mut().zip(&station) {
             t.merge(s);
         }
-        self.summary_of(&self.station, registration_sigma)
+        self.summary_of(&station, registration_sigma)
     }
 
     /// The job's M3C2 over every closed station, with `registration_sigma` in the level of

@@ -28,9 +28,15 @@ use rustc_hash::FxHashMap;
 
 use crate::cells::floor_i64;
 
+mod clip;
 mod coords;
+use clip::Clip;
 pub(crate) use coords::Coords;
 pub use coords::Run;
+
+/// A cylinder's box is cut column by column when it spans at most this many fine cells in y
+/// (a cylinder ten times longer than wide spans 22).
+const CLIP_ROWS: usize = 32;
 
 /// Cells per axis are addressed with 21 bits, centred on the probes' bounds.
 const AXIS_BITS: u32 = 21;
@@ -322,6 +328,26 @@ impl ProbeGrid {
         Some(c)
     }
 
+    /// A cylinder's probe's cut of its box column by column; `None` for other regions.
+    #[inline]
+    fn clip(&self, fine: &Fine, p: &Point3<f64>, n: &Vector3<f64>) -> Option<Clip> {
+        let Region::Cylinder {
+            radius,
+            half_length,
+        } = self.region
+        else {
+            return None;
+        };
+        // As `coords_at` places points, before the floor.
+        let at = [0, 1, 2].map(|k| (p[k] - self.origin[k]) / fine.width);
+        Some(Clip::new(
+            at,
+            n,
+            radius / fine.width,
+            half_length / fine.width,
+        ))
+    }
+
     #[inline]
     fn pack(c: [i64; 3]) -> u64 {
         let f = |v: i64| (v + AXIS_BIAS) as u64;
@@ -592,30 +618,36 @@ impl ProbeGrid {
                 let e = bound(i, n, st);
                 if narrowing {
                     let first = e.inf(&first_cut);
-                    self.visit_box(fine, &bucketed, &near, p, &first, |qs| visit(p, n, qs, st));
+                    let at_first = |qs: Run<'_>| visit(p, n, qs, st);
+                    self.visit_box(fine, &bucketed, &near, (p, &first), None, at_first);
                     let e = bound(i, n, st);
                     if e.iter().zip(&first).any(|(a, b)| a > b) {
-                        self.visit_box(fine, &bucketed, &near, p, &e, |qs| visit(p, n, qs, st));
+                        self.visit_box(fine, &bucketed, &near, (p, &e), None, |qs| {
+                            visit(p, n, qs, st);
+                        });
                     }
                 } else {
-                    self.visit_box(fine, &bucketed, &near, p, &e, |qs| visit(p, n, qs, st));
+                    let clip = self.clip(fine, p, n);
+                    self.visit_box(fine, &bucketed, &near, (p, &e), clip.as_ref(), |qs| {
+                        visit(p, n, qs, st);
+                    });
                 }
             }
         });
     }
 
     /// Visits the points of a chunk's fine cells that the box of half-widths `e` around `p`
-    /// touches, in the cells `near`, a stretch of the laid-out chunk at a time: a column's
-    /// fine cells, or several columns where they follow each other in the layout (a box that
-    /// spans a cell's height).
+    /// touches (each column cut to the heights `clip` leaves), in the cells `near`, a stretch
+    /// of the laid-out chunk at a time: a column's fine cells, or several columns where they
+    /// follow each other in the layout (a box that spans a cell's height).
     #[inline]
     fn visit_box(
         &self,
         fine: &Fine,
         chunk: &Bucketed,
         near: &[Near],
-        p: &Point3<f64>,
-        e: &Vector3<f64>,
+        (p, e): (&Point3<f64>, &Vector3<f64>),
+        clip: Option<&Clip>,
         mut visit: impl FnMut(Run<'_>),
     ) {
         let m = fine.per_cell;
@@ -625,6 +657,15 @@ impl ProbeGrid {
         ) else {
             return;
         };
+        // The columns' y bounds on the cylinder's t, once for the box: its cells stack in z.
+        let mut ty = [(0.0, 0.0); CLIP_ROWS];
+        let clip = clip.filter(|_| hi[1] - lo[1] < CLIP_ROWS as i64);
+        if let Some(c) = clip {
+            for y in lo[1]..=hi[1] {
+                ty[(y - lo[1]) as usize] = c.slab(1, y);
+            }
+        }
+        let rows = lo[1];
         let mut pending = 0..0;
         for &(first, s, end, table) in near {
             let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
@@ -635,9 +676,19 @@ impl ProbeGrid {
             let run = &chunk.columned[s..end];
             let mut from = 0;
             for x in lo[0]..=hi[0] {
+                let tx = clip.map(|c| c.slab(0, x));
                 for y in lo[1]..=hi[1] {
+                    let (z0, z1) = match (clip, tx) {
+                        (Some(c), Some(tx)) => {
+                            match c.heights(tx, ty[(y - rows) as usize], lo[2], hi[2]) {
+                                Some(z) => z,
+                                None => continue,
+                            }
+                        }
+                        _ => (lo[2], hi[2]),
+                    };
                     let column = ((x - first[0]) * m + (y - first[1])) * m - first[2];
-                    let (a, b) = ((column + lo[2]) as usize, (column + hi[2]) as usize);
+                    let (a, b) = ((column + z0) as usize, (column + z1) as usize);
                     // The fine cells a..=b of this column are one stretch of the run.
                     let points = if chunk.dense {
                         chunk.starts[table + a] as usize..chunk.starts[table + b + 1] as usize
@@ -1022,11 +1073,25 @@ mod tests {
             },
         );
         let mut points: Vec<Point3<f64>> = random_points(&mut rng, 60_000, -0.2..1.2);
-        // Points on the rims and caps of a few cylinders.
-        for (p, n) in probes.iter().zip(&normals).take(20) {
-            let side = n.cross(&Vector3::new(0.3, -0.7, 0.2)).normalize() * radius;
-            points.push(p + n * half_length + side);
+        // Points on the rims and caps of a few cylinders, all round, at both ends and between:
+        // where a cylinder reaches farthest along each axis, which the columns' cut must keep.
+        for (p, n) in probes.iter().zip(&normals).take(50) {
+            let a = n.cross(&Vector3::new(0.3, -0.7, 0.2)).normalize();
+            let b = n.cross(&a);
             points.push(p - n * half_length);
+            for k in 0..32 {
+                let angle = f64::from(k) * std::f64::consts::TAU / 32.0;
+                let side = (a * angle.cos() + b * angle.sin()) * radius;
+                for t in [
+                    -half_length,
+                    -0.4 * half_length,
+                    0.0,
+                    0.7 * half_length,
+                    half_length,
+                ] {
+                    points.push(p + n * t + side);
+                }
+            }
         }
         points.extend([Point3::new(f64::NAN, 0.0, 0.0), Point3::new(1e12, 0.0, 0.0)]);
         let mut state = vec![(0u32, 0u32); grid.len()];

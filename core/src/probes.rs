@@ -315,17 +315,23 @@ impl ProbeGrid {
     /// design (or not finite).
     #[inline]
     fn coords_at(&self, p: &Point3<f64>, width: f64) -> Option<[i64; 3]> {
+        let v = self.scaled(p, width);
         let mut c = [0i64; 3];
         for k in 0..3 {
-            let v = (p[k] - self.origin[k]) / width;
             // floor(v) > -BIAS + 2 and floor(v) < BIAS - 2, asked of v itself. NaN fails both
             // comparisons and is refused with the far points.
-            if !(v >= -(AXIS_BIAS as f64) + 3.0 && v < AXIS_BIAS as f64 - 2.0) {
+            if !(v[k] >= -(AXIS_BIAS as f64) + 3.0 && v[k] < AXIS_BIAS as f64 - 2.0) {
                 return None;
             }
-            c[k] = floor_i64(v);
+            c[k] = floor_i64(v[k]);
         }
         Some(c)
+    }
+
+    /// `p` in units of `width` from the grid's origin: what [`Self::coords_at`] floors.
+    #[inline]
+    fn scaled(&self, p: &Point3<f64>, width: f64) -> [f64; 3] {
+        [0, 1, 2].map(|k| (p[k] - self.origin[k]) / width)
     }
 
     /// A cylinder's probe's cut of its box column by column; `None` for other regions.
@@ -338,10 +344,8 @@ impl ProbeGrid {
         else {
             return None;
         };
-        // As `coords_at` places points, before the floor.
-        let at = [0, 1, 2].map(|k| (p[k] - self.origin[k]) / fine.width);
         Some(Clip::new(
-            at,
+            self.scaled(p, fine.width),
             n,
             radius / fine.width,
             half_length / fine.width,
@@ -676,16 +680,16 @@ impl ProbeGrid {
             let run = &chunk.columned[s..end];
             let mut from = 0;
             for x in lo[0]..=hi[0] {
-                let tx = clip.map(|c| c.slab(0, x));
+                // The column's x bound on t, once for its y's.
+                let cut = clip.map(|c| (c, c.slab(0, x)));
                 for y in lo[1]..=hi[1] {
-                    let (z0, z1) = match (clip, tx) {
-                        (Some(c), Some(tx)) => {
-                            match c.heights(tx, ty[(y - rows) as usize], lo[2], hi[2]) {
-                                Some(z) => z,
-                                None => continue,
-                            }
-                        }
-                        _ => (lo[2], hi[2]),
+                    let (z0, z1) = match cut {
+                        Some((c, tx)) => match c.heights(tx, ty[(y - rows) as usize], lo[2], hi[2])
+                        {
+                            Some(z) => z,
+                            None => continue,
+                        },
+                        None => (lo[2], hi[2]),
                     };
                     let column = ((x - first[0]) * m + (y - first[1])) * m - first[2];
                     let (a, b) = ((column + z0) as usize, (column + z1) as usize);

@@ -28,7 +28,7 @@ const FLAT: f64 = 1e-9;
 
 /// One probe's cylinder in fine-cell units.
 pub(super) struct Clip {
-    /// The probe, in fine coordinates (as `ProbeGrid::coords_at` computes them, before the
+    /// The probe, in fine coordinates (`ProbeGrid::scaled`, as points are placed, before the
     /// floor).
     at: [f64; 3],
     n: [f64; 3],

@@ -123,9 +123,48 @@ impl Fine {
     }
 }
 
-/// A neighbour cell holding points of the chunk: its first fine cell, its run in the sorted
-/// points, and where its table of fine cells starts.
-type Near = ([i64; 3], usize, usize, usize);
+/// Columns per cell side up to which a chunk keeps, per cell, which columns hold points: a
+/// row of columns is a word's bits.
+const ROW_BITS: i64 = 64;
+
+/// A neighbour cell holding points of the chunk.
+#[derive(Clone, Copy)]
+struct Near {
+    /// Its first fine cell.
+    first: [i64; 3],
+    /// Its run in the sorted points.
+    start: usize,
+    end: usize,
+    /// Where its table of fine cells starts (dense chunks).
+    table: usize,
+    /// Where its rows of occupied columns start (dense chunks with rows).
+    rows: usize,
+}
+
+/// The y's of a row of a box's columns: all of them, or those whose bits are set.
+enum Ys {
+    Range(std::ops::RangeInclusive<i64>),
+    Bits { row: u64, first: i64 },
+}
+
+impl Iterator for Ys {
+    type Item = i64;
+
+    #[inline]
+    fn next(&mut self) -> Option<i64> {
+        match self {
+            Ys::Range(r) => r.next(),
+            Ys::Bits { row, first } => {
+                if *row == 0 {
+                    return None;
+                }
+                let y = *first + i64::from(row.trailing_zeros());
+                *row &= *row - 1;
+                Some(y)
+            }
+        }
+    }
+}
 
 /// A chunk sorted for the fine cells, as [`ProbeGrid::bucket_fine`] leaves it.
 struct Bucketed<'a> {
@@ -133,6 +172,9 @@ struct Bucketed<'a> {
     sorted: &'a Coords,
     starts: &'a [u32],
     dense: bool,
+    /// With tables and at most [`ROW_BITS`] columns a side: per cell, per x, bit y set when
+    /// column (x, y) holds points of the chunk. Empty otherwise.
+    rows: &'a [u64],
 }
 
 /// Per-chunk buffers, sized by the largest chunk and the number of probe cells, and reused:
@@ -147,6 +189,9 @@ pub struct Scratch {
     starts: Vec<u32>,
     /// For cylinders: where the next point of each fine cell goes, while they are laid out.
     fill: Vec<u32>,
+    /// With the tables: per occupied cell, per x, the columns holding points (a bit per y).
+    /// A scanner's chunk sweeps the whole part, so most of a box's columns hold none of it.
+    rows: Vec<u64>,
     sorted: Coords,
     runs: FxHashMap<u64, (u32, u32, u32)>,
     active: Vec<u32>,
@@ -161,6 +206,7 @@ impl Scratch {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.columned.capacity() * size_of::<(u64, u32, u32)>()
             + (self.starts.capacity() + self.fill.capacity()) * size_of::<u32>()
+            + self.rows.capacity() * size_of::<u64>()
             + self.sorted.bytes()
             + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32, u32)>())
             + (self.active.capacity() + self.mark.capacity()) * size_of::<u32>()
@@ -394,6 +440,7 @@ impl ProbeGrid {
             runs,
             starts,
             fill,
+            rows,
             active,
             mark,
             generation,
@@ -413,6 +460,7 @@ impl ProbeGrid {
         runs.clear();
         starts.clear();
         fill.clear();
+        rows.clear();
         active.clear();
         sorted.reserve(points);
         active.reserve(self.cells.len());
@@ -590,6 +638,7 @@ impl ProbeGrid {
             sorted,
             runs,
             starts,
+            rows,
             active,
             ..
         } = scratch;
@@ -600,16 +649,24 @@ impl ProbeGrid {
             sorted,
             starts,
             dense,
+            rows,
         };
+        let fine_cells = (m * m * m) as usize;
         let first_cut = Vector3::repeat(fine.width);
         let runs = &*runs;
         jobs.into_par_iter().for_each(|(cell, states)| {
             // The neighbours holding points, with their first fine cell.
             let near: Vec<Near> = Self::neighbours(cell.key)
                 .filter_map(|k| {
-                    let &(s, e, t) = runs.get(&k)?;
-                    let first = Self::unpack(k).map(|v| v * m);
-                    Some((first, s as usize, e as usize, t as usize))
+                    let &(start, end, table) = runs.get(&k)?;
+                    Some(Near {
+                        first: Self::unpack(k).map(|v| v * m),
+                        start: start as usize,
+                        end: end as usize,
+                        table: table as usize,
+                        // The tables and the rows follow the cells in one order.
+                        rows: table as usize / (fine_cells + 1) * m as usize,
+                    })
                 })
                 .collect();
             let range = cell.start as usize..cell.end as usize;
@@ -669,37 +726,51 @@ impl ProbeGrid {
                 ty[(y - lo[1]) as usize] = c.slab(1, y);
             }
         }
-        let rows = lo[1];
+        let first_row = lo[1];
         let mut pending = 0..0;
-        for &(first, s, end, table) in near {
+        for near in near {
+            let first = near.first;
             let lo = [0, 1, 2].map(|k| lo[k].max(first[k]));
             let hi = [0, 1, 2].map(|k| hi[k].min(first[k] + m - 1));
             if (0..3).any(|k| lo[k] > hi[k]) {
                 continue;
             }
-            let run = &chunk.columned[s..end];
+            let run = &chunk.columned[near.start..near.end];
             let mut from = 0;
             for x in lo[0]..=hi[0] {
                 // The column's x bound on t, once for its y's.
                 let cut = clip.map(|c| (c, c.slab(0, x)));
-                for y in lo[1]..=hi[1] {
+                let ys = if chunk.rows.is_empty() {
+                    Ys::Range(lo[1]..=hi[1])
+                } else {
+                    // Only the columns holding points, in the same order.
+                    let box_ys =
+                        (u64::MAX >> (ROW_BITS - (hi[1] - lo[1] + 1))) << (lo[1] - first[1]);
+                    Ys::Bits {
+                        row: chunk.rows[near.rows + (x - first[0]) as usize] & box_ys,
+                        first: first[1],
+                    }
+                };
+                for y in ys {
                     let (z0, z1) = match cut {
-                        Some((c, tx)) => match c.heights(tx, ty[(y - rows) as usize], lo[2], hi[2])
-                        {
-                            Some(z) => z,
-                            None => continue,
-                        },
+                        Some((c, tx)) => {
+                            match c.heights(tx, ty[(y - first_row) as usize], lo[2], hi[2]) {
+                                Some(z) => z,
+                                None => continue,
+                            }
+                        }
                         None => (lo[2], hi[2]),
                     };
                     let column = ((x - first[0]) * m + (y - first[1])) * m - first[2];
                     let (a, b) = ((column + z0) as usize, (column + z1) as usize);
                     // The fine cells a..=b of this column are one stretch of the run.
                     let points = if chunk.dense {
+                        let table = near.table;
                         chunk.starts[table + a] as usize..chunk.starts[table + b + 1] as usize
                     } else {
                         from += run[from..].partition_point(|t| (t.1 as usize) < a);
                         let to = from + run[from..].partition_point(|t| t.1 as usize <= b);
-                        let points = s + from..s + to;
+                        let points = near.start + from..near.start + to;
                         from = to;
                         points
                     };
@@ -792,6 +863,7 @@ impl ProbeGrid {
             fill,
             sorted,
             runs,
+            rows,
             ..
         } = scratch;
         let mut start = 0u32;
@@ -818,6 +890,22 @@ impl ProbeGrid {
             table[0] = first;
             for j in 1..table.len() {
                 table[j] += table[j - 1];
+            }
+        }
+        let m = self.fine.as_ref().map_or(1, |f| f.per_cell as usize);
+        if m as i64 <= ROW_BITS {
+            // A column's fine cells are m in a row of the table: it holds points when its
+            // first start differs from the next column's.
+            rows.reserve(keys.len() * m);
+            for table in starts.chunks_exact(fine_cells + 1) {
+                for x in 0..m {
+                    let mut row = 0u64;
+                    for y in 0..m {
+                        let c = (x * m + y) * m;
+                        row |= u64::from(table[c] != table[c + m]) << y;
+                    }
+                    rows.push(row);
+                }
             }
         }
         fill.clear();

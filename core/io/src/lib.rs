@@ -20,7 +20,7 @@ pub mod stations;
 
 pub use deviations::DeviationsPly;
 pub use error::{IoError, error_message};
-pub use mesh::{MeshFormat, ply_scalar, read_design, read_design_bytes, read_design_file};
+pub use mesh::{MeshFormat, read_design, read_design_bytes, read_design_file};
 pub use scan::{
     DEFAULT_CHUNK, Format, PoseSource, ReadNotes, ScanFile, ScanInfo, Sink, read_cloud,
 };

@@ -7,10 +7,10 @@ use std::path::{Path, PathBuf};
 
 use asbuilt_core::{Design, DesignError, Units};
 use nalgebra::Point3;
-use ply_rs_bw::parser::Parser;
-use ply_rs_bw::ply::{DefaultElement, Property};
 
 use crate::IoError;
+use crate::ply::read::{Property, Record, Records, Value, header};
+use crate::scan::error::{Context, ScanError, bail};
 
 /// Mesh file formats a design can come in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -158,68 +158,89 @@ fn parse<R: BufRead + std::io::Seek>(
             }
             Ok((vertices, triangles))
         }
-        MeshFormat::Ply => {
-            let ply = Parser::<DefaultElement>::new()
-                .read_ply(&mut reader)
-                .map_err(|e| malformed(e.to_string()))?;
-            let vertex_el = ply
-                .payload
-                .get("vertex")
-                .ok_or_else(|| malformed("no `vertex` element".into()))?;
-            let mut vertices = Vec::with_capacity(vertex_el.len());
-            for (i, v) in vertex_el.iter().enumerate() {
-                let coord = |k: &str| {
-                    v.get(k)
-                        .and_then(ply_scalar)
-                        .ok_or_else(|| malformed(format!("vertex {i} has no numeric `{k}`")))
-                };
-                vertices.push(Point3::new(coord("x")?, coord("y")?, coord("z")?));
-            }
-            let mut triangles = Vec::new();
-            if let Some(faces) = ply.payload.get("face") {
-                for (i, f) in faces.iter().enumerate() {
-                    let list = f
-                        .get("vertex_indices")
-                        .or_else(|| f.get("vertex_index"))
-                        .and_then(index_list)
-                        .ok_or_else(|| {
-                            malformed(format!("face {i} has no `vertex_indices` list"))
-                        })?;
-                    // Fan-triangulate polygons; a negative index is caught as invalid later.
-                    for k in 1..list.len().saturating_sub(1) {
-                        triangles.push([list[0], list[k], list[k + 1]]);
-                    }
-                }
-            }
-            Ok((vertices, triangles))
-        }
+        MeshFormat::Ply => ply_mesh(reader, path).map_err(|e| malformed(e.to_string())),
     }
 }
 
-/// A numeric PLY property as f64 (exact for every PLY scalar type); `None` for a list.
-pub fn ply_scalar(p: &Property) -> Option<f64> {
-    Some(match *p {
-        Property::Float(v) => v as f64,
-        Property::Double(v) => v,
-        Property::Char(v) => v as f64,
-        Property::UChar(v) => v as f64,
-        Property::Short(v) => v as f64,
-        Property::UShort(v) => v as f64,
-        Property::Int(v) => v as f64,
-        Property::UInt(v) => v as f64,
-        _ => return None,
-    })
-}
-
-fn index_list(p: &Property) -> Option<Vec<u32>> {
-    let to_u32 = |v: i64| u32::try_from(v).unwrap_or(u32::MAX);
-    Some(match p {
-        Property::ListInt(v) => v.iter().map(|&i| to_u32(i as i64)).collect(),
-        Property::ListUInt(v) => v.clone(),
-        Property::ListUChar(v) => v.iter().map(|&i| i as u32).collect(),
-        Property::ListChar(v) => v.iter().map(|&i| to_u32(i as i64)).collect(),
-        Property::ListShort(v) => v.iter().map(|&i| to_u32(i as i64)).collect(),
-        Property::ListUShort(v) => v.iter().map(|&i| i as u32).collect(),
-        _ => return None,
-    })
+/// A PLY mesh: the `vertex` element's x, y, z and each `face`'s `vertex_indices` (or
+/// `vertex_index`), polygons fanned into triangles; other elements are passed over.
+fn ply_mesh(mut reader: impl BufRead, path: &Path) -> Result<Mesh, ScanError> {
+    let h = header(&mut reader, path)?;
+    let vi = h.vertex_element(path)?;
+    let vertex = &h.elements[vi];
+    let xyz = ["x", "y", "z"].map(|k| vertex.scalar(&[k]));
+    let [Some(ix), Some(iy), Some(iz)] = xyz else {
+        bail!("the vertex element needs x, y and z");
+    };
+    let face = h.element("face");
+    let indices = match face {
+        Some(f) => Some(
+            h.elements[f]
+                .properties
+                .iter()
+                .position(|p| {
+                    matches!(p, Property::List { name, .. }
+                        if name == "vertex_indices" || name == "vertex_index")
+                })
+                .with_context(|| "the face element has no `vertex_indices` list")?,
+        ),
+        None => None,
+    };
+    let mut records = Records::new(reader, h.encoding);
+    // Counts are the header's word: room is made as records come, never on its say alone.
+    let room = |n: u64| n.min(1 << 20) as usize;
+    let mut vertices = Vec::with_capacity(room(vertex.count));
+    let mut triangles = Vec::new();
+    let mut list: Vec<u32> = Vec::new();
+    let mut line = h.lines;
+    for (ei, e) in h.elements.iter().enumerate() {
+        if Some(ei) == face {
+            triangles.reserve(room(e.count));
+        }
+        for r in 0..e.count {
+            line += 1;
+            let mut p = [f64::NAN; 3];
+            list.clear();
+            let read = records.next(e, &mut |v| match v {
+                Value::Scalar(k, x) if ei == vi => {
+                    if k == ix {
+                        p[0] = x
+                    } else if k == iy {
+                        p[1] = x
+                    } else if k == iz {
+                        p[2] = x
+                    }
+                }
+                // A negative or fractional index is caught as invalid with the others.
+                Value::Item(k, x) if Some(k) == indices && Some(ei) == face => {
+                    list.push(if x >= 0.0 && x.fract() == 0.0 && x < u32::MAX as f64 {
+                        x as u32
+                    } else {
+                        u32::MAX
+                    })
+                }
+                _ => {}
+            })?;
+            match read {
+                Record::Read => {}
+                Record::Malformed => bail!(
+                    "{} {r} (line {line}) is not the numbers the header declares",
+                    e.name
+                ),
+                Record::End => bail!(
+                    "the file ends at {} {r} of {} (truncated?)",
+                    e.name,
+                    e.count
+                ),
+            }
+            if ei == vi {
+                vertices.push(Point3::from(p));
+            } else if Some(ei) == face {
+                for k in 1..list.len().saturating_sub(1) {
+                    triangles.push([list[0], list[k], list[k + 1]]);
+                }
+            }
+        }
+    }
+    Ok((vertices, triangles))
 }

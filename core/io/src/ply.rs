@@ -2,15 +2,19 @@
 //! CloudCompare opens with every property beyond x, y, z as a scalar field.
 //!
 //! A PLY header states the row count. When it is known up front (a scan of announced size) the
-//! header goes first and the rows stream after it; when it is not (deviations, tables) the rows
-//! stream to a side file and the header is joined in front at [`PlyWriter::finish`], so memory
-//! never grows with the rows.
+//! header goes first and the rows stream after it; when it is not (deviations, tables) the
+//! header leaves the count room for any u64, and the rows stream to a part file beside the
+//! output whose count [`PlyWriter::finish`] writes in place before the file takes its name. So
+//! memory never grows with the rows, nothing is copied at the end (a 50 M point scan's
+//! deviations are 1.8 GB), and the output's name holds only a complete file.
 
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use crate::IoError;
+
+pub(crate) mod read;
 
 /// A property's scalar type, as the PLY header names it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,13 +79,19 @@ pub fn point_columns(rest: &[Property]) -> Vec<Property> {
 enum Body {
     /// The header is written: rows go straight after it, and exactly `announced` must come.
     Direct { announced: u64 },
-    /// Rows go to a side file beside the output, joined at the end behind the header, whose
-    /// count goes between `head` and `tail`.
-    Side {
-        side: PathBuf,
-        head: String,
-        tail: String,
-    },
+    /// Rows go to a part file beside the output, after a header whose count is written at
+    /// `slot` at the end ([`count_slot`]).
+    Part { part: PathBuf, slot: u64 },
+}
+
+/// Digits of the largest count.
+const COUNT_DIGITS: usize = 20;
+
+/// The count and what pads it to a fixed width: a comment line, which every reader passes over
+/// (a count padded with zeros or spaces is not read alike by all).
+fn count_slot(rows: u64) -> String {
+    let count = rows.to_string();
+    format!("{count}\ncomment{}", " ".repeat(COUNT_DIGITS - count.len()))
 }
 
 /// Writes a binary PLY row by row. Call [`PlyWriter::finish`]: a writer dropped without it
@@ -122,13 +132,10 @@ impl PlyWriter {
                 (path.to_path_buf(), Body::Direct { announced: n })
             }
             None => {
-                let side = path.with_extension("ply.body");
-                let body = Body::Side {
-                    side: side.clone(),
-                    head: std::mem::take(&mut header),
-                    tail,
-                };
-                (side, body)
+                let part = path.with_extension("ply.part");
+                let slot = header.len() as u64;
+                header += &format!("{}{tail}", count_slot(0));
+                (part.clone(), Body::Part { part, slot })
             }
         };
         let file = File::create(&file_path).map_err(|source| IoError::Open {
@@ -136,10 +143,8 @@ impl PlyWriter {
             source,
         })?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
-        if let Body::Direct { .. } = body {
-            out.write_all(header.as_bytes())
-                .map_err(|e| written(path, e))?;
-        }
+        out.write_all(header.as_bytes())
+            .map_err(|e| written(path, e))?;
         Ok(Self {
             path: path.to_path_buf(),
             out,
@@ -190,7 +195,9 @@ impl PlyWriter {
             ..
         } = self;
         out.flush().map_err(|e| written(&path, e))?;
-        drop(out);
+        let file = out
+            .into_inner()
+            .map_err(|e| written(&path, e.into_error()))?;
         match body {
             Body::Direct { announced } if announced != rows => Err(IoError::Malformed {
                 path,
@@ -198,19 +205,12 @@ impl PlyWriter {
                 what: format!("the header announced {announced} points but {rows} were written"),
             }),
             Body::Direct { .. } => Ok(rows),
-            Body::Side { side, head, tail } => {
-                let file = File::create(&path).map_err(|source| IoError::Open {
-                    path: path.clone(),
-                    source,
-                })?;
-                let mut full = BufWriter::new(file);
-                let join = |full: &mut BufWriter<File>| -> std::io::Result<()> {
-                    write!(full, "{head}{rows}{tail}")?;
-                    std::io::copy(&mut File::open(&side)?, full)?;
-                    full.flush()
-                };
-                join(&mut full).map_err(|e| written(&path, e))?;
-                std::fs::remove_file(&side).ok();
+            Body::Part { part, slot } => {
+                let mut file = file;
+                file.seek(SeekFrom::Start(slot))
+                    .and_then(|_| file.write_all(count_slot(rows).as_bytes()))
+                    .and_then(|()| std::fs::rename(&part, &path))
+                    .map_err(|e| written(&path, e))?;
                 Ok(rows)
             }
         }
@@ -278,7 +278,15 @@ mod tests {
             assert!(matches!(v[3]["d"], P::Float(d) if d == -3.0));
             assert!(matches!(v[3]["triangle"], P::UInt(10)));
             assert!(matches!(v[3]["station"], P::UShort(2)));
-            assert!(!path.with_extension("ply.body").exists());
+            assert!(!path.with_extension("ply.part").exists());
+        }
+    }
+
+    #[test]
+    fn the_count_written_at_the_end_fills_the_room_left_for_it() {
+        let width = count_slot(0).len();
+        for n in [1, 5_000_000, u64::MAX] {
+            assert_eq!(count_slot(n).len(), width, "{n}");
         }
     }
 

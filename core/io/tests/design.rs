@@ -206,3 +206,175 @@ fn unreadable_empty_and_unknown_files_are_clear_errors() {
         Err(e) => assert!(e.to_string().contains("bad.obj"), "{e}"),
     }
 }
+
+/// A PLY mesh as ply-rs reads it: x, y, z of each vertex, each face's indices fanned.
+fn ply_rs_mesh(path: &Path) -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
+    use ply_rs_bw::ply::Property as P;
+    let mut f = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+    let ply = ply_rs_bw::parser::Parser::<ply_rs_bw::ply::DefaultElement>::new()
+        .read_ply(&mut f)
+        .unwrap();
+    let scalar = |p: &P| match *p {
+        P::Float(v) => v as f64,
+        P::Double(v) => v,
+        P::Int(v) => v as f64,
+        P::UChar(v) => v as f64,
+        ref other => panic!("{other:?}"),
+    };
+    let vertices = ply.payload["vertex"]
+        .iter()
+        .map(|v| Point3::new(scalar(&v["x"]), scalar(&v["y"]), scalar(&v["z"])))
+        .collect();
+    let mut triangles = Vec::new();
+    for f in &ply.payload["face"] {
+        let list: Vec<u32> = match &f["vertex_indices"] {
+            P::ListUInt(l) => l.clone(),
+            P::ListInt(l) => l.iter().map(|&i| i as u32).collect(),
+            other => panic!("{other:?}"),
+        };
+        for k in 1..list.len() - 1 {
+            triangles.push([list[0], list[k], list[k + 1]]);
+        }
+    }
+    (vertices, triangles)
+}
+
+/// A PLY mesh in `encoding` with what real files hold beside the mesh: an element before the
+/// vertices and one after the faces, properties before and after x, y, z, mixed types,
+/// coordinates a float cannot hold exactly, and polygons of three to five corners.
+fn write_odd_ply(path: &Path, encoding: &str) {
+    let vertices: Vec<[f64; 3]> = (0..40)
+        .map(|i| {
+            let t = i as f64 * 0.37;
+            [t.cos() * 0.1, t.sin() * 0.1 + 0.3, 0.01 * i as f64 + 0.1]
+        })
+        .collect();
+    let faces: Vec<Vec<u32>> = (0..30u32)
+        .map(|i| (0..3 + i % 3).map(|k| (i + 2 * k) % 40).collect())
+        .collect();
+    let mut out: Vec<u8> = format!(
+        "ply\nformat {encoding} 1.0\ncomment made by a test\nelement material 2\n\
+         property uchar red\nproperty list uchar float weights\n\
+         element vertex {}\nproperty float nx\nproperty float x\nproperty double y\n\
+         property float z\nproperty uchar red\n\
+         element face {}\nproperty uchar flags\nproperty list uchar uint vertex_indices\n\
+         element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n",
+        vertices.len(),
+        faces.len()
+    )
+    .into_bytes();
+    let big = encoding == "binary_big_endian";
+    macro_rules! put {
+        ($v:expr) => {
+            if encoding == "ascii" {
+                out.extend(format!("{} ", $v).as_bytes());
+            } else if big {
+                out.extend($v.to_be_bytes());
+            } else {
+                out.extend($v.to_le_bytes());
+            }
+        };
+    }
+    let end = |out: &mut Vec<u8>| {
+        if encoding == "ascii" {
+            out.push(b'\n');
+        }
+    };
+    for m in 0..2u8 {
+        put!(m);
+        put!(2u8);
+        put!(0.5f32);
+        put!(0.25f32);
+        end(&mut out);
+    }
+    for v in &vertices {
+        put!(1.0f32);
+        put!(v[0] as f32);
+        put!(v[1]);
+        put!(v[2] as f32);
+        put!(200u8);
+        end(&mut out);
+    }
+    for f in &faces {
+        put!(7u8);
+        put!(f.len() as u8);
+        for &i in f {
+            put!(i);
+        }
+        end(&mut out);
+    }
+    put!(1i32);
+    put!(2i32);
+    end(&mut out);
+    std::fs::write(path, out).unwrap();
+}
+
+#[test]
+fn ply_designs_read_as_ply_rs_reads_them_in_every_encoding() {
+    let dir = tempfile::tempdir().unwrap();
+    for encoding in ["ascii", "binary_little_endian", "binary_big_endian"] {
+        let path = dir.path().join(format!("{encoding}.ply"));
+        write_odd_ply(&path, encoding);
+        let (v, t) = ply_rs_mesh(&path);
+        assert_eq!(t.len(), 60, "{encoding}: 30 polygons of 3 to 5 corners");
+        let want = Design::from_indexed(v, t, 1.0).unwrap();
+        let got = asbuilt_io::read_design(&path, Units::Metres).unwrap();
+        assert_eq!(got.vertices, want.vertices, "{encoding}");
+        assert_eq!(got.triangles, want.triangles, "{encoding}");
+    }
+}
+
+#[test]
+fn broken_ply_designs_are_clear_errors_and_claim_no_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.ply");
+    write_odd_ply(&good, "ascii");
+    let text = std::fs::read_to_string(&good).unwrap();
+    let cases = [
+        (
+            text.replace("element edge 1", "element edge 4000000000000"),
+            "the file ends at edge 1 of 4000000000000",
+        ),
+        (
+            text.replacen("200 \n", "two hundred\n", 1),
+            "vertex 0 (line 22)",
+        ),
+        (
+            text.replace("vertex_indices", "corners"),
+            "no `vertex_indices` list",
+        ),
+        (text.replace("property double y\n", ""), "needs x, y and z"),
+    ];
+    for (i, (content, says)) in cases.iter().enumerate() {
+        let path = dir.path().join(format!("broken{i}.ply"));
+        std::fs::write(&path, content).unwrap();
+        let e = asbuilt_io::read_design(&path, Units::Metres).unwrap_err();
+        assert!(matches!(e, IoError::Malformed { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(says) && msg.contains(&format!("broken{i}.ply")),
+            "{msg}"
+        );
+    }
+    // Cut short in binary, and a header that promises far more vertices than the file holds
+    // (room is made as they come, not on the header's word): errors, not a mesh of what came.
+    let bin = dir.path().join("cut.ply");
+    write_odd_ply(&bin, "binary_little_endian");
+    let bytes = std::fs::read(&bin).unwrap();
+    std::fs::write(&bin, &bytes[..bytes.len() - 40]).unwrap();
+    let e = asbuilt_io::read_design(&bin, Units::Metres).unwrap_err();
+    assert!(e.to_string().contains("ends at face 28 of 30"), "{e}");
+    let at = bytes
+        .windows(17)
+        .position(|w| w == b"element vertex 40")
+        .unwrap();
+    let mut huge = bytes[..at].to_vec();
+    huge.extend(b"element vertex 4000000000000");
+    huge.extend(&bytes[at + 17..]);
+    std::fs::write(&bin, huge).unwrap();
+    let e = asbuilt_io::read_design(&bin, Units::Metres).unwrap_err();
+    assert!(
+        e.to_string().contains("of 4000000000000 (truncated?)"),
+        "{e}"
+    );
+}

@@ -89,6 +89,36 @@ fn inspect(
     (st.report(1, 9, "ear_back"), all)
 }
 
+/// The bunny's meshes (ASCII PLY, float coordinates) read as ply-rs reads them, bit for bit.
+#[test]
+fn the_bunny_meshes_read_as_ply_rs_reads_them() {
+    for file in ["bun_zipper.ply", "bun_zipper_res2.ply"] {
+        let mut f = std::io::BufReader::new(std::fs::File::open(bunny_dir().join(file)).unwrap());
+        let ply = Parser::<DefaultElement>::new().read_ply(&mut f).unwrap();
+        let vertices = ply.payload["vertex"]
+            .iter()
+            .map(|v| {
+                let c = |k: &str| match v[k] {
+                    Property::Float(x) => f64::from(x),
+                    _ => panic!("float coordinates expected"),
+                };
+                nalgebra::Point3::new(c("x"), c("y"), c("z"))
+            })
+            .collect();
+        let triangles = ply.payload["face"]
+            .iter()
+            .map(|f| match &f["vertex_indices"] {
+                Property::ListInt(l) => [l[0], l[1], l[2]].map(|i| i as u32),
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        let want = Design::from_indexed(vertices, triangles, 1.0).unwrap();
+        let got = bunny_mesh(file);
+        assert_eq!(got.vertices, want.vertices, "{file}");
+        assert_eq!(got.triangles, want.triangles, "{file}");
+    }
+}
+
 #[test]
 fn every_no_match_point_is_truly_beyond_the_maximum_distance() {
     let design = bunny_mesh("bun_zipper.ply");

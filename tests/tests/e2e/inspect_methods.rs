@@ -7,7 +7,6 @@ use std::process::Command;
 
 use std::collections::HashMap;
 
-use asbuilt_io::ply_scalar;
 use asbuilt_tests::write_box_stl;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::DefaultElement;
@@ -108,6 +107,22 @@ fn ply_rows(path: &Path) -> Vec<HashMap<String, f64>> {
                 .collect()
         })
         .collect()
+}
+
+/// A numeric PLY property as f64 (exact for every PLY scalar type).
+fn ply_scalar(p: &ply_rs_bw::ply::Property) -> Option<f64> {
+    use ply_rs_bw::ply::Property as P;
+    Some(match *p {
+        P::Float(v) => v as f64,
+        P::Double(v) => v,
+        P::Char(v) => v as f64,
+        P::UChar(v) => v as f64,
+        P::Short(v) => v as f64,
+        P::UShort(v) => v as f64,
+        P::Int(v) => v as f64,
+        P::UInt(v) => v as f64,
+        _ => return None,
+    })
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

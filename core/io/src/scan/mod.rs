@@ -18,7 +18,7 @@ mod xyz;
 
 use std::path::{Path, PathBuf};
 
-mod error;
+pub(crate) mod error;
 
 use asbuilt_protocol::ScanPoint;
 pub use error::{ScanError, SinkError};

@@ -114,16 +114,25 @@ pub struct ScanLayerState {
     pub coverage: Option<crate::coverage::CoverageState>,
 }
 
-/// Points a station's chunks are gathered into before M3C2 and coverage take them.
+/// Points a station's chunks are gathered into before M3C2 and coverage take them, in the
+/// agent.
 ///
 /// Each batch costs every probe it reaches a search of its box, however few of the batch's
 /// points lie there; a scanner's chunk sweeps across the whole part, so small chunks
-/// reach nearly every probe with a few points each. On the bunny job (`inspect --method
-/// m3c2`, 2 M points) batches of 131,072 points still reached each core point 15 times; this
-/// size took 1.8–2.1 s of CPU against 2.1–2.4 s for 131,072 (`perf stat`, alternated), and
-/// 1,048,576 only 5 % less again. It holds a fixed 12 MB, and the probes' scratch follows it
-/// (peak memory of that job 139 → 164 MB).
-pub const BATCH_POINTS: usize = 1 << 19;
+/// reach nearly every probe with a few points each. With batches of this size `inspect
+/// --method m3c2` on the bunny job took 2.5–2.7 s, against 2.7–3.3 s fed the reader's chunks of
+/// 65,536 points, for a fixed 3 MB and the probes' scratch that follows the batch.
+pub const BATCH_POINTS: usize = 1 << 17;
+
+/// Batches for a job run offline (`inspect`, the Python package), where memory is the
+/// workstation's: [`ScanLayer::with_batch`].
+///
+/// On the bunny job (`inspect --method m3c2`, 2 M points) batches of [`BATCH_POINTS`] still
+/// reached each core point 15 times; this size took 1.8–2.1 s of CPU against 2.1–2.4 s
+/// (`perf stat`, alternated), and 1,048,576 only 5 % less again. The agent keeps the smaller
+/// batch: on the demo's recording this size gained `report` nothing and held 95 MB more (M3C2's
+/// and coverage's scratch follow the batch), and the findings bench's rate was the same.
+pub const OFFLINE_BATCH_POINTS: usize = 1 << 19;
 
 /// A scan layer's state over its design samples: M3C2 and coverage fed with each station's
 /// points, and the findings drawn from them. Memory proportional to the samples, plus a fixed
@@ -140,6 +149,8 @@ pub struct ScanLayer {
     /// The station's points not yet taken: batches end by count alone, so the same stream of
     /// chunks gives the same batches (and the same bits) however it was cut.
     pending: Vec<Point3<f64>>,
+    /// Points a batch holds.
+    batch: usize,
 }
 
 impl ScanLayer {
@@ -167,7 +178,15 @@ impl ScanLayer {
             findings: params.findings,
             stations: 0,
             pending: Vec::new(),
+            batch: BATCH_POINTS,
         })
+    }
+
+    /// Batches of `points` (at least one) instead of [`BATCH_POINTS`]: the bits follow the
+    /// batch, so the agent and whoever recomputes its findings keep the default.
+    pub fn with_batch(mut self, points: usize) -> Self {
+        self.batch = points.max(1);
+        self
     }
 
     /// Design samples the layer measures at.
@@ -253,24 +272,24 @@ impl ScanLayer {
     }
 
     /// A chunk's design-frame points (valid and finite), taken a batch at a time
-    /// ([`BATCH_POINTS`]); [`Self::end_station`] takes the rest.
+    /// ([`BATCH_POINTS`] unless [`Self::with_batch`]); [`Self::end_station`] takes the rest.
     pub fn ingest(&mut self, points: &[Point3<f64>]) {
         if self.m3c2.is_none() && self.coverage.is_none() {
             return;
         }
         let mut rest = points;
         while !rest.is_empty() {
-            let room = BATCH_POINTS - self.pending.len();
+            let room = self.batch - self.pending.len();
             let (now, later) = rest.split_at(room.min(rest.len()));
             // Grown by doubling as a Vec grows, but never past the batch.
             let want = self.pending.len() + now.len();
             if want > self.pending.capacity() {
-                let to = want.next_power_of_two().min(BATCH_POINTS);
+                let to = want.next_power_of_two().min(self.batch);
                 self.pending.reserve_exact(to - self.pending.len());
             }
             self.pending.extend_from_slice(now);
             rest = later;
-            if self.pending.len() == BATCH_POINTS {
+            if self.pending.len() == self.batch {
                 self.take_pending();
             }
         }
@@ -418,14 +437,15 @@ mod tests {
             })
             .collect();
         let origin = Point3::new(1.5, -1.0, 1.0);
-        let run = |cut: usize| {
-            let mut layer = ScanLayer::new(&samples, Vec::new(), params.clone()).unwrap();
+        let run_with = |cut: usize, batch: usize| {
+            let layer = ScanLayer::new(&samples, Vec::new(), params.clone()).unwrap();
+            let mut layer = layer.with_batch(batch);
             for _ in 0..2 {
                 layer.begin_station();
                 for chunk in scan.chunks(cut) {
                     layer.ingest(chunk);
-                    assert!(layer.pending.len() < BATCH_POINTS);
-                    assert!(layer.pending.capacity() <= BATCH_POINTS);
+                    assert!(layer.pending.len() < batch);
+                    assert!(layer.pending.capacity() <= batch);
                 }
                 let part = layer.end_station(origin, 0.001, &index);
                 assert!(layer.pending.is_empty());
@@ -433,10 +453,20 @@ mod tests {
             }
             layer.state()
         };
+        let run = |cut: usize| run_with(cut, BATCH_POINTS);
         let whole = run(scan.len());
         for cut in [16_384, BATCH_POINTS - 1, 1000] {
             // Not assert_eq: the states print as megabytes.
             assert!(run(cut) == whole, "chunks of {cut} give another state");
+        }
+        // Another batch, as offline jobs take: the same bits for every cut of the chunks.
+        let batch = 70_000;
+        let whole = run_with(scan.len(), batch);
+        for cut in [16_384, batch - 1, 1000] {
+            assert!(
+                run_with(cut, batch) == whole,
+                "chunks of {cut}, batches of {batch}"
+            );
         }
     }
 }

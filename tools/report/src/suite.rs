@@ -439,7 +439,10 @@ impl Suite {
                 min_missing_area_m2: defaults::MIN_MISSING_AREA_M2,
             },
         };
-        ScanLayer::new(samples, sharp_edges, params).context("--method coverage/m3c2")
+        // A job run here has the workstation's memory: larger batches, fewer searches.
+        Ok(ScanLayer::new(samples, sharp_edges, params)
+            .context("--method coverage/m3c2")?
+            .with_batch(asbuilt_core::scan_layer::OFFLINE_BATCH_POINTS))
     }
 
     /// Starts a station: its own statistics begin at zero.

@@ -104,6 +104,21 @@ impl Element {
     }
 }
 
+/// Where each property of a binary record of `e` starts, and the record's size; `None` when a
+/// list makes the records' sizes vary. Such records are read a block at a time.
+pub(crate) fn fixed_layout(e: &Element) -> Option<(Vec<(usize, Type)>, usize)> {
+    let mut at = 0;
+    let mut layout = Vec::with_capacity(e.properties.len());
+    for p in &e.properties {
+        let Property::Scalar(_, t) = *p else {
+            return None;
+        };
+        layout.push((at, t));
+        at += t.size();
+    }
+    Some((layout, at))
+}
+
 /// A PLY header: the encoding, the elements in file order, and its length in lines.
 pub(crate) struct Header {
     pub(crate) encoding: Encoding,
@@ -309,6 +324,26 @@ impl<R: BufRead> Records<R> {
             }
         }
         Ok(Record::Read)
+    }
+
+    /// Whole binary records of `size` bytes into `buf` (a multiple of `size` long), as many as
+    /// fit or as the file still holds: how many. Fewer than fit means the file ended.
+    pub(crate) fn block(&mut self, buf: &mut [u8], size: usize) -> Result<usize> {
+        let mut filled = 0;
+        while filled < buf.len() {
+            match self.reader.read(&mut buf[filled..]) {
+                Ok(0) => break,
+                Ok(k) => filled += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(ScanError::Io(e)),
+            }
+        }
+        Ok(filled / size)
+    }
+
+    /// The value of a scalar of type `t` at the start of `b`, a binary record's bytes.
+    pub(crate) fn decode(&self, t: Type, b: &[u8]) -> f64 {
+        t.decode(b, self.encoding)
     }
 
     /// One binary scalar; `None` where the file ends.

@@ -7,7 +7,10 @@ use std::io::BufReader;
 use std::path::Path;
 
 use super::error::{Result, ScanError, bail};
-use crate::ply::read::{Record, Records, Value, header};
+use crate::ply::read::{Encoding, Record, Records, Type, Value, fixed_layout, header};
+
+/// Bytes of binary records read at a time.
+const BLOCK_BYTES: usize = 1 << 16;
 use asbuilt_protocol::ScanPoint;
 
 use super::{Batcher, ReadNotes, ScanInfo, Sink};
@@ -55,6 +58,31 @@ pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
                 return Err(truncated(0));
             }
         }
+    }
+    let layout = fixed_layout(vertex).filter(|_| h.encoding != Encoding::Ascii);
+    if let Some((layout, size)) = layout.filter(|(_, size)| *size > 0) {
+        // Binary records of one size: a block of them at a time, each decoded in place.
+        let at = |k: usize| layout[k];
+        let (x, y, z, i) = (at(ix), at(iy), at(iz), ii.map(at));
+        let mut buf = vec![0u8; size * (BLOCK_BYTES / size).max(1)];
+        let mut n = 0u64;
+        while n < vertex.count {
+            let room = buf.len() / size;
+            let want = room.min(usize::try_from(vertex.count - n).unwrap_or(room));
+            let got = records.block(&mut buf[..want * size], size)?;
+            for r in buf[..got * size].chunks_exact(size) {
+                let value = |(o, t): (usize, Type)| records.decode(t, &r[o..]);
+                let mut p = ScanPoint::new(value(x) as f32, value(y) as f32, value(z) as f32);
+                p.intensity = i.map_or(0.0, value) as f32;
+                out.push(p)?;
+            }
+            n += got as u64;
+            if got < want {
+                return Err(truncated(n));
+            }
+        }
+        out.finish()?;
+        return Ok(notes);
     }
     for n in 0..vertex.count {
         let mut v = [f64::NAN, f64::NAN, f64::NAN, 0.0];

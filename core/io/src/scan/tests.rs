@@ -326,6 +326,58 @@ fn ply_skips_elements_before_the_vertices_and_reads_every_encoding() {
     assert!(e.contains("ends after 1 of 2 vertices"), "{e}");
 }
 
+/// Binary records of one size are read a block at a time: across blocks, in both byte orders,
+/// with properties around x, y, z, and cut short mid-record.
+#[test]
+fn ply_binary_records_of_one_size_read_across_blocks_and_stop_where_cut() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("fixed.ply");
+    let n = 10_007u32;
+    for (format, big) in [("binary_little_endian", false), ("binary_big_endian", true)] {
+        let mut bytes = format!(
+            "ply\nformat {format} 1.0\nelement vertex {n}\nproperty double t\n\
+             property float x\nproperty uchar intensity\nproperty float y\nproperty float z\n\
+             end_header\n"
+        )
+        .into_bytes();
+        for i in 0..n {
+            let f = |v: f32| {
+                if big {
+                    v.to_be_bytes()
+                } else {
+                    v.to_le_bytes()
+                }
+            };
+            let t = 0.5f64;
+            bytes.extend(if big {
+                t.to_be_bytes()
+            } else {
+                t.to_le_bytes()
+            });
+            bytes.extend(f(i as f32 * 0.25));
+            bytes.push((i % 256) as u8);
+            bytes.extend(f(-(i as f32)));
+            bytes.extend(f(3.0));
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        let (pts, _) = ScanFile::open(&path).unwrap().read_all(0).unwrap();
+        assert_eq!(pts.len(), n as usize, "{format}");
+        for (i, p) in pts.iter().enumerate() {
+            assert_eq!(p.xyz, [i as f32 * 0.25, -(i as f32), 3.0], "{format} {i}");
+            assert_eq!(p.intensity, (i % 256) as f32, "{format} {i}");
+        }
+        std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
+        let e = format!(
+            "{:#}",
+            ScanFile::open(&path).unwrap().read_all(0).err().unwrap()
+        );
+        assert!(
+            e.contains(&format!("ends after {} of {n} vertices", n - 1)),
+            "{e}"
+        );
+    }
+}
+
 #[test]
 fn the_stanford_scans_stream_in_chunks_as_they_read_whole() {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -9,7 +9,7 @@ use asbuilt_core::{Design, DesignError, Units};
 use nalgebra::Point3;
 
 use crate::IoError;
-use crate::ply::read::{Property, Record, Records, Value, header};
+use crate::ply::read::{Property, Record, Records, Value, header, place};
 use crate::scan::error::{Context, ScanError, bail};
 
 /// Mesh file formats a design can come in.
@@ -169,9 +169,9 @@ fn ply_mesh(mut reader: impl BufRead, path: &Path) -> Result<Mesh, ScanError> {
     let vi = h.vertex_element(path)?;
     let vertex = &h.elements[vi];
     let xyz = ["x", "y", "z"].map(|k| vertex.scalar(&[k]));
-    let [Some(ix), Some(iy), Some(iz)] = xyz else {
+    if xyz.contains(&None) {
         bail!("the vertex element needs x, y and z");
-    };
+    }
     let face = h.element("face");
     let indices = match face {
         Some(f) => Some(
@@ -202,15 +202,7 @@ fn ply_mesh(mut reader: impl BufRead, path: &Path) -> Result<Mesh, ScanError> {
             let mut p = [f64::NAN; 3];
             list.clear();
             let read = records.next(e, &mut |v| match v {
-                Value::Scalar(k, x) if ei == vi => {
-                    if k == ix {
-                        p[0] = x
-                    } else if k == iy {
-                        p[1] = x
-                    } else if k == iz {
-                        p[2] = x
-                    }
-                }
+                Value::Scalar(k, x) if ei == vi => place(&mut p, xyz, k, x),
                 // A negative or fractional index is caught as invalid with the others.
                 Value::Item(k, x) if Some(k) == indices && Some(ei) == face => {
                     list.push(if x >= 0.0 && x.fract() == 0.0 && x < u32::MAX as f64 {

@@ -232,6 +232,14 @@ pub(crate) enum Value {
     Item(usize, f64),
 }
 
+/// Puts scalar property `k`'s value `x` in the slot of `v` that `at` gives it, if any.
+#[inline]
+pub(crate) fn place<const N: usize>(v: &mut [f64; N], at: [Option<usize>; N], k: usize, x: f64) {
+    if let Some(slot) = at.iter().position(|&a| a == Some(k)) {
+        v[slot] = x;
+    }
+}
+
 /// How a record ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Record {

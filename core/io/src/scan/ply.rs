@@ -7,7 +7,7 @@ use std::io::BufReader;
 use std::path::Path;
 
 use super::error::{Result, ScanError, bail};
-use crate::ply::read::{Encoding, Record, Records, Type, Value, fixed_layout, header};
+use crate::ply::read::{Encoding, Record, Records, Type, Value, fixed_layout, header, place};
 
 /// Bytes of binary records read at a time.
 const BLOCK_BYTES: usize = 1 << 16;
@@ -88,15 +88,7 @@ pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
         let mut v = [f64::NAN, f64::NAN, f64::NAN, 0.0];
         let mut take = |value: Value| {
             if let Value::Scalar(k, x) = value {
-                if k == ix {
-                    v[0] = x
-                } else if k == iy {
-                    v[1] = x
-                } else if k == iz {
-                    v[2] = x
-                } else if Some(k) == ii {
-                    v[3] = x
-                }
+                place(&mut v, [Some(ix), Some(iy), Some(iz), ii], k, x);
             }
         };
         line_no += 1;

@@ -832,7 +832,7 @@ impl ProbeGrid {
         let dense = fine_cells <= DENSE_FINE_CELLS
             && keys.len() * (fine_cells + 1) <= DENSE_ENTRIES_PER_POINT * chunk.len() + (1 << 16);
         if dense {
-            self.count_fine(scratch, &keys, fine_cells, chunk);
+            self.count_fine(fine, scratch, &keys, chunk);
         } else {
             self.sort_fine(scratch, chunk);
         }
@@ -850,13 +850,9 @@ impl ProbeGrid {
 
     /// Lays a chunk's points out by cell (in key order), fine cell, then chunk order, with each
     /// cell's table of where its fine cells start: a counting sort, as `runs` counted the cells.
-    fn count_fine(
-        &self,
-        scratch: &mut Scratch,
-        keys: &[u64],
-        fine_cells: usize,
-        chunk: &[Point3<f64>],
-    ) {
+    fn count_fine(&self, fine: &Fine, scratch: &mut Scratch, keys: &[u64], chunk: &[Point3<f64>]) {
+        let m = fine.per_cell as usize;
+        let fine_cells = m * m * m;
         let Scratch {
             columned,
             starts,
@@ -892,7 +888,6 @@ impl ProbeGrid {
                 table[j] += table[j - 1];
             }
         }
-        let m = self.fine.as_ref().map_or(1, |f| f.per_cell as usize);
         if m as i64 <= ROW_BITS {
             // A column's fine cells are m in a row of the table: it holds points when its
             // first start differs from the next column's.

@@ -9,7 +9,7 @@ use asbuilt_core::{Design, DesignError, Units};
 use nalgebra::Point3;
 
 use crate::IoError;
-use crate::ply::read::{Property, Record, Records, Value, header, place};
+use crate::ply::read::{Property, Record, Records, Value, header, place, whole};
 use crate::scan::error::{Context, ScanError, bail};
 
 /// Mesh file formats a design can come in.
@@ -173,8 +173,8 @@ fn ply_mesh(mut reader: impl BufRead, path: &Path) -> Result<Mesh, ScanError> {
         bail!("the vertex element needs x, y and z");
     }
     let face = h.element("face");
-    let indices = match face {
-        Some(f) => Some(
+    let indices = face
+        .map(|f| {
             h.elements[f]
                 .properties
                 .iter()
@@ -182,10 +182,9 @@ fn ply_mesh(mut reader: impl BufRead, path: &Path) -> Result<Mesh, ScanError> {
                     matches!(p, Property::List { name, .. }
                         if name == "vertex_indices" || name == "vertex_index")
                 })
-                .with_context(|| "the face element has no `vertex_indices` list")?,
-        ),
-        None => None,
-    };
+                .with_context(|| "the face element has no `vertex_indices` list")
+        })
+        .transpose()?;
     let mut records = Records::new(reader, h.encoding);
     // Counts are the header's word: room is made as records come, never on its say alone.
     let room = |n: u64| n.min(1 << 20) as usize;
@@ -205,11 +204,7 @@ fn ply_mesh(mut reader: impl BufRead, path: &Path) -> Result<Mesh, ScanError> {
                 Value::Scalar(k, x) if ei == vi => place(&mut p, xyz, k, x),
                 // A negative or fractional index is caught as invalid with the others.
                 Value::Item(k, x) if Some(k) == indices && Some(ei) == face => {
-                    list.push(if x >= 0.0 && x.fract() == 0.0 && x < u32::MAX as f64 {
-                        x as u32
-                    } else {
-                        u32::MAX
-                    })
+                    list.push(whole(x).unwrap_or(u32::MAX))
                 }
                 _ => {}
             })?;

@@ -116,8 +116,9 @@ mod tests {
     use super::*;
 
     /// The shifted sums give a cylinder's mean to 1e-12 of its values' size and its squared
-    /// deviations to 1e-10 (Welford's updates did about 1e-15; report.json allows 1e-9): values spread over a cylinder's length, a tight cluster whose first value is
-    /// an outlier (the sums' worst case), one value, none.
+    /// deviations to 1e-10 (Welford's updates did about 1e-15; report.json allows 1e-9):
+    /// values spread over a cylinder's length, a tight cluster whose first value is an outlier
+    /// (the sums' worst case), one value, none.
     #[test]
     fn shifted_sums_give_the_two_pass_mean_and_spread() {
         use rand::Rng;

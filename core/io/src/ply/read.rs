@@ -365,7 +365,12 @@ impl<R: BufRead> Records<R> {
     }
 }
 
-/// A list's count: a whole number that is not negative.
+/// A list's count or a vertex index: a whole number, not negative, below `u32::MAX`.
+pub(crate) fn whole(x: f64) -> Option<u32> {
+    (x >= 0.0 && x.fract() == 0.0 && x < u32::MAX as f64).then_some(x as u32)
+}
+
+/// A list's count.
 fn count(n: f64) -> Option<usize> {
-    (n >= 0.0 && n.fract() == 0.0 && n < u32::MAX as f64).then_some(n as usize)
+    whole(n).map(|n| n as usize)
 }

@@ -72,9 +72,12 @@ pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
             let got = records.block(&mut buf[..want * size], size)?;
             for r in buf[..got * size].chunks_exact(size) {
                 let value = |(o, t): (usize, Type)| records.decode(t, &r[o..]);
-                let mut p = ScanPoint::new(value(x) as f32, value(y) as f32, value(z) as f32);
-                p.intensity = i.map_or(0.0, value) as f32;
-                out.push(p)?;
+                out.push(scan_point([
+                    value(x),
+                    value(y),
+                    value(z),
+                    i.map_or(0.0, value),
+                ]))?;
             }
             n += got as u64;
             if got < want {
@@ -100,10 +103,15 @@ pub fn stream(path: &Path, chunk: usize, sink: &mut Sink) -> Result<ReadNotes> {
             }
             Record::End => return Err(truncated(n)),
         }
-        let mut p = ScanPoint::new(v[0] as f32, v[1] as f32, v[2] as f32);
-        p.intensity = v[3] as f32;
-        out.push(p)?;
+        out.push(scan_point(v))?;
     }
     out.finish()?;
     Ok(notes)
+}
+
+/// A point from its x, y, z and intensity.
+fn scan_point([x, y, z, intensity]: [f64; 4]) -> ScanPoint {
+    let mut p = ScanPoint::new(x as f32, y as f32, z as f32);
+    p.intensity = intensity as f32;
+    p
 }

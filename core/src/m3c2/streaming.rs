@@ -409,11 +409,15 @@ impl StreamingM3c2 {
 
     /// Every core point over the job so far, in core point order.
     pub fn results(&self, registration_sigma: f64) -> Vec<CoreResult> {
-        let mut out: Vec<CoreResult> = (0..self.grid.len())
-            .map(|i| self.result(i, &self.total[i], registration_sigma))
-            .collect();
-        out.sort_unstable_by_key(|r| r.sample);
-        out
+        // The grid's ids are the samples' indices in another order: placed back by them, not
+        // sorted (sorting 100 k results was a fifth of the bunny job's serial end).
+        let mut at = vec![0u32; self.grid.len()];
+        for (i, &id) in self.grid.ids().iter().enumerate() {
+            at[id as usize] = i as u32;
+        }
+        at.iter()
+            .map(|&i| self.result(i as usize, &self.total[i as usize], registration_sigma))
+            .collect()
     }
 
     fn result(&self, i: usize, r: &Running, reg: f64) -> CoreResult {

@@ -470,10 +470,11 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
 
-    /// The lanes count exactly what a test per point takes, and sum the same values: runs of
-    /// every length around the lanes', along random and axis normals, with points exactly on
-    /// the caps and the rim (dyadic values, so that the ties are exact), and NaN; taken whole
-    /// and cut in two, so that a run may start the sums or go on with them.
+    /// The lanes count exactly what a test per point takes, and sum the same values (the AVX2
+    /// lanes to the bit of the lanes one point at a time): runs of every length around the
+    /// lanes', along random and axis normals, with points exactly on the caps and the rim
+    /// (dyadic values, so that the ties are exact), and NaN; taken whole and cut in two, so
+    /// that a run may start the sums or go on with them.
     #[test]
     fn lanes_take_what_point_tests_take() {
         let mut rng = crate::test_points::seeded(11);
@@ -522,9 +523,16 @@ mod tests {
             let mut coords = crate::probes::Coords::default();
             coords.extend(points.iter());
             for cut in [len, len / 3] {
-                let mut got = Shifted::default();
-                add_inside(&mut got, &p, &n, coords.run(0..cut), r * r, h);
-                add_inside(&mut got, &p, &n, coords.run(cut..len), r * r, h);
+                let run = |vector| {
+                    let mut st = Shifted::default();
+                    add_inside_in(&mut st, (&p, &n, r * r, h), coords.run(0..cut), vector);
+                    add_inside_in(&mut st, (&p, &n, r * r, h), coords.run(cut..len), vector);
+                    st
+                };
+                let got = run(crate::simd::has_avx2());
+                // The AVX2 lanes give the bits of the lanes one point at a time.
+                let bits = |s: &Shifted| (s.n, s.first.to_bits(), s.s1.to_bits(), s.s2.to_bits());
+                assert_eq!(bits(&got), bits(&run(false)), "trial {trial}");
                 assert_eq!((got.n, got.first.to_bits()), (want.n, want.first.to_bits()));
                 // Values lie within 2h of the first: sums in another order agree to rounding.
                 let tol = 1e-14 * f64::from(want.n) * h * h;
@@ -533,50 +541,6 @@ mod tests {
             }
         }
         assert!(ties > 100, "only {ties} points on a rim or cap");
-    }
-
-    /// The AVX2 groups give the bits of the lanes one point at a time: counts, first values
-    /// and both sums, over runs of every length up to a few groups, cut anywhere, with points
-    /// on the rim and caps and points that are not numbers.
-    #[test]
-    fn vector_lanes_give_the_bits_of_one_lane_at_a_time() {
-        if !crate::simd::has_avx2() {
-            return;
-        }
-        let mut rng = crate::test_points::seeded(12);
-        let (r, h) = (2f64.powi(-9), 2f64.powi(-7));
-        let p = Point3::new(0.25, -0.5, 1.0);
-        for trial in 0..600 {
-            let n = match trial % 3 {
-                0 => Vector3::z(),
-                _ => crate::test_points::random_points(&mut rng, 1, -1.0..1.0)[0]
-                    .coords
-                    .try_normalize(1e-6)
-                    .unwrap_or(Vector3::x()),
-            };
-            let len = trial % 67;
-            let mut points = crate::test_points::random_points(&mut rng, len, -0.012..0.012)
-                .into_iter()
-                .map(|q| p + q.coords)
-                .collect::<Vec<_>>();
-            for (k, q) in points.iter_mut().enumerate().filter(|(k, _)| k % 5 == 2) {
-                *q = match k % 3 {
-                    0 => p + n * h,
-                    1 => p - n * h,
-                    _ => Point3::new(p.x, f64::NAN, p.z),
-                };
-            }
-            let mut coords = crate::probes::Coords::default();
-            coords.extend(points.iter());
-            let cut = (trial * 7) % (len + 1);
-            let run = |vector| {
-                let mut st = Shifted::default();
-                add_inside_in(&mut st, (&p, &n, r * r, h), coords.run(0..cut), vector);
-                add_inside_in(&mut st, (&p, &n, r * r, h), coords.run(cut..len), vector);
-                (st.n, st.first.to_bits(), st.s1.to_bits(), st.s2.to_bits())
-            };
-            assert_eq!(run(true), run(false), "trial {trial}");
-        }
     }
 
     /// M3C2 at samples `spacing` apart on a 1 m × 1 m box `height` high, at least 5 points a

@@ -154,15 +154,19 @@ fn add_inside_in(
             sums.1[k] += d;
             sums.2[k] += d * d;
         }
-        #[allow(unused_mut)]
-        let mut done = 0;
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = vector;
+        // The points the AVX2 lanes took (all of them), or none.
         #[cfg(target_arch = "x86_64")]
-        if vector {
+        let done = if vector {
             // SAFETY: `vector` only where the CPU has AVX2.
-            done = unsafe { groups_avx2((p, n, r2, h, first), qs, (&mut count, &mut s1, &mut s2)) };
-        }
+            unsafe { groups_avx2((p, n, r2, h, first), qs, (&mut count, &mut s1, &mut s2)) }
+        } else {
+            0
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let done = {
+            let _ = vector;
+            0
+        };
         let (x, y, z) = (&qs.x[done..], &qs.y[done..], &qs.z[done..]);
         let (x, y, z) = (x.chunks_exact(LANES), y.chunks_exact(LANES), z.chunks_exact(LANES));
         let (rx, ry, rz) = (x.remainder(), y.remainder(), z.remainder());

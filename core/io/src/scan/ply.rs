@@ -8,12 +8,12 @@ use std::path::Path;
 
 use super::error::{Result, ScanError, bail};
 use crate::ply::read::{Encoding, Record, Records, Type, Value, fixed_layout, header, place};
-
-/// Bytes of binary records read at a time.
-const BLOCK_BYTES: usize = 1 << 16;
 use asbuilt_protocol::ScanPoint;
 
 use super::{Batcher, ReadNotes, ScanInfo, Sink};
+
+/// Bytes of binary records read at a time.
+const BLOCK_BYTES: usize = 1 << 16;
 
 pub fn scans(path: &Path) -> Result<Vec<ScanInfo>> {
     let mut reader = BufReader::new(File::open(path)?);

@@ -113,13 +113,77 @@ struct Fine {
     per_cell: i64,
     /// For cylinders, each probe's box; empty for narrowing balls, whose box follows the state.
     half_box: Vec<Vector3<f64>>,
+    /// [`Fine::split`]'s divisor by `per_cell`, as a multiply and a shift.
+    divide: Divide,
 }
 
 impl Fine {
+    fn new(width: f64, per_cell: i64) -> Self {
+        Self {
+            width,
+            per_cell,
+            half_box: Vec::new(),
+            divide: Divide::new(per_cell),
+        }
+    }
+
     /// The cell a fine cell lies in.
     #[inline]
     fn cell_of(&self, c: [i64; 3]) -> [i64; 3] {
-        c.map(|v| v.div_euclid(self.per_cell))
+        let d = &self.divide;
+        [d.split(c[0]).0, d.split(c[1]).0, d.split(c[2]).0]
+    }
+
+    /// The cell a fine cell lies in, and the fine cell's index within it (x, then y, then z).
+    #[inline]
+    fn split(&self, c: [i64; 3]) -> ([i64; 3], u32) {
+        let d = &self.divide;
+        let ((x, lx), (y, ly), (z, lz)) = (d.split(c[0]), d.split(c[1]), d.split(c[2]));
+        let m = self.per_cell;
+        ([x, y, z], ((lx * m + ly) * m + lz) as u32)
+    }
+}
+
+/// Floor division of a fine cell coordinate by the fine cells a cell side holds, without an
+/// integer division: every point of every batch takes three, and a 64-bit divide costs tens of
+/// cycles where a multiply costs three.
+#[derive(Clone, Copy)]
+struct Divide {
+    m: u64,
+    /// A multiple of `m` at least [`AXIS_BIAS`]: coordinates plus it are never negative.
+    bias: u64,
+    /// ⌈2^SHIFT / m⌉.
+    magic: u64,
+    /// `bias / m`.
+    below: i64,
+}
+
+impl Divide {
+    /// For `m` ≥ 1 below 2^11 (a cell's fine cells number below 2^32) and coordinates within
+    /// ±[`AXIS_BIAS`], `n = v + bias` is below 2^22. Then ⌊n·magic / 2^40⌋ is ⌊n / m⌋: magic
+    /// exceeds 2^40 / m by less than one, which adds less than n / 2^40 < 2^-18 to n / m, and
+    /// n / m's fraction is at most 1 - 1/m ≤ 1 - 2^-11. The product stays below 2^62.
+    const SHIFT: u32 = 40;
+
+    fn new(m: i64) -> Self {
+        assert!((1..1 << 11).contains(&m), "fine cells a side: {m}");
+        let m = m as u64;
+        let below = (AXIS_BIAS as u64).div_ceil(m);
+        Self {
+            m,
+            bias: below * m,
+            magic: (1u64 << Self::SHIFT).div_ceil(m),
+            below: below as i64,
+        }
+    }
+
+    /// `(v.div_euclid(m), v.rem_euclid(m))` for |v| within [`AXIS_BIAS`].
+    #[inline]
+    fn split(&self, v: i64) -> (i64, i64) {
+        debug_assert!(v.abs() <= AXIS_BIAS, "coordinate {v} outside the grid");
+        let n = (v + self.bias as i64) as u64;
+        let q = (n * self.magic) >> Self::SHIFT;
+        (q as i64 - self.below, (n - q * self.m) as i64)
     }
 }
 
@@ -280,11 +344,7 @@ impl ProbeGrid {
         };
         if let Some(width) = fine {
             // Set now: probes and points find their cells the same way, through fine cells.
-            grid.fine = Some(Fine {
-                width,
-                per_cell,
-                half_box: Vec::new(),
-            });
+            grid.fine = Some(Fine::new(width, per_cell));
         }
         let mut keyed: Vec<(u64, u32)> = points
             .iter()
@@ -377,7 +437,12 @@ impl ProbeGrid {
     /// `p` in units of `width` from the grid's origin: what [`Self::coords_at`] floors.
     #[inline]
     fn scaled(&self, p: &Point3<f64>, width: f64) -> [f64; 3] {
-        [0, 1, 2].map(|k| (p[k] - self.origin[k]) / width)
+        let o = &self.origin;
+        [
+            (p.x - o.x) / width,
+            (p.y - o.y) / width,
+            (p.z - o.z) / width,
+        ]
     }
 
     /// A cylinder's probe's cut of its box column by column; `None` for other regions.
@@ -802,12 +867,12 @@ impl ProbeGrid {
         let m = fine.per_cell;
         let columned = &mut scratch.columned;
         columned.reserve(chunk.len());
-        columned.extend(chunk.iter().enumerate().filter_map(|(i, p)| {
-            let f = self.coords_at(p, fine.width)?;
-            let c = fine.cell_of(f);
-            let local = ((f[0] - c[0] * m) * m + (f[1] - c[1] * m)) * m + (f[2] - c[2] * m);
-            Some((Self::pack(c), local as u32, i as u32))
-        }));
+        for (i, p) in chunk.iter().enumerate() {
+            if let Some(f) = self.coords_at(p, fine.width) {
+                let (c, local) = fine.split(f);
+                columned.push((Self::pack(c), local, i as u32));
+            }
+        }
         // The occupied cells and their points, counted in `runs` (a scan's chunk keeps to a few
         // cells at a time, so the last one found is tried first).
         let runs = &mut scratch.runs;
@@ -958,6 +1023,37 @@ fn runs_of(keyed: &[(u64, u32)]) -> impl Iterator<Item = (u64, u32, u32)> + '_ {
 mod tests {
     use super::*;
     use crate::test_points::{random_points, seeded};
+    use rand::Rng;
+
+    #[test]
+    fn fine_cells_divide_as_integers_do() {
+        let mut rng = seeded(11);
+        let edges = [
+            -AXIS_BIAS,
+            -AXIS_BIAS + 1,
+            -1,
+            0,
+            1,
+            AXIS_BIAS - 1,
+            AXIS_BIAS,
+        ];
+        for m in 1..1 << 11 {
+            let d = Divide::new(m);
+            let near = [-m - 1, -m, -m + 1, m - 1, m, m + 1];
+            let random = (0..50).map(|_| rng.random_range(-AXIS_BIAS..=AXIS_BIAS));
+            for v in edges.into_iter().chain(near).chain(random) {
+                assert_eq!(d.split(v), (v.div_euclid(m), v.rem_euclid(m)), "{v} / {m}");
+            }
+        }
+        let fine = Fine::new(0.5, 7);
+        for c in [[-8, 0, 13], [6, -7, -1], [0, 0, 0]] {
+            let (cell, local) = fine.split(c);
+            assert_eq!(cell, c.map(|v| v.div_euclid(7)));
+            assert_eq!(fine.cell_of(c), cell);
+            let r = c.map(|v| v.rem_euclid(7));
+            assert_eq!(local as i64, (r[0] * 7 + r[1]) * 7 + r[2]);
+        }
+    }
 
     #[test]
     fn every_point_within_reach_is_offered_to_every_probe_exactly_once() {

@@ -26,6 +26,10 @@ use crate::c2m::Surface;
 use crate::probes::{ProbeGrid, Region, Scratch};
 use crate::sampling::DesignSamples;
 
+mod nearest;
+
+use nearest::Nearest;
+
 /// The parameters of coverage.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CoverageParams {
@@ -156,42 +160,6 @@ pub struct CoverageState {
     pub nearest: Vec<(f64, f64, bool)>,
     /// Per closed station: its origin and angular step.
     pub stations: Vec<([f64; 3], Option<f64>)>,
-}
-
-/// The nearest scan point of one sample so far.
-#[derive(Debug, Clone, Copy)]
-struct Nearest {
-    d2: f64,
-    /// That point's offset along the sample's outward normal, metres.
-    along: f64,
-    /// A point stood outside the design on the sample's normal line.
-    buried: bool,
-}
-
-impl Nearest {
-    const NONE: Self = Self {
-        d2: f64::INFINITY,
-        along: 0.0,
-        buried: false,
-    };
-
-    #[inline]
-    fn offer(&mut self, d2: f64, along: f64) {
-        if d2 < self.d2 || (d2 == self.d2 && along > self.along) {
-            self.d2 = d2;
-            self.along = along;
-        }
-    }
-
-    /// The nearest point's distance across the surface (off the sample's normal line).
-    fn lateral(&self) -> f64 {
-        (self.d2 - self.along * self.along).max(0.0).sqrt()
-    }
-
-    fn merge(&mut self, o: &Self) {
-        self.offer(o.d2, o.along);
-        self.buried |= o.buried;
-    }
 }
 
 /// Coverage over the stations closed so far, in design samples.
@@ -366,14 +334,7 @@ impl Coverage {
             &mut self.station,
             points,
             bound,
-            |v, n, st| {
-                let d2 = v.norm_squared();
-                if d2 <= reach2 {
-                    let along = v.dot(n);
-                    st.offer(d2, along);
-                    st.buried |= along > 0.0 && d2 - along * along <= t2;
-                }
-            },
+            |p, n, qs, st| st.take(p, n, qs, reach2, t2),
         );
     }
 

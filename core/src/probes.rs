@@ -653,9 +653,9 @@ impl ProbeGrid {
     /// Offers `chunk` to probes that keep only what is nearest ([`Region::Narrowing`]): a probe
     /// is offered the points in the box `bound(normal, state)` gives (half-widths around the
     /// probe, at most the reach), first cut to one fine cell's width, then whole as that first
-    /// box's points leave it. A point may be offered to a probe twice: `visit` must keep what it
-    /// keeps by a rule a repeat cannot change (a minimum, an or). Any other grid offers as
-    /// [`Self::offer`] does.
+    /// box's points leave it, a run at a time as [`Self::offer_slices`] gives them. A point may
+    /// be offered to a probe twice: `visit` must keep what it keeps by a rule a repeat cannot
+    /// change (a minimum, an or). Any other grid offers as [`Self::offer_slices`] does.
     pub fn offer_narrowing<S, F, B>(
         &self,
         scratch: &mut Scratch,
@@ -665,16 +665,16 @@ impl ProbeGrid {
         visit: F,
     ) where
         S: Send,
-        F: Fn(Vector3<f64>, &Vector3<f64>, &mut S) + Sync,
+        F: Fn(&Point3<f64>, &Vector3<f64>, Run<'_>, &mut S) + Sync,
         B: Fn(&Vector3<f64>, &S) -> Vector3<f64> + Sync,
     {
         match (&self.fine, self.region) {
             (Some(fine), Region::Narrowing { .. }) => {
                 assert_eq!(state.len(), self.points.len(), "one state per probe");
                 let boxes = |_: usize, n: &Vector3<f64>, s: &S| bound(n, s);
-                self.offer_fine(fine, scratch, state, chunk, boxes, true, each_point(visit));
+                self.offer_fine(fine, scratch, state, chunk, boxes, true, visit);
             }
-            _ => self.offer(scratch, state, chunk, visit),
+            _ => self.offer_slices(scratch, state, chunk, visit),
         }
     }
 
@@ -1199,9 +1199,8 @@ mod tests {
                     let line = n.map(|c| reach * c.abs() + t * (1.0 - c * c).max(0.0).sqrt());
                     ball.sup(&line.add_scalar(pad))
                 };
-                grid.offer_narrowing(&mut scratch, &mut state, c, bound, |v, n, st| {
-                    keep(st, v, n, reach, t)
-                });
+                let visit = each_point(|v, n, st: &mut Nearest| keep(st, v, n, reach, t));
+                grid.offer_narrowing(&mut scratch, &mut state, c, bound, visit);
             }
             let mut offered = 0u64;
             for (i, &id) in grid.ids().iter().enumerate() {

@@ -201,6 +201,12 @@ impl Grid {
         }
     }
 
+    /// A cell's candidates (internal triangles), nearest to its centre first.
+    #[inline]
+    pub fn candidates(&self, cell: &Cell) -> &[u32] {
+        &self.cand[cell.start as usize..cell.start as usize + cell.len as usize]
+    }
+
     /// The highest vertex of a cell's candidates, or above it.
     #[inline]
     pub fn top(&self, cell: &Cell) -> f64 {

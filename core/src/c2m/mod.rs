@@ -29,7 +29,7 @@ use rayon::prelude::*;
 
 use crate::design::Design;
 use crate::order;
-use bvh::{All, Below, Bvh};
+use bvh::{All, Below, Bvh, Filter};
 use grid::{AXIS_MAX, Cell, Grid};
 use mesh::{Mesh, NormalSource};
 use triangle::Region;
@@ -130,6 +130,8 @@ pub struct Cursor {
     last: Option<u32>,
     section_cell: CellCache,
     section_last: Option<u32>,
+    /// Whether a cell's list keeps any triangle wholly below a cut: cell key, the cut's bits.
+    kept_below: Option<(u64, u64, bool)>,
 }
 
 /// A design prepared for C2M queries. Built once per design and maximum distance.
@@ -424,11 +426,14 @@ impl C2mIndex {
         let whole = match self.cell_of(p, &mut cursor.cell) {
             Some(cell) if cell.has_list() => {
                 let center = &cursor.cell.center;
-                // Every candidate below the cut needs no filter.
+                // Every candidate below the cut needs no filter; with none below, the filtered
+                // search would measure every candidate to keep none.
                 let best = if self.grid.top(&cell) < h {
                     self.grid.closest(&self.mesh, &cell, center, p, &All)
-                } else {
+                } else if self.keeps_below(&cell, cursor.cell.key, &below, &mut cursor.kept_below) {
                     self.grid.closest(&self.mesh, &cell, center, p, &below)
+                } else {
+                    None
                 };
                 // The cap, when it is nearer, bounds the search: ties go to it anyway.
                 self.confirm(p, center, best, cursor.last, bound2, &below)
@@ -446,6 +451,31 @@ impl C2mIndex {
                 Some(section.signed(p, t))
             }
             _ => None,
+        }
+    }
+
+    /// Whether `below` keeps any candidate of `cell` (key `key`), through the cursor's cache:
+    /// a scan's points come cell by cell, so a cell's list is read once for many points.
+    #[inline]
+    fn keeps_below(
+        &self,
+        cell: &Cell,
+        key: u64,
+        below: &Below,
+        cache: &mut Option<(u64, u64, bool)>,
+    ) -> bool {
+        let cut = below.0.to_bits();
+        match *cache {
+            Some((k, c, any)) if k == key && c == cut => any,
+            _ => {
+                let any = self
+                    .grid
+                    .candidates(cell)
+                    .iter()
+                    .any(|&t| below.triangle(&self.mesh, t as usize));
+                *cache = Some((key, cut, any));
+                any
+            }
         }
     }
 

@@ -971,10 +971,15 @@ impl ProbeGrid {
         fill.clear();
         fill.extend_from_slice(starts);
         sorted.resize(columned.len());
+        // The three columns as slices, so that their bounds stay in registers: through the
+        // vectors, every store reloaded them.
+        let (xs, ys, zs) = sorted.columns_mut();
+        let fill = fill.as_mut_slice();
         let mut cached = (0, usize::MAX);
         for &(key, local, i) in columned.iter() {
             let slot = &mut fill[table_of(key, &mut cached) + local as usize];
-            sorted.set(*slot as usize, &chunk[i as usize]);
+            let (p, at) = (&chunk[i as usize], *slot as usize);
+            (xs[at], ys[at], zs[at]) = (p.x, p.y, p.z);
             *slot += 1;
         }
     }

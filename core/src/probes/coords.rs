@@ -28,18 +28,16 @@ impl Coords {
         self.z.reserve(n);
     }
 
-    /// `n` points, each to be [`Self::set`].
+    /// `n` points, each to be written through [`Self::columns_mut`].
     pub(crate) fn resize(&mut self, n: usize) {
         self.x.resize(n, 0.0);
         self.y.resize(n, 0.0);
         self.z.resize(n, 0.0);
     }
 
-    #[inline]
-    pub(crate) fn set(&mut self, i: usize, p: &Point3<f64>) {
-        self.x[i] = p.x;
-        self.y[i] = p.y;
-        self.z[i] = p.z;
+    /// The x, y and z of every point, to be written.
+    pub(crate) fn columns_mut(&mut self) -> (&mut [f64], &mut [f64], &mut [f64]) {
+        (&mut self.x, &mut self.y, &mut self.z)
     }
 
     pub(crate) fn extend<'a>(&mut self, points: impl Iterator<Item = &'a Point3<f64>>) {

@@ -136,8 +136,8 @@ unsafe fn lanes_avx2(
     // SAFETY: the CPU has AVX2; every load reads four f64 within the first `len` values of a
     // slice (the last group's masked to them), and every store writes an array of four.
     unsafe {
-        let [px, py, pz] = [p.x, p.y, p.z].map(|v| _mm256_set1_pd(v));
-        let [nx, ny, nz] = [n.x, n.y, n.z].map(|v| _mm256_set1_pd(v));
+        let p = [p.x, p.y, p.z].map(|v| _mm256_set1_pd(v));
+        let n = [n.x, n.y, n.z].map(|v| _mm256_set1_pd(v));
         let (reach2, t2, zero) = (
             _mm256_set1_pd(reach2),
             _mm256_set1_pd(t2),
@@ -148,39 +148,20 @@ unsafe fn lanes_avx2(
         let mut at = 0;
         while at < len {
             let rest = len - at;
-            let (x, y, z, valid) = if rest >= 4 {
-                (
-                    _mm256_loadu_pd(qs.x.as_ptr().add(at)),
-                    _mm256_loadu_pd(qs.y.as_ptr().add(at)),
-                    _mm256_loadu_pd(qs.z.as_ptr().add(at)),
-                    None,
-                )
+            let valid = if rest < 4 {
+                Some(_mm256_setr_epi64x(
+                    -1,
+                    -i64::from(rest > 1),
+                    -i64::from(rest > 2),
+                    0,
+                ))
             } else {
-                let m = _mm256_setr_epi64x(-1, -i64::from(rest > 1), -i64::from(rest > 2), 0);
-                (
-                    _mm256_maskload_pd(qs.x.as_ptr().add(at), m),
-                    _mm256_maskload_pd(qs.y.as_ptr().add(at), m),
-                    _mm256_maskload_pd(qs.z.as_ptr().add(at), m),
-                    Some(_mm256_castsi256_pd(m)),
-                )
+                None
             };
-            let (vx, vy, vz) = (
-                _mm256_sub_pd(x, px),
-                _mm256_sub_pd(y, py),
-                _mm256_sub_pd(z, pz),
-            );
-            // As `take_point`: (vx·vx + vy·vy) + vz·vz, and the offset likewise.
-            let d2 = _mm256_add_pd(
-                _mm256_add_pd(_mm256_mul_pd(vx, vx), _mm256_mul_pd(vy, vy)),
-                _mm256_mul_pd(vz, vz),
-            );
-            let along = _mm256_add_pd(
-                _mm256_add_pd(_mm256_mul_pd(vx, nx), _mm256_mul_pd(vy, ny)),
-                _mm256_mul_pd(vz, nz),
-            );
+            let (d2, along) = qs.offsets_avx2(at, valid, &p, &n);
             let mut within = _mm256_cmp_pd::<_CMP_LE_OQ>(d2, reach2);
             if let Some(m) = valid {
-                within = _mm256_and_pd(within, m);
+                within = _mm256_and_pd(within, _mm256_castsi256_pd(m));
             }
             // `Nearest::offer`: nearer, or as near and after in `total_cmp`, which differs from
             // `>` only on equal values: then their bits as integers tell +0 from −0.

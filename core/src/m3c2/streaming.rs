@@ -225,34 +225,9 @@ unsafe fn groups_avx2(
             k: &[__m256d; 10],
         ) -> (__m256d, __m256d) {
             let [px, py, pz, nx, ny, nz, r2, h, first, sign] = *k;
-            // SAFETY: as the caller's; a masked load reads only the lanes `valid` keeps.
+            // SAFETY: as the caller's.
             unsafe {
-                let (x, y, z) = match valid {
-                    None => (
-                        _mm256_loadu_pd(qs.x.as_ptr().add(at)),
-                        _mm256_loadu_pd(qs.y.as_ptr().add(at)),
-                        _mm256_loadu_pd(qs.z.as_ptr().add(at)),
-                    ),
-                    Some(m) => (
-                        _mm256_maskload_pd(qs.x.as_ptr().add(at), m),
-                        _mm256_maskload_pd(qs.y.as_ptr().add(at), m),
-                        _mm256_maskload_pd(qs.z.as_ptr().add(at), m),
-                    ),
-                };
-                let (vx, vy, vz) = (
-                    _mm256_sub_pd(x, px),
-                    _mm256_sub_pd(y, py),
-                    _mm256_sub_pd(z, pz),
-                );
-                // As `test`: (vx·nx + vy·ny) + vz·nz, and the squares likewise.
-                let a = _mm256_add_pd(
-                    _mm256_add_pd(_mm256_mul_pd(vx, nx), _mm256_mul_pd(vy, ny)),
-                    _mm256_mul_pd(vz, nz),
-                );
-                let d2 = _mm256_add_pd(
-                    _mm256_add_pd(_mm256_mul_pd(vx, vx), _mm256_mul_pd(vy, vy)),
-                    _mm256_mul_pd(vz, vz),
-                );
+                let (d2, a) = qs.offsets_avx2(at, valid, &[px, py, pz], &[nx, ny, nz]);
                 let along = _mm256_cmp_pd::<_CMP_LE_OQ>(_mm256_andnot_pd(sign, a), h);
                 let across =
                     _mm256_cmp_pd::<_CMP_LE_OQ>(_mm256_sub_pd(d2, _mm256_mul_pd(a, a)), r2);

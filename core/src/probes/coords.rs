@@ -88,6 +88,56 @@ impl Run<'_> {
         self.x.is_empty()
     }
 
+    /// Four points from `at` as offsets v from the probe `p`, in AVX2 registers: their squared
+    /// lengths and their offsets along `n`, each as nalgebra evaluates `v.norm_squared()` and
+    /// `v.dot(n)`, (vx·vx + vy·vy) + vz·vz. With `valid`, only its lanes are loaded (the
+    /// others hold what zeros give).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2, and the four points from `at` (those `valid` keeps) must lie in
+    /// the run.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub(crate) unsafe fn offsets_avx2(
+        &self,
+        at: usize,
+        valid: Option<std::arch::x86_64::__m256i>,
+        p: &[std::arch::x86_64::__m256d; 3],
+        n: &[std::arch::x86_64::__m256d; 3],
+    ) -> (std::arch::x86_64::__m256d, std::arch::x86_64::__m256d) {
+        use std::arch::x86_64::*;
+        // SAFETY: as the caller's; a masked load reads only the lanes `valid` keeps.
+        unsafe {
+            // Written out, not a closure: a closure left out of line runs without AVX2.
+            let (x, y, z) = match valid {
+                None => (
+                    _mm256_loadu_pd(self.x.as_ptr().add(at)),
+                    _mm256_loadu_pd(self.y.as_ptr().add(at)),
+                    _mm256_loadu_pd(self.z.as_ptr().add(at)),
+                ),
+                Some(m) => (
+                    _mm256_maskload_pd(self.x.as_ptr().add(at), m),
+                    _mm256_maskload_pd(self.y.as_ptr().add(at), m),
+                    _mm256_maskload_pd(self.z.as_ptr().add(at), m),
+                ),
+            };
+            let (vx, vy, vz) = (
+                _mm256_sub_pd(x, p[0]),
+                _mm256_sub_pd(y, p[1]),
+                _mm256_sub_pd(z, p[2]),
+            );
+            let d2 = _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(vx, vx), _mm256_mul_pd(vy, vy)),
+                _mm256_mul_pd(vz, vz),
+            );
+            let along = _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(vx, n[0]), _mm256_mul_pd(vy, n[1])),
+                _mm256_mul_pd(vz, n[2]),
+            );
+            (d2, along)
+        }
+    }
+
     /// The points in order.
     #[inline]
     pub fn iter(&self) -> impl Iterator<Item = Point3<f64>> + '_ {

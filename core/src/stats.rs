@@ -28,6 +28,7 @@ fn nearest_nm(x: f64) -> i128 {
         x.round() as i128
     }
 }
+
 /// Mantissa bits kept per bin: 2⁶ = 64 bins per octave.
 const SUB_BITS: u32 = 6;
 /// |d| below 2^MIN_EXP m share bin 0; at or above 2^MAX_EXP m share the last bin.
@@ -289,6 +290,7 @@ pub fn median(values: impl IntoIterator<Item = f64>) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
 
     /// The nanometres rounded as `round() as i128` rounds them: ties away from zero, either
     /// side of zero, near and past the fast path's end, and not numbers.
@@ -322,7 +324,6 @@ mod tests {
             assert_eq!(nearest_nm(x), x.round() as i128, "{x:e}");
         }
     }
-    use rand::{Rng, SeedableRng};
 
     fn exact_quantile(values: &[f64], q: f64) -> f64 {
         let mut a: Vec<f64> = values.iter().map(|v| v.abs()).collect();

@@ -328,9 +328,10 @@ impl Bvh {
                 let m = (out.len() - i).min(4);
                 let ids: [u32; 4] = std::array::from_fn(|l| out[i + l.min(m - 1)].0);
                 mesh.load(&mut lanes, &ids[..m]);
-                let d2 = lanes.dist2(p);
-                for (&t, &d2) in ids[..m].iter().zip(&d2) {
-                    let d = d2.sqrt();
+                // Four roots in one instruction, not four in turn: a root is correctly
+                // rounded either way, so the bits are the same.
+                let d4 = lanes.dist2(p).map(f64::sqrt);
+                for (&t, &d) in ids[..m].iter().zip(&d4) {
                     if d <= radius {
                         out[kept] = (t, d);
                         kept += 1;

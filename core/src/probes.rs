@@ -251,8 +251,6 @@ pub struct Scratch {
     /// For cylinders: per occupied cell, where each of its fine cells starts in `sorted`
     /// (and one past the last), when a cell has few enough fine cells ([`DENSE_FINE_CELLS`]).
     starts: Vec<u32>,
-    /// For cylinders: where the next point of each fine cell goes, while they are laid out.
-    fill: Vec<u32>,
     /// With the tables: per occupied cell, per x, the columns holding points (a bit per y).
     /// A scanner's chunk sweeps the whole part, so most of a box's columns hold none of it.
     rows: Vec<u64>,
@@ -269,7 +267,7 @@ impl Scratch {
     pub fn bytes(&self) -> usize {
         self.keyed.capacity() * size_of::<(u64, u32)>()
             + self.columned.capacity() * size_of::<(u64, u32, u32)>()
-            + (self.starts.capacity() + self.fill.capacity()) * size_of::<u32>()
+            + self.starts.capacity() * size_of::<u32>()
             + self.rows.capacity() * size_of::<u64>()
             + self.sorted.bytes()
             + self.runs.capacity() * (size_of::<u64>() + size_of::<(u32, u32, u32)>())
@@ -504,7 +502,6 @@ impl ProbeGrid {
             sorted,
             runs,
             starts,
-            fill,
             rows,
             active,
             mark,
@@ -524,7 +521,6 @@ impl ProbeGrid {
         sorted.clear();
         runs.clear();
         starts.clear();
-        fill.clear();
         rows.clear();
         active.clear();
         sorted.reserve(points);
@@ -915,13 +911,17 @@ impl ProbeGrid {
 
     /// Lays a chunk's points out by cell (in key order), fine cell, then chunk order, with each
     /// cell's table of where its fine cells start: a counting sort, as `runs` counted the cells.
+    ///
+    /// The tables serve as the sort's cursors too, one place ahead: fine cell l is counted at
+    /// l + 2 and summed, so that its cursor at l + 1 holds where it starts; laying out its points
+    /// moves the cursor to where l + 1 starts, which is the table. A copy of the tables as
+    /// cursors cost as much again in memory and a copy per chunk.
     fn count_fine(&self, fine: &Fine, scratch: &mut Scratch, keys: &[u64], chunk: &[Point3<f64>]) {
         let m = fine.per_cell as usize;
         let fine_cells = m * m * m;
         let Scratch {
             columned,
             starts,
-            fill,
             sorted,
             runs,
             rows,
@@ -934,7 +934,11 @@ impl ProbeGrid {
             *run = (start, start + n, (c * (fine_cells + 1)) as u32);
             start += n;
         }
-        starts.resize(keys.len() * (fine_cells + 1), 0);
+        // One more than the tables: the last fine cell of the last table counts there. A last
+        // fine cell's count starts nothing, and in any other table it lands on the next
+        // table's first entry, which is set below.
+        let tables = keys.len() * (fine_cells + 1);
+        starts.resize(tables + 1, 0);
         let table_of = |key: u64, cached: &mut (u64, usize)| {
             if cached.0 != key || cached.1 == usize::MAX {
                 *cached = (key, runs[&key].2 as usize);
@@ -943,15 +947,29 @@ impl ProbeGrid {
         };
         let mut cached = (0, usize::MAX);
         for &(key, local, _) in columned.iter() {
-            starts[table_of(key, &mut cached) + local as usize + 1] += 1;
+            starts[table_of(key, &mut cached) + local as usize + 2] += 1;
         }
+        starts.truncate(tables);
         for key in keys {
             let (first, _, table) = runs[key];
             let table = &mut starts[table as usize..table as usize + fine_cells + 1];
             table[0] = first;
-            for j in 1..table.len() {
+            table[1] = first;
+            for j in 2..table.len() {
                 table[j] += table[j - 1];
             }
+        }
+        sorted.resize(columned.len());
+        // The three columns as slices, so that their bounds stay in registers: through the
+        // vectors, every store reloaded them.
+        let (xs, ys, zs) = sorted.columns_mut();
+        let cursors = starts.as_mut_slice();
+        let mut cached = (0, usize::MAX);
+        for &(key, local, i) in columned.iter() {
+            let slot = &mut cursors[table_of(key, &mut cached) + local as usize + 1];
+            let (p, at) = (&chunk[i as usize], *slot as usize);
+            (xs[at], ys[at], zs[at]) = (p.x, p.y, p.z);
+            *slot += 1;
         }
         if m as i64 <= ROW_BITS {
             // A column's fine cells are m in a row of the table: it holds points when its
@@ -967,20 +985,6 @@ impl ProbeGrid {
                     rows.push(row);
                 }
             }
-        }
-        fill.clear();
-        fill.extend_from_slice(starts);
-        sorted.resize(columned.len());
-        // The three columns as slices, so that their bounds stay in registers: through the
-        // vectors, every store reloaded them.
-        let (xs, ys, zs) = sorted.columns_mut();
-        let fill = fill.as_mut_slice();
-        let mut cached = (0, usize::MAX);
-        for &(key, local, i) in columned.iter() {
-            let slot = &mut fill[table_of(key, &mut cached) + local as usize];
-            let (p, at) = (&chunk[i as usize], *slot as usize);
-            (xs[at], ys[at], zs[at]) = (p.x, p.y, p.z);
-            *slot += 1;
         }
     }
 

@@ -295,11 +295,24 @@ impl Grid {
                 let m = (n - i).min(L);
                 mesh.load(&mut lanes, &cand[i..i + m]);
                 let d2 = lanes.dist2(p);
-                for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
-                    if super::better_internal(mesh, t, d2, best)
-                        && filter.triangle(mesh, t as usize)
+                // Most groups beat nothing: one comparison of the four says so, before the
+                // lanes are taken in turn (a lane beats the best only at or under its d², and
+                // a NaN never does).
+                let beats = best.is_none_or(|(_, b)| d2[..m].iter().any(|&d| d <= b));
+                if beats {
+                    let before = best;
+                    for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
+                        if super::better_internal(mesh, t, d2, best)
+                            && filter.triangle(mesh, t as usize)
+                        {
+                            best = Some((t, d2));
+                        }
+                    }
+                    // The bound follows the group's best, once a group: the last lane's
+                    // improvement is the one that counted, and a root is slow.
+                    if let Some((t, d2)) = best
+                        && before.is_none_or(|(b, _)| b != t)
                     {
-                        best = Some((t, d2));
                         let stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
                         let bytes = (stop + dc) * grid.inv_step * (1.0 + 1e-9) + 1e-9;
                         last = bytes.min(255.0) as u8;

@@ -300,19 +300,18 @@ impl Grid {
                 // a NaN never does).
                 let beats = best.is_none_or(|(_, b)| d2[..m].iter().any(|&d| d <= b));
                 if beats {
-                    let before = best;
+                    let mut improved = false;
                     for (&t, &d2) in cand[i..i + m].iter().zip(&d2) {
                         if super::better_internal(mesh, t, d2, best)
                             && filter.triangle(mesh, t as usize)
                         {
                             best = Some((t, d2));
+                            improved = true;
                         }
                     }
                     // The bound follows the group's best, once a group: the last lane's
                     // improvement is the one that counted, and a root is slow.
-                    if let Some((t, d2)) = best
-                        && before.is_none_or(|(b, _)| b != t)
-                    {
+                    if let Some((_, d2)) = best.filter(|_| improved) {
                         let stop = d2.sqrt() * (1.0 + 1e-12) + 1e-15;
                         let bytes = (stop + dc) * grid.inv_step * (1.0 + 1e-9) + 1e-9;
                         last = bytes.min(255.0) as u8;

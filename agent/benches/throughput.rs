@@ -1,7 +1,11 @@
 //! Sustained throughput of the real agent process over iceoryx2 with C2M on the Stanford bunny
 //! (69,451 triangles), and the delay from a station's last chunk to its report.
 //!
-//! `cargo bench -p asbuilt-agent --bench throughput` (add `-- --quick` for one round)
+//! `cargo bench -p asbuilt-agent --bench throughput` (add `-- --quick` for one round, or
+//! `-- --recorder N` for only the recorder's alternating rounds, N of them: its cost is a few
+//! per cent on a noisy machine, so it wants more rounds than the rest). `ASBUILT_AGENT=PATH`
+//! runs another build of the agent (a saved copy of the one before a change) under the same
+//! benchmark, so two builds can be run in turn in one sitting.
 //!
 //! - max rate: the publisher sends as fast as the agent takes chunks (it is held back when the
 //!   agent's queue is full), so points / (report time - first send) is the agent's sustained rate.
@@ -152,7 +156,14 @@ fn count_recorded(dir: &Path) -> (usize, u64, usize, usize) {
 }
 
 fn main() {
-    let quick = std::env::args().any(|a| a == "--quick");
+    let args: Vec<String> = std::env::args().collect();
+    let quick = args.iter().any(|a| a == "--quick");
+    let recorder_rounds = args.iter().position(|a| a == "--recorder").map(|i| {
+        match args.get(i + 1).and_then(|n| n.parse::<usize>().ok()) {
+            Some(n) if n > 0 => n,
+            _ => panic!("--recorder takes a number of rounds, such as --recorder 15"),
+        }
+    });
     let rounds = if quick { 1 } else { 5 };
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     let mesh = data.join("stanford-bunny/bun_zipper.ply");
@@ -186,15 +197,17 @@ fn main() {
     run(None); // warm-up: page in the shared-memory pools
 
     println!(
-        "agent throughput, bunny C2M, {} points per station, {} per chunk, {rounds} round(s)",
+        "agent throughput, bunny C2M, {} points per station, {} per chunk, {} round(s)",
         points.len(),
-        CHUNK
+        CHUNK,
+        recorder_rounds.unwrap_or(rounds)
     );
-    for (label, rate) in [
+    let paced = [
         ("max rate", None),
         ("paced 1 M/s", Some(1e6)),
         ("paced 2 M/s", Some(2e6)),
-    ] {
+    ];
+    for (label, rate) in paced.into_iter().filter(|_| recorder_rounds.is_none()) {
         let results: Vec<(f64, f64)> = (0..rounds).map(|_| run(rate)).collect();
         let rate_med = median(results.iter().map(|r| r.0).collect());
         let delay_med = median(results.iter().map(|r| r.1).collect());
@@ -213,7 +226,7 @@ fn main() {
         [rec_agent, fox_agent],
         dir.path(),
         points.len(),
-        rounds,
+        recorder_rounds.unwrap_or(rounds),
     );
     // Nothing dropped anywhere: the last status counts every input and output loss.
     print_last_status(&cell);
@@ -234,11 +247,22 @@ fn recorder_cost(
     run_on(fox_cell, None);
     let (mut off, mut on, mut fox) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..rounds {
-        off.push(run_on(cell, None).0);
-        on.push(run_on(rec_cell, None).0);
-        fox.push(run_on(fox_cell, None).0);
+        off.push(run_on(cell, None));
+        on.push(run_on(rec_cell, None));
+        fox.push(run_on(fox_cell, None));
     }
-    let (off, on, fox) = (median(off), median(on), median(fox));
+    // The report's delay after the last chunk: a recording agent publishes a report once the
+    // recorder has it on disk, so a writer that falls behind shows here.
+    let delays = |r: &[(f64, f64)]| median(r.iter().map(|r| r.1).collect());
+    println!(
+        "report {:.1} ms after the last chunk without the recorder, {:.1} ms with it, {:.1} ms \
+         with Foxglove's channels (medians)",
+        delays(&off),
+        delays(&on),
+        delays(&fox)
+    );
+    let rates = |r: Vec<(f64, f64)>| median(r.into_iter().map(|r| r.0).collect());
+    let (off, on, fox) = (rates(off), rates(on), rates(fox));
     println!(
         "recorder off {:.2} M points/s, on {:.2} M points/s, with Foxglove's channels {:.2} M \
          points/s (medians, alternating rounds): the recorder costs {:.1} %, with Foxglove's \
@@ -252,6 +276,14 @@ fn recorder_cost(
     let recorded_stations = rounds + 1;
     // Stop the recording agents so they close their files, then count what they kept.
     for (agent, sub) in [(rec_agent, "recordings"), (fox_agent, "recordings-fox")] {
+        // Before the stop: the writer's CPU while the stations ran, which machine noise moves
+        // far less than the rates.
+        if let Some(cpu) = writer_cpu_s(agent.0.id()) {
+            println!(
+                "{sub}: the writer thread used {:.1} ns of CPU a point",
+                cpu * 1e9 / (recorded_stations * station_points) as f64
+            );
+        }
         let _ = Command::new("kill")
             .arg("-TERM")
             .arg(agent.0.id().to_string())
@@ -267,6 +299,28 @@ fn recorder_cost(
             bytes as f64 / 1e6
         );
     }
+}
+
+/// The CPU seconds (user and system) of the agent's thread named `recorder`, from Linux's
+/// `/proc`; None elsewhere.
+fn writer_cpu_s(pid: u32) -> Option<f64> {
+    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).ok()?;
+    for task in tasks.flatten() {
+        let comm = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
+        if comm.trim() != "recorder" {
+            continue;
+        }
+        let stat = std::fs::read_to_string(task.path().join("stat")).ok()?;
+        // Fields after the command's closing parenthesis: utime and stime are the 12th and
+        // 13th, in clock ticks.
+        let rest = &stat[stat.rfind(')')? + 2..];
+        let f: Vec<&str> = rest.split_whitespace().collect();
+        let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+        // SAFETY: sysconf only reads a configuration value.
+        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+        return Some(ticks / hz);
+    }
+    None
 }
 
 /// The agent's last status over three seconds, with what it dropped, if anything.

@@ -359,16 +359,25 @@ pub struct RecordingWriter<W: Write + Seek> {
 /// one, so a crash loses at most the station in progress.
 pub const CHUNK_BYTES: u64 = 4 << 20;
 
+/// zstd's level for [`ChunkCompression::Zstd`]: one of its fast, negative levels. Against
+/// level 1, on the agent benchmark's scan chunks, the writer thread spent 17 ns a point instead
+/// of 22 and the file grew 2.7 % (`cargo bench -p asbuilt-agent --bench throughput --
+/// --recorder 6`); levels below -5 saved no more time.
+pub const ZSTD_LEVEL: i32 = -5;
+
 /// How a recording's chunks are compressed. Every reader of this build opens all three.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ChunkCompression {
     /// Chunks as they are: no CPU spent, the most disk.
     None,
-    /// LZ4: the fastest; scan points in 8.9 bytes of their 20 on the demo's chunks.
+    /// LZ4: scan points in 8.9 bytes of their 20 on the demo's chunks. The mcap crate's LZ4
+    /// frames carry a content checksum, which took a third of the writer's CPU in the agent
+    /// benchmark: no cheaper than zstd at level 1 there, and larger.
     Lz4,
-    /// zstd at level 1 on the writer's own thread: scan points in 8.6 bytes of their 20 on
-    /// the demo's chunks. Level 3 made them 1.5 % smaller for 45 % more time (one run).
+    /// zstd at [`ZSTD_LEVEL`] on the writer's own thread: the default demo's whole recording
+    /// in 11.7 bytes a point (11.3 at level 1). Level 3 made scan points 1.5 % smaller than
+    /// level 1 for 45 % more time (one run).
     #[default]
     Zstd,
 }
@@ -395,10 +404,12 @@ impl<W: Write + Seek> RecordingWriter<W> {
             .profile(PROFILE)
             .library(format!("asbuilt {}", env!("CARGO_PKG_VERSION")))
             .compression(compression.mcap())
-            // zstd at level 1 (LZ4 at its fast one): the byte planes leave little for a
+            // zstd at a fast level (LZ4 at its fast one): the byte planes leave little for a
             // slower level to find. On the writer's thread only, never the inspection's cores.
             .compression_level(if compression == ChunkCompression::Zstd {
-                1
+                // The crate takes the level as a u32 and hands it to zstd `as i32`, so this
+                // round trip is how a negative (fast) level reaches it.
+                ZSTD_LEVEL as u32
             } else {
                 0
             })

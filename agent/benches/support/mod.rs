@@ -14,19 +14,24 @@ pub const CHUNK: usize = 65_536;
 pub struct AgentProcess(pub Child);
 
 impl AgentProcess {
-    /// Starts the agent binary on `config`, its log going to `log` (or nowhere).
+    /// Starts the agent binary on `config`, its log going to `log` (or nowhere). The binary is
+    /// this build's, or `$ASBUILT_AGENT` when set: another build run in the same sitting (a
+    /// saved copy of the one before a change) is the fair comparison on a noisy machine.
     pub fn start(config: &Path, log: Option<&Path>) -> Self {
         let stderr = match log {
             Some(p) => Stdio::from(std::fs::File::create(p).unwrap()),
             None => Stdio::null(),
         };
         AgentProcess(
-            Command::new(env!("CARGO_BIN_EXE_asbuilt-agent"))
-                .arg("--config")
-                .arg(config)
-                .stderr(stderr)
-                .spawn()
-                .unwrap(),
+            Command::new(
+                std::env::var_os("ASBUILT_AGENT")
+                    .unwrap_or_else(|| env!("CARGO_BIN_EXE_asbuilt-agent").into()),
+            )
+            .arg("--config")
+            .arg(config)
+            .stderr(stderr)
+            .spawn()
+            .unwrap(),
         )
     }
 }

@@ -261,6 +261,13 @@ fn recorder_cost(
         delays(&on),
         delays(&fox)
     );
+    // Each round's own cost too, against the same round's run without the recorder, just before:
+    // the two share the machine's state of the moment, which a ratio of medians mixes.
+    let paired = |with: &[(f64, f64)]| {
+        let costs = off.iter().zip(with).map(|(o, w)| 100.0 * (1.0 - w.0 / o.0));
+        median(costs.collect())
+    };
+    let (paired_on, paired_fox) = (paired(&on), paired(&fox));
     let rates = |r: Vec<(f64, f64)>| median(r.into_iter().map(|r| r.0).collect());
     let (off, on, fox) = (rates(off), rates(on), rates(fox));
     println!(
@@ -272,6 +279,10 @@ fn recorder_cost(
         fox / 1e6,
         100.0 * (1.0 - on / off),
         100.0 * (1.0 - fox / off)
+    );
+    println!(
+        "round by round: the recorder costs {paired_on:.1} %, with Foxglove's channels \
+         {paired_fox:.1} % (medians of each round's cost against its run without the recorder)"
     );
     let recorded_stations = rounds + 1;
     // Stop the recording agents so they close their files, then count what they kept.

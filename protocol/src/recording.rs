@@ -1069,6 +1069,47 @@ mod tests {
         (w.finish().unwrap().into_inner(), marks)
     }
 
+    /// The zstd frames of a recording's chunks, from the file's records: opcode, length, body.
+    fn zstd_frames(bytes: &[u8]) -> Vec<&[u8]> {
+        const CHUNK: u8 = 0x06;
+        let u64_at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+        let mut frames = Vec::new();
+        let mut at = 8; // the magic
+        while at + 9 <= bytes.len() {
+            let (op, len) = (bytes[at], u64_at(bytes, at + 1) as usize);
+            let body = &bytes[at + 9..at + 9 + len];
+            if op == CHUNK {
+                // Start and end times, uncompressed size, its CRC, then the compression's name
+                // and the records.
+                let name_len = u32::from_le_bytes(body[28..32].try_into().unwrap()) as usize;
+                if &body[32..32 + name_len] == b"zstd" {
+                    let records = 32 + name_len + 8;
+                    frames.push(&body[records..]);
+                }
+            }
+            at += 9 + len;
+        }
+        frames
+    }
+
+    /// The mcap crate takes the zstd level as a u32 and casts it to zstd's i32: a crate that
+    /// clamped it instead would turn [`ZSTD_LEVEL`] into zstd's slowest level. Each chunk's
+    /// zstd frame says its window: 2^19 bytes at levels up to 2 (on input of unknown size),
+    /// 2^21 and more at level 3 and above.
+    #[test]
+    fn chunks_are_compressed_at_a_fast_zstd_level() {
+        let (bytes, _) = write_job_with(true, ChunkCompression::Zstd);
+        let frames = zstd_frames(&bytes);
+        assert!(!frames.is_empty());
+        for f in frames {
+            assert_eq!(f[..4], [0x28, 0xb5, 0x2f, 0xfd], "a zstd frame");
+            let descriptor = f[4];
+            assert_eq!(descriptor & 0x20, 0, "streamed: the frame gives its window");
+            let window_log = 10 + (f[5] >> 3);
+            assert!(window_log <= 19, "window 2^{window_log}: not a fast level");
+        }
+    }
+
     #[test]
     fn a_recording_reads_back_message_for_message() {
         for compression in [

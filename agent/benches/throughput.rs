@@ -15,8 +15,10 @@
 //!
 //! - recorder on / off: a second agent with `[recorder]` on takes the same max-rate stations,
 //!   alternating round by round with the first, so machine noise hits both; the ratio of their
-//!   medians is the recorder's cost. Afterwards its recording is read back and its scan chunks
-//!   counted against those sent.
+//!   medians is the recorder's cost, and so is the median of each round's own ratio. The writer
+//!   thread's CPU a point (from Linux's `/proc`) is printed too: noise moves it far less than
+//!   the rates. Afterwards its recording is read back and its scan chunks counted against those
+//!   sent.
 //! - Foxglove channels: a third agent records with `foxglove = true` too (the design, frames,
 //!   deviation-coloured points, JSON reports), in the same alternating rounds.
 //!

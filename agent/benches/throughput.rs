@@ -167,6 +167,7 @@ fn main() {
         }
     });
     let rounds = if quick { 1 } else { 5 };
+    let recorder_rounds_n = recorder_rounds.unwrap_or(rounds);
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     let mesh = data.join("stanford-bunny/bun_zipper.ply");
     let design =
@@ -202,7 +203,7 @@ fn main() {
         "agent throughput, bunny C2M, {} points per station, {} per chunk, {} round(s)",
         points.len(),
         CHUNK,
-        recorder_rounds.unwrap_or(rounds)
+        recorder_rounds_n
     );
     let paced = [
         ("max rate", None),
@@ -228,7 +229,7 @@ fn main() {
         [rec_agent, fox_agent],
         dir.path(),
         points.len(),
-        recorder_rounds.unwrap_or(rounds),
+        recorder_rounds_n,
     );
     // Nothing dropped anywhere: the last status counts every input and output loss.
     print_last_status(&cell);

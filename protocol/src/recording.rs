@@ -360,9 +360,9 @@ pub struct RecordingWriter<W: Write + Seek> {
 pub const CHUNK_BYTES: u64 = 4 << 20;
 
 /// zstd's level for [`ChunkCompression::Zstd`]: one of its fast, negative levels. Against
-/// level 1, on the agent benchmark's scan chunks, the writer thread spent 17 ns a point instead
-/// of 22 and the file grew 2.7 % (`cargo bench -p asbuilt-agent --bench throughput --
-/// --recorder 6`); levels below -5 saved no more time.
+/// level 1, on the agent benchmark's scan chunks, the writer thread spent 13.9 ns a point
+/// instead of 18.6 (medians of nine pairs, `tools/bench/recorder_cost.sh`) and the file grew
+/// 2.7 %; levels below -5 saved no more time (one run each, `--recorder 6`).
 pub const ZSTD_LEVEL: i32 = -5;
 
 /// How a recording's chunks are compressed. Every reader of this build opens all three.
@@ -1069,27 +1069,17 @@ mod tests {
         (w.finish().unwrap().into_inner(), marks)
     }
 
-    /// The zstd frames of a recording's chunks, from the file's records: opcode, length, body.
-    fn zstd_frames(bytes: &[u8]) -> Vec<&[u8]> {
-        const CHUNK: u8 = 0x06;
-        let u64_at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
-        let mut frames = Vec::new();
-        let mut at = 8; // the magic
-        while at + 9 <= bytes.len() {
-            let (op, len) = (bytes[at], u64_at(bytes, at + 1) as usize);
-            let body = &bytes[at + 9..at + 9 + len];
-            if op == CHUNK {
-                // Start and end times, uncompressed size, its CRC, then the compression's name
-                // and the records.
-                let name_len = u32::from_le_bytes(body[28..32].try_into().unwrap()) as usize;
-                if &body[32..32 + name_len] == b"zstd" {
-                    let records = 32 + name_len + 8;
-                    frames.push(&body[records..]);
+    /// The zstd frames of a recording's chunks, as they are in the file.
+    fn zstd_frames(bytes: &[u8]) -> Vec<Vec<u8>> {
+        mcap::read::LinearReader::new(bytes)
+            .unwrap()
+            .filter_map(|r| match r.unwrap() {
+                mcap::records::Record::Chunk { header, data } if header.compression == "zstd" => {
+                    Some(data.into_owned())
                 }
-            }
-            at += 9 + len;
-        }
-        frames
+                _ => None,
+            })
+            .collect()
     }
 
     /// The mcap crate takes the zstd level as a u32 and casts it to zstd's i32: a crate that

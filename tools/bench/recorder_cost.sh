@@ -37,10 +37,11 @@ done
 # Medians over the runs of one build: the ratio-of-medians cost, the round-by-round cost, and
 # the writer thread's CPU a point, each without and with Foxglove's channels.
 median() { sort -n | awk '{a[NR]=$1} END {if (NR) print a[int((NR+1)/2)]; else print "?"}'; }
+# The first (k = 1) or second (k = 0) percentage of the lines matching PATTERN in "${logs[@]}".
+costs() { grep -h "$1" "${logs[@]}" | grep -o '[-0-9.]* %' | awk -v k="$2" 'NR % 2 == k {print $1}'; }
 for b in "${builds[@]}"; do
     name=${b%%:*}
     logs=("$OUT/$name"-*.log)
-    costs() { grep -h "$1" "${logs[@]}" | grep -o '[-0-9.]* %' | awk -v k="$2" 'NR % 2 == k {print $1}'; }
     echo "$name (${#logs[@]} runs, medians):" \
         "cost $(costs 'points/s (medians' 1 | median) %," \
         "with Foxglove's channels $(costs 'points/s (medians' 0 | median) %;" \

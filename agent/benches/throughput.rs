@@ -17,8 +17,10 @@
 //!   alternating round by round with the first, so machine noise hits both; the ratio of their
 //!   medians is the recorder's cost, and so is the median of each round's own ratio. The writer
 //!   thread's CPU a point (from Linux's `/proc`) is printed too: noise moves it far less than
-//!   the rates. Afterwards its recording is read back and its scan chunks counted against those
-//!   sent.
+//!   the rates. So is each agent's CPU a point over the rounds, whole and for its event loop
+//!   and writer: the agent at full rate keeps both cores busy, so what the recorder adds in CPU
+//!   is most of its cost, and the rest is time the cores spent idle. Afterwards its recording
+//!   is read back and its scan chunks counted against those sent.
 //! - Foxglove channels: a third agent records with `foxglove = true` too (the design, frames,
 //!   deviation-coloured points, JSON reports), in the same alternating rounds.
 //!
@@ -178,7 +180,7 @@ fn main() {
     let prefix = format!("asbuilt-bench/{}", std::process::id());
     let rec_prefix = format!("{prefix}-rec");
     let fox_prefix = format!("{prefix}-fox");
-    let (_agent, rec_agent, fox_agent) =
+    let (agent, rec_agent, fox_agent) =
         start_agents(dir.path(), &mesh, &prefix, &rec_prefix, &fox_prefix);
     set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<Ipc>().unwrap();
@@ -226,6 +228,7 @@ fn main() {
     recorder_cost(
         &mut run_on,
         [&cell, &rec_cell, &fox_cell],
+        agent.0.id(),
         [rec_agent, fox_agent],
         dir.path(),
         points.len(),
@@ -240,6 +243,7 @@ fn main() {
 fn recorder_cost(
     run_on: &mut impl FnMut(&CellPorts, Option<f64>) -> (f64, f64),
     [cell, rec_cell, fox_cell]: [&CellPorts; 3],
+    off_pid: u32,
     [rec_agent, fox_agent]: [AgentProcess; 2],
     dir: &Path,
     station_points: usize,
@@ -248,12 +252,15 @@ fn recorder_cost(
     // Warm-up of the recording agents.
     run_on(rec_cell, None);
     run_on(fox_cell, None);
+    let pids = [off_pid, rec_agent.0.id(), fox_agent.0.id()];
+    let cpu_before = pids.map(cpu_s);
     let (mut off, mut on, mut fox) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..rounds {
         off.push(run_on(cell, None));
         on.push(run_on(rec_cell, None));
         fox.push(run_on(fox_cell, None));
     }
+    print_cpu(cpu_before, pids.map(cpu_s), rounds * station_points);
     // The report's delay after the last chunk: a recording agent publishes a report once the
     // recorder has it on disk, so a writer that falls behind shows here.
     let delays = |r: &[(f64, f64)]| median(r.iter().map(|r| r.1).collect());
@@ -292,7 +299,7 @@ fn recorder_cost(
     for (agent, sub) in [(rec_agent, "recordings"), (fox_agent, "recordings-fox")] {
         // Before the stop: the writer's CPU while the stations ran, which machine noise moves
         // far less than the rates.
-        if let Some(cpu) = writer_cpu_s(agent.0.id()) {
+        if let Some(cpu) = cpu_s(agent.0.id()).writer {
             println!(
                 "{sub}: the writer thread used {:.1} ns of CPU a point",
                 cpu * 1e9 / (recorded_stations * station_points) as f64
@@ -315,26 +322,78 @@ fn recorder_cost(
     }
 }
 
-/// The CPU seconds (user and system) of the agent's thread named `recorder`, from Linux's
-/// `/proc`; None elsewhere.
-fn writer_cpu_s(pid: u32) -> Option<f64> {
-    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).ok()?;
-    for task in tasks.flatten() {
-        let comm = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
-        if comm.trim() != "recorder" {
-            continue;
+/// An agent's CPU seconds so far (user and system), from Linux's `/proc`: the whole process,
+/// its event loop (the main thread) and the recorder's writer (the thread named `recorder`).
+#[derive(Debug, Clone, Copy, Default)]
+struct Cpu {
+    process: Option<f64>,
+    event_loop: Option<f64>,
+    writer: Option<f64>,
+}
+
+/// Seconds of CPU in a `/proc/.../stat` file's text; None elsewhere.
+fn stat_cpu_s(stat: &str) -> Option<f64> {
+    // Fields after the command's closing parenthesis: utime and stime are the 12th and 13th,
+    // in clock ticks.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    // SAFETY: sysconf only reads a configuration value.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+    Some(ticks / hz)
+}
+
+fn cpu_s(pid: u32) -> Cpu {
+    let read = |path: std::path::PathBuf| std::fs::read_to_string(path).ok();
+    let mut cpu = Cpu {
+        process: read(format!("/proc/{pid}/stat").into()).and_then(|s| stat_cpu_s(&s)),
+        event_loop: read(format!("/proc/{pid}/task/{pid}/stat").into())
+            .and_then(|s| stat_cpu_s(&s)),
+        writer: None,
+    };
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        if read(task.path().join("comm")).is_some_and(|c| c.trim() == "recorder") {
+            cpu.writer = read(task.path().join("stat")).and_then(|s| stat_cpu_s(&s));
         }
-        let stat = std::fs::read_to_string(task.path().join("stat")).ok()?;
-        // Fields after the command's closing parenthesis: utime and stime are the 12th and
-        // 13th, in clock ticks.
-        let rest = &stat[stat.rfind(')')? + 2..];
-        let f: Vec<&str> = rest.split_whitespace().collect();
-        let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-        // SAFETY: sysconf only reads a configuration value.
-        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
-        return Some(ticks / hz);
     }
-    None
+    cpu
+}
+
+/// The CPU each agent spent a point over the alternating rounds, whole and by thread: beside
+/// the rates, which the machine's noise moves by several per cent, a steadier measure of what
+/// the recorder adds.
+fn print_cpu(before: [Cpu; 3], after: [Cpu; 3], points: usize) {
+    let ns = |a: Option<f64>, b: Option<f64>| Some((b? - a?) * 1e9 / points as f64);
+    let show = |v: Option<f64>| v.map_or("?".to_string(), |v| format!("{v:.1} ns"));
+    let mut whole = [None; 3];
+    for (i, label) in [
+        "no recorder",
+        "recorder",
+        "recorder with Foxglove's channels",
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let (b, a) = (before[i], after[i]);
+        whole[i] = ns(b.process, a.process);
+        println!(
+            "CPU a point, {label}: {} (event loop {}, writer {})",
+            show(whole[i]),
+            show(ns(b.event_loop, a.event_loop)),
+            show(ns(b.writer, a.writer))
+        );
+    }
+    if let [Some(off), Some(on), Some(fox)] = whole {
+        println!(
+            "the recorder adds {:.1} % of CPU, with Foxglove's channels {:.1} %",
+            100.0 * (on / off - 1.0),
+            100.0 * (fox / off - 1.0)
+        );
+    }
 }
 
 /// The agent's last status over three seconds, with what it dropped, if anything.

@@ -34,8 +34,9 @@ for i in $(seq "$RUNS"); do
         echo "$name run $i: $(grep -o 'the recorder costs [^(]*' "$OUT/$name-$i.log" | head -1)"
     done
 done
-# Medians over the runs of one build: the ratio-of-medians cost, the round-by-round cost, and
-# the writer thread's CPU a point, each without and with Foxglove's channels.
+# Medians over the runs of one build: the ratio-of-medians cost, the round-by-round cost, the
+# writer thread's CPU a point and the CPU the recorder adds to the agent's, each without and
+# with Foxglove's channels.
 median() { sort -n | awk '{a[NR]=$1} END {if (NR) print a[int((NR+1)/2)]; else print "?"}'; }
 # The first (k = 1) or second (k = 0) percentage of the lines matching PATTERN in "${logs[@]}".
 costs() { grep -h "$1" "${logs[@]}" | grep -o '[-0-9.]* %' | awk -v k="$2" 'NR % 2 == k {print $1}'; }
@@ -48,5 +49,7 @@ for b in "${builds[@]}"; do
         "round by round $(costs '^round by round' 1 | median) %," \
         "with Foxglove's channels $(costs '^round by round' 0 | median) %;" \
         "writer $(grep -h '^recordings: the writer' "${logs[@]}" | grep -o '[0-9.]* ns' | median) ns a point," \
-        "with Foxglove's channels $(grep -h '^recordings-fox: the writer' "${logs[@]}" | grep -o '[0-9.]* ns' | median) ns"
+        "with Foxglove's channels $(grep -h '^recordings-fox: the writer' "${logs[@]}" | grep -o '[0-9.]* ns' | median) ns;" \
+        "CPU added $(costs '^the recorder adds' 1 | median) %," \
+        "with Foxglove's channels $(costs '^the recorder adds' 0 | median) %"
 done

@@ -20,7 +20,7 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 use crate::config::AgentConfig;
 use crate::findings::FindingsStage;
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
-use crate::recorder::Recorder;
+use crate::recorder::{Lent, Recorder};
 use crate::resume::Resumed;
 use crate::{error, info, warn};
 use asbuilt_protocol::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
@@ -70,7 +70,7 @@ pub struct RunSummary {
 /// when it resumes a job.
 pub enum AgentChunk {
     /// Received from the scanner's service.
-    Live(ChunkSample),
+    Live(LiveChunk),
     /// Read back from the recording.
     Recorded(ChunkHeader, Vec<ScanPoint>),
 }
@@ -84,14 +84,45 @@ impl From<(ChunkHeader, Vec<ScanPoint>)> for AgentChunk {
 impl ChunkSource for AgentChunk {
     fn header(&self) -> &ChunkHeader {
         match self {
-            Self::Live(s) => s.user_header(),
+            Self::Live(s) => s.sample().user_header(),
             Self::Recorded(h, _) => h,
         }
     }
     fn points(&self) -> &[ScanPoint] {
         match self {
-            Self::Live(s) => s.payload(),
+            Self::Live(s) => s.sample().payload(),
             Self::Recorded(_, p) => p,
+        }
+    }
+}
+
+/// A scan chunk in shared memory; when the recorder's writer reads it there too, the sample
+/// goes back to the recorder instead of the scanner once the lifecycle lets it go.
+pub struct LiveChunk {
+    /// Always there until the chunk is dropped.
+    sample: Option<ChunkSample>,
+    lent: Option<Lent<ChunkSample>>,
+}
+
+impl LiveChunk {
+    fn new(sample: ChunkSample, lent: Option<Lent<ChunkSample>>) -> Self {
+        Self {
+            sample: Some(sample),
+            lent,
+        }
+    }
+
+    fn sample(&self) -> &ChunkSample {
+        self.sample
+            .as_ref()
+            .expect("a live chunk keeps its sample until it is dropped")
+    }
+}
+
+impl Drop for LiveChunk {
+    fn drop(&mut self) {
+        if let (Some(sample), Some(lent)) = (self.sample.take(), self.lent.take()) {
+            lent.give_back(sample);
         }
     }
 }
@@ -472,6 +503,8 @@ fn open_ports(config: &AgentConfig) -> Result<(Node<Ipc>, AgentPorts, u64), Agen
             max_points_per_chunk: limits.max_points_per_chunk,
             chunk_queue: limits.chunk_queue,
             pending_chunks: limits.pending_chunks,
+            // Whether or not this run records: the services' settings stay the same.
+            lent_chunks: crate::recorder::LENT_CHUNKS,
         },
     )?;
     Ok((node, ports, dead_nodes))
@@ -728,7 +761,11 @@ fn shut_down(
     let ports = out.ports;
     info!("stop requested: closing open stations with partial reports");
     if let Some(c) = held.chunk.take() {
-        lifecycle.on_chunk(AgentChunk::Live(c), Instant::now(), &mut out);
+        lifecycle.on_chunk(
+            AgentChunk::Live(LiveChunk::new(c, None)),
+            Instant::now(),
+            &mut out,
+        );
     }
     lifecycle.shutdown(&mut out);
     status.publish(ports, &lifecycle, &out, AgentState::ShuttingDown);
@@ -834,11 +871,12 @@ impl HeldControl {
                     }
                 }
                 any = true;
-                if let Some(r) = &mut out.recorder {
-                    r.chunk(sample.user_header(), sample.payload());
-                }
+                let lent = out
+                    .recorder
+                    .as_mut()
+                    .and_then(|r| r.chunk(sample.user_header(), sample.payload()));
                 let now = Instant::now();
-                lifecycle.on_chunk(AgentChunk::Live(sample), now, out);
+                lifecycle.on_chunk(AgentChunk::Live(LiveChunk::new(sample, lent)), now, out);
                 if SignalHandler::termination_requested() {
                     return Drained::Stop;
                 }

@@ -1,8 +1,9 @@
 //! The flight recorder: everything the agent receives and sends, into one MCAP file per job
 //! (layout in `asbuilt_protocol::recording`), written by a thread of its own.
 //!
-//! The event loop only copies a message into a bounded queue and moves on: a slow disk never
-//! holds the robot back. When the bytes waiting exceed `recorder.queue_mb`, or the disk's free
+//! The event loop only hands a message to a bounded queue and moves on: a slow disk never
+//! holds the robot back. A scan chunk is lent rather than copied while few are out (see
+//! [`lent`]): the writer reads its points in shared memory. When the bytes waiting exceed `recorder.queue_mb`, or the disk's free
 //! space falls below `recorder.min_free_mb`, scan and deviation chunks are left out (counted and
 //! logged); station events, poses, reports and status are always kept. Each station report
 //! ends an MCAP chunk and flushes it, so a crash loses at most the station in progress.
@@ -16,6 +17,7 @@ use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 
 use asbuilt_protocol::foxglove::cloud_points;
+use asbuilt_protocol::ipc::ChunkSample;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter, ScanLayerStateRecord};
 use asbuilt_protocol::{
     AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
@@ -28,11 +30,17 @@ use asbuilt_core::colour::deviation_colour;
 use crate::config::RecorderConfig;
 use crate::{info, warn};
 
+mod lent;
+pub use lent::{LENT_CHUNKS, Lent};
+use lent::{LentPoints, Returns, Shelf};
+
 /// Messages waiting for the writer; a chunk counts once, however many points it holds.
 const QUEUE: usize = 16_384;
 
 enum Item {
     Message(u64, Recorded),
+    /// A scan chunk whose points the writer reads where they arrived.
+    Lent(u64, ChunkHeader, LentPoints),
     /// The points of a deviation chunk that Foxglove's cloud shows, already selected (the
     /// asbuilt channel skips deviation chunks).
     FoxgloveCloud(u64, DeviationHeader, Vec<PointDeviation>),
@@ -72,6 +80,8 @@ pub struct Recorder {
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     /// Flushes asked for so far.
     flushes_asked: AtomicU64,
+    /// Lent scan chunks' samples waiting for the writer.
+    shelf: std::rc::Rc<std::cell::RefCell<Shelf<ChunkSample>>>,
     /// What was recorded and what was left out.
     pub counters: Arc<RecorderCounters>,
 }
@@ -100,6 +110,7 @@ impl Recorder {
         let queued = Arc::new(AtomicUsize::new(0));
         let counters = Arc::new(RecorderCounters::default());
         let disk_low = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let returns = Arc::new(Returns::default());
         let writer = Writer {
             dir,
             max_bytes: (cfg.max_file_mb * 1e6) as u64,
@@ -112,6 +123,7 @@ impl Recorder {
             counters: counters.clone(),
             disk_low: disk_low.clone(),
             file: None,
+            returns: returns.clone(),
             foxglove: cfg.foxglove.then_some(Foxglove {
                 tolerance,
                 mesh,
@@ -134,6 +146,7 @@ impl Recorder {
             foxglove: cfg.foxglove.then_some(cfg.foxglove_every.max(1) as usize),
             disk_low,
             flushes_asked: AtomicU64::new(0),
+            shelf: Shelf::new(returns),
             counters,
         })
     }
@@ -221,6 +234,7 @@ impl Recorder {
     /// Whether the flush of `ticket` is done: what was queued before it survives a crash of the
     /// agent (it is in the operating system's hands). True too once the writer is gone.
     pub fn is_on_disk(&self, ticket: u64) -> bool {
+        self.shelf.borrow_mut().release();
         self.counters
             .flushes
             .load(std::sync::atomic::Ordering::Acquire)
@@ -270,17 +284,37 @@ impl Recorder {
         true
     }
 
-    /// Records a scan chunk, unless `scan_every` leaves it out or the budget is spent.
-    pub fn chunk(&mut self, h: &ChunkHeader, points: &[ScanPoint]) {
+    /// Records a scan chunk, unless `scan_every` leaves it out or the budget is spent. The
+    /// writer reads the points where they lie in shared memory when it can (see [`lent`]):
+    /// then the chunk comes back lent, and its sample must be given back with
+    /// [`Lent::give_back`] when its holder is done with it. Otherwise the points are copied.
+    #[must_use = "a lent chunk's sample must be given back"]
+    pub fn chunk(&mut self, h: &ChunkHeader, points: &[ScanPoint]) -> Option<Lent<ChunkSample>> {
         let bytes = std::mem::size_of_val(points);
-        if self.admit(bytes) {
-            let msg = Recorded::Chunk(*h, points.to_vec());
-            if self.send(Item::Message(unix_time_ns(), msg), bytes) {
-                self.counters.chunks_recorded.fetch_add(1, Relaxed);
-            } else {
-                self.counters.chunks_dropped.fetch_add(1, Relaxed);
-            }
+        if !self.admit(bytes) {
+            return None;
         }
+        let t = unix_time_ns();
+        let sent = match Shelf::lend(&self.shelf, points) {
+            Some((lent, points)) => {
+                if self.send(Item::Lent(t, *h, points), bytes) {
+                    self.counters.chunks_recorded.fetch_add(1, Relaxed);
+                    return Some(lent);
+                }
+                lent.cancel();
+                false
+            }
+            None => self.send(
+                Item::Message(t, Recorded::Chunk(*h, points.to_vec())),
+                bytes,
+            ),
+        };
+        if sent {
+            self.counters.chunks_recorded.fetch_add(1, Relaxed);
+        } else {
+            self.counters.chunks_dropped.fetch_add(1, Relaxed);
+        }
+        None
     }
 
     /// Deviation chunks follow the scan chunks they come from: the same decimation and guard.
@@ -374,7 +408,18 @@ struct Writer {
     counters: Arc<RecorderCounters>,
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     file: Option<OpenFile>,
+    /// Where the writer says which lent chunks it is done with.
+    returns: Arc<Returns>,
     foxglove: Option<Foxglove>,
+}
+
+/// Tells the event loop the writer reads no more lent chunks, however its thread ends.
+struct Gone(Arc<Returns>);
+
+impl Drop for Gone {
+    fn drop(&mut self) {
+        self.0.gone();
+    }
 }
 
 /// What the Foxglove channels need besides the messages: the colour scale and the design.
@@ -400,6 +445,7 @@ fn job_of(m: &Recorded) -> Option<u64> {
 
 impl Writer {
     fn run(mut self, rx: Receiver<Item>) {
+        let _gone = Gone(self.returns.clone());
         self.check_disk();
         let mut since_check = 0u32;
         while let Ok(item) = rx.recv() {
@@ -419,6 +465,21 @@ impl Writer {
                         since_check = 0;
                         self.check_disk();
                     }
+                }
+                Item::Lent(t, h, lent) => {
+                    let bytes = std::mem::size_of_val(lent.points());
+                    let written = self.file_for(Some(h.job)).and_then(|f| match f {
+                        Some(f) => (f.writer)
+                            .write_scan_chunk(t, &h, lent.points())
+                            .map_err(|e| e.to_string()),
+                        None => Ok(()),
+                    });
+                    // From here the sample may go back to the scanner.
+                    self.returns.done_with(lent.ticket());
+                    if let Err(e) = written {
+                        warn!("recorder: cannot write: {e}; this message is lost");
+                    }
+                    self.queued.fetch_sub(bytes, Relaxed);
                 }
                 Item::FoxgloveCloud(t, h, points) => {
                     let written = self.file_for(Some(h.job)).and_then(|f| match f {

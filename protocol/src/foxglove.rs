@@ -128,12 +128,21 @@ impl FoxgloveChannels {
             Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
             Recorded::Correction(c) => Some((self.corrections, serde_json::to_vec(c).ok()?)),
             Recorded::Surface(s) => Some((self.surface, serde_json::to_vec(s).ok()?)),
-            Recorded::Chunk(h, points) => Some((
-                self.scans?,
-                encode(&scan_cloud(h.timestamp_ns, h.job, h.station, points)),
-            )),
+            Recorded::Chunk(h, points) => self.scan(h, points),
             Recorded::Event(_) | Recorded::Status(_) => None,
         }
+    }
+
+    /// A scan chunk's cloud with its channel, when scan chunks are shown (`pack --foxglove`).
+    pub(crate) fn scan(
+        &self,
+        h: &crate::ChunkHeader,
+        points: &[crate::ScanPoint],
+    ) -> Option<(u16, Vec<u8>)> {
+        Some((
+            self.scans?,
+            encode(&scan_cloud(h.timestamp_ns, h.job, h.station, points)),
+        ))
     }
 
     /// The deviations' cloud of `points` already selected, with its channel.

@@ -211,6 +211,9 @@ pub struct QueueSizes {
     pub chunk_queue: usize,
     /// Chunks held while their station's pose has not arrived.
     pub pending_chunks: usize,
+    /// Chunks the agent's recorder may keep borrowed while its writer reads them where they
+    /// arrived.
+    pub lent_chunks: usize,
 }
 
 /// Publishers of inputs (robot, scanner, job control) and of the agent's outputs.
@@ -474,7 +477,7 @@ fn chunk_subscriber(
         .max_nodes(MAX_NODES)
         .history_size(0)
         .subscriber_max_buffer_size(q.chunk_queue)
-        .subscriber_max_borrowed_samples(q.pending_chunks + 2)
+        .subscriber_max_borrowed_samples(q.pending_chunks + q.lent_chunks + 2)
         .enable_safe_overflow(false)
         .open_or_create()
         .map_err(|e| exists(&names.chunks, e.into()))?
@@ -839,6 +842,7 @@ mod tests {
                 max_points_per_chunk: 4,
                 chunk_queue: QUEUE,
                 pending_chunks: 1,
+                lent_chunks: 0,
             };
             let ports = AgentPorts::create(&node, &agent_names, sizes).unwrap();
             ready_tx.send(()).unwrap();

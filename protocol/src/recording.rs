@@ -511,6 +511,23 @@ impl<W: Write + Seek> RecordingWriter<W> {
         self.write_foxglove(log_time, message)
     }
 
+    /// Writes a scan chunk from its points where they lie, as [`RecordingWriter::write`] writes
+    /// [`Recorded::Chunk`] (the same bytes, and its Foxglove twin when scan chunks are shown),
+    /// without the points first being copied into a message.
+    pub fn write_scan_chunk(
+        &mut self,
+        log_time: u64,
+        header: &ChunkHeader,
+        points: &[ScanPoint],
+    ) -> Result<(), mcap::McapError> {
+        let record = codec::encode_scan_chunk(header, points);
+        self.write_raw(Channel::ScanChunks, log_time, header.timestamp_ns, &record)?;
+        match self.foxglove.as_ref().and_then(|f| f.scan(header, points)) {
+            Some((channel, bytes)) => self.write_to(channel, log_time, header.timestamp_ns, &bytes),
+            None => Ok(()),
+        }
+    }
+
     /// Writes only the Foxglove twin of a message (a deviation chunk the asbuilt channel leaves
     /// out, say); nothing without Foxglove's channels.
     pub fn write_foxglove(
@@ -1067,6 +1084,30 @@ mod tests {
             }
         }
         (w.finish().unwrap().into_inner(), marks)
+    }
+
+    /// A scan chunk written from its points where they lie (as the agent writes a chunk still
+    /// in shared memory) makes the file a copied chunk makes, byte for byte.
+    #[test]
+    fn scan_chunks_written_in_place_make_the_same_file() {
+        let write = |in_place: bool| {
+            let mut w = RecordingWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+            for (i, m) in job_messages().iter().enumerate() {
+                match m {
+                    Recorded::Chunk(h, points) if in_place => {
+                        w.write_scan_chunk(i as u64, h, points).unwrap()
+                    }
+                    _ => w.write(i as u64, m).unwrap(),
+                }
+            }
+            w.finish().unwrap().into_inner()
+        };
+        assert!(
+            job_messages()
+                .iter()
+                .any(|m| matches!(m, Recorded::Chunk(..)))
+        );
+        assert_eq!(write(true), write(false));
     }
 
     /// The zstd frames of a recording's chunks, as they are in the file.

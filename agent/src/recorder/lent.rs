@@ -7,7 +7,7 @@
 //! chunk for its pose, processes it and lets it go (then [`Lent::give_back`] puts the sample on
 //! the shelf), and the writer, which says so through [`Returns`]. Only then does the sample
 //! go back to the scanner. At most [`LENT_CHUNKS`] are out at once; further chunks are copied,
-//! so a writer that falls behind never holds the scanner's samples.
+//! so a writer that falls behind holds no more than that many of the scanner's samples.
 
 use std::cell::RefCell;
 use std::collections::VecDeque;

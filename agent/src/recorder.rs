@@ -3,10 +3,11 @@
 //!
 //! The event loop only hands a message to a bounded queue and moves on: a slow disk never
 //! holds the robot back. A scan chunk is lent rather than copied while few are out (see
-//! [`lent`]): the writer reads its points in shared memory. When the bytes waiting exceed `recorder.queue_mb`, or the disk's free
-//! space falls below `recorder.min_free_mb`, scan and deviation chunks are left out (counted and
-//! logged); station events, poses, reports and status are always kept. Each station report
-//! ends an MCAP chunk and flushes it, so a crash loses at most the station in progress.
+//! [`lent`]): the writer reads its points in shared memory. When the bytes waiting exceed
+//! `recorder.queue_mb`, or the disk's free space falls below `recorder.min_free_mb`, scan and
+//! deviation chunks are left out (counted and logged); station events, poses, reports and
+//! status are always kept. Each station report ends an MCAP chunk and flushes it, so a crash
+//! loses at most the station in progress.
 
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -124,6 +125,7 @@ impl Recorder {
             disk_low: disk_low.clone(),
             file: None,
             returns: returns.clone(),
+            since_check: 0,
             foxglove: cfg.foxglove.then_some(Foxglove {
                 tolerance,
                 mesh,
@@ -234,6 +236,8 @@ impl Recorder {
     /// Whether the flush of `ticket` is done: what was queued before it survives a crash of the
     /// agent (it is in the operating system's hands). True too once the writer is gone.
     pub fn is_on_disk(&self, ticket: u64) -> bool {
+        // Asked while reports wait for the disk, after a station's last chunk: the moment to
+        // return the samples the writer is done with, which the next lend would otherwise do.
         self.shelf.borrow_mut().release();
         self.counters
             .flushes
@@ -295,26 +299,27 @@ impl Recorder {
             return None;
         }
         let t = unix_time_ns();
-        let sent = match Shelf::lend(&self.shelf, points) {
+        let (sent, lent) = match Shelf::lend(&self.shelf, points) {
             Some((lent, points)) => {
                 if self.send(Item::Lent(t, *h, points), bytes) {
-                    self.counters.chunks_recorded.fetch_add(1, Relaxed);
-                    return Some(lent);
+                    (true, Some(lent))
+                } else {
+                    lent.cancel();
+                    (false, None)
                 }
-                lent.cancel();
-                false
             }
-            None => self.send(
-                Item::Message(t, Recorded::Chunk(*h, points.to_vec())),
-                bytes,
-            ),
+            None => {
+                let copy = Recorded::Chunk(*h, points.to_vec());
+                (self.send(Item::Message(t, copy), bytes), None)
+            }
         };
-        if sent {
-            self.counters.chunks_recorded.fetch_add(1, Relaxed);
+        let counter = if sent {
+            &self.counters.chunks_recorded
         } else {
-            self.counters.chunks_dropped.fetch_add(1, Relaxed);
-        }
-        None
+            &self.counters.chunks_dropped
+        };
+        counter.fetch_add(1, Relaxed);
+        lent
     }
 
     /// Deviation chunks follow the scan chunks they come from: the same decimation and guard.
@@ -410,6 +415,8 @@ struct Writer {
     file: Option<OpenFile>,
     /// Where the writer says which lent chunks it is done with.
     returns: Arc<Returns>,
+    /// Items written since the disk's free space was last checked.
+    since_check: u32,
     foxglove: Option<Foxglove>,
 }
 
@@ -447,7 +454,6 @@ impl Writer {
     fn run(mut self, rx: Receiver<Item>) {
         let _gone = Gone(self.returns.clone());
         self.check_disk();
-        let mut since_check = 0u32;
         while let Ok(item) = rx.recv() {
             match item {
                 Item::Message(t, m) => {
@@ -456,43 +462,21 @@ impl Writer {
                         Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
                         _ => 256,
                     };
-                    if let Err(e) = self.write(t, &m) {
-                        warn!("recorder: cannot write: {e}; this message is lost");
-                    }
-                    self.queued.fetch_sub(bytes, Relaxed);
-                    since_check += 1;
-                    if since_check >= 64 {
-                        since_check = 0;
-                        self.check_disk();
-                    }
+                    self.put(job_of(&m), bytes, |w| w.write(t, &m));
                 }
                 Item::Lent(t, h, lent) => {
                     let bytes = std::mem::size_of_val(lent.points());
-                    let written = self.file_for(Some(h.job)).and_then(|f| match f {
-                        Some(f) => (f.writer)
-                            .write_scan_chunk(t, &h, lent.points())
-                            .map_err(|e| e.to_string()),
-                        None => Ok(()),
+                    self.put(Some(h.job), bytes, |w| {
+                        w.write_scan_chunk(t, &h, lent.points())
                     });
                     // From here the sample may go back to the scanner.
                     self.returns.done_with(lent.ticket());
-                    if let Err(e) = written {
-                        warn!("recorder: cannot write: {e}; this message is lost");
-                    }
-                    self.queued.fetch_sub(bytes, Relaxed);
                 }
                 Item::FoxgloveCloud(t, h, points) => {
-                    let written = self.file_for(Some(h.job)).and_then(|f| match f {
-                        Some(f) => (f.writer)
-                            .write_foxglove_cloud(t, &h, &points)
-                            .map_err(|e| e.to_string()),
-                        None => Ok(()),
+                    let bytes = std::mem::size_of_val(points.as_slice());
+                    self.put(Some(h.job), bytes, |w| {
+                        w.write_foxglove_cloud(t, &h, &points)
                     });
-                    if let Err(e) = written {
-                        warn!("recorder: cannot write: {e}; this message is lost");
-                    }
-                    self.queued
-                        .fetch_sub(std::mem::size_of_val(points.as_slice()), Relaxed);
                 }
                 Item::State(t, record) => {
                     if let Some(f) = &mut self.file
@@ -544,11 +528,27 @@ impl Writer {
         }
     }
 
-    /// Writes a message, and its Foxglove twin with Foxglove's channels.
-    fn write(&mut self, t: u64, m: &Recorded) -> Result<(), String> {
-        match self.file_for(job_of(m))? {
-            Some(f) => f.writer.write(t, m).map_err(|e| e.to_string()),
+    /// Writes one queued item with `write` into the file of `job`, says so when that fails,
+    /// and takes its `bytes` off the queue's weight. Every 64 items the disk's free space is
+    /// checked again, so a filling disk stops the scan chunks before it is full.
+    fn put(
+        &mut self,
+        job: Option<u64>,
+        bytes: usize,
+        write: impl FnOnce(&mut FileWriter) -> Result<(), mcap::McapError>,
+    ) {
+        let written = self.file_for(job).and_then(|f| match f {
+            Some(f) => write(&mut f.writer).map_err(|e| e.to_string()),
             None => Ok(()),
+        });
+        if let Err(e) = written {
+            warn!("recorder: cannot write: {e}; this message is lost");
+        }
+        self.queued.fetch_sub(bytes, Relaxed);
+        self.since_check += 1;
+        if self.since_check >= 64 {
+            self.since_check = 0;
+            self.check_disk();
         }
     }
 

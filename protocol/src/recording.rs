@@ -502,6 +502,9 @@ impl<W: Write + Seek> RecordingWriter<W> {
 
     /// Writes a message, and its Foxglove twin when Foxglove's channels are on.
     pub fn write(&mut self, log_time: u64, message: &Recorded) -> Result<(), mcap::McapError> {
+        if let Recorded::Chunk(h, points) = message {
+            return self.write_scan_chunk(log_time, h, points);
+        }
         self.write_raw(
             message.channel(),
             log_time,
@@ -511,9 +514,9 @@ impl<W: Write + Seek> RecordingWriter<W> {
         self.write_foxglove(log_time, message)
     }
 
-    /// Writes a scan chunk from its points where they lie, as [`RecordingWriter::write`] writes
-    /// [`Recorded::Chunk`] (the same bytes, and its Foxglove twin when scan chunks are shown),
-    /// without the points first being copied into a message.
+    /// Writes a scan chunk, and its Foxglove twin when scan chunks are shown, from its points
+    /// where they lie: the agent's chunks are still in shared memory, with no message around
+    /// them. [`RecordingWriter::write`] writes a [`Recorded::Chunk`] through here too.
     pub fn write_scan_chunk(
         &mut self,
         log_time: u64,

@@ -282,8 +282,8 @@ pub struct RecorderConfig {
     /// deviation-coloured points, reports and findings as JSON), so Foxglove opens the file as
     /// it is. Deviation chunks are then taken to the writer even without `deviations`.
     pub foxglove: bool,
-    /// One matched point in this many goes into the Foxglove deviations' cloud (1: every
-    /// point). The asbuilt channels keep every point: replay and report use those.
+    /// One point in this many of a chunk goes into the Foxglove deviations' cloud, if it matched
+    /// (1: every point). The asbuilt channels keep every point: replay and report use those.
     pub foxglove_every: u32,
     /// At start, take up the newest job recorded in `dir`: recover files whose writer died,
     /// replay the current scan layer so its findings go on, report the stations that were open

@@ -75,7 +75,8 @@ pub struct Recorder {
     scan_every: u64,
     seen_chunks: u64,
     deviations: bool,
-    /// With Foxglove's channels: one matched point in this many goes into its cloud.
+    /// With Foxglove's channels: one point in this many of a chunk goes into its cloud, if it
+    /// matched.
     foxglove: Option<usize>,
     /// Set by the writer when free disk space is below the guard.
     disk_low: Arc<std::sync::atomic::AtomicBool>,
@@ -341,7 +342,7 @@ impl Recorder {
             );
         } else if let Some(every) = self.foxglove {
             // Only Foxglove's cloud wants them: the one point in `every` it shows is all that
-            // is copied, not the whole chunk.
+            // is read and copied, not the whole chunk.
             let shown: Vec<PointDeviation> = cloud_points(points, every).copied().collect();
             let bytes = std::mem::size_of_val(shown.as_slice());
             self.send(Item::FoxgloveCloud(t, *h, shown), bytes);

@@ -58,7 +58,7 @@ pub(crate) struct FoxgloveChannels {
     /// Scan chunks too (a packed file has no deviations to show).
     scans: Option<u16>,
     colour: Colour,
-    /// One matched point in this many goes into the deviations' cloud.
+    /// One point in this many of a chunk, if it matched, goes into the deviations' cloud.
     every: usize,
 }
 
@@ -99,7 +99,8 @@ impl FoxgloveChannels {
         })
     }
 
-    /// Keeps one matched point in `every` in the deviations' cloud (at least 1: all).
+    /// Keeps one point in `every` of a chunk in the deviations' cloud, if it matched (at least
+    /// 1: all).
     pub(crate) fn decimate(&mut self, every: usize) {
         self.every = every.max(1);
     }
@@ -192,18 +193,21 @@ fn transform(p: &PoseSnapshot) -> FrameTransform {
     }
 }
 
-/// The points of a deviation chunk that its Foxglove cloud shows: the matched ones (points
-/// without a match or rejected are left out), one in `every` of them. The agent selects them
-/// before a chunk leaves its event loop when only Foxglove's channel records deviations, so
-/// the rest are never copied.
+/// The points of a deviation chunk that its Foxglove cloud shows: one in `every` by their place
+/// in the chunk (the first, then every `every`th), as the rerun view picks them, less those
+/// without a match or rejected. The agent selects them on its event loop, before the chunk
+/// leaves it, when only Foxglove's channel records deviations, so the rest are never copied;
+/// picked by place, the others are never read either. Picking one in `every` of the matched
+/// points instead read every point, and took the loop 1.9–2.5 ns a point of a chunk against
+/// 1.1–1.6 (a timing loop over deviations just written by two threads, four runs each).
 pub fn cloud_points(
     points: &[PointDeviation],
     every: usize,
 ) -> impl Iterator<Item = &PointDeviation> {
     points
         .iter()
-        .filter(|d| !d.flags.contains(DeviationFlags::REJECTED) && d.distance.is_finite())
         .step_by(every.max(1))
+        .filter(|d| !d.flags.contains(DeviationFlags::REJECTED) && d.distance.is_finite())
 }
 
 /// `points`, as [`cloud_points`] selected them, in the design frame, coloured by their
@@ -215,12 +219,14 @@ fn cloud<'a>(
 ) -> PointCloud {
     let mut data = Vec::with_capacity(points.size_hint().0 * POINT_STRIDE as usize);
     for d in points {
-        for v in d.position {
-            data.extend_from_slice(&(v as f32).to_le_bytes());
+        // The point's record whole, then one append instead of six.
+        let mut record = [255u8; POINT_STRIDE as usize];
+        for (at, v) in d.position.into_iter().enumerate() {
+            record[4 * at..4 * at + 4].copy_from_slice(&(v as f32).to_le_bytes());
         }
-        data.extend_from_slice(&((d.distance * 1e3) as f32).to_le_bytes());
-        data.extend_from_slice(&colour(d.distance));
-        data.push(255);
+        record[12..16].copy_from_slice(&((d.distance * 1e3) as f32).to_le_bytes());
+        record[16..19].copy_from_slice(&colour(d.distance));
+        data.extend_from_slice(&record);
     }
     PointCloud {
         timestamp: Some(timestamp(time_ns)),

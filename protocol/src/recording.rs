@@ -438,8 +438,9 @@ impl<W: Write + Seek> RecordingWriter<W> {
         Ok(self)
     }
 
-    /// With Foxglove's channels, one matched point in `every` of each deviation chunk goes into
-    /// its cloud (the asbuilt channels keep every point: replay and report use those).
+    /// With Foxglove's channels, one point in `every` of each deviation chunk goes into its
+    /// cloud if it matched ([`crate::foxglove::cloud_points`]; the asbuilt channels keep every
+    /// point: replay and report use those).
     pub fn foxglove_every(mut self, every: usize) -> Self {
         if let Some(f) = &mut self.foxglove {
             f.decimate(every);

@@ -26,21 +26,40 @@ fn words(p: &ScanPoint) -> [u32; 5] {
     ]
 }
 
+#[cfg(target_arch = "x86_64")]
+mod x86;
+
+/// Points per pass: each pass writes four planes over a block small enough to stay in the
+/// first-level cache for the five passes.
+const BLOCK: usize = 1024;
+
 /// Appends `points` to `out` as 20 planes of `points.len()` bytes each.
 pub fn encode(points: &[ScanPoint], out: &mut Vec<u8>) {
     let n = points.len();
     let start = out.len();
     out.resize(start + n * POINT_BYTES, 0);
-    // Word by word, each pass writing four planes in step, over blocks of points small enough
-    // to stay in the first-level cache for the five passes.
-    const BLOCK: usize = 1024;
-    for (b, block) in points.chunks(BLOCK).enumerate() {
-        let at = b * BLOCK;
-        for (w, planes) in out[start..].chunks_exact_mut(4 * n).enumerate() {
+    let planes = &mut out[start..];
+    #[cfg(target_arch = "x86_64")]
+    if x86::available() {
+        // SAFETY: the CPU has the instructions `x86::encode` is compiled for.
+        let done = unsafe { x86::encode(points, planes) };
+        encode_from(points, done, planes);
+        return;
+    }
+    encode_from(points, 0, planes);
+}
+
+/// The planes of `points[from..]`, in `planes` laid out for all of `points`: the portable
+/// loop, word by word over blocks of points, each pass writing four planes in step.
+fn encode_from(points: &[ScanPoint], from: usize, planes: &mut [u8]) {
+    let n = points.len();
+    for (b, block) in points[from..].chunks(BLOCK).enumerate() {
+        let at = from + b * BLOCK;
+        let end = at + block.len();
+        for (w, planes) in planes.chunks_exact_mut(4 * n).enumerate() {
             let (b0, rest) = planes.split_at_mut(n);
             let (b1, rest) = rest.split_at_mut(n);
             let (b2, b3) = rest.split_at_mut(n);
-            let end = at + block.len();
             let lanes = b0[at..end].iter_mut().zip(&mut b1[at..end]);
             let lanes = lanes.zip(&mut b2[at..end]).zip(&mut b3[at..end]);
             for ((((x0, x1), x2), x3), p) in lanes.zip(block) {
@@ -131,10 +150,11 @@ mod tests {
     }
 
     /// The blocked layout gives the bytes of the definition, for chunks shorter than a block,
-    /// a block exactly, and a ragged last block.
+    /// a block exactly, and a ragged last block; so do the portable loop alone and the shuffles
+    /// (for the points they take: whole groups of sixteen).
     #[test]
     fn planes_are_the_bytes_of_their_definition() {
-        for n in [1, 7, 1023, 1024, 1025, 3000] {
+        for n in [1, 7, 15, 16, 17, 1023, 1024, 1025, 1040, 3000, 4096] {
             let points: Vec<ScanPoint> = (0..n as u32)
                 .map(|i| ScanPoint {
                     xyz: [
@@ -148,10 +168,29 @@ mod tests {
                     _reserved: (i * 29) as u8,
                 })
                 .collect();
+            let want = encode_bytewise(&points);
             let mut planes = vec![0x11, 0x22];
             encode(&points, &mut planes);
             assert_eq!(planes[..2], [0x11, 0x22], "what was in the buffer stays");
-            assert_eq!(planes[2..], encode_bytewise(&points), "{n} points");
+            assert_eq!(planes[2..], want, "{n} points");
+            // The portable loop alone, as a CPU without the shuffles runs it.
+            let mut portable = vec![0; want.len()];
+            encode_from(&points, 0, &mut portable);
+            assert_eq!(portable, want, "{n} points, portable");
+            #[cfg(target_arch = "x86_64")]
+            if x86::available() {
+                let mut shuffled = vec![0; want.len()];
+                // SAFETY: checked just above.
+                let done = unsafe { x86::encode(&points, &mut shuffled) };
+                assert_eq!(done, n / 16 * 16);
+                let split = |planes: &[u8]| -> Vec<Vec<u8>> {
+                    planes
+                        .chunks(n)
+                        .map(|plane| plane[..done].to_vec())
+                        .collect()
+                };
+                assert_eq!(split(&shuffled), split(&want), "{n} points, shuffles");
+            }
         }
     }
 }

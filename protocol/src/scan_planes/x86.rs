@@ -1,8 +1,8 @@
 //! [`super::encode`] with SSSE3 and SSE4.1 byte shuffles: sixteen points at a time, one word of
 //! each, into sixteen bytes of each of that word's four planes.
 //!
-//! A scan chunk's record of 65,536 points (`codec::encode_scan_chunk`) took 1.55–1.9 ns a point
-//! instead of 2.6 with the portable loop alone (a timing loop, five rounds each). The
+//! A scan chunk's record of 65,536 points (`codec::encode_scan_chunk`) took 1.5–1.95 ns a point
+//! instead of 2.6–2.7 with the portable loop alone (a timing loop, five rounds each). The
 //! `byteshuffle` crate's shuffle of 20-byte elements took 8.2 ns a point on the same points.
 //! Like the portable loop, this goes word by word over blocks of points: a chunk's planes lie a
 //! multiple of 4 KiB apart when its length is one, and stores to all twenty planes at once fall

@@ -435,8 +435,8 @@ fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
 
 /// With `foxglove = true` the recording also carries Foxglove's schemas: the design as one
 /// scene of every triangle, a frame per pose, one point in `foxglove_every` of each chunk (if
-/// it matched) in the design frame coloured by its deviation (without the asbuilt deviations channel), and each
-/// report and findings as JSON.
+/// it matched) in the design frame coloured by its deviation (without the asbuilt deviations
+/// channel), and each report and findings as JSON.
 #[test]
 fn a_recording_with_foxglove_channels_shows_the_design_stations_and_points() {
     use asbuilt_protocol::foxglove as fx;
@@ -527,6 +527,7 @@ fn a_recording_with_foxglove_channels_shows_the_design_stations_and_points() {
         places.saturating_sub(unmatched) <= points && points <= places,
         "{points} points in the clouds, {places} places one in four, {unmatched} unmatched"
     );
+    // And the unmatched did not all fall on those places: the cloud shows its share.
     assert!(
         points > 0 && points * 4 >= matched * 9 / 10,
         "{points} of {matched} matched"

@@ -219,7 +219,8 @@ fn cloud<'a>(
 ) -> PointCloud {
     let mut data = Vec::with_capacity(points.size_hint().0 * POINT_STRIDE as usize);
     for d in points {
-        // The point's record whole, then one append instead of six.
+        // The point's record whole, then one append instead of six; its last byte, alpha,
+        // keeps the 255 it starts with.
         let mut record = [255u8; POINT_STRIDE as usize];
         for (at, v) in d.position.into_iter().enumerate() {
             record[4 * at..4 * at + 4].copy_from_slice(&(v as f32).to_le_bytes());

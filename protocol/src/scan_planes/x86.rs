@@ -31,12 +31,12 @@ pub(super) unsafe fn encode(points: &[ScanPoint], planes: &mut [u8]) -> usize {
     assert_eq!(planes.len(), n * POINT_BYTES);
     let groups = n / 16;
     for first in (0..groups).step_by(BLOCK / 16) {
-        let groups = first..(first + BLOCK / 16).min(groups);
-        word_planes::<0>(points, groups.clone(), planes);
-        word_planes::<1>(points, groups.clone(), planes);
-        word_planes::<2>(points, groups.clone(), planes);
-        word_planes::<3>(points, groups.clone(), planes);
-        word_planes::<4>(points, groups, planes);
+        let block = first..(first + BLOCK / 16).min(groups);
+        word_planes::<0>(points, block.clone(), planes);
+        word_planes::<1>(points, block.clone(), planes);
+        word_planes::<2>(points, block.clone(), planes);
+        word_planes::<3>(points, block.clone(), planes);
+        word_planes::<4>(points, block, planes);
     }
     16 * groups
 }

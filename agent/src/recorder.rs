@@ -660,8 +660,9 @@ impl OpenFile {
     }
 }
 
-/// Free bytes on the file system holding `dir`.
-fn free_bytes(dir: &Path) -> Option<u64> {
+/// Free bytes on the file system holding `dir` (for an unprivileged writer); `None` when it
+/// cannot be asked, as for a folder that does not exist.
+pub fn free_bytes(dir: &Path) -> Option<u64> {
     use std::os::unix::ffi::OsStrExt;
     let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
     let mut s: libc::statvfs = unsafe { std::mem::zeroed() };

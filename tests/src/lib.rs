@@ -298,6 +298,14 @@ pub fn memory_kib(pid: u32) -> (u64, u64, u64) {
     (field("VmRSS:"), field("RssAnon:"), field("VmHWM:"))
 }
 
+/// A `[recorder]` section writing into `dir`, beside the agent's configuration. Its
+/// `min_free_mb` is the tests' own: their recordings take a few MB, and what they check must
+/// not hang on the free space of the machine that runs them. The agent's default keeps 1 GB
+/// free for a print that runs for hours, and a CI machine may have less: one had 648 MB.
+pub fn recorder_section(dir: &str) -> String {
+    format!("[recorder]\ndir = {dir:?}\nmin_free_mb = 16\n")
+}
+
 /// An agent configuration for the Stanford bunny at 5 mm tolerance and maximum distance, with
 /// `extra` sections appended.
 pub fn bunny_agent_config(extra: &str) -> String {

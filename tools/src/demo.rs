@@ -8,7 +8,9 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use asbuilt_protocol::StationReport;
 use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_report::Report;
 use asbuilt_sim::{SimJob, SimOutcome};
 use clap::Args;
 use iceoryx2::prelude::*;
@@ -62,6 +64,7 @@ pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     }
     let out = &args.out;
     prepare(out)?;
+    check_room(out, &job)?;
     let design = out.join("design.stl");
     asbuilt_sim::write_stl(&design, &job.part.design)?;
     let prefix = format!("asbuilt-demo-{}", std::process::id());
@@ -79,13 +82,96 @@ pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     sim_cmd::write_truth(&out.join("truth.json"), &job, &outcome.settings)?;
 
     let recording = newest_mcap(&out.join("recording"))?;
-    crate::report_cmd::write(&[out.join("recording")], out, Default::default())?;
+    let report = crate::report_cmd::write(&[out.join("recording")], out, Default::default())?;
     summary(&job, &outcome, out, &recording);
-    Ok(if outcome.reports.len() == job.plan().len() {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    })
+    let short = short_stations(&report, &outcome.reports);
+    if !short.is_empty() {
+        eprintln!(
+            "\nThe recording lacks points the agent reported, so report.json and report.html \
+             lack them too (the agent's own reports above are whole). Its recorder leaves scan \
+             chunks out when the disk is nearly full or its writer falls behind; {} says which \
+             and when.",
+            log.display()
+        );
+        for (station, recorded, reported) in &short {
+            eprintln!("  {station}: {recorded} of {reported} points recorded");
+        }
+    }
+    Ok(
+        if outcome.reports.len() == job.plan().len() && short.is_empty() {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        },
+    )
+}
+
+/// Points a station of the default demo gives at the default scanner step (24 stations and
+/// 15.4 M points, rounded up), and the bytes a point takes in its recording and its view
+/// (11.7 and 4.2): the room the demo needs, roughly, before it starts.
+const POINTS_A_STATION: f64 = 650_000.0;
+const DEFAULT_STEP_DEG: f64 = 0.036;
+const BYTES_A_POINT: f64 = 16.0;
+
+/// The MB the demo's recording and view take for `job`, roughly (see [`POINTS_A_STATION`]).
+fn writes_mb(job: &SimJob) -> u64 {
+    let points = job.plan().len() as f64
+        * POINTS_A_STATION
+        * (DEFAULT_STEP_DEG / job.scanner.step_deg).powi(2);
+    (points * BYTES_A_POINT / 1e6).ceil() as u64
+}
+
+/// Free space the demo's recorder keeps before it leaves scans out, MB. The agent's default
+/// (1,024) guards a print that runs for hours; the demo's job is bounded, and [`check_room`]
+/// looks for its room before it starts.
+const MIN_FREE_MB: u64 = 64;
+
+/// Refuses to start when `out`'s disk lacks the room the demo's files need, rather than
+/// leaving a recording without its scans.
+fn check_room(out: &Path, job: &SimJob) -> Result<()> {
+    let writes = writes_mb(job);
+    match asbuilt_agent::recorder::free_bytes(out) {
+        Some(free) if free / 1_000_000 < writes + MIN_FREE_MB => bail!(
+            "{} has {} MB free: the demo writes about {writes} MB there (its recording and \
+             view) and its recorder keeps {MIN_FREE_MB} MB free. Free some space, or give --out \
+             a folder on a disk with room",
+            out.display(),
+            free / 1_000_000
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// The stations whose points the report of the recording lacks, against each station's latest
+/// report from the live agent: (name, points recorded, points reported).
+fn short_stations(report: &Report, live: &[StationReport]) -> Vec<(String, u64, u64)> {
+    let recorded: Vec<(&str, Option<u8>, u64)> = report
+        .stations
+        .iter()
+        .map(|s| (s.id.as_str(), s.attempt, s.points))
+        .collect();
+    short_of(&recorded, live)
+}
+
+/// [`short_stations`] over each recorded section's (station name, attempt from the second on,
+/// points).
+fn short_of(
+    recorded: &[(&str, Option<u8>, u64)],
+    live: &[StationReport],
+) -> Vec<(String, u64, u64)> {
+    live.iter()
+        .filter_map(|r| {
+            let name = r.name.as_str();
+            let attempt = (r.attempt > 1).then_some(r.attempt);
+            let points = recorded
+                .iter()
+                .filter(|(id, a, _)| *id == name && *a == attempt)
+                .map(|(_, _, p)| *p)
+                .max()
+                .unwrap_or(0);
+            (points < r.points_received).then(|| (name.to_string(), points, r.points_received))
+        })
+        .collect()
 }
 
 /// Creates `out`, removing what an earlier demo left there (and nothing else).
@@ -128,7 +214,9 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
          [services]\nprefix = \"{prefix}\"\n\n\
          [limits]\nmax_points_per_chunk = {chunk}\n\n\
          [status]\nperiod_s = 5.0\n\n\
-         [recorder]\ndir = \"recording\"\nfoxglove = true\n\n\
+         [recorder]\ndir = \"recording\"\nfoxglove = true\n\
+         # The demo's job is bounded and checked for room before it starts; an agent beside a\n\
+         # printer keeps the default, 1024.\nmin_free_mb = {min_free}\n\n\
          [viewer]\nrrd = \"demo.rrd\"\n{url}\n\
          [findings]\nenabled = true\nlayer_height = {h}\n\n\
          [tolerances]\n# The report's verdicts: each kind's limit (metres, m² for missing material).\n\
@@ -137,6 +225,7 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
         tol = args.tolerance,
         chunk = job.chunk_points,
         h = job.part.layer_height,
+        min_free = MIN_FREE_MB,
     )
 }
 
@@ -281,4 +370,74 @@ fn summary(job: &SimJob, o: &SimOutcome, out: &Path, recording: &Path) {
         out.join("report.json").display(),
         recording.display()
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use asbuilt_protocol::FixedText;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        demo: DemoArgs,
+    }
+
+    fn job(args: &[&str]) -> SimJob {
+        let mut cli = Cli::parse_from(std::iter::once("demo").chain(args.iter().copied()));
+        cli.demo.job.defects = default_defects(&cli.demo.job.part);
+        cli.demo.job.job().unwrap()
+    }
+
+    /// The default demo wrote 250 MB (a 180 MB recording, a 65 MB view): the estimate covers
+    /// it without asking for twice the room; a coarser scan of fewer stations asks for little.
+    #[test]
+    fn the_room_asked_for_covers_what_the_default_demo_writes() {
+        let default = writes_mb(&job(&[]));
+        assert!((250..=300).contains(&default), "{default} MB");
+        let small = writes_mb(&job(&[
+            "--scan-after",
+            "6,12",
+            "--stations",
+            "2",
+            "--step-deg",
+            "0.1",
+        ]));
+        assert!(small < 10, "{small} MB");
+    }
+
+    fn reported(name: &str, attempt: u8, points: u64) -> StationReport {
+        let mut r = StationReport::new(1, 0);
+        r.name = FixedText::new(name).unwrap();
+        r.attempt = attempt;
+        r.points_received = points;
+        r
+    }
+
+    #[test]
+    fn a_station_is_short_when_its_recorded_attempt_has_fewer_points_or_none() {
+        let live = [
+            reported("L008-S1", 1, 100),
+            reported("L008-S2", 2, 200),
+            reported("L008-S3", 1, 300),
+            reported("L008-S4", 1, 400),
+        ];
+        let recorded = [
+            ("L008-S1", None, 100),
+            // The first attempt, interrupted, is not the one reported.
+            ("L008-S2", None, 200),
+            ("L008-S2", Some(2), 150),
+            ("L008-S3", None, 0),
+        ];
+        assert_eq!(
+            short_of(&recorded, &live),
+            [
+                ("L008-S2".to_string(), 150, 200),
+                ("L008-S3".to_string(), 0, 300),
+                ("L008-S4".to_string(), 0, 400),
+            ]
+        );
+        assert!(short_of(&[("L008-S1", None, 100)], &live[..1]).is_empty());
+    }
 }

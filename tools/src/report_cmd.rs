@@ -63,8 +63,12 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
 }
 
 /// Writes `out/report.json` and `out/report.html` for the job `recordings` name (see
-/// [`crate::recording_file::job_files`]).
-pub fn write(recordings: &[PathBuf], out: &std::path::Path, overrides: Overrides) -> Result<()> {
+/// [`crate::recording_file::job_files`]), and returns the report.
+pub fn write(
+    recordings: &[PathBuf],
+    out: &std::path::Path,
+    overrides: Overrides,
+) -> Result<Report> {
     let png = overrides.judging.png;
     let files = crate::recording_file::job_files(recordings, overrides.job)?;
     let (report, _) = read(&files, overrides, false)?;
@@ -81,7 +85,7 @@ pub fn write(recordings: &[PathBuf], out: &std::path::Path, overrides: Overrides
     if png {
         crate::maps_png::write(&report, out)?;
     }
-    Ok(())
+    Ok(report)
 }
 
 fn write_outputs(source: &str, out: &std::path::Path, report: &Report) -> Result<()> {

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use asbuilt_protocol::StationStatus;
 use asbuilt_sim::{self as sim, Defect, Part, SimJob, SimOutcome};
-use asbuilt_tests::{Agent, Cell, unique_prefix};
+use asbuilt_tests::{Agent, Cell, recorder_section, unique_prefix};
 use rand::{Rng, SeedableRng};
 use serde_json::Value;
 
@@ -41,9 +41,11 @@ fn start(test: &str, job: &SimJob) -> (Agent, Cell) {
     sim::write_stl(&stl, &job.part.design).unwrap();
     let config = format!(
         "[design]\npath = \"design.stl\"\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
-         max_distance = 0.03\n[limits]\nmax_points_per_chunk = {}\n[recorder]\n\
-         dir = \"recording\"\n[findings]\nenabled = true\nlayer_height = {}\n",
-        job.chunk_points, job.part.layer_height
+         max_distance = 0.03\n[limits]\nmax_points_per_chunk = {}\n{}\
+         [findings]\nenabled = true\nlayer_height = {}\n",
+        job.chunk_points,
+        recorder_section("recording"),
+        job.part.layer_height
     );
     let agent = Agent::start_in(AGENT, &unique_prefix(test), &config, dir);
     let cell = Cell::open(&agent.prefix, job.chunk_points);

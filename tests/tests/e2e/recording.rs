@@ -11,7 +11,7 @@ use asbuilt_protocol::recording::{self, Recorded};
 use asbuilt_protocol::{StationEventKind, StationReport};
 use asbuilt_tests::{
     Agent, agent_after_bunny_job, assert_section_matches, bunny_agent_config, bunny_stations,
-    publish_command, repo, shared_data, unique_prefix,
+    publish_command, recorder_section, repo, shared_data, unique_prefix,
 };
 use serde_json::Value;
 
@@ -304,7 +304,7 @@ fn an_independent_mcap_reader_reads_the_recording() {
 /// bit for bit, as the ones recorded.
 #[test]
 fn a_recorded_job_replays_to_identical_reports() {
-    let agent = agent_after_bunny_job(AGENT, ASBUILT, "record", "[recorder]\ndir = \"rec\"\n");
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "record", &recorder_section("rec"));
     let log = agent.log();
     assert!(log.contains("recorder: closed"), "{log}");
     assert!(log.contains("43 scan chunks recorded, 0 left out"), "{log}");
@@ -414,11 +414,15 @@ fn recordings(agent: &Agent) -> Vec<PathBuf> {
     files
 }
 
-/// Runs the bunny job through an agent with `recorder` settings; returns the recordings, their
-/// messages, and the agent's log.
+/// Runs the bunny job through an agent with `recorder` settings added to the tests' own
+/// (`recorder_section`); returns the recordings, their messages, and the agent's log.
 fn record_bunny(recorder: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
-    let recorder = format!("[recorder]\ndir = \"rec\"\n{recorder}\n");
-    let agent = agent_after_bunny_job(AGENT, ASBUILT, "rec-limits", &recorder);
+    record_bunny_with(&format!("{}{recorder}\n", recorder_section("rec")))
+}
+
+/// [`record_bunny`] with the whole `[recorder]` section given.
+fn record_bunny_with(section: &str) -> (Agent, Vec<Vec<(u64, Recorded)>>, String) {
+    let agent = agent_after_bunny_job(AGENT, ASBUILT, "rec-limits", section);
     let log = agent.log();
     let msgs = recordings(&agent)
         .iter()
@@ -562,7 +566,7 @@ fn a_long_job_rotates_into_parts_that_each_read_on_their_own() {
 
 #[test]
 fn a_nearly_full_disk_stops_the_scans_but_never_the_reports() {
-    let (_agent, files, log) = record_bunny("min_free_mb = 1e12");
+    let (_agent, files, log) = record_bunny_with("[recorder]\ndir = \"rec\"\nmin_free_mb = 1e12\n");
     assert!(
         log.contains("scan and deviation chunks are no longer recorded"),
         "{log}"
@@ -653,7 +657,7 @@ fn a_recording_reports_the_live_reports_wherever_a_station_end_is_recorded() {
 /// publishes a report only once the recorder has it on disk.)
 #[test]
 fn a_job_killed_mid_way_recovers_every_station_reported_before_the_kill() {
-    let config = bunny_agent_config("[recorder]\ndir = \"rec\"\n");
+    let config = bunny_agent_config(&recorder_section("rec"));
     let prefix = unique_prefix("sigkill");
     let mut agent = Agent::start(AGENT, &prefix, &config);
     let cell = asbuilt_tests::Cell::open(&prefix, 16);

@@ -15,7 +15,9 @@ def agent_config(prefix, job):
         "inspect": {"tolerance": 0.005, "max_distance": 0.03},
         "services": {"prefix": prefix},
         "limits": {"max_points_per_chunk": 16384},
-        "recorder": {"dir": "recording"},
+        # The tests' recordings take a few MB; what they check must not hang on the machine's
+        # free space (the agent's default keeps 1 GB free for a print that runs for hours).
+        "recorder": {"dir": "recording", "min_free_mb": 16},
         "findings": {"enabled": True, "layer_height": job.layer_height},
     }
 

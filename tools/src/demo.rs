@@ -396,14 +396,10 @@ mod tests {
     fn the_room_asked_for_covers_what_the_default_demo_writes() {
         let default = writes_mb(&job(&[]));
         assert!((250..=300).contains(&default), "{default} MB");
-        let small = writes_mb(&job(&[
-            "--scan-after",
-            "6,12",
-            "--stations",
-            "2",
-            "--step-deg",
-            "0.1",
-        ]));
+        let coarse: Vec<&str> = "--scan-after 8 --stations 2 --step-deg 0.1"
+            .split(' ')
+            .collect();
+        let small = writes_mb(&job(&coarse));
         assert!(small < 10, "{small} MB");
     }
 

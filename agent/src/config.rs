@@ -552,6 +552,9 @@ impl AgentConfig {
         if let Err(e) = tolerances.flatness() {
             problems.push(format!("tolerances.{e}"));
         }
+        if let Err(e) = tolerances.decision_rule() {
+            problems.push(format!("[tolerances] {e}"));
+        }
         if let Err(e) = tolerances.dimensions() {
             problems.push(format!("tolerances.{e}"));
         }
@@ -699,6 +702,10 @@ pub struct TolerancesConfig {
     /// A standard the element's dimensions and plumb are judged by, as `--dimensions` takes
     /// it: `"din18202"`. `asbuilt report` applies it.
     pub dimensions: Option<String>,
+    /// How the standards' verdicts weigh the measurement's uncertainty: `"iso14253-1"` (the
+    /// default: a pass or a fail only where the expanded uncertainty proves it, inconclusive
+    /// between) or `"simple"` (the value alone against the limit).
+    pub decision_rule: Option<String>,
 }
 
 impl TolerancesConfig {
@@ -710,6 +717,16 @@ impl TolerancesConfig {
         asbuilt_core::flatness::UnknownStandard,
     > {
         self.flatness.as_deref().map(str::parse).transpose()
+    }
+
+    /// The decision rule, ISO 14253-1 unless another is set.
+    pub fn decision_rule(
+        &self,
+    ) -> Result<asbuilt_core::verdict::DecisionRule, asbuilt_core::verdict::UnknownDecisionRule>
+    {
+        self.decision_rule
+            .as_deref()
+            .map_or(Ok(Default::default()), str::parse)
     }
 
     /// The dimensions standard, when one is set.

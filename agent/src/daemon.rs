@@ -651,10 +651,12 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
     // Checked at start: a standard that does not parse was refused there.
     let flatness = config.tolerances.flatness().ok().flatten();
     let dimensions = config.tolerances.dimensions().ok().flatten();
+    let rule = config.tolerances.decision_rule().unwrap_or_default();
     lifecycle = lifecycle.with_survey(crate::survey::Survey::new(
         designs_full.design(),
         flatness,
         dimensions,
+        rule,
     ));
     if config.corrections.enabled {
         let c = &config.corrections;

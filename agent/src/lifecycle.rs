@@ -1119,18 +1119,22 @@ impl<C: ChunkSource> Lifecycle<C> {
         let inspector = &mut s.inspector;
         let survey = &mut self.survey;
         let height = s.design.height;
-        let origin = s
-            .pose
-            .filter(|_| survey.is_some())
-            .and_then(|p| self.frames.t_design_scanner(&p).ok())
-            .map(|t| nalgebra::Point3::from(t.translation.vector));
+        let view = asbuilt_core::flatness::StationView {
+            key: (h.job, h.station),
+            origin: s
+                .pose
+                .filter(|_| survey.is_some())
+                .and_then(|p| self.frames.t_design_scanner(&p).ok())
+                .map(|t| nalgebra::Point3::from(t.translation.vector)),
+            position_sigma: s.pose.map_or(f64::NAN, |p| p.position_sigma),
+        };
         out.deviations(n, &mut |buf| {
             let outcome = inspector.process(points, buf);
             if in_findings && let Some(st) = stage.as_mut() {
                 st.ingest((h.job, h.station), buf);
             }
             if let Some(sv) = survey.as_mut() {
-                sv.ingest(h.job, height, origin, buf);
+                sv.ingest(h.job, height, &view, buf);
             }
             let mut d = DeviationHeader::new(h.job, h.station, h.sequence);
             d.timestamp_ns = h.timestamp_ns;

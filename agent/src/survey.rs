@@ -6,8 +6,14 @@
 //! way into report.json.
 
 use asbuilt_core::Design;
-use asbuilt_core::flatness::{DimensionsStandard, FlatnessGrid, FlatnessStandard};
-use asbuilt_protocol::{DimensionRow, FixedText, FlatnessRow, PointDeviation, SurfaceFindings};
+use asbuilt_core::flatness::{
+    DimensionsStandard, Direction, FlatnessGrid, FlatnessStandard, StationView,
+};
+use asbuilt_core::verdict::{DecisionRule, Verdict};
+use asbuilt_protocol::{
+    DimensionRow, FixedText, FlatnessRow, PointDeviation, SurfaceFindings, SurveyDecisionRule,
+    SurveyVerdict,
+};
 
 use crate::{info, warn};
 
@@ -16,8 +22,19 @@ pub struct Survey {
     grid: FlatnessGrid,
     flatness: Option<FlatnessStandard>,
     dimensions: Option<DimensionsStandard>,
+    rule: DecisionRule,
     /// The scan layer gathered: job and printed height's bits.
     layer: Option<(u64, u64)>,
+}
+
+/// A verdict as the cell's message carries it.
+pub fn survey_verdict(v: Verdict) -> SurveyVerdict {
+    match v {
+        Verdict::NotJudged => SurveyVerdict::NotJudged,
+        Verdict::Pass | Verdict::Warn => SurveyVerdict::Pass,
+        Verdict::Inconclusive => SurveyVerdict::Inconclusive,
+        Verdict::Fail => SurveyVerdict::Fail,
+    }
 }
 
 impl Survey {
@@ -26,22 +43,24 @@ impl Survey {
         design: &Design,
         flatness: Option<FlatnessStandard>,
         dimensions: Option<DimensionsStandard>,
+        rule: DecisionRule,
     ) -> Option<Self> {
         (flatness.is_some() || dimensions.is_some()).then(|| Self {
             grid: FlatnessGrid::new(design),
             flatness,
             dimensions,
+            rule,
             layer: None,
         })
     }
 
-    /// A chunk's deviations of a station of `job` scanned at `printed_height` from `origin`
-    /// (design frame): a new scan layer starts the faces over.
+    /// A chunk's deviations of `station` of `job` scanned at `printed_height`: a new scan
+    /// layer starts the faces over.
     pub fn ingest(
         &mut self,
         job: u64,
         printed_height: f64,
-        origin: Option<nalgebra::Point3<f64>>,
+        station: &StationView,
         devs: &[PointDeviation],
     ) {
         let layer = (job, printed_height.to_bits());
@@ -49,7 +68,7 @@ impl Survey {
             self.grid.clear();
             self.layer = Some(layer);
         }
-        self.grid.add(devs, origin);
+        self.grid.add(devs, station);
     }
 
     /// Judges the scan layer so far after station `key` (job, station) of printed layer
@@ -59,6 +78,10 @@ impl Survey {
         let mut out = SurfaceFindings::new(job, station);
         out.layer = layer;
         out.printed_height = printed_height;
+        out.decision_rule = match self.rule {
+            DecisionRule::Iso14253_1 => SurveyDecisionRule::Iso14253_1,
+            DecisionRule::Simple => SurveyDecisionRule::Simple,
+        };
         if let Some(standard) = &self.flatness {
             self.judge_flatness(standard, &mut out);
         }
@@ -71,46 +94,63 @@ impl Survey {
     /// The faces' flatness into `out`, logged.
     fn judge_flatness(&self, standard: &FlatnessStandard, out: &mut SurfaceFindings) {
         let (job, station) = (out.job, out.station);
-        let gaps = self.grid.judge(standard);
+        let judged = self.grid.judge(standard);
         out.flatness_standard = FixedText::truncated(&standard.key());
-        for g in &gaps {
+        out.not_judged = judged.not_judged.len() as u32;
+        for g in &judged.gaps {
             let row = FlatnessRow {
                 face: g.face,
-                direction: u8::from(g.direction == asbuilt_core::flatness::Direction::Across),
-                pass: g.passes(),
-                span: g.span,
+                direction: u8::from(g.direction == Direction::Across),
+                verdict: survey_verdict(g.verdict(self.rule)),
+                span: g.span.unwrap_or(f64::NAN),
                 gap: g.gap,
+                support_distance: g.support_distance,
                 limit: g.limit,
+                uncertainty: g.uncertainty,
                 at: g.at.coords.into(),
             };
             if out.flatness.push(row).is_err() {
                 out.truncated += 1;
             }
         }
-        let failed: Vec<_> = gaps.iter().filter(|g| !g.passes()).collect();
-        match failed
+        let governing: Vec<_> = judged.gaps.iter().filter(|g| g.span.is_none()).collect();
+        let verdict = governing
             .iter()
-            .max_by(|a, b| (a.gap / a.limit).total_cmp(&(b.gap / b.limit)))
-        {
-            None => info!(
+            .map(|g| g.verdict(self.rule))
+            .max()
+            .unwrap_or(Verdict::NotJudged);
+        let worst = governing
+            .iter()
+            .max_by(|a, b| (a.gap / a.limit).total_cmp(&(b.gap / b.limit)));
+        let line = match worst {
+            None => format!(
                 "job {job} station {station}: flatness to {standard} over the scan layer so \
-                 far: PASS, {} gap(s) on the faces seen",
-                gaps.len()
+                 far: NOT JUDGED, no face was seen well enough to lay a straightedge on"
             ),
-            Some(w) => warn!(
-                "job {job} station {station}: flatness to {standard} over the scan layer so \
-                 far: FAIL, {} of {} gap(s); the worst {:.1} mm under a {} m straightedge {} \
-                 (limit {:.1} mm) at ({:.2}, {:.2}, {:.2}) m",
-                failed.len(),
-                gaps.len(),
+            Some(w) => format!(
+                "job {job} station {station}: flatness to {standard} ({}) over the scan layer \
+                 so far: {}, {} face-direction(s) judged, {} not; the worst {:.1} ± {:.1} mm \
+                 {} on face {} with its supports {:.2} m apart (limit {:.1} mm) at ({:.2}, \
+                 {:.2}, {:.2}) m",
+                self.rule,
+                verdict.shout(),
+                governing.len(),
+                judged.not_judged.len(),
                 w.gap * 1e3,
-                w.span,
+                w.uncertainty * 1e3,
                 w.direction.as_str().replace('_', " "),
+                w.face,
+                w.support_distance,
                 w.limit * 1e3,
                 w.at.x,
                 w.at.y,
                 w.at.z
             ),
+        };
+        if verdict > Verdict::Pass {
+            warn!("{line}");
+        } else {
+            info!("{line}");
         }
     }
 
@@ -121,59 +161,71 @@ impl Survey {
         let mut off = Vec::new();
         let dims = self.grid.dimensions();
         let plumb = self.grid.plumb();
+        let rule = self.rule;
         let rows = dims
             .iter()
-            .map(|d| DimensionRow {
-                kind: d.kind as u8,
-                pass: (d.measured - d.nominal).abs() <= d.limit,
-                faces: d.faces,
-                nominal: d.nominal,
-                measured: d.measured,
-                limit: d.limit,
+            .map(|d| {
+                let v = rule.decide(d.measured - d.nominal, d.uncertainty, d.limit);
+                if v > Verdict::Pass {
+                    off.push(format!(
+                        "{} {} {:+.1} ± {:.1} mm (limit ±{:.0})",
+                        d.kind.as_str(),
+                        v.shout(),
+                        (d.measured - d.nominal) * 1e3,
+                        d.uncertainty * 1e3,
+                        d.limit * 1e3
+                    ));
+                }
+                DimensionRow {
+                    kind: d.kind as u8,
+                    verdict: survey_verdict(v),
+                    faces: d.faces,
+                    nominal: d.nominal,
+                    measured: d.measured,
+                    limit: d.limit,
+                    uncertainty: d.uncertainty,
+                }
             })
-            .chain(plumb.iter().map(|p| DimensionRow {
-                kind: 3,
-                pass: p.gap.abs() <= p.limit,
-                faces: [p.face; 2],
-                nominal: p.height,
-                measured: p.gap,
-                limit: p.limit,
-            }));
+            .collect::<Vec<_>>()
+            .into_iter()
+            .chain(plumb.iter().map(|p| {
+                let v = rule.decide(p.gap, p.uncertainty, p.limit);
+                if v > Verdict::Pass {
+                    off.push(format!(
+                        "face {} plumb {} {:+.1} ± {:.1} mm over {:.2} m (limit {:.0})",
+                        p.face,
+                        v.shout(),
+                        p.gap * 1e3,
+                        p.uncertainty * 1e3,
+                        p.height,
+                        p.limit * 1e3
+                    ));
+                }
+                DimensionRow {
+                    kind: 3,
+                    verdict: survey_verdict(v),
+                    faces: [p.face; 2],
+                    nominal: p.height,
+                    measured: p.gap,
+                    limit: p.limit,
+                    uncertainty: p.uncertainty,
+                }
+            }))
+            .collect::<Vec<_>>();
         for row in rows {
             if out.dimensions.push(row).is_err() {
                 out.truncated += 1;
             }
         }
-        for d in dims {
-            if (d.measured - d.nominal).abs() > d.limit {
-                off.push(format!(
-                    "{} {:+.1} mm (limit ±{:.0})",
-                    d.kind.as_str(),
-                    (d.measured - d.nominal) * 1e3,
-                    d.limit * 1e3
-                ));
-            }
-        }
-        for p in plumb {
-            if p.gap.abs() > p.limit {
-                off.push(format!(
-                    "face {} out of plumb {:+.1} mm over {:.2} m (limit {:.0})",
-                    p.face,
-                    p.gap * 1e3,
-                    p.height,
-                    p.limit * 1e3
-                ));
-            }
-        }
         if off.is_empty() {
             info!(
-                "job {job} station {station}: dimensions and plumb to {standard} over the \
-                 scan layer so far: PASS"
+                "job {job} station {station}: dimensions and plumb to {standard} ({rule}) over \
+                 the scan layer so far: PASS"
             );
         } else {
             warn!(
-                "job {job} station {station}: dimensions and plumb to {standard} over the \
-                 scan layer so far: FAIL: {}",
+                "job {job} station {station}: dimensions and plumb to {standard} ({rule}) over \
+                 the scan layer so far: {}",
                 off.join("; ")
             );
         }

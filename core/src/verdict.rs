@@ -10,33 +10,142 @@ use std::fmt;
 use std::str::FromStr;
 
 /// How a value stands against its limit, worst last. Serialised as [`Verdict::as_str`] spells it.
+///
+/// `NotJudged` sorts first, so that the worst of several verdicts ignores what was not judged
+/// and is `NotJudged` only when nothing was. `Inconclusive` (ISO 14253-1: neither conformance nor
+/// non-conformance proven within the measurement's uncertainty) sorts between `Warn` and `Fail`:
+/// nobody can sign it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[cfg_attr(
     feature = "serde",
     derive(serde::Serialize),
-    serde(rename_all = "lowercase")
+    serde(rename_all = "snake_case")
 )]
 pub enum Verdict {
+    /// Nothing was measured well enough to judge.
+    NotJudged,
     /// Within the warning fraction of the limit.
     Pass,
     /// Beyond the warning fraction, within the limit.
     Warn,
+    /// Within the measurement's uncertainty of the limit: neither pass nor fail is proven.
+    Inconclusive,
     /// Beyond the limit.
     Fail,
 }
 
 impl Verdict {
-    /// `pass`, `warn` or `fail`.
+    /// `not_judged`, `pass`, `warn`, `inconclusive` or `fail`.
     pub fn as_str(self) -> &'static str {
         match self {
+            Verdict::NotJudged => "not_judged",
             Verdict::Pass => "pass",
             Verdict::Warn => "warn",
+            Verdict::Inconclusive => "inconclusive",
             Verdict::Fail => "fail",
         }
+    }
+
+    /// For people: `NOT JUDGED`, `PASS`, ...
+    pub fn shout(self) -> String {
+        self.as_str().replace('_', " ").to_uppercase()
     }
 }
 
 impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// How a measured value and its expanded uncertainty are turned into a verdict.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(rename_all = "kebab-case")
+)]
+pub enum DecisionRule {
+    /// ISO 14253-1:2017 (guarded acceptance and rejection): conformance is proven when the
+    /// value plus its expanded uncertainty U is within the limit, non-conformance when the
+    /// value less U is beyond it; anything between is inconclusive.
+    #[default]
+    #[cfg_attr(feature = "serde", serde(rename = "iso14253-1"))]
+    Iso14253_1,
+    /// Simple acceptance (ILAC-G8:09/2019 §4.2.1): the value alone against the limit, U only
+    /// reported.
+    Simple,
+}
+
+impl DecisionRule {
+    /// As `--decision-rule` and agent.toml spell it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DecisionRule::Iso14253_1 => "iso14253-1",
+            DecisionRule::Simple => "simple",
+        }
+    }
+
+    /// For people, in a report's summary.
+    pub fn describe(self) -> &'static str {
+        match self {
+            DecisionRule::Iso14253_1 => {
+                "ISO 14253-1 decision rule: a pass proves conformance (value + U within the \
+                 limit), a fail proves non-conformance (value - U beyond it), anything between \
+                 is inconclusive; U is the expanded uncertainty (k = 2)"
+            }
+            DecisionRule::Simple => {
+                "simple acceptance (ILAC-G8): the value alone against the limit; U is reported, \
+                 not used"
+            }
+        }
+    }
+
+    /// The verdict of a magnitude `value` (its sign ignored) measured with expanded uncertainty
+    /// `u` against `limit`; `NotJudged` when the value is not finite.
+    pub fn decide(self, value: f64, u: f64, limit: f64) -> Verdict {
+        let v = value.abs();
+        if !v.is_finite() {
+            return Verdict::NotJudged;
+        }
+        // An unknown uncertainty proves nothing either way.
+        let u = if u.is_finite() {
+            u.max(0.0)
+        } else {
+            f64::INFINITY
+        };
+        match self {
+            DecisionRule::Simple if v <= limit => Verdict::Pass,
+            DecisionRule::Simple => Verdict::Fail,
+            DecisionRule::Iso14253_1 if v + u <= limit => Verdict::Pass,
+            DecisionRule::Iso14253_1 if v - u > limit => Verdict::Fail,
+            DecisionRule::Iso14253_1 => Verdict::Inconclusive,
+        }
+    }
+}
+
+/// A decision rule that is not one of `iso14253-1`, `simple`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("decision rule {0:?}: give iso14253-1 (guarded, the default) or simple")]
+pub struct UnknownDecisionRule(pub String);
+
+impl FromStr for DecisionRule {
+    type Err = UnknownDecisionRule;
+    fn from_str(s: &str) -> Result<Self, UnknownDecisionRule> {
+        match s
+            .trim()
+            .to_ascii_lowercase()
+            .replace(['_', ' '], "-")
+            .as_str()
+        {
+            "iso14253-1" | "iso-14253-1" => Ok(DecisionRule::Iso14253_1),
+            "simple" => Ok(DecisionRule::Simple),
+            _ => Err(UnknownDecisionRule(s.to_string())),
+        }
+    }
+}
+
+impl fmt::Display for DecisionRule {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.as_str())
     }
@@ -447,9 +556,31 @@ mod tests {
         assert_eq!(l.judge_value(m, 0.0001, 0.002), Verdict::Warn);
         assert_eq!(l.judge_value(m, 0.0021, 0.002), Verdict::Fail);
         assert!(Verdict::Fail > Verdict::Warn && Verdict::Warn > Verdict::Pass);
+        assert!(Verdict::Fail > Verdict::Inconclusive && Verdict::Inconclusive > Verdict::Warn);
+        assert!(Verdict::NotJudged < Verdict::Pass);
         assert!(l.check().is_ok());
         let mut bad = l.clone();
         bad.warn_fraction = 1.5;
         assert!(bad.check().is_err());
+    }
+
+    #[test]
+    fn the_decision_rules_at_and_around_the_limit() {
+        let iso = DecisionRule::Iso14253_1;
+        // 2.9 mm and 3.1 mm against 3 mm, measured with U = 1 mm: neither is proven.
+        assert_eq!(iso.decide(0.0029, 0.001, 0.003), Verdict::Inconclusive);
+        assert_eq!(iso.decide(-0.0031, 0.001, 0.003), Verdict::Inconclusive);
+        assert_eq!(iso.decide(0.0019, 0.001, 0.003), Verdict::Pass);
+        assert_eq!(iso.decide(0.0041, 0.001, 0.003), Verdict::Fail);
+        assert_eq!(iso.decide(0.001, f64::NAN, 0.003), Verdict::Inconclusive);
+        assert_eq!(iso.decide(f64::NAN, 0.0, 0.003), Verdict::NotJudged);
+        let simple = DecisionRule::Simple;
+        assert_eq!(simple.decide(0.0029, 0.001, 0.003), Verdict::Pass);
+        assert_eq!(simple.decide(0.0031, 0.001, 0.003), Verdict::Fail);
+        assert_eq!("ISO14253-1".parse::<DecisionRule>(), Ok(iso));
+        assert_eq!("simple".parse::<DecisionRule>(), Ok(simple));
+        let e = "guarded".parse::<DecisionRule>().unwrap_err().to_string();
+        assert!(e.contains("iso14253-1") && e.contains("guarded"), "{e}");
+        assert_eq!(DecisionRule::default(), iso);
     }
 }

@@ -45,7 +45,10 @@ pub use scan::{ChunkHeader, ScanPoint, ScanPointFlags};
 pub use sending::{StationSender, StationSink};
 pub use station::{StationEvent, StationEventKind};
 pub use status::{AgentState, AgentStatus, InputRejects, OutputDrops};
-pub use survey::{DimensionRow, FlatnessRow, MAX_SURVEY_BYTES, MAX_SURVEY_ROWS, SurfaceFindings};
+pub use survey::{
+    DimensionRow, FlatnessRow, MAX_SURVEY_BYTES, MAX_SURVEY_ROWS, SurfaceFindings,
+    SurveyDecisionRule, SurveyVerdict,
+};
 pub use text::{FixedText, TextTooLong};
 
 /// Now, in the unit every message's `timestamp_ns` uses: nanoseconds since the Unix epoch

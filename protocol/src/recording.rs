@@ -196,10 +196,11 @@ pub fn schema_text(channel: Channel) -> &'static str {
              sigma and samples; metres, design frame)"
         }
         Channel::Surface => {
-            "asbuilt.SurfaceFindings v1, postcard: the fields of asbuilt-protocol's \
-             SurfaceFindings in declaration order (the standards' keys, the deepest gap per \
-             face, direction and span, dimensions and plumb, each with its limit; metres, \
-             design frame)"
+            "asbuilt.SurfaceFindings v2, postcard: the fields of asbuilt-protocol's \
+             SurfaceFindings in declaration order (the standards' keys, the governing gap and \
+             the deepest within each table distance per face and direction with the distance \
+             between its supports, dimensions and plumb, each with its limit, expanded \
+             uncertainty (k = 2) and verdict by the decision rule; metres, design frame)"
         }
     }
 }

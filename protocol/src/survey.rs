@@ -15,21 +15,48 @@ pub const MAX_SURVEY_ROWS: usize = 128;
 /// Upper bound of an encoded [`SurfaceFindings`], bytes.
 pub const MAX_SURVEY_BYTES: usize = 32 * 1024;
 
-/// The deepest gap under a straightedge on one face, one way, at one span. Metres.
+/// How a judged quantity stands against its standard's limit, by the job's decision rule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SurveyVerdict {
+    /// Nothing measured well enough to judge it.
+    NotJudged,
+    /// Within the limit (with the ISO 14253-1 rule: with its uncertainty added).
+    Pass,
+    /// Within its uncertainty of the limit: neither proven.
+    Inconclusive,
+    /// Beyond the limit (with the ISO 14253-1 rule: with its uncertainty taken off).
+    Fail,
+}
+
+/// The decision rule a [`SurfaceFindings`] was judged by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SurveyDecisionRule {
+    /// ISO 14253-1: pass when value + U is within the limit, fail when value − U is beyond.
+    Iso14253_1,
+    /// Simple acceptance: the value alone.
+    Simple,
+}
+
+/// A gap under a straightedge on one face, one way: the one that governs (`span` NaN) or the
+/// deepest with its supports within one of the table's distances (`span`). Metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FlatnessRow {
     /// The face (the design's planar faces, largest first).
     pub face: u32,
     /// 0: along the layers; 1: across them.
     pub direction: u8,
-    /// Whether the gap is within the limit.
-    pub pass: bool,
-    /// The span.
+    /// The verdict by the message's decision rule.
+    pub verdict: SurveyVerdict,
+    /// The table's distance the supports lie within; NaN for the governing gap.
     pub span: f64,
-    /// The deepest gap.
+    /// The gap.
     pub gap: f64,
-    /// The standard's limit at the span.
+    /// The distance between the straightedge's supports.
+    pub support_distance: f64,
+    /// The standard's limit at that distance.
     pub limit: f64,
+    /// The gap's expanded uncertainty (k = 2).
+    pub uncertainty: f64,
     /// Where the gap is deepest, design frame.
     pub at: [f64; 3],
 }
@@ -39,8 +66,8 @@ pub struct FlatnessRow {
 pub struct DimensionRow {
     /// 0 length, 1 thickness, 2 height, 3 plumb.
     pub kind: u8,
-    /// Whether it is within the limit.
-    pub pass: bool,
+    /// The verdict by the message's decision rule.
+    pub verdict: SurveyVerdict,
     /// The faces it is measured between (a plumb's face twice).
     pub faces: [u32; 2],
     /// The design's size (for plumb, the height seen).
@@ -49,6 +76,8 @@ pub struct DimensionRow {
     pub measured: f64,
     /// The limit.
     pub limit: f64,
+    /// The expanded uncertainty (k = 2) of `measured`.
+    pub uncertainty: f64,
 }
 
 /// The judgement of a scan layer's stations so far.
@@ -74,8 +103,12 @@ pub struct SurfaceFindings {
     pub dimensions: heapless::Vec<DimensionRow, MAX_SURVEY_ROWS>,
     /// Rows left out because a list was full.
     pub truncated: u32,
+    /// The decision rule the verdicts follow.
+    pub decision_rule: SurveyDecisionRule,
+    /// Faces and directions the straightedge could not be laid on (not seen, too sparse).
+    pub not_judged: u32,
 }
-crate::codec::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v1", 1);
+crate::codec::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v2", 2, oldest 2);
 
 impl SurfaceFindings {
     /// Nothing judged yet, after station `station` of `job`.
@@ -91,12 +124,25 @@ impl SurfaceFindings {
             flatness: heapless::Vec::new(),
             dimensions: heapless::Vec::new(),
             truncated: 0,
+            decision_rule: SurveyDecisionRule::Iso14253_1,
+            not_judged: 0,
         }
     }
 
-    /// Whether everything judged is within its limit.
-    pub fn passes(&self) -> bool {
-        self.flatness.iter().all(|r| r.pass) && self.dimensions.iter().all(|r| r.pass)
+    /// The worst verdict of what was judged; `NotJudged` when nothing was.
+    pub fn verdict(&self) -> SurveyVerdict {
+        let rank = |v: &SurveyVerdict| match v {
+            SurveyVerdict::NotJudged => 0,
+            SurveyVerdict::Pass => 1,
+            SurveyVerdict::Inconclusive => 2,
+            SurveyVerdict::Fail => 3,
+        };
+        self.flatness
+            .iter()
+            .map(|r| r.verdict)
+            .chain(self.dimensions.iter().map(|r| r.verdict))
+            .max_by_key(rank)
+            .unwrap_or(SurveyVerdict::NotJudged)
     }
 }
 
@@ -112,19 +158,22 @@ mod tests {
         let gap = FlatnessRow {
             face: 1,
             direction: 0,
-            pass: false,
+            verdict: SurveyVerdict::Fail,
             span: 1.0,
             gap: 0.0123,
+            support_distance: 0.3,
             limit: 0.005,
+            uncertainty: 0.0004,
             at: [-0.4, -0.09, 0.1],
         };
         let dim = DimensionRow {
             kind: 3,
-            pass: true,
+            verdict: SurveyVerdict::Inconclusive,
             faces: [1, 1],
             nominal: 0.98,
             measured: 0.002,
             limit: 0.006,
+            uncertainty: 0.002,
         };
         while s.flatness.push(gap).is_ok() {}
         while s.dimensions.push(dim).is_ok() {}
@@ -133,7 +182,7 @@ mod tests {
         let back: SurfaceFindings = codec::decode(&bytes).unwrap();
         // Bytes, not values: the printed height is NaN.
         assert_eq!(codec::encode(&back), bytes);
-        assert!(!back.passes());
+        assert_eq!(back.verdict(), SurveyVerdict::Fail);
         assert_eq!(back.flatness_standard.as_str(), "din18202:6");
     }
 }

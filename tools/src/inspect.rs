@@ -334,7 +334,9 @@ impl Job {
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
         let maps = if args.no_maps { maps.off() } else { maps };
         let flatness =
-            FlatnessCollector::new(&design, args.judging.flatness, args.judging.dimensions);
+            FlatnessCollector::new(&design, args.judging.flatness, args.judging.dimensions, {
+                args.judging.decision_rule.unwrap_or_default()
+            });
         let index = C2mIndex::from_design(design, C2mParams::within(plan.suite.reach))?;
         let ix = index.stats();
         eprintln!(
@@ -623,6 +625,7 @@ fn stream_station(
         flatness,
         viewer,
         origin: Point3::from(station.t_design_scanner.translation.vector),
+        position_sigma: station.position_sigma,
         station: n,
         name: &station.id,
         view_step: viewer::stride(declared.unwrap_or(1_000_000) as usize, rerun_points),
@@ -667,6 +670,8 @@ struct OutputStage<'a> {
     viewer: Option<&'a Viewer>,
     /// The scanner's position, design frame.
     origin: Point3<f64>,
+    /// The station's pose σ per axis, metres.
+    position_sigma: f64,
     station: usize,
     name: &'a str,
     view_step: usize,
@@ -699,7 +704,12 @@ impl OutputStage<'_> {
             self.maps.points((0, n as u32), &devs);
             if let Some(f) = self.flatness.as_deref_mut() {
                 // One scan set: every station is the same scan layer.
-                f.points(0, f64::NAN, Some(self.origin), &devs);
+                let view = asbuilt_core::flatness::StationView {
+                    key: (0, n as u32),
+                    origin: Some(self.origin),
+                    position_sigma: self.position_sigma,
+                };
+                f.points(0, f64::NAN, &view, &devs);
             }
             if let Some(v) = self.viewer {
                 let (positions, distances) = viewer::decimate(&devs, self.view_step);

@@ -2,7 +2,7 @@
 //! go over the recording's `[tolerances]`).
 
 use asbuilt_core::flatness::{DimensionsStandard, FlatnessStandard};
-use asbuilt_core::verdict::LayerLimit;
+use asbuilt_core::verdict::{DecisionRule, LayerLimit};
 use clap::Args;
 
 /// Verdict limits, standards and the maps as PNG files.
@@ -19,7 +19,7 @@ pub struct Judging {
     #[arg(long)]
     pub png: bool,
     /// Judge every planar face's flatness with a virtual straightedge by a standard:
-    /// din18202:5|6|7 (DIN 18202 Table 3, walls) or aci117:A|B|C|D (ACI 117, 5 ft
+    /// din18202:1..7 (DIN 18202:2019-07 Table 3; rows 5-7 walls, 1-4 floors) or aci117:A|B|C|D (ACI 117, 5 ft
     /// straightedge). `report` judges the latest scan layer, over the recording's [tolerances].
     #[arg(long, value_name = "STANDARD:ROW")]
     pub flatness: Option<FlatnessStandard>,
@@ -28,4 +28,10 @@ pub struct Judging {
     /// latest scan layer, over the recording's [tolerances].
     #[arg(long, value_name = "STANDARD")]
     pub dimensions: Option<DimensionsStandard>,
+    /// How the standards' verdicts weigh the measurement's expanded uncertainty U (k = 2):
+    /// iso14253-1 (the default: pass only when value + U is within the limit, fail only when
+    /// value - U is beyond it, inconclusive between) or simple (the value alone). `report`:
+    /// over the recording's [tolerances] decision_rule.
+    #[arg(long, value_name = "RULE")]
+    pub decision_rule: Option<DecisionRule>,
 }

@@ -50,9 +50,9 @@ struct Collected {
     flatness: Option<FlatnessCollector>,
     /// Each station's printed height, from its Begin (for the flatness).
     heights: BTreeMap<(u64, u32), f64>,
-    /// Each station's scanner position, from its pose through the job's frames (for the
-    /// flatness).
-    origins: BTreeMap<(u64, u32), nalgebra::Point3<f64>>,
+    /// Each station's scanner position, from its pose through the job's frames, and its pose
+    /// σ (for the flatness).
+    origins: BTreeMap<(u64, u32), (nalgebra::Point3<f64>, f64)>,
     frames: Option<FrameChain>,
 }
 
@@ -92,7 +92,8 @@ impl Collected {
                         .and_then(|f| f.t_design_scanner(p).ok())
                     {
                         let origin = nalgebra::Point3::from(t.translation.vector);
-                        self.origins.insert((p.job, p.station), origin);
+                        self.origins
+                            .insert((p.job, p.station), (origin, p.position_sigma));
                     }
                 }
                 _ => {}
@@ -125,7 +126,13 @@ impl Outputs for Collected {
         if let Some(f) = &mut self.flatness {
             let key = (h.job, h.station);
             let height = self.heights.get(&key).copied().unwrap_or(f64::NAN);
-            f.points(h.job, height, self.origins.get(&key).copied(), &self.buffer);
+            let seen = self.origins.get(&key).copied();
+            let view = asbuilt_core::flatness::StationView {
+                key,
+                origin: seen.map(|s| s.0),
+                position_sigma: seen.map_or(f64::NAN, |s| s.1),
+            };
+            f.points(h.job, height, &view, &self.buffer);
         }
         if let Some(k) = &mut self.kept {
             let s = k.entry((h.job, h.station)).or_default();
@@ -288,6 +295,8 @@ struct RecordedJob {
     flatness: Option<asbuilt_core::flatness::FlatnessStandard>,
     /// The standard the dimensions and plumb are judged by, if any.
     dimensions: Option<asbuilt_core::flatness::DimensionsStandard>,
+    /// How the standards' verdicts weigh the uncertainty.
+    rule: asbuilt_core::verdict::DecisionRule,
     tolerance: f64,
     max_distance: f64,
 }
@@ -361,6 +370,10 @@ impl RecordedJob {
             Some(d) => Some(d),
             None => tolerances.dimensions().map_err(|e| recorded(&e))?,
         };
+        let rule = match overrides.judging.decision_rule {
+            Some(r) => r,
+            None => tolerances.decision_rule().map_err(|e| recorded(&e))?,
+        };
         if !(tolerance > 0.0 && max_distance > 0.0) {
             bail!("--tolerance and --max-distance must be positive metres");
         }
@@ -386,6 +399,7 @@ impl RecordedJob {
             verdict_limits,
             flatness,
             dimensions,
+            rule,
             tolerance,
             max_distance,
         };
@@ -619,7 +633,8 @@ fn replay_stations(
         .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
-    out.flatness = FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions);
+    out.flatness =
+        FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions, job.rule);
     out.frames = Some(job.frames.clone());
     if keep {
         out.kept = Some(BTreeMap::new());

@@ -1,47 +1,69 @@
 //! Flatness as a surveyor measures it: a virtual straightedge laid on every planar face the
-//! scans saw, along the layers and across them, at a standard's spans, and the gap under it
-//! judged by the standard's table (DIN 18202 Table 3, ACI 117).
+//! scans saw, along the layers and across them, resting on two high points of the surface, the
+//! gap under it judged by the standard's table at the distance between those points (DIN 18202
+//! Table 3, ACI 117).
 //!
-//! Scan points matched to a face's triangles are averaged in cells of 5 mm in the face's plane
-//! (memory grows with the face's area, never with the scan). The straightedge rests on bins
-//! 10 mm long and 30 mm wide (a straightedge's width): each bin's mean height is the profile,
-//! so a bin of n points carries the scanner's noise divided by √n and no single point can hold
-//! the straightedge up, while a dent of a few centimetres keeps its depth. A position of the
-//! straightedge counts where at least 70 % of its bins were measured.
+//! Scan points matched to a face's triangles are gathered in cells in the face's plane (memory
+//! grows with the face's area, never with the scan): 5 mm along the layers and 1 mm across them,
+//! so that layer ribs of 10 mm pitch keep their depth. A straightedge lies in a lane 30 mm wide
+//! (a straightedge's width); each bin of the lane's profile is the median of its cells' means,
+//! so that no single stray point holds the straightedge up while a rib or a dent keeps its shape.
+//! A straightedge position counts where at least 70 % of the 5 mm blocks between its supports
+//! were measured.
+//!
+//! Every gap carries its expanded uncertainty (k = 2, [`uncertainty`]).
 
+mod chords;
 mod dimensions;
 mod faces;
 mod standard;
-mod straightedge;
+pub(crate) mod straightedge;
+mod uncertainty;
 
-pub use dimensions::{Dimension, DimensionKind, Plumb};
+pub use chords::{Chord, each_chord};
+pub use dimensions::{
+    Dimension, DimensionKind, Plumb, TABLE_1, TABLE_1_SIZES, TABLE_2, TABLE_2_SIZES, table_1,
+    table_2,
+};
 pub use faces::{Face, PlanarFaces};
 pub use standard::{
-    ACCEPTED, DimensionsStandard, FlatnessStandard, UnknownDimensionsStandard, UnknownStandard,
+    ACCEPTED, DIN_18202_EDITION, DIN_ROWS, DIN_SPANS, DimensionsStandard, FlatnessStandard,
+    UnknownDimensionsStandard, UnknownStandard,
 };
-pub use straightedge::worst_gap;
 
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
 use nalgebra::Point3;
 
-/// The cell points are averaged in, metres.
-pub const CELL: f64 = 0.005;
+use crate::verdict::{DecisionRule, Verdict};
+use straightedge::Located;
+
+/// The cell along the layers (the face's `u`), metres.
+pub const CELL_ALONG: f64 = 0.005;
+/// The cell across the layers (the face's `v`), metres: a quarter of the finest layer pitch
+/// printed (10 mm ribs at 2.5 mm point spacing keep their depth).
+pub const CELL_ACROSS: f64 = 0.001;
 /// Faces smaller than this are not judged, m².
 pub const MIN_FACE_AREA: f64 = 0.01;
-/// The length of a bin along the straightedge, metres.
-pub const BIN: f64 = 0.01;
 /// The width of a lane the straightedge lies in, metres.
 pub const LANE: f64 = 0.03;
-/// The share of a straightedge's bins that must be measured for its position to count.
+/// The blocks whose measured share decides whether a straightedge position counts, metres.
+pub const BLOCK: f64 = 0.005;
+/// The share of blocks between a straightedge's supports that must be measured.
 pub const MIN_FILLED: f64 = 0.7;
 /// Views steeper than this (between the face's normal and the ray from the scanner) are left
 /// out: at grazing incidence a point's range noise and mixed returns land across the surface.
 pub const MAX_INCIDENCE_DEG: f64 = 75.0;
 /// A face's cells at most; a larger face takes larger cells.
-const MAX_CELLS: usize = 4 << 20;
+const MAX_CELLS: usize = 2 << 20;
+/// Stations a scan layer's cells tell apart; beyond, a cell counts as seen by several.
+const MAX_STATIONS: usize = 250;
+/// A cell's station tag: nothing seen yet.
+const EMPTY: u8 = 255;
+/// A cell's station tag: seen by more than one station.
+pub(crate) const MIXED: u8 = 254;
 
 /// Which way the straightedge lies on a face.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Direction {
     /// Along the layers (horizontal on a wall).
     Along,
@@ -59,38 +81,122 @@ impl Direction {
     }
 }
 
-/// The deepest gap under the straightedge at one span on one face and direction.
+/// A gap under the straightedge on one face, one way: the one that governs the face's verdict
+/// (`span` `None`: any distance between the supports, judged at that distance), or the deepest
+/// with its supports at most `span` apart (one of the table's distances).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FlatnessGap {
     /// The face, an index into [`PlanarFaces::faces`].
     pub face: u32,
     /// Which way the straightedge lay.
     pub direction: Direction,
-    /// The span, metres.
-    pub span: f64,
-    /// The deepest gap, metres.
+    /// `None` for the governing gap; else the table's distance its supports are within.
+    pub span: Option<f64>,
+    /// The gap, metres.
     pub gap: f64,
-    /// The standard's limit at the span, metres.
+    /// The distance between the straightedge's two supports, metres.
+    pub support_distance: f64,
+    /// The standard's limit at that distance, metres.
     pub limit: f64,
+    /// The gap's expanded uncertainty (k = 2), metres.
+    pub uncertainty: f64,
     /// Where the gap is deepest, design frame.
     pub at: Point3<f64>,
+    /// Where the straightedge rests, design frame.
+    pub supports: [Point3<f64>; 2],
 }
 
 impl FlatnessGap {
-    /// Whether the gap is within the limit.
-    pub fn passes(&self) -> bool {
-        self.gap <= self.limit
+    /// The verdict by `rule`.
+    pub fn verdict(&self, rule: DecisionRule) -> Verdict {
+        rule.decide(self.gap, self.uncertainty, self.limit)
     }
 }
 
-/// One face's cells: sums and counts of the points' heights off the plane.
+/// Why a face, one way, was not judged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NotJudgedReason {
+    /// No scan point of the scan layer was matched to it (out of view, or seen only at grazing
+    /// incidence).
+    NotSeen,
+    /// Points were seen, but no straightedge position had 70 % of its blocks measured.
+    TooSparse,
+}
+
+impl NotJudgedReason {
+    /// As report.json spells it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            NotJudgedReason::NotSeen => "not_seen",
+            NotJudgedReason::TooSparse => "too_sparse",
+        }
+    }
+
+    /// For people.
+    pub fn describe(self) -> &'static str {
+        match self {
+            NotJudgedReason::NotSeen => {
+                "no scan point on it (out of view, or seen only beyond 75° incidence)"
+            }
+            NotJudgedReason::TooSparse => {
+                "too few points: no straightedge position had 70 % of its length measured"
+            }
+        }
+    }
+}
+
+/// A face, one way, that was not judged.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NotJudged {
+    /// The face.
+    pub face: u32,
+    /// Which way.
+    pub direction: Direction,
+    /// Why.
+    pub reason: NotJudgedReason,
+}
+
+/// A scan layer's faces judged by a flatness standard.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FlatnessJudgement {
+    /// Per face and direction judged: the governing gap, then the deepest at each of the
+    /// table's distances up to the face's size.
+    pub gaps: Vec<FlatnessGap>,
+    /// Per face and direction not judged, and why.
+    pub not_judged: Vec<NotJudged>,
+}
+
+/// A station whose points the grid takes: which one, where it scanned from and how well its
+/// pose is known.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StationView {
+    /// Job and station.
+    pub key: (u64, u32),
+    /// The scanner's position, design frame, when known.
+    pub origin: Option<Point3<f64>>,
+    /// The pose's position σ per axis, metres (NaN or 0 when unknown).
+    pub position_sigma: f64,
+}
+
+/// One face's cells: sums, sums of squares and counts of the points' heights off the plane,
+/// and which station saw them.
 #[derive(Debug, Clone)]
 struct Cells {
-    cell: f64,
+    /// Cell size along `u` and along `v`.
+    size: [f64; 2],
     nu: usize,
     nv: usize,
     sum: Vec<f64>,
+    sq: Vec<f64>,
     count: Vec<u32>,
+    station: Vec<u8>,
+}
+
+impl Cells {
+    fn mean(&self, k: usize) -> Option<f64> {
+        let n = self.count[k];
+        (n > 0).then(|| self.sum[k] / n as f64)
+    }
 }
 
 /// Scan points gathered per planar face, judged by a standard on demand.
@@ -100,6 +206,8 @@ pub struct FlatnessGrid {
     cells: Vec<Cells>,
     /// The height the part stands on: where heights are measured from.
     bed: f64,
+    /// The scan layer's stations, in the order they came, with their position σ.
+    stations: Vec<((u64, u32), f64)>,
 }
 
 impl FlatnessGrid {
@@ -111,15 +219,20 @@ impl FlatnessGrid {
             .iter()
             .map(|f| {
                 let [su, sv] = f.size();
-                let cell = CELL.max((su * sv / MAX_CELLS as f64).sqrt());
-                let nu = (su / cell).ceil().max(1.0) as usize;
-                let nv = (sv / cell).ceil().max(1.0) as usize;
+                let scale = ((su * sv) / (CELL_ALONG * CELL_ACROSS * MAX_CELLS as f64))
+                    .sqrt()
+                    .max(1.0);
+                let size = [CELL_ALONG * scale, CELL_ACROSS * scale];
+                let nu = (su / size[0]).ceil().max(1.0) as usize;
+                let nv = (sv / size[1]).ceil().max(1.0) as usize;
                 Cells {
-                    cell,
+                    size,
                     nu,
                     nv,
                     sum: vec![0.0; nu * nv],
+                    sq: vec![0.0; nu * nv],
                     count: vec![0; nu * nv],
+                    station: vec![EMPTY; nu * nv],
                 }
             })
             .collect();
@@ -127,6 +240,7 @@ impl FlatnessGrid {
             faces,
             cells,
             bed: design.bounds().0.z,
+            stations: Vec::new(),
         }
     }
 
@@ -137,21 +251,36 @@ impl FlatnessGrid {
 
     /// Bytes the cells take.
     pub fn bytes(&self) -> usize {
-        self.cells.iter().map(|c| c.sum.len() * 12).sum()
+        self.cells.iter().map(|c| c.sum.len() * 21).sum()
     }
 
-    /// Forgets every point (a new scan layer).
+    /// Forgets every point and station (a new scan layer).
     pub fn clear(&mut self) {
         for c in &mut self.cells {
             c.sum.fill(0.0);
+            c.sq.fill(0.0);
             c.count.fill(0);
+            c.station.fill(EMPTY);
         }
+        self.stations.clear();
     }
 
-    /// Adds a chunk's deviations of a station scanned from `origin` (design frame; `None`
-    /// when unknown): each matched point goes to its triangle's face, unless the face was seen
-    /// at more than [`MAX_INCIDENCE_DEG`] from there.
-    pub fn add(&mut self, devs: &[PointDeviation], origin: Option<Point3<f64>>) {
+    /// The tag the cells give `station`'s points, registering it on first sight.
+    pub fn station(&mut self, station: &StationView) -> u8 {
+        if let Some(k) = self.stations.iter().position(|s| s.0 == station.key) {
+            return k as u8;
+        }
+        if self.stations.len() >= MAX_STATIONS {
+            return MIXED;
+        }
+        self.stations.push((station.key, station.position_sigma));
+        (self.stations.len() - 1) as u8
+    }
+
+    /// Adds a chunk's deviations of `station`: each matched point goes to its triangle's face,
+    /// unless the face was seen at more than [`MAX_INCIDENCE_DEG`] from the station's origin.
+    pub fn add(&mut self, devs: &[PointDeviation], station: &StationView) {
+        let tag = self.station(station);
         let min_cos = MAX_INCIDENCE_DEG.to_radians().cos();
         for d in devs {
             if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
@@ -161,108 +290,82 @@ impl FlatnessGrid {
                 continue;
             };
             let p = Point3::from(d.position);
-            if let Some(o) = origin {
+            if let Some(o) = station.origin {
                 let ray = o - p;
                 let n = ray.norm();
                 if n > 0.0 && ray.dot(&self.faces.faces[*f as usize].normal) < min_cos * n {
                     continue;
                 }
             }
-            self.add_point(*f as usize, &p);
+            self.add_point(*f as usize, &p, tag);
         }
     }
 
-    /// Adds a point to face `f`.
-    pub fn add_point(&mut self, f: usize, p: &Point3<f64>) {
+    /// Adds a point to face `f`, seen by the station tagged `tag` ([`FlatnessGrid::station`]).
+    pub fn add_point(&mut self, f: usize, p: &Point3<f64>, tag: u8) {
         let face = &self.faces.faces[f];
         let c = &mut self.cells[f];
         let [u, v, w] = face.coordinates(p);
-        let iu = ((u - face.extent[0][0]) / c.cell).floor();
-        let iv = ((v - face.extent[1][0]) / c.cell).floor();
+        let iu = ((u - face.extent[0][0]) / c.size[0]).floor();
+        let iv = ((v - face.extent[1][0]) / c.size[1]).floor();
         if iu < 0.0 || iv < 0.0 || iu >= c.nu as f64 || iv >= c.nv as f64 {
             return;
         }
         let k = iv as usize * c.nu + iu as usize;
         c.sum[k] += w;
+        c.sq[k] += w * w;
         c.count[k] += 1;
+        c.station[k] = match c.station[k] {
+            EMPTY => tag,
+            t if t == tag => tag,
+            _ => MIXED,
+        };
     }
 
-    /// The deepest gap on every face, in both directions, at each of `standard`'s spans that
-    /// fit the face, where the scans saw enough of it.
-    pub fn judge(&self, standard: &FlatnessStandard) -> Vec<FlatnessGap> {
-        let mut out = Vec::new();
+    /// Every face judged by `standard`, in both directions: the gap that governs each, the
+    /// deepest at each of the table's distances that fit the face, and what was not judged.
+    pub fn judge(&self, standard: &FlatnessStandard) -> FlatnessJudgement {
+        let mut out = FlatnessJudgement::default();
         for (f, face) in self.faces.faces.iter().enumerate() {
             let size = face.size();
             for (axis, direction) in [(0, Direction::Along), (1, Direction::Across)] {
-                for span in standard.spans() {
-                    if span > size[axis] + 1e-9 {
-                        continue;
+                let found = self.straightedge(f, axis, standard);
+                let Some((governing, by_span)) = found else {
+                    let seen = self.cells[f].count.iter().any(|&n| n > 0);
+                    out.not_judged.push(NotJudged {
+                        face: f as u32,
+                        direction,
+                        reason: if seen {
+                            NotJudgedReason::TooSparse
+                        } else {
+                            NotJudgedReason::NotSeen
+                        },
+                    });
+                    continue;
+                };
+                let gap = |c: &Located, span: Option<f64>| {
+                    let d = c.support_distance;
+                    FlatnessGap {
+                        face: f as u32,
+                        direction,
+                        span,
+                        gap: c.chord.gap,
+                        support_distance: d,
+                        limit: standard.limit(d),
+                        uncertainty: self.gap_uncertainty(f, axis, c),
+                        at: c.at,
+                        supports: c.supports,
                     }
-                    if let Some((gap, u, v)) = self.worst(f, axis, span) {
-                        out.push(FlatnessGap {
-                            face: f as u32,
-                            direction,
-                            span,
-                            gap,
-                            limit: standard.limit(span),
-                            at: face.point(u, v),
-                        });
+                };
+                out.gaps.push(gap(&governing, None));
+                for (span, c) in standard.spans().into_iter().zip(by_span) {
+                    if let Some(c) = c.filter(|_| span <= size[axis] + 1e-9) {
+                        out.gaps.push(gap(&c, Some(span)));
                     }
                 }
             }
         }
         out
-    }
-
-    /// The deepest gap on face `f` with the straightedge along `axis` (0: u, 1: v) at `span`,
-    /// and the face coordinates of its deepest point.
-    fn worst(&self, f: usize, axis: usize, span: f64) -> Option<(f64, f64, f64)> {
-        let c = &self.cells[f];
-        let face = &self.faces.faces[f];
-        // Cells merged into bins: `ka` along the straightedge, `kl` across it.
-        let ka = (BIN / c.cell).round().max(1.0) as usize;
-        let kl = (LANE / c.cell).round().max(1.0) as usize;
-        let (ku, kv) = if axis == 0 { (ka, kl) } else { (kl, ka) };
-        let bin = ka as f64 * c.cell;
-        let steps = (span / bin).round() as usize;
-        let (nu, nv) = (c.nu.div_ceil(ku), c.nv.div_ceil(kv));
-        let mut sum = vec![0.0; nu * nv];
-        let mut count = vec![0u32; nu * nv];
-        for iv in 0..c.nv {
-            for iu in 0..c.nu {
-                let (src, dst) = (iv * c.nu + iu, (iv / kv) * nu + iu / ku);
-                sum[dst] += c.sum[src];
-                count[dst] += c.count[src];
-            }
-        }
-        let height = |iu: usize, iv: usize| {
-            let n = count[iv * nu + iu];
-            (n > 0).then(|| sum[iv * nu + iu] / n as f64)
-        };
-        let (lanes, along) = if axis == 0 { (nv, nu) } else { (nu, nv) };
-        let mut best: Option<(f64, f64, f64)> = None;
-        let mut profile = Vec::with_capacity(along);
-        for lane in 0..lanes {
-            profile.clear();
-            profile.extend((0..along).map(|i| {
-                if axis == 0 {
-                    height(i, lane)
-                } else {
-                    height(lane, i)
-                }
-            }));
-            if let Some((gap, i)) = worst_gap(&profile, steps, MIN_FILLED)
-                && best.is_none_or(|b| gap > b.0)
-            {
-                let (iu, iv) = if axis == 0 { (i, lane) } else { (lane, i) };
-                best = Some((
-                    gap,
-                    face.extent[0][0] + (iu as f64 + 0.5) * ku as f64 * c.cell,
-                    face.extent[1][0] + (iv as f64 + 0.5) * kv as f64 * c.cell,
-                ));
-            }
-        }
-        best
     }
 }
 

@@ -1,13 +1,20 @@
-//! The flatness limits of the standards a site judges walls by, as a gap under a straightedge
-//! at a span.
+//! The limits of the standards a site judges by: DIN 18202:2019-07 Tables 1 (dimensions), 2
+//! (angles, as a gap) and 3 (flatness, a gap under a straightedge at the distance between its
+//! supports), and ACI 117-10 (formed surfaces, 5 ft straightedge).
+//!
+//! DIN 18202's values are the same in its 2013-04 and 2019-07 editions (the 2019 revision kept
+//! the tables and reworked how measuring points are chosen).
+
+/// The edition the tables are taken from, for reports.
+pub const DIN_18202_EDITION: &str = "DIN 18202:2019-07";
 
 /// A flatness standard and its row or class.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FlatnessStandard {
-    /// DIN 18202 Table 3, rows 5 (unfinished walls), 6 (finished walls) and 7 (row 6 with
-    /// higher requirements).
+    /// DIN 18202 Table 3: rows 1 to 4 are floors and the tops of slabs, 5 unfinished walls and
+    /// soffits, 6 finished walls, 7 row 6 with higher requirements.
     Din18202 {
-        /// The row, 5 to 7.
+        /// The row, 1 to 7.
         row: u8,
     },
     /// ACI 117, formed surfaces on a 5 ft straightedge, classes A to D.
@@ -17,12 +24,25 @@ pub enum FlatnessStandard {
     },
 }
 
-/// DIN 18202 Table 3's spans (the distance between the measuring points), metres.
-const DIN_SPANS: [f64; 5] = [0.1, 1.0, 4.0, 10.0, 15.0];
-/// Its limits for rows 5, 6 and 7 at those spans, millimetres.
-const DIN_ROWS: [(u8, [f64; 5]); 3] = [
+/// DIN 18202 Table 3's distances between the measuring points (the straightedge's supports),
+/// metres.
+pub const DIN_SPANS: [f64; 5] = [0.1, 1.0, 4.0, 10.0, 15.0];
+/// DIN 18202:2019-07 Table 3, rows 1 to 7: the largest gap (Stichmaß) at those distances,
+/// millimetres.
+pub const DIN_ROWS: [(u8, [f64; 5]); 7] = [
+    // Unfinished tops of slabs, blinding and sub-floors.
+    (1, [10.0, 15.0, 20.0, 25.0, 30.0]),
+    // Row 1 with higher requirements (e.g. to take floating screeds, industrial floors).
+    (2, [5.0, 8.0, 12.0, 15.0, 20.0]),
+    // Finished floors (screeds as wearing layers, floors to take coverings).
+    (3, [2.0, 4.0, 10.0, 12.0, 15.0]),
+    // Row 3 with higher requirements.
+    (4, [1.0, 3.0, 9.0, 12.0, 15.0]),
+    // Unfinished walls and soffits of structural slabs.
     (5, [5.0, 10.0, 15.0, 25.0, 30.0]),
+    // Finished walls and soffits (e.g. plastered, clad, to take coverings).
     (6, [3.0, 5.0, 10.0, 20.0, 25.0]),
+    // Row 6 with higher requirements.
     (7, [2.0, 3.0, 8.0, 15.0, 20.0]),
 ];
 /// ACI 117's straightedge: 5 ft.
@@ -36,8 +56,8 @@ const ACI_CLASSES: [(char, f64); 4] = [
 ];
 
 /// The values `--flatness` accepts, for an error message.
-pub const ACCEPTED: &str = "din18202:5, din18202:6, din18202:7, aci117:A, aci117:B, aci117:C, \
-                            aci117:D";
+pub const ACCEPTED: &str = "din18202:1 to din18202:7 (5-7 walls, 1-4 floors), aci117:A, \
+                            aci117:B, aci117:C, aci117:D";
 
 /// A standard that is not one of [`ACCEPTED`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -85,7 +105,9 @@ impl std::str::FromStr for FlatnessStandard {
 impl std::fmt::Display for FlatnessStandard {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            FlatnessStandard::Din18202 { row } => write!(f, "DIN 18202 Table 3 row {row}"),
+            FlatnessStandard::Din18202 { row } => {
+                write!(f, "{DIN_18202_EDITION} Table 3 row {row}")
+            }
             FlatnessStandard::Aci117 { class } => write!(f, "ACI 117 class {class}"),
         }
     }
@@ -100,7 +122,16 @@ impl FlatnessStandard {
         }
     }
 
-    /// The spans it is judged at, metres.
+    /// The longest distance between a straightedge's supports it judges, metres: DIN 18202 has
+    /// no upper bound (beyond 15 m its last limit holds); ACI 117 lays a 5 ft straightedge.
+    pub fn max_support(&self) -> f64 {
+        match self {
+            FlatnessStandard::Din18202 { .. } => f64::INFINITY,
+            FlatnessStandard::Aci117 { .. } => ACI_SPAN,
+        }
+    }
+
+    /// The spans its table lists, metres.
     pub fn spans(&self) -> Vec<f64> {
         match self {
             FlatnessStandard::Din18202 { .. } => DIN_SPANS.to_vec(),
@@ -108,15 +139,16 @@ impl FlatnessStandard {
         }
     }
 
-    /// The largest gap allowed at `span`, metres: DIN 18202 interpolates linearly between its
-    /// spans (and holds its first and last value outside them).
+    /// The largest gap allowed with the straightedge's supports `span` apart, metres: DIN 18202
+    /// interpolates linearly between its distances, holds the 0.1 m limit below 0.1 m and the
+    /// 15 m limit beyond 15 m.
     pub fn limit(&self, span: f64) -> f64 {
         match *self {
             FlatnessStandard::Din18202 { row } => {
                 let limits = DIN_ROWS
                     .iter()
                     .find(|r| r.0 == row)
-                    .map_or(DIN_ROWS[1].1, |r| r.1);
+                    .map_or(DIN_ROWS[5].1, |r| r.1);
                 interpolate(&DIN_SPANS, &limits, span) * 1e-3
             }
             FlatnessStandard::Aci117 { class } => ACI_CLASSES
@@ -153,12 +185,50 @@ mod tests {
         assert!((din6.limit(2.5) - 0.0075).abs() < 1e-12);
         assert!((din6.limit(0.05) - 0.003).abs() < 1e-12);
         assert!((din6.limit(20.0) - 0.025).abs() < 1e-12);
+        // A dent's rims 0.3 m apart: 3 + 2 · 0.2 / 0.9 mm.
+        assert!((din6.limit(0.3) - 0.0034444).abs() < 1e-6);
         let aci: FlatnessStandard = "ACI117:b".parse().unwrap();
         assert!((aci.limit(1.524) - 0.25 * 0.0254).abs() < 1e-12);
         assert_eq!(aci.spans(), vec![1.524]);
-        for bad in ["din18202:4", "din18202", "aci117:E", "aci117:AB", "iso:1"] {
+        assert_eq!(aci.max_support(), 1.524);
+        for bad in [
+            "din18202:8",
+            "din18202:0",
+            "din18202",
+            "aci117:E",
+            "aci117:AB",
+            "iso:1",
+        ] {
             let e = bad.parse::<FlatnessStandard>().unwrap_err().to_string();
-            assert!(e.contains("din18202:6") && e.contains(bad), "{e}");
+            assert!(e.contains("din18202:1") && e.contains(bad), "{e}");
+        }
+        assert!(din6.to_string().contains("DIN 18202:2019-07 Table 3 row 6"));
+    }
+
+    /// DIN 18202:2019-07 Table 3 as printed, every row at every distance: rows 1-4 floors,
+    /// 5-7 walls.
+    #[test]
+    fn table_3_row_by_row() {
+        let printed: [(u8, [f64; 5]); 7] = [
+            (1, [10.0, 15.0, 20.0, 25.0, 30.0]),
+            (2, [5.0, 8.0, 12.0, 15.0, 20.0]),
+            (3, [2.0, 4.0, 10.0, 12.0, 15.0]),
+            (4, [1.0, 3.0, 9.0, 12.0, 15.0]),
+            (5, [5.0, 10.0, 15.0, 25.0, 30.0]),
+            (6, [3.0, 5.0, 10.0, 20.0, 25.0]),
+            (7, [2.0, 3.0, 8.0, 15.0, 20.0]),
+        ];
+        for (row, limits) in printed {
+            let s: FlatnessStandard = format!("din18202:{row}").parse().unwrap();
+            for (d, l) in [0.1, 1.0, 4.0, 10.0, 15.0].iter().zip(limits) {
+                assert!((s.limit(*d) * 1e3 - l).abs() < 1e-9, "row {row} at {d} m");
+            }
+            // Halfway between two distances, halfway between their limits.
+            let mid = s.limit(0.55) * 1e3;
+            assert!(
+                (mid - 0.5 * (limits[0] + limits[1])).abs() < 1e-9,
+                "row {row}"
+            );
         }
     }
 }
@@ -194,6 +264,6 @@ impl std::str::FromStr for DimensionsStandard {
 
 impl std::fmt::Display for DimensionsStandard {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("DIN 18202 Tables 1 and 2")
+        write!(f, "{DIN_18202_EDITION} Tables 1 and 2")
     }
 }

@@ -1,138 +1,264 @@
-//! A straightedge laid on a profile: at every position of a given span, it rests on the two
-//! highest points around each low one (the profile's upper hull over the span), and the gap is
-//! how far the surface lies below it. A crown with no higher point beyond it on either side
-//! holds the straightedge on one point and has no gap of its own.
+//! The straightedge laid lane by lane on a face: each lane's profile from the cells, every
+//! position the straightedge can rest in ([`super::each_chord`]), and the one that governs the
+//! face's verdict, judged at the distance between its supports.
 
-/// The deepest gap under a straightedge of `span` bins (`span + 1` points) slid along
-/// `profile` (heights, `None` where nothing was measured), with the index of its deepest
-/// point. A position counts only where at least `min_filled` of its points are measured.
-pub fn worst_gap(profile: &[Option<f64>], span: usize, min_filled: f64) -> Option<(f64, usize)> {
-    if span == 0 || profile.len() <= span {
-        return None;
-    }
-    let mut worst: Option<(f64, usize)> = None;
-    let mut hull: Vec<(usize, f64)> = Vec::with_capacity(span + 1);
-    for start in 0..profile.len() - span {
-        let window = &profile[start..=start + span];
-        let filled = window.iter().filter(|p| p.is_some()).count();
-        if (filled as f64) < min_filled * window.len() as f64 || filled < 3 {
-            continue;
-        }
-        upper_hull(window, &mut hull);
-        if let Some((gap, at)) = deepest_below(window, &hull)
-            && worst.is_none_or(|w| gap > w.0)
-        {
-            worst = Some((gap, start + at));
-        }
-    }
-    worst
+use nalgebra::Point3;
+
+use super::{BLOCK, FlatnessGrid, FlatnessStandard, LANE, MIN_FILLED, MIXED, chords::Chord};
+
+/// A bin's length along the layers, metres.
+pub const BIN_ALONG: f64 = 0.01;
+/// The least distance from its bin's median cell at which a cell is left out, metres.
+const OUTLIER_FLOOR: f64 = 0.001;
+
+/// A lane's profile: per bin along the straightedge, the mean of the lane's points there
+/// without the cells far from the median cell (a stray return, a mixed pixel at an edge), the
+/// points behind it and which station saw them ([`MIXED`] when several did).
+#[derive(Debug, Clone, Default)]
+pub struct Profile {
+    pub height: Vec<Option<f64>>,
+    pub points: Vec<u32>,
+    pub station: Vec<u8>,
+    /// Cells a bin's median was taken over.
+    pub cells: Vec<u16>,
 }
 
-/// The upper convex hull of the measured points of `window` (Andrew's monotone chain).
-fn upper_hull(window: &[Option<f64>], hull: &mut Vec<(usize, f64)>) {
-    hull.clear();
-    for (i, p) in window.iter().enumerate() {
-        let Some(y) = *p else { continue };
-        while hull.len() >= 2 {
-            let (x1, y1) = hull[hull.len() - 2];
-            let (x2, y2) = hull[hull.len() - 1];
-            // Drop the middle point when it lies on or below the line from x1 to i.
-            let cross = (x2 as f64 - x1 as f64) * (y - y1) - (y2 - y1) * (i as f64 - x1 as f64);
-            if cross >= 0.0 {
-                hull.pop();
-            } else {
-                break;
-            }
-        }
-        hull.push((i, y));
-    }
+/// A straightedge position found on a face, with where it lies.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Located {
+    pub chord: Chord,
+    /// The lane (index across the straightedge, in lanes).
+    pub lane: usize,
+    pub support_distance: f64,
+    pub at: Point3<f64>,
+    pub supports: [Point3<f64>; 2],
 }
 
-/// The largest distance of a measured point below the hull, and where.
-fn deepest_below(window: &[Option<f64>], hull: &[(usize, f64)]) -> Option<(f64, usize)> {
-    let mut best: Option<(f64, usize)> = None;
-    let mut seg = 0;
-    for (i, p) in window.iter().enumerate() {
-        let Some(y) = *p else { continue };
-        while seg + 1 < hull.len() && hull[seg + 1].0 < i {
-            seg += 1;
-        }
-        let line = if seg + 1 < hull.len() {
-            let (x1, y1) = hull[seg];
-            let (x2, y2) = hull[seg + 1];
-            y1 + (y2 - y1) * (i as f64 - x1 as f64) / (x2 as f64 - x1 as f64)
+impl FlatnessGrid {
+    /// A bin's length along the straightedge and the cells per lane across it, for `axis`
+    /// (0: along `u`, where a bin is [`BIN_ALONG`] long; across the layers a bin is a cell).
+    fn lane_shape(&self, f: usize, axis: usize) -> (f64, usize) {
+        let c = &self.cells[f];
+        let across = 1 - axis;
+        let lane_cells = (LANE / c.size[across]).round().max(1.0) as usize;
+        (
+            c.size[axis] * self.cells_per_bin(f, axis) as f64,
+            lane_cells,
+        )
+    }
+
+    /// Cells merged into a bin along the straightedge.
+    fn cells_per_bin(&self, f: usize, axis: usize) -> usize {
+        if axis == 0 {
+            (BIN_ALONG / self.cells[f].size[0]).round().max(1.0) as usize
         } else {
-            hull[seg].1
-        };
-        let gap = line - y;
-        if best.is_none_or(|b| gap > b.0) {
-            best = Some((gap, i));
+            1
         }
     }
-    best
-}
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+    /// Lanes on face `f` for `axis`.
+    pub(crate) fn lanes(&self, f: usize, axis: usize) -> usize {
+        let c = &self.cells[f];
+        let (_, kl) = self.lane_shape(f, axis);
+        ([c.nv, c.nu][axis] / kl).max(1)
+    }
 
-    /// The gap by brute force: for every low point, the highest line through one measured point
-    /// on each side of it.
-    fn brute(window: &[Option<f64>]) -> f64 {
-        let pts: Vec<(f64, f64)> = window
-            .iter()
-            .enumerate()
-            .filter_map(|(i, p)| p.map(|y| (i as f64, y)))
-            .collect();
-        let mut worst = 0.0f64;
-        for &(x, y) in &pts {
-            // The straightedge over x rests on the hull: the lowest of the lines through a
-            // point left and a point right that stay above every point.
-            let mut best = f64::INFINITY;
-            for &(xa, ya) in pts.iter().filter(|p| p.0 <= x) {
-                for &(xb, yb) in pts.iter().filter(|p| p.0 >= x) {
-                    let at = |t: f64| {
-                        if xb == xa {
-                            ya.max(yb)
-                        } else {
-                            ya + (yb - ya) * (t - xa) / (xb - xa)
-                        }
+    /// How far from its bin's median cell a cell of face `f` is left out, metres.
+    pub(crate) fn outlier(&self, f: usize) -> f64 {
+        (3.0 * self.noise_sigma(f)).max(OUTLIER_FLOOR)
+    }
+
+    /// Each row of face `f`'s cells (along the layers) at its mean height, to be taken off its
+    /// cells for a profile along the layers: a lane 30 mm wide spans several layer ribs, and
+    /// which rows the scan lines happen to fill changes along a lane; less each row's level, a
+    /// rib's shape across the layers no longer shows up along them. Zeros across the layers.
+    pub(crate) fn row_levels(&self, f: usize, axis: usize) -> Vec<f64> {
+        let c = &self.cells[f];
+        if axis != 0 {
+            return vec![0.0; c.nv];
+        }
+        (0..c.nv)
+            .map(|iv| {
+                let row = iv * c.nu..(iv + 1) * c.nu;
+                let n: u32 = c.count[row.clone()].iter().sum();
+                let sum: f64 = c.sum[row].iter().sum();
+                if n > 0 { sum / n as f64 } else { 0.0 }
+            })
+            .collect()
+    }
+
+    /// The profile of lane `lane` on face `f` along `axis`, each cell less its row's level
+    /// (`levels`, [`FlatnessGrid::row_levels`]) and cells `outlier` or farther from their bin's
+    /// median cell left out, into `out`.
+    pub(crate) fn profile(
+        &self,
+        (f, axis, lane): (usize, usize, usize),
+        (outlier, levels): (f64, &[f64]),
+        out: &mut Profile,
+    ) {
+        let c = &self.cells[f];
+        let level = |k: usize| levels[k / c.nu];
+        let (_, kl) = self.lane_shape(f, axis);
+        let kb = self.cells_per_bin(f, axis);
+        let (along, across) = if axis == 0 {
+            (c.nu, c.nv)
+        } else {
+            (c.nv, c.nu)
+        };
+        // The last lane takes the face's remainder: a narrow strip at the edge would be judged
+        // on fewer points than the rest.
+        let lane_end = if lane + 1 >= self.lanes(f, axis) {
+            across
+        } else {
+            (lane + 1) * kl
+        };
+        out.height.clear();
+        out.points.clear();
+        out.station.clear();
+        out.cells.clear();
+        let mut means: Vec<f64> = Vec::with_capacity(kl);
+        let mut ks: Vec<usize> = Vec::with_capacity(kl);
+        for b in 0..along.div_ceil(kb) {
+            means.clear();
+            ks.clear();
+            for a in b * kb..((b + 1) * kb).min(along) {
+                for l in lane * kl..lane_end {
+                    let k = if axis == 0 {
+                        l * c.nu + a
+                    } else {
+                        a * c.nu + l
                     };
-                    if pts.iter().all(|p| at(p.0) >= p.1 - 1e-12) {
-                        best = best.min(at(x));
+                    if let Some(m) = c.mean(k) {
+                        means.push(m - level(k));
+                        ks.push(k);
                     }
                 }
             }
-            worst = worst.max(best - y);
-        }
-        worst
-    }
-
-    #[test]
-    fn the_gap_is_the_deepest_point_below_the_upper_hull_as_brute_force_finds_it() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        for _ in 0..200 {
-            let n = rng.random_range(4..30);
-            let window: Vec<Option<f64>> = (0..n)
-                .map(|_| rng.random_bool(0.8).then(|| rng.random_range(-1.0..1.0)))
-                .collect();
-            if window.iter().filter(|p| p.is_some()).count() < 3 {
+            let Some(median) = median_in_place(&mut means) else {
+                out.height.push(None);
+                out.points.push(0);
+                out.station.push(MIXED);
+                out.cells.push(0);
                 continue;
+            };
+            let (mut n, mut sum, mut kept, mut tag) = (0u32, 0.0, 0u16, None::<u8>);
+            for &k in &ks {
+                if (c.sum[k] / c.count[k] as f64 - level(k) - median).abs() > outlier {
+                    continue;
+                }
+                n += c.count[k];
+                sum += c.sum[k] - level(k) * c.count[k] as f64;
+                kept += 1;
+                tag = Some(match tag {
+                    None => c.station[k],
+                    Some(t) if t == c.station[k] => t,
+                    Some(_) => MIXED,
+                });
             }
-            let got = worst_gap(&window, n - 1, 0.0).map(|g| g.0).unwrap();
-            assert!((got - brute(&window)).abs() < 1e-9, "{window:?}");
+            out.height.push(Some(sum / n as f64));
+            out.points.push(n);
+            out.station.push(tag.unwrap_or(MIXED));
+            out.cells.push(kept);
+        }
+        // A bin that caught the end of a scan line holds a point or two where its neighbours
+        // hold a line's worth: its noise, not the surface, would hold the straightedge up.
+        let mut counts: Vec<u32> = out.points.iter().copied().filter(|&n| n > 0).collect();
+        let typical = median_count(&mut counts);
+        let least = (2 * typical / 3).max(3).min(typical.max(1));
+        for (h, &n) in out.height.iter_mut().zip(&out.points) {
+            if n < least {
+                *h = None;
+            }
         }
     }
 
-    #[test]
-    fn a_dip_between_two_supports_is_the_gap_and_a_straight_slope_has_none() {
-        let dip: Vec<Option<f64>> = [0.0, -1.0, -3.0, -1.0, 0.0].map(Some).to_vec();
-        assert_eq!(worst_gap(&dip, 4, 1.0), Some((3.0, 2)));
-        let slope: Vec<Option<f64>> = (0..10).map(|i| Some(0.5 * i as f64)).collect();
-        assert!(worst_gap(&slope, 4, 1.0).unwrap().0.abs() < 1e-12);
-        // Too few points measured: no position counts.
-        let sparse = [Some(0.0), None, None, None, Some(1.0)];
-        assert_eq!(worst_gap(&sparse, 4, 0.7), None);
+    /// On face `f` along `axis`: the straightedge position that governs (the largest gap for
+    /// its limit at the distance between its supports), and per table distance the deepest gap
+    /// with its supports at most that far apart. `None` where no position counts.
+    pub(crate) fn straightedge(
+        &self,
+        f: usize,
+        axis: usize,
+        standard: &FlatnessStandard,
+    ) -> Option<(Located, Vec<Option<Located>>)> {
+        let (bin, _) = self.lane_shape(f, axis);
+        let spans = standard.spans();
+        let max_support = standard.max_support();
+        let max_bins = if max_support.is_finite() {
+            (max_support / bin + 1e-9).floor() as usize
+        } else {
+            usize::MAX
+        };
+        let block = (BLOCK / bin).round().max(1.0) as usize;
+        let mut governing: Option<(f64, Located)> = None;
+        let mut by_span: Vec<Option<Located>> = vec![None; spans.len()];
+        let mut profile = Profile::default();
+        let outlier = self.outlier(f);
+        let levels = self.row_levels(f, axis);
+        for lane in 0..self.lanes(f, axis) {
+            self.profile((f, axis, lane), (outlier, &levels), &mut profile);
+            super::each_chord(&profile.height, max_bins, block, MIN_FILLED, |chord| {
+                let d = (chord.j - chord.i) as f64 * bin;
+                let ratio = chord.gap / standard.limit(d);
+                let located = || self.locate(f, axis, lane, chord, d);
+                if governing.as_ref().is_none_or(|g| ratio > g.0) {
+                    governing = Some((ratio, located()));
+                }
+                for (s, best) in spans.iter().zip(by_span.iter_mut()) {
+                    if d <= s + 1e-9 && best.is_none_or(|b| chord.gap > b.chord.gap) {
+                        *best = Some(located());
+                    }
+                }
+            });
+        }
+        governing.map(|g| (g.1, by_span))
     }
+
+    /// Where a position on lane `lane` of face `f` along `axis` lies, design frame.
+    fn locate(&self, f: usize, axis: usize, lane: usize, chord: Chord, d: f64) -> Located {
+        let c = &self.cells[f];
+        let face = &self.faces.faces[f];
+        let (bin, kl) = self.lane_shape(f, axis);
+        let across = c.size[1 - axis] * kl as f64 * (lane as f64 + 0.5);
+        let _ = c;
+        let point = |b: usize| {
+            let along = (b as f64 + 0.5) * bin;
+            let (u, v) = if axis == 0 {
+                (along, across)
+            } else {
+                (across, along)
+            };
+            face.point(face.extent[0][0] + u, face.extent[1][0] + v)
+        };
+        Located {
+            chord,
+            lane,
+            support_distance: d,
+            at: point(chord.k),
+            supports: [point(chord.i), point(chord.j)],
+        }
+    }
+}
+
+/// The median of nonzero bin counts (the lower middle), 0 when none.
+fn median_count(v: &mut [u32]) -> u32 {
+    if v.is_empty() {
+        return 0;
+    }
+    let mid = (v.len() - 1) / 2;
+    *v.select_nth_unstable(mid).1
+}
+
+/// The median of `v`, reordering it; `None` when empty.
+fn median_in_place(v: &mut [f64]) -> Option<f64> {
+    let n = v.len();
+    if n == 0 {
+        return None;
+    }
+    v.sort_unstable_by(f64::total_cmp);
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
 }

@@ -251,10 +251,12 @@ fn wire_messages() -> Vec<Recorded> {
             let _ = s.flatness.push(asbuilt_protocol::FlatnessRow {
                 face: 0,
                 direction: 1,
-                pass: false,
+                verdict: asbuilt_protocol::SurveyVerdict::Fail,
                 span: 0.1,
                 gap: 0.004,
+                support_distance: 0.1,
                 limit: 0.003,
+                uncertainty: 0.0003,
                 at: [0.0, 0.0, 0.1],
             });
             s

@@ -125,6 +125,8 @@ pub fn report_job(
             png: false,
             flatness: flatness.map(|f| parsed("flatness", &f)).transpose()?,
             dimensions: dimensions.map(|d| parsed("dimensions", &d)).transpose()?,
+            // The recording's [tolerances] decision_rule, ISO 14253-1 by default.
+            decision_rule: None,
         },
     };
     let (report, started) = py

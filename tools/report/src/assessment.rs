@@ -85,6 +85,8 @@ pub struct VerdictCounts {
     pub pass: u32,
     /// Beyond the warning fraction, within the limit.
     pub warn: u32,
+    /// Within their uncertainty of the limit.
+    pub inconclusive: u32,
     /// Beyond the limit.
     pub fail: u32,
 }
@@ -192,7 +194,9 @@ impl VerdictCounts {
         match v {
             Verdict::Pass => self.pass += 1,
             Verdict::Warn => self.warn += 1,
+            Verdict::Inconclusive => self.inconclusive += 1,
             Verdict::Fail => self.fail += 1,
+            Verdict::NotJudged => {}
         }
     }
 }

@@ -4,8 +4,10 @@
 //! it stands.
 
 use asbuilt_core::Design;
-use asbuilt_core::flatness::{DimensionsStandard, FlatnessGrid, FlatnessStandard};
-use asbuilt_core::verdict::Verdict;
+use asbuilt_core::flatness::{
+    DIN_18202_EDITION, DimensionsStandard, FlatnessGap, FlatnessGrid, FlatnessStandard, StationView,
+};
+use asbuilt_core::verdict::{DecisionRule, Verdict};
 use asbuilt_protocol::PointDeviation;
 use serde::Serialize;
 
@@ -15,6 +17,7 @@ pub struct FlatnessCollector {
     grid: FlatnessGrid,
     standard: Option<FlatnessStandard>,
     dimensions: Option<DimensionsStandard>,
+    rule: DecisionRule,
     /// The scan layer gathered: job and printed height (NaN: not printing).
     layer: Option<(u64, f64)>,
 }
@@ -32,23 +35,59 @@ pub struct FaceSection {
     pub size_m: [f64; 2],
 }
 
-/// The deepest gap at one span, on one face, one way.
+/// A gap under the straightedge on one face, one way: the one that governs the face's verdict,
+/// or the deepest with its supports within one of the table's distances (`span_m`).
 #[derive(Debug, Clone, Serialize)]
 pub struct GapSection {
     /// The face.
     pub face: u32,
     /// `along_layers` or `across_layers`.
     pub direction: &'static str,
-    /// The straightedge's span, metres.
-    pub span_m: f64,
-    /// The deepest gap under it, metres.
+    /// The table's distance the supports lie within; absent for a governing gap.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub span_m: Option<f64>,
+    /// The gap under the straightedge, metres.
     pub gap_m: f64,
-    /// The standard's limit at the span, metres.
+    /// The distance between the two high points the straightedge rests on, metres.
+    pub support_distance_m: f64,
+    /// The standard's limit at that distance, metres.
     pub limit_m: f64,
-    /// `pass` or `fail`.
+    /// The gap's expanded uncertainty (k = 2), metres.
+    pub uncertainty_m: f64,
+    /// By the report's decision rule.
     pub verdict: Verdict,
     /// Where the gap is deepest, design frame.
     pub at_m: [f64; 3],
+    /// Where the straightedge rests, design frame.
+    pub supports_m: [[f64; 3]; 2],
+}
+
+/// A face, one way, not judged.
+#[derive(Debug, Clone, Serialize)]
+pub struct NotJudgedSection {
+    /// The face.
+    pub face: u32,
+    /// `along_layers` or `across_layers`.
+    pub direction: &'static str,
+    /// `not_seen` or `too_sparse`.
+    pub reason: &'static str,
+}
+
+impl GapSection {
+    fn of(g: &FlatnessGap, rule: DecisionRule) -> Self {
+        GapSection {
+            face: g.face,
+            direction: g.direction.as_str(),
+            span_m: g.span,
+            gap_m: g.gap,
+            support_distance_m: g.support_distance,
+            limit_m: g.limit,
+            uncertainty_m: g.uncertainty,
+            verdict: g.verdict(rule),
+            at_m: g.at.coords.into(),
+            supports_m: g.supports.map(|p| p.coords.into()),
+        }
+    }
 }
 
 /// report.json's `flatness`.
@@ -58,14 +97,25 @@ pub struct FlatnessSection {
     pub standard: String,
     /// As `--flatness` takes it: "din18202:6".
     pub key: String,
+    /// The decision rule the verdicts follow: `iso14253-1` or `simple`.
+    pub decision_rule: DecisionRule,
     /// The printed height of the scan layer judged; `None` for a scan not taken while printing.
     pub printed_height_m: Option<f64>,
-    /// `fail` when any gap is beyond its limit.
+    /// The worst governing verdict; `not_judged` when no face was judged.
     pub verdict: Verdict,
+    /// Why nothing was judged, when nothing was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub not_judged_reason: Option<String>,
     /// The faces judged.
     pub faces: Vec<FaceSection>,
-    /// The deepest gap per face, direction and span.
+    /// Per face and direction judged, the gap that governs its verdict, judged at the distance
+    /// between its supports.
     pub gaps: Vec<GapSection>,
+    /// Per face and direction, the deepest gap with its supports within each of the table's
+    /// distances up to the face's size.
+    pub by_span: Vec<GapSection>,
+    /// The faces and directions not judged, and why.
+    pub not_judged: Vec<NotJudgedSection>,
 }
 
 impl FlatnessCollector {
@@ -75,23 +125,24 @@ impl FlatnessCollector {
         design: &Design,
         standard: Option<FlatnessStandard>,
         dimensions: Option<DimensionsStandard>,
+        rule: DecisionRule,
     ) -> Option<Self> {
         (standard.is_some() || dimensions.is_some()).then(|| Self {
             grid: FlatnessGrid::new(design),
             standard,
             dimensions,
+            rule,
             layer: None,
         })
     }
 
-    /// Points of a station of `job` scanned at `printed_height` from `origin` (design frame,
-    /// when known): a later scan layer starts the faces over, an earlier one's late station is
-    /// left out.
+    /// Points of `station` of `job` scanned at `printed_height`: a later scan layer starts
+    /// the faces over, an earlier one's late station is left out.
     pub fn points(
         &mut self,
         job: u64,
         printed_height: f64,
-        origin: Option<nalgebra::Point3<f64>>,
+        station: &StationView,
         devs: &[PointDeviation],
     ) {
         let height = if printed_height.is_finite() {
@@ -107,47 +158,58 @@ impl FlatnessCollector {
                 self.layer = Some((job, height));
             }
         }
-        self.grid.add(devs, origin);
+        self.grid.add(devs, station);
     }
 
     /// The faces gathered, judged: their flatness and their dimensions and plumb, as asked.
     pub fn finish(self) -> (Option<FlatnessSection>, Option<DimensionsSection>) {
         let printed_height_m = self.layer.map(|l| l.1).filter(|h| h.is_finite());
+        let rule = self.rule;
         let dimensions = self
             .dimensions
-            .map(|s| DimensionsSection::of(&self.grid, s, printed_height_m));
+            .map(|s| DimensionsSection::of(&self.grid, s, printed_height_m, rule));
         let flatness = self
             .standard
-            .map(|s| FlatnessSection::of(&self.grid, s, printed_height_m));
+            .map(|s| FlatnessSection::of(&self.grid, s, printed_height_m, rule));
         (flatness, dimensions)
     }
 }
 
 impl FlatnessSection {
-    fn of(grid: &FlatnessGrid, standard: FlatnessStandard, printed_height_m: Option<f64>) -> Self {
-        let gaps: Vec<GapSection> = grid
-            .judge(&standard)
-            .into_iter()
-            .map(|g| GapSection {
-                face: g.face,
-                direction: g.direction.as_str(),
-                span_m: g.span,
-                gap_m: g.gap,
-                limit_m: g.limit,
-                verdict: if g.passes() {
-                    Verdict::Pass
-                } else {
-                    Verdict::Fail
-                },
-                at_m: g.at.coords.into(),
+    fn of(
+        grid: &FlatnessGrid,
+        standard: FlatnessStandard,
+        printed_height_m: Option<f64>,
+        rule: DecisionRule,
+    ) -> Self {
+        let judged = grid.judge(&standard);
+        let gaps: Vec<GapSection> = judged
+            .gaps
+            .iter()
+            .filter(|g| g.span.is_none())
+            .map(|g| GapSection::of(g, rule))
+            .collect();
+        let by_span = judged
+            .gaps
+            .iter()
+            .filter(|g| g.span.is_some())
+            .map(|g| GapSection::of(g, rule))
+            .collect();
+        let not_judged: Vec<NotJudgedSection> = judged
+            .not_judged
+            .iter()
+            .map(|n| NotJudgedSection {
+                face: n.face,
+                direction: n.direction.as_str(),
+                reason: n.reason.as_str(),
             })
             .collect();
-        let judged: std::collections::BTreeSet<u32> = gaps.iter().map(|g| g.face).collect();
+        let faces_judged: std::collections::BTreeSet<u32> = gaps.iter().map(|g| g.face).collect();
         let faces = grid
             .faces()
             .iter()
             .enumerate()
-            .filter(|(k, _)| judged.contains(&(*k as u32)))
+            .filter(|(k, _)| faces_judged.contains(&(*k as u32)))
             .map(|(k, f)| FaceSection {
                 face: k as u32,
                 normal: f.normal.into_inner().into(),
@@ -155,60 +217,105 @@ impl FlatnessSection {
                 size_m: f.size(),
             })
             .collect();
+        let verdict = gaps
+            .iter()
+            .map(|g| g.verdict)
+            .max()
+            .unwrap_or(Verdict::NotJudged);
+        let not_judged_reason = gaps.is_empty().then(|| {
+            if grid.faces().is_empty() {
+                "the design has no planar face of 0.01 m² or more".to_string()
+            } else if judged
+                .not_judged
+                .iter()
+                .all(|n| n.reason == asbuilt_core::flatness::NotJudgedReason::NotSeen)
+            {
+                format!(
+                    "none of the design's {} planar face(s) was seen (out of view, or only \
+                     beyond 75° incidence)",
+                    grid.faces().len()
+                )
+            } else {
+                format!(
+                    "none of the design's {} planar face(s) was measured densely enough to lay \
+                     a straightedge on (70 % of its length)",
+                    grid.faces().len()
+                )
+            }
+        });
         FlatnessSection {
             standard: standard.to_string(),
             key: standard.key(),
+            decision_rule: rule,
             printed_height_m,
-            verdict: gaps
-                .iter()
-                .map(|g| g.verdict)
-                .max()
-                .unwrap_or(Verdict::Pass),
+            verdict,
+            not_judged_reason,
             faces,
             gaps,
+            by_span,
+            not_judged,
         }
     }
 }
 
 impl FlatnessSection {
-    /// One line for the summary: the standard and what failed.
+    /// One line for the summary, in the words a site manager signs: the standard and its
+    /// edition, the rule, what passed, failed, was inconclusive and was not judged.
     pub fn summary_line(&self) -> String {
-        let failed: Vec<&GapSection> = self
-            .gaps
-            .iter()
-            .filter(|g| g.verdict == Verdict::Fail)
-            .collect();
+        let count = |v: Verdict| self.gaps.iter().filter(|g| g.verdict == v).count();
         if self.gaps.is_empty() {
             return format!(
-                "Flatness to {}: no planar face was seen well enough to lay a straightedge on.",
-                self.standard
-            );
-        }
-        if failed.is_empty() {
-            return format!(
-                "Flatness to {}: PASS, {} gap(s) on {} face(s) within their limits.",
+                "Flatness to {}: NOT JUDGED: {}.",
                 self.standard,
-                self.gaps.len(),
-                self.faces.len()
+                self.not_judged_reason
+                    .as_deref()
+                    .unwrap_or("nothing was judged")
             );
         }
-        let worst = failed
-            .iter()
-            .max_by(|a, b| (a.gap_m / a.limit_m).total_cmp(&(b.gap_m / b.limit_m)))
-            .expect("failed is not empty");
-        let [x, y, z] = worst.at_m;
-        format!(
-            "Flatness to {}: FAIL, {} of {} gap(s) beyond the limit; the worst {:.1} mm under a \
-             {} m straightedge {} on face {} (limit {:.1} mm) at ({x:.2}, {y:.2}, {z:.2}) m.",
+        let mut line = format!(
+            "Flatness to {} by the {} rule: {}; {} face-direction(s) judged: {} pass, {} \
+             inconclusive, {} fail",
             self.standard,
-            failed.len(),
+            self.decision_rule,
+            self.verdict.shout(),
             self.gaps.len(),
-            worst.gap_m * 1e3,
-            worst.span_m,
-            worst.direction.replace('_', " "),
-            worst.face,
-            worst.limit_m * 1e3
-        )
+            count(Verdict::Pass) + count(Verdict::Warn),
+            count(Verdict::Inconclusive),
+            count(Verdict::Fail)
+        );
+        if !self.not_judged.is_empty() {
+            line += &format!(
+                "; {} not judged ({} not seen, {} too sparse)",
+                self.not_judged.len(),
+                self.not_judged
+                    .iter()
+                    .filter(|n| n.reason == "not_seen")
+                    .count(),
+                self.not_judged
+                    .iter()
+                    .filter(|n| n.reason == "too_sparse")
+                    .count()
+            );
+        }
+        if let Some(w) = self
+            .gaps
+            .iter()
+            .filter(|g| g.verdict >= Verdict::Inconclusive)
+            .max_by(|a, b| (a.gap_m / a.limit_m).total_cmp(&(b.gap_m / b.limit_m)))
+        {
+            let [x, y, z] = w.at_m;
+            line += &format!(
+                ". The worst: {:.1} ± {:.1} mm {} on face {} under a straightedge on two high \
+                 points {:.2} m apart (limit {:.1} mm there) at ({x:.2}, {y:.2}, {z:.2}) m",
+                w.gap_m * 1e3,
+                w.uncertainty_m * 1e3,
+                w.direction.replace('_', " "),
+                w.face,
+                w.support_distance_m,
+                w.limit_m * 1e3
+            );
+        }
+        line + "."
     }
 }
 
@@ -217,7 +324,11 @@ impl FlatnessSection {
     /// labelled `F<face>`.
     pub fn map_items(&self) -> Vec<crate::Item> {
         let mut worst: std::collections::BTreeMap<u32, &GapSection> = Default::default();
-        for g in self.gaps.iter().filter(|g| g.verdict == Verdict::Fail) {
+        for g in self
+            .gaps
+            .iter()
+            .filter(|g| g.verdict >= Verdict::Inconclusive)
+        {
             let e = worst.entry(g.face).or_insert(g);
             if g.gap_m / g.limit_m > e.gap_m / e.limit_m {
                 *e = g;
@@ -226,12 +337,12 @@ impl FlatnessSection {
         worst
             .values()
             .map(|g| {
-                let r = (0.5 * g.span_m).min(0.1);
+                let r = (0.5 * g.support_distance_m).clamp(0.02, 0.1);
                 let [x, y, z] = g.at_m;
                 crate::Item {
                     label: format!("F{}", g.face),
                     kind: crate::ItemKind::Flatness,
-                    verdict: Verdict::Fail,
+                    verdict: g.verdict,
                     value: g.gap_m,
                     limit: g.limit_m,
                     layers: None,
@@ -242,38 +353,60 @@ impl FlatnessSection {
                     change: crate::Change::New,
                     previous: None,
                     text: format!(
-                        "face {}: gap {:.1} mm under a {} m straightedge {} (limit {:.1} mm, {})",
+                        "face {}: gap {:.1} ± {:.1} mm {}, supports {:.2} m apart (limit {:.1} \
+                         mm, {}): {}",
                         g.face,
                         g.gap_m * 1e3,
-                        g.span_m,
+                        g.uncertainty_m * 1e3,
                         g.direction.replace('_', " "),
+                        g.support_distance_m,
                         g.limit_m * 1e3,
-                        self.standard
+                        self.standard,
+                        g.verdict.shout()
                     ),
                 }
             })
             .collect()
     }
 
-    /// The table of report.html: per face, direction and span, the gap against the limit.
+    /// The table of report.html: per face and direction, the governing gap ± U against the
+    /// limit at its supports' distance, and the deepest within each table distance.
     pub fn html(&self) -> String {
         use std::fmt::Write;
         let mut rows = String::new();
-        for g in &self.gaps {
+        for g in self.gaps.iter().chain(&self.by_span) {
             let [x, y, z] = g.at_m;
             let _ = write!(
                 rows,
-                "<tr class=\"gap\" data-face=\"{}\"><td>{}</td><td>{}</td><td>{}</td>\
-                 <td>{:.1}</td><td>{:.1}</td><td class=\"{v}\">{V}</td>\
+                "<tr class=\"gap{}\" data-face=\"{}\"><td>{}</td><td>{}</td><td>{}</td>\
+                 <td>{:.1} ± {:.1}</td><td>{:.2}</td><td>{:.1}</td><td class=\"{v}\">{V}</td>\
                  <td>({x:.2}, {y:.2}, {z:.2})</td></tr>",
+                if g.span_m.is_some() {
+                    " span"
+                } else {
+                    " governing"
+                },
                 g.face,
                 g.face,
                 g.direction.replace('_', " "),
-                g.span_m,
+                g.span_m
+                    .map_or("governing".to_string(), |s| format!("within {s} m")),
                 g.gap_m * 1e3,
+                g.uncertainty_m * 1e3,
+                g.support_distance_m,
                 g.limit_m * 1e3,
                 v = g.verdict,
-                V = g.verdict.as_str().to_uppercase()
+                V = g.verdict.shout()
+            );
+        }
+        for n in &self.not_judged {
+            let _ = write!(
+                rows,
+                "<tr class=\"not_judged\"><td>{}</td><td>{}</td><td colspan=\"6\" \
+                 class=\"not_judged\">NOT JUDGED: {}</td></tr>",
+                n.face,
+                n.direction.replace('_', " "),
+                n.reason.replace('_', " ")
             );
         }
         let faces: Vec<String> = self
@@ -287,21 +420,36 @@ impl FlatnessSection {
                 )
             })
             .collect();
+        let settle = if self.gaps.iter().any(|g| g.verdict == Verdict::Inconclusive) {
+            " An inconclusive gap lies within its uncertainty of the limit: another station \
+             facing that face, or a denser scan of it, narrows U and settles it."
+        } else {
+            ""
+        };
         format!(
             "<section class=\"flatness\"><h2>Flatness to {} <span class=\"verdict {v}\">{V}\
              </span></h2><p>A virtual straightedge on every planar face the scans saw, along the \
-             layers and across them, at the standard's spans up to the face's size: the deepest \
-             gap between it and the surface where it rests on two high points, over every \
-             position (bins 10 mm long and 30 mm wide; the latest scan layer{}). {}.</p>\
-             <table class=\"flatness\"><tr><th>face</th><th>straightedge</th><th>span m</th>\
-             <th>gap mm</th><th>limit mm</th><th>verdict</th><th>deepest at (m)</th></tr>{rows}\
-             </table></section>",
+             layers and across them, resting on two high points of the surface; each gap is \
+             judged against the limit at the distance between those points ({edition} Table 3 \
+             interpolated), the value ± its expanded uncertainty U (k = 2) by the {rule} rule \
+             (the latest scan layer{}).{settle} {}{}.</p>\
+             <table class=\"flatness\"><tr><th>face</th><th>straightedge</th><th>gap</th>\
+             <th>gap ± U mm</th><th>supports m apart</th><th>limit mm</th><th>verdict</th>\
+             <th>deepest at (m)</th></tr>{rows}</table></section>",
             crate::html::esc(&self.standard),
             self.printed_height_m
                 .map_or(String::new(), |h| format!(", printed to {h:.3} m")),
             crate::html::esc(&faces.join("; ")),
+            self.not_judged_reason
+                .as_ref()
+                .map_or(String::new(), |r| format!(
+                    "Not judged: {}",
+                    crate::html::esc(r)
+                )),
+            edition = DIN_18202_EDITION,
+            rule = self.decision_rule,
             v = self.verdict,
-            V = self.verdict.as_str().to_uppercase()
+            V = self.verdict.shout()
         )
     }
 }
@@ -319,7 +467,9 @@ pub struct DimensionSection {
     pub measured_m: f64,
     /// The limit, metres.
     pub limit_m: f64,
-    /// `pass` or `fail`.
+    /// The expanded uncertainty (k = 2) of the measured size, metres.
+    pub uncertainty_m: f64,
+    /// By the report's decision rule.
     pub verdict: Verdict,
 }
 
@@ -334,18 +484,22 @@ pub struct PlumbSection {
     pub gap_m: f64,
     /// The limit over that height, metres.
     pub limit_m: f64,
-    /// `pass` or `fail`.
+    /// The expanded uncertainty (k = 2) of the gap, metres.
+    pub uncertainty_m: f64,
+    /// By the report's decision rule.
     pub verdict: Verdict,
 }
 
 /// report.json's `dimensions`: the element's dimensions and each upright face's plumb.
 #[derive(Debug, Clone, Serialize)]
 pub struct DimensionsSection {
-    /// "DIN 18202 Tables 1 and 2".
+    /// "DIN 18202:2019-07 Tables 1 and 2".
     pub standard: String,
+    /// The decision rule the verdicts follow.
+    pub decision_rule: DecisionRule,
     /// The printed height of the scan layer judged.
     pub printed_height_m: Option<f64>,
-    /// `fail` when any is beyond its limit.
+    /// The worst verdict; `not_judged` when nothing was seen well enough.
     pub verdict: Verdict,
     /// Between opposite faces, and to a top that was seen.
     pub dimensions: Vec<DimensionSection>,
@@ -353,19 +507,12 @@ pub struct DimensionsSection {
     pub plumb: Vec<PlumbSection>,
 }
 
-fn verdict(value: f64, limit: f64) -> Verdict {
-    if value.abs() <= limit {
-        Verdict::Pass
-    } else {
-        Verdict::Fail
-    }
-}
-
 impl DimensionsSection {
     fn of(
         grid: &FlatnessGrid,
         standard: DimensionsStandard,
         printed_height_m: Option<f64>,
+        rule: DecisionRule,
     ) -> Self {
         let dimensions: Vec<DimensionSection> = grid
             .dimensions()
@@ -376,7 +523,8 @@ impl DimensionsSection {
                 nominal_m: d.nominal,
                 measured_m: d.measured,
                 limit_m: d.limit,
-                verdict: verdict(d.measured - d.nominal, d.limit),
+                uncertainty_m: d.uncertainty,
+                verdict: rule.decide(d.measured - d.nominal, d.uncertainty, d.limit),
             })
             .collect();
         let plumb: Vec<PlumbSection> = grid
@@ -387,7 +535,8 @@ impl DimensionsSection {
                 height_m: p.height,
                 gap_m: p.gap,
                 limit_m: p.limit,
-                verdict: verdict(p.gap, p.limit),
+                uncertainty_m: p.uncertainty,
+                verdict: rule.decide(p.gap, p.uncertainty, p.limit),
             })
             .collect();
         let verdict = dimensions
@@ -395,9 +544,10 @@ impl DimensionsSection {
             .map(|d| d.verdict)
             .chain(plumb.iter().map(|p| p.verdict))
             .max()
-            .unwrap_or(Verdict::Pass);
+            .unwrap_or(Verdict::NotJudged);
         Self {
             standard: standard.to_string(),
+            decision_rule: rule,
             printed_height_m,
             verdict,
             dimensions,
@@ -405,48 +555,55 @@ impl DimensionsSection {
         }
     }
 
-    /// One line for the summary: the standard and what failed.
+    /// One line for the summary: the standard, the rule, and what did not pass.
     pub fn summary_line(&self) -> String {
-        let failed: Vec<String> = self
+        let off: Vec<String> = self
             .dimensions
             .iter()
-            .filter(|d| d.verdict == Verdict::Fail)
+            .filter(|d| d.verdict >= Verdict::Inconclusive)
             .map(|d| {
                 format!(
-                    "{} {:.1} mm off (limit ±{:.0} mm)",
+                    "{} {} {:+.1} ± {:.1} mm (limit ±{:.0} mm)",
                     d.kind,
+                    d.verdict.shout(),
                     (d.measured_m - d.nominal_m) * 1e3,
+                    d.uncertainty_m * 1e3,
                     d.limit_m * 1e3
                 )
             })
             .chain(
                 self.plumb
                     .iter()
-                    .filter(|p| p.verdict == Verdict::Fail)
+                    .filter(|p| p.verdict >= Verdict::Inconclusive)
                     .map(|p| {
                         format!(
-                            "face {} out of plumb by {:+.1} mm over {:.2} m (limit {:.0} mm)",
+                            "face {} plumb {} {:+.1} ± {:.1} mm over {:.2} m (limit {:.0} mm)",
                             p.face,
+                            p.verdict.shout(),
                             p.gap_m * 1e3,
+                            p.uncertainty_m * 1e3,
                             p.height_m,
                             p.limit_m * 1e3
                         )
                     }),
             )
             .collect();
-        if failed.is_empty() {
+        let head = format!(
+            "Dimensions and plumb to {} by the {} rule: {}",
+            self.standard,
+            self.decision_rule,
+            self.verdict.shout()
+        );
+        if self.verdict == Verdict::NotJudged {
+            format!("{head}: no two opposite faces, top or upright face was seen well enough.")
+        } else if off.is_empty() {
             format!(
-                "Dimensions and plumb to {}: PASS, {} dimension(s) and {} face(s).",
-                self.standard,
+                "{head}, {} dimension(s) and {} face(s).",
                 self.dimensions.len(),
                 self.plumb.len()
             )
         } else {
-            format!(
-                "Dimensions and plumb to {}: FAIL: {}.",
-                self.standard,
-                failed.join("; ")
-            )
+            format!("{head}: {}.", off.join("; "))
         }
     }
 
@@ -458,16 +615,17 @@ impl DimensionsSection {
             .map(|d| {
                 format!(
                     "<tr class=\"dimension\"><td>{}</td><td>{} / {}</td><td>{:.1}</td><td>{:.1}\
-                     </td><td>{:+.1}</td><td>±{:.0}</td><td class=\"{v}\">{V}</td></tr>",
+                     </td><td>{:+.1} ± {:.1}</td><td>±{:.0}</td><td class=\"{v}\">{V}</td></tr>",
                     d.kind,
                     d.faces[0],
                     d.faces[1],
                     d.nominal_m * 1e3,
                     d.measured_m * 1e3,
                     (d.measured_m - d.nominal_m) * 1e3,
+                    d.uncertainty_m * 1e3,
                     d.limit_m * 1e3,
                     v = d.verdict,
-                    V = d.verdict.as_str().to_uppercase()
+                    V = d.verdict.shout()
                 )
             })
             .collect();
@@ -476,14 +634,15 @@ impl DimensionsSection {
             .iter()
             .map(|p| {
                 format!(
-                    "<tr class=\"plumb\"><td>{}</td><td>{:.2}</td><td>{:+.1}</td><td>{:.0}</td>\
-                     <td class=\"{v}\">{V}</td></tr>",
+                    "<tr class=\"plumb\"><td>{}</td><td>{:.2}</td><td>{:+.1} ± {:.1}</td>\
+                     <td>{:.0}</td><td class=\"{v}\">{V}</td></tr>",
                     p.face,
                     p.height_m,
                     p.gap_m * 1e3,
+                    p.uncertainty_m * 1e3,
                     p.limit_m * 1e3,
                     v = p.verdict,
-                    V = p.verdict.as_str().to_uppercase()
+                    V = p.verdict.shout()
                 )
             })
             .collect();
@@ -493,13 +652,13 @@ impl DimensionsSection {
              face's median offset (a local bulge does not move it); a height to a top face that \
              was seen; each upright face's tilt, fitted to its cells, as the gap it makes over \
              the height seen.</p><table class=\"dimensions\"><tr><th>dimension</th>\
-             <th>faces</th><th>design mm</th><th>as built mm</th><th>off mm</th><th>limit mm</th>\
+             <th>faces</th><th>design mm</th><th>as built mm</th><th>off ± U mm</th><th>limit mm</th>\
              <th>verdict</th></tr>{dims}</table><table class=\"plumb\"><tr><th>face</th>\
-             <th>height m</th><th>top less foot mm</th><th>limit mm</th><th>verdict</th></tr>\
+             <th>height m</th><th>top less foot ± U mm</th><th>limit mm</th><th>verdict</th></tr>\
              {plumb}</table></section>",
             crate::html::esc(&self.standard),
             v = self.verdict,
-            V = self.verdict.as_str().to_uppercase()
+            V = self.verdict.shout()
         )
     }
 }

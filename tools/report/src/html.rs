@@ -96,6 +96,8 @@ const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:2em;color:#222
 table{border-collapse:collapse;margin:.5em 0}td,th{padding:.25em .6em;border-bottom:1px solid #ddd;\
 text-align:right}td:first-child,th:first-child{text-align:left}td.text{text-align:left}\
 .fail{color:#c00;font-weight:bold}.warn{color:#b60;font-weight:bold}.pass{color:#282}\
+.inconclusive{color:#62a;font-weight:bold}.not_judged{color:#777;font-style:italic}\
+.verdict.inconclusive{background:#62a;color:#fff}.verdict.not_judged{background:#999;color:#fff}\
 .verdict{display:inline-block;padding:.1em .6em;border-radius:.3em;color:#fff;font-weight:bold}\
 .verdict.fail{background:#c00;color:#fff}.verdict.warn{background:#d80;color:#fff}\
 .verdict.pass{background:#282;color:#fff}section.summary{border:2px solid #888;padding:.5em 1em;\
@@ -191,7 +193,7 @@ fn items(texts: &[String]) -> String {
 fn badge(verdict: Verdict) -> String {
     format!(
         "<span class=\"verdict {verdict}\">{}</span>",
-        verdict.as_str().to_uppercase()
+        verdict.shout()
     )
 }
 
@@ -314,8 +316,10 @@ fn layer_strip(s: &ScanLayerVerdicts) -> String {
     for (k, l) in s.layers.iter().enumerate() {
         let fill = match l.verdict {
             Verdict::Fail => "#c00",
+            Verdict::Inconclusive => "#62a",
             Verdict::Warn => "#d80",
             Verdict::Pass => "#4a8",
+            Verdict::NotJudged => "#999",
         };
         let _ = write!(
             svg,

@@ -549,15 +549,7 @@ impl AgentConfig {
         if let (true, Err(e)) = (tolerance_ok, tolerances.limits(inspect.tolerance)) {
             problems.push(format!("tolerances: {e}"));
         }
-        if let Err(e) = tolerances.flatness() {
-            problems.push(format!("tolerances.{e}"));
-        }
-        if let Err(e) = tolerances.decision_rule() {
-            problems.push(format!("[tolerances] {e}"));
-        }
-        if let Err(e) = tolerances.dimensions() {
-            problems.push(format!("tolerances.{e}"));
-        }
+        tolerances.check_standards(&mut problems);
         check_outputs(&mut recorder, &mut viewer, base, &mut problems);
 
         let design = design.map(|mut d| {
@@ -717,6 +709,19 @@ impl TolerancesConfig {
         asbuilt_core::flatness::UnknownStandard,
     > {
         self.flatness.as_deref().map(str::parse).transpose()
+    }
+
+    /// The standards and the decision rule that do not parse, into `problems`.
+    fn check_standards(&self, problems: &mut Vec<String>) {
+        if let Err(e) = self.flatness() {
+            problems.push(format!("tolerances.{e}"));
+        }
+        if let Err(e) = self.decision_rule() {
+            problems.push(format!("[tolerances] {e}"));
+        }
+        if let Err(e) = self.dimensions() {
+            problems.push(format!("tolerances.{e}"));
+        }
     }
 
     /// The decision rule, ISO 14253-1 unless another is set.

@@ -60,10 +60,8 @@ fn raster(
     face: usize,
     (distance, spacing): (f64, f64),
     rng: &mut rand_chacha::ChaCha8Rng,
-    w: &dyn Fn(f64, f64) -> f64,
-    keep: &dyn Fn(f64, f64) -> bool,
-    tag: u8,
-    shift: f64,
+    (w, keep): (&Shape<'_>, &Keep<'_>),
+    (tag, shift): (u8, f64),
 ) {
     let y = grid.faces()[face].origin.y;
     let noise = Normal::new(0.0, NOISE).unwrap();
@@ -85,6 +83,11 @@ fn raster(
         }
     }
 }
+
+/// A face's height off its plane at (x, z).
+type Shape<'a> = dyn Fn(f64, f64) -> f64 + 'a;
+/// Which (x, z) a station scans.
+type Keep<'a> = dyn Fn(f64, f64) -> bool + 'a;
 
 fn gap(j: &FlatnessJudgement, face: u32, direction: Direction, span: Option<f64>) -> FlatnessGap {
     *j.gaps
@@ -246,10 +249,8 @@ fn layer_ribs_are_measured_across_the_layers() {
             face,
             (1.5, 0.002),
             &mut rng,
-            &ribs,
-            &|_, _| true,
-            tag,
-            0.0,
+            (&ribs, &|_, _| true),
+            (tag, 0.0),
         );
         let j = grid.judge(&ROW6);
         let g = gap(&j, face as u32, Direction::Across, None);
@@ -298,16 +299,21 @@ fn a_gaps_uncertainty_matches_a_monte_carlo_of_poses_and_noise() {
         let (ea, eb) = (pose.sample(&mut rng), pose.sample(&mut rng));
         let left = |x: f64, z: f64| near(x, z) && x < 0.17;
         let right = |x: f64, z: f64| near(x, z) && x >= 0.17;
-        raster(&mut grid, face, (1.5, 0.002), &mut rng, &dent, &left, a, ea);
         raster(
             &mut grid,
             face,
             (1.5, 0.002),
             &mut rng,
-            &dent,
-            &right,
-            b,
-            eb,
+            (&dent, &left),
+            (a, ea),
+        );
+        raster(
+            &mut grid,
+            face,
+            (1.5, 0.002),
+            &mut rng,
+            (&dent, &right),
+            (b, eb),
         );
         let g = gap(&grid.judge(&ROW6), face as u32, Direction::Along, None);
         if std::env::var_os("ASBUILT_DEBUG_MC").is_some() {

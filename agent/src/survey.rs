@@ -158,62 +158,47 @@ impl Survey {
     fn judge_dimensions(&self, standard: &DimensionsStandard, out: &mut SurfaceFindings) {
         let (job, station) = (out.job, out.station);
         out.dimensions_standard = FixedText::truncated("din18202");
-        let mut off = Vec::new();
-        let dims = self.grid.dimensions();
-        let plumb = self.grid.plumb();
         let rule = self.rule;
-        let rows = dims
-            .iter()
-            .map(|d| {
-                let v = rule.decide(d.measured - d.nominal, d.uncertainty, d.limit);
-                if v > Verdict::Pass {
-                    off.push(format!(
-                        "{} {} {:+.1} ± {:.1} mm (limit ±{:.0})",
-                        d.kind.as_str(),
-                        v.shout(),
-                        (d.measured - d.nominal) * 1e3,
-                        d.uncertainty * 1e3,
-                        d.limit * 1e3
-                    ));
-                }
-                DimensionRow {
-                    kind: d.kind as u8,
-                    verdict: survey_verdict(v),
-                    faces: d.faces,
-                    nominal: d.nominal,
-                    measured: d.measured,
-                    limit: d.limit,
-                    uncertainty: d.uncertainty,
-                }
-            })
-            .collect::<Vec<_>>()
-            .into_iter()
-            .chain(plumb.iter().map(|p| {
-                let v = rule.decide(p.gap, p.uncertainty, p.limit);
-                if v > Verdict::Pass {
-                    off.push(format!(
-                        "face {} plumb {} {:+.1} ± {:.1} mm over {:.2} m (limit {:.0})",
-                        p.face,
-                        v.shout(),
-                        p.gap * 1e3,
-                        p.uncertainty * 1e3,
-                        p.height,
-                        p.limit * 1e3
-                    ));
-                }
-                DimensionRow {
-                    kind: 3,
-                    verdict: survey_verdict(v),
-                    faces: [p.face; 2],
-                    nominal: p.height,
-                    measured: p.gap,
-                    limit: p.limit,
-                    uncertainty: p.uncertainty,
-                }
-            }))
-            .collect::<Vec<_>>();
-        for row in rows {
-            if out.dimensions.push(row).is_err() {
+        // Each row, what to call it and how far it is off; dimensions, then plumb.
+        let row = |kind, faces, (nominal, measured, limit, uncertainty)| DimensionRow {
+            kind,
+            verdict: SurveyVerdict::NotJudged,
+            faces,
+            nominal,
+            measured,
+            limit,
+            uncertainty,
+        };
+        let dims = self.grid.dimensions().into_iter().map(|d| {
+            let r = row(
+                d.kind as u8,
+                d.faces,
+                (d.nominal, d.measured, d.limit, d.uncertainty),
+            );
+            (d.kind.as_str().to_string(), r, d.measured - d.nominal)
+        });
+        let plumb = self.grid.plumb().into_iter().map(|p| {
+            let r = row(3, [p.face; 2], (p.height, p.gap, p.limit, p.uncertainty));
+            (
+                format!("face {} plumb over {:.2} m", p.face, p.height),
+                r,
+                p.gap,
+            )
+        });
+        let mut off = Vec::new();
+        for (what, mut r, deviation) in dims.chain(plumb) {
+            let v = rule.decide(deviation, r.uncertainty, r.limit);
+            r.verdict = survey_verdict(v);
+            if v > Verdict::Pass {
+                off.push(format!(
+                    "{what} {} {:+.1} ± {:.1} mm (limit ±{:.0})",
+                    v.shout(),
+                    deviation * 1e3,
+                    r.uncertainty * 1e3,
+                    r.limit * 1e3
+                ));
+            }
+            if out.dimensions.push(r).is_err() {
                 out.truncated += 1;
             }
         }

@@ -15,8 +15,9 @@ pub const MAX_SURVEY_ROWS: usize = 128;
 /// Upper bound of an encoded [`SurfaceFindings`], bytes.
 pub const MAX_SURVEY_BYTES: usize = 32 * 1024;
 
-/// How a judged quantity stands against its standard's limit, by the job's decision rule.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// How a judged quantity stands against its standard's limit, by the job's decision rule; worst
+/// last, so that the worst of several ignores what was not judged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum SurveyVerdict {
     /// Nothing measured well enough to judge it.
     NotJudged,
@@ -131,17 +132,11 @@ impl SurfaceFindings {
 
     /// The worst verdict of what was judged; `NotJudged` when nothing was.
     pub fn verdict(&self) -> SurveyVerdict {
-        let rank = |v: &SurveyVerdict| match v {
-            SurveyVerdict::NotJudged => 0,
-            SurveyVerdict::Pass => 1,
-            SurveyVerdict::Inconclusive => 2,
-            SurveyVerdict::Fail => 3,
-        };
         self.flatness
             .iter()
             .map(|r| r.verdict)
             .chain(self.dimensions.iter().map(|r| r.verdict))
-            .max_by_key(rank)
+            .max()
             .unwrap_or(SurveyVerdict::NotJudged)
     }
 }

@@ -458,8 +458,7 @@ mod tests {
         }
         let spread = |k: usize| {
             let v: Vec<f64> = runs.iter().map(|r| r[k]).collect();
-            let m = v.iter().sum::<f64>() / v.len() as f64;
-            (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+            super::super::tests::spread(&v)
         };
         let mean = |k: usize| runs.iter().map(|r| r[k]).sum::<f64>() / runs.len() as f64;
         for (what, k) in [("thickness", 0), ("height", 2), ("plumb", 4)] {

@@ -6,8 +6,9 @@
 //! Scan points matched to a face's triangles are gathered in cells in the face's plane (memory
 //! grows with the face's area, never with the scan): 5 mm along the layers and 1 mm across them,
 //! so that layer ribs of 10 mm pitch keep their depth. A straightedge lies in a lane 30 mm wide
-//! (a straightedge's width); each bin of the lane's profile is the median of its cells' means,
-//! so that no single stray point holds the straightedge up while a rib or a dent keeps its shape.
+//! (a straightedge's width), in bins 10 mm long along the layers and 1 mm across them; each bin of the lane's profile is the mean of its points, without the
+//! cells far from the bin's median cell and without bins that caught only the end of a scan
+//! line, so that no stray point holds the straightedge up while a rib or a dent keeps its shape.
 //! A straightedge position counts where at least 70 % of the 5 mm blocks between its supports
 //! were measured.
 //!
@@ -329,7 +330,8 @@ impl FlatnessGrid {
         for (f, face) in self.faces.faces.iter().enumerate() {
             let size = face.size();
             for (axis, direction) in [(0, Direction::Along), (1, Direction::Across)] {
-                let found = self.straightedge(f, axis, standard);
+                let setup = self.setup(f, axis);
+                let found = self.straightedge((f, axis), &setup, standard);
                 let Some((governing, by_span)) = found else {
                     let seen = self.cells[f].count.iter().any(|&n| n > 0);
                     out.not_judged.push(NotJudged {
@@ -352,7 +354,7 @@ impl FlatnessGrid {
                         gap: c.chord.gap,
                         support_distance: d,
                         limit: standard.limit(d),
-                        uncertainty: self.gap_uncertainty(f, axis, c),
+                        uncertainty: self.gap_uncertainty((f, axis), &setup, c),
                         at: c.at,
                         supports: c.supports,
                     }

@@ -19,8 +19,17 @@ pub struct Profile {
     pub height: Vec<Option<f64>>,
     pub points: Vec<u32>,
     pub station: Vec<u8>,
-    /// Cells a bin's median was taken over.
-    pub cells: Vec<u16>,
+}
+
+/// What every lane of a face, one way, is read with: worked out once per face and direction.
+#[derive(Debug, Clone)]
+pub(crate) struct Setup {
+    /// The face's range noise σ ([`FlatnessGrid::noise_sigma`]).
+    pub sigma: f64,
+    /// How far from its bin's median cell a cell is left out.
+    pub outlier: f64,
+    /// Each cell row's level ([`FlatnessGrid::row_levels`]).
+    pub levels: Vec<f64>,
 }
 
 /// A straightedge position found on a face, with where it lies.
@@ -63,9 +72,14 @@ impl FlatnessGrid {
         ([c.nv, c.nu][axis] / kl).max(1)
     }
 
-    /// How far from its bin's median cell a cell of face `f` is left out, metres.
-    pub(crate) fn outlier(&self, f: usize) -> f64 {
-        (3.0 * self.noise_sigma(f)).max(OUTLIER_FLOOR)
+    /// How face `f`'s lanes along `axis` are read.
+    pub(crate) fn setup(&self, f: usize, axis: usize) -> Setup {
+        let sigma = self.noise_sigma(f);
+        Setup {
+            sigma,
+            outlier: (3.0 * sigma).max(OUTLIER_FLOOR),
+            levels: self.row_levels(f, axis),
+        }
     }
 
     /// Each row of face `f`'s cells (along the layers) at its mean height, to be taken off its
@@ -88,15 +102,15 @@ impl FlatnessGrid {
     }
 
     /// The profile of lane `lane` on face `f` along `axis`, each cell less its row's level
-    /// (`levels`, [`FlatnessGrid::row_levels`]) and cells `outlier` or farther from their bin's
-    /// median cell left out, into `out`.
+    /// and cells `setup.outlier` or farther from their bin's median cell left out, into `out`.
     pub(crate) fn profile(
         &self,
         (f, axis, lane): (usize, usize, usize),
-        (outlier, levels): (f64, &[f64]),
+        setup: &Setup,
         out: &mut Profile,
     ) {
         let c = &self.cells[f];
+        let (outlier, levels) = (setup.outlier, &setup.levels);
         let level = |k: usize| levels[k / c.nu];
         let (_, kl) = self.lane_shape(f, axis);
         let kb = self.cells_per_bin(f, axis);
@@ -115,7 +129,6 @@ impl FlatnessGrid {
         out.height.clear();
         out.points.clear();
         out.station.clear();
-        out.cells.clear();
         let mut means: Vec<f64> = Vec::with_capacity(kl);
         let mut ks: Vec<usize> = Vec::with_capacity(kl);
         for b in 0..along.div_ceil(kb) {
@@ -138,17 +151,15 @@ impl FlatnessGrid {
                 out.height.push(None);
                 out.points.push(0);
                 out.station.push(MIXED);
-                out.cells.push(0);
                 continue;
             };
-            let (mut n, mut sum, mut kept, mut tag) = (0u32, 0.0, 0u16, None::<u8>);
+            let (mut n, mut sum, mut tag) = (0u32, 0.0, None::<u8>);
             for &k in &ks {
                 if (c.sum[k] / c.count[k] as f64 - level(k) - median).abs() > outlier {
                     continue;
                 }
                 n += c.count[k];
                 sum += c.sum[k] - level(k) * c.count[k] as f64;
-                kept += 1;
                 tag = Some(match tag {
                     None => c.station[k],
                     Some(t) if t == c.station[k] => t,
@@ -158,7 +169,6 @@ impl FlatnessGrid {
             out.height.push(Some(sum / n as f64));
             out.points.push(n);
             out.station.push(tag.unwrap_or(MIXED));
-            out.cells.push(kept);
         }
         // A bin that caught the end of a scan line holds a point or two where its neighbours
         // hold a line's worth: its noise, not the surface, would hold the straightedge up.
@@ -177,8 +187,8 @@ impl FlatnessGrid {
     /// with its supports at most that far apart. `None` where no position counts.
     pub(crate) fn straightedge(
         &self,
-        f: usize,
-        axis: usize,
+        (f, axis): (usize, usize),
+        setup: &Setup,
         standard: &FlatnessStandard,
     ) -> Option<(Located, Vec<Option<Located>>)> {
         let (bin, _) = self.lane_shape(f, axis);
@@ -193,10 +203,8 @@ impl FlatnessGrid {
         let mut governing: Option<(f64, Located)> = None;
         let mut by_span: Vec<Option<Located>> = vec![None; spans.len()];
         let mut profile = Profile::default();
-        let outlier = self.outlier(f);
-        let levels = self.row_levels(f, axis);
         for lane in 0..self.lanes(f, axis) {
-            self.profile((f, axis, lane), (outlier, &levels), &mut profile);
+            self.profile((f, axis, lane), setup, &mut profile);
             super::each_chord(&profile.height, max_bins, block, MIN_FILLED, |chord| {
                 let d = (chord.j - chord.i) as f64 * bin;
                 let ratio = chord.gap / standard.limit(d);
@@ -216,11 +224,9 @@ impl FlatnessGrid {
 
     /// Where a position on lane `lane` of face `f` along `axis` lies, design frame.
     fn locate(&self, f: usize, axis: usize, lane: usize, chord: Chord, d: f64) -> Located {
-        let c = &self.cells[f];
         let face = &self.faces.faces[f];
         let (bin, kl) = self.lane_shape(f, axis);
-        let across = c.size[1 - axis] * kl as f64 * (lane as f64 + 0.5);
-        let _ = c;
+        let across = self.cells[f].size[1 - axis] * kl as f64 * (lane as f64 + 0.5);
         let point = |b: usize| {
             let along = (b as f64 + 0.5) * bin;
             let (u, v) = if axis == 0 {

@@ -16,7 +16,7 @@
 
 use nalgebra::Vector3;
 
-use super::straightedge::{Located, Profile};
+use super::straightedge::{Located, Profile, Setup};
 use super::{FlatnessGrid, MIXED};
 
 /// The coverage factor of every U reported.
@@ -82,14 +82,18 @@ impl FlatnessGrid {
             .sum()
     }
 
-    /// U of a gap found on face `f` along `axis`.
-    pub(crate) fn gap_uncertainty(&self, f: usize, axis: usize, at: &Located) -> f64 {
+    /// U of a gap found on face `f` along `axis`, read with `setup`.
+    pub(crate) fn gap_uncertainty(
+        &self,
+        (f, axis): (usize, usize),
+        setup: &Setup,
+        at: &Located,
+    ) -> f64 {
         let mut profile = Profile::default();
-        let levels = self.row_levels(f, axis);
-        self.profile((f, axis, at.lane), (self.outlier(f), &levels), &mut profile);
-        let Chord3 { i, j, k } = Chord3::of(at);
+        self.profile((f, axis, at.lane), setup, &mut profile);
+        let (i, j, k) = (at.chord.i, at.chord.j, at.chord.k);
         let t = (k - i) as f64 / (j - i) as f64;
-        let sigma = self.noise_sigma(f);
+        let sigma = setup.sigma;
         let normal = self.faces.faces[f].normal.into_inner();
         let mut var = 0.0;
         let mut pose = Vec::with_capacity(3);
@@ -101,23 +105,6 @@ impl FlatnessGrid {
         }
         var += self.pose_variance(&pose);
         COVERAGE_FACTOR * var.sqrt()
-    }
-}
-
-/// A position's three bins.
-struct Chord3 {
-    i: usize,
-    j: usize,
-    k: usize,
-}
-
-impl Chord3 {
-    fn of(at: &Located) -> Self {
-        Self {
-            i: at.chord.i,
-            j: at.chord.j,
-            k: at.chord.k,
-        }
     }
 }
 

@@ -510,6 +510,17 @@ mod tests {
             .iter()
             .find(|p| grid.faces()[p.face as usize].normal.y > 0.9)
             .unwrap();
+        eprintln!(
+            "face leaning 7 mm over 0.98 m: {:.2} ± {:.2} mm, limit {:.0} mm: {}",
+            leaning.gap * 1e3,
+            leaning.uncertainty * 1e3,
+            leaning.limit * 1e3,
+            crate::verdict::DecisionRule::Iso14253_1.decide(
+                leaning.gap,
+                leaning.uncertainty,
+                leaning.limit
+            )
+        );
         assert!((leaning.gap - 0.007).abs() < 2e-4, "{leaning:?}");
         assert!(leaning.gap.abs() > leaning.limit, "{leaning:?}");
         for p in plumb.iter().filter(|p| p.face != leaning.face) {

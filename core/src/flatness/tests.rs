@@ -198,6 +198,14 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
         }
     });
     let g = gap(&grid.judge(&ROW6), face, Direction::Along, None);
+    eprintln!(
+        "6 mm dent 0.1 m wide: {:.2} ± {:.2} mm, supports {:.2} m apart, limit {:.2} mm: {}",
+        g.gap * 1e3,
+        g.uncertainty * 1e3,
+        g.support_distance,
+        g.limit * 1e3,
+        g.verdict(ISO)
+    );
     assert!((g.gap - 0.006).abs() < SLACK, "{g:?}");
     assert_eq!(g.verdict(ISO), Verdict::Fail, "{g:?}");
     assert!(
@@ -221,6 +229,14 @@ fn a_dent_is_judged_at_the_distance_between_its_rims() {
     });
     let j = grid.judge(&ROW6);
     let g = gap(&j, face, Direction::Along, None);
+    eprintln!(
+        "4.5 mm dent 0.3 m wide: {:.2} ± {:.2} mm, supports {:.2} m apart, limit {:.2} mm: {}",
+        g.gap * 1e3,
+        g.uncertainty * 1e3,
+        g.support_distance,
+        g.limit * 1e3,
+        g.verdict(ISO)
+    );
     assert!((g.gap - 0.0045).abs() < SLACK, "{g:?}");
     assert!((g.support_distance - 0.3).abs() < 0.03, "{g:?}");
     assert!((g.limit - ROW6.limit(g.support_distance)).abs() < 1e-12);
@@ -254,7 +270,16 @@ fn layer_ribs_are_measured_across_the_layers() {
         );
         let j = grid.judge(&ROW6);
         let g = gap(&j, face as u32, Direction::Across, None);
-        eprintln!("ribs of {} mm pitch: {:.2} mm", pitch * 1e3, g.gap * 1e3);
+        eprintln!(
+            "ribs of {} mm pitch, 4 mm deep: {:.2} ± {:.2} mm, supports {:.3} m apart, limit \
+             {:.2} mm: {}",
+            pitch * 1e3,
+            g.gap * 1e3,
+            g.uncertainty * 1e3,
+            g.support_distance,
+            g.limit * 1e3,
+            g.verdict(ISO)
+        );
         let within = 0.25;
         assert!(
             (g.gap - 0.004).abs() < within * 0.004,

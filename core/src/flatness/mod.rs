@@ -6,13 +6,16 @@
 //! Scan points matched to a face's triangles are gathered in cells in the face's plane (memory
 //! grows with the face's area, never with the scan): 5 mm along the layers and 1 mm across them,
 //! so that layer ribs of 10 mm pitch keep their depth. A straightedge lies in a lane 30 mm wide
-//! (a straightedge's width), in bins 10 mm long along the layers and 1 mm across them; each bin of the lane's profile is the mean of its points, without the
-//! cells far from the bin's median cell and without bins that caught only the end of a scan
-//! line, so that no stray point holds the straightedge up while a rib or a dent keeps its shape.
-//! A straightedge position counts where at least 70 % of the 5 mm blocks between its supports
-//! were measured.
+//! (a straightedge's width), in bins 10 mm long along the layers and 1 mm across them; each bin
+//! of the lane's profile is the mean of its points, without the cells far from the bin's median
+//! cell and without bins that caught only the end of a scan line, so that no stray point holds
+//! the straightedge up while a rib or a dent keeps its shape; across the layers a local
+//! quadratic over ±3 bins takes most of the noise and little of a rib. A straightedge position
+//! counts where at least 70 % of the 5 mm blocks between its supports were measured.
 //!
-//! Every gap carries its expanded uncertainty (k = 2, [`uncertainty`]).
+//! Positions are chosen on one half of the points and their gaps measured on the other
+//! ([`Half`]): the deepest gap over a face is then the surface's, not its noise's maximum. Every
+//! gap carries its expanded uncertainty (k = 2, [`uncertainty`]).
 
 mod chords;
 mod dimensions;
@@ -180,7 +183,7 @@ pub struct StationView {
 }
 
 /// One face's cells: sums, sums of squares and counts of the points' heights off the plane,
-/// and which station saw them.
+/// the sum and count of the points in the choosing half ([`Half`]), and which station saw them.
 #[derive(Debug, Clone)]
 struct Cells {
     /// Cell size along `u` and along `v`.
@@ -190,13 +193,52 @@ struct Cells {
     sum: Vec<f64>,
     sq: Vec<f64>,
     count: Vec<u32>,
+    choose_sum: Vec<f64>,
+    choose_count: Vec<u32>,
     station: Vec<u8>,
 }
 
+/// Which of a face's points a straightedge's profile is read from (dimensions and the noise
+/// estimate take them all). The deepest gap over a face is a maximum
+/// over thousands of straightedge positions, and read from the same points that chose it, it
+/// takes their noise along (layer ribs 4 mm deep read 4.7-4.8 mm at 0.3 mm noise): the
+/// position is chosen on one half of the points and the gap measured on the other, whose noise
+/// the choice never saw (sample splitting, as in cross-validation). Each point falls in a half
+/// by a hash of its place in its chunk, independent of where it lies and of its noise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Half {
+    /// The half the straightedge's positions are chosen on.
+    Choose,
+    /// The other half, which measures the chosen positions' gaps.
+    Measure,
+}
+
+impl Half {
+    /// The half a point falls in, from its sequence number (SplitMix64's finaliser).
+    fn of(sequence: u64) -> bool {
+        let mut z = sequence.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        (z ^ (z >> 31)) & 1 == 0
+    }
+}
+
 impl Cells {
-    fn mean(&self, k: usize) -> Option<f64> {
-        let n = self.count[k];
-        (n > 0).then(|| self.sum[k] / n as f64)
+    /// Cell `k`'s sum and count of heights in `half`.
+    fn sum_count(&self, k: usize, half: Half) -> (f64, u32) {
+        match half {
+            Half::Choose => (self.choose_sum[k], self.choose_count[k]),
+            Half::Measure => (
+                self.sum[k] - self.choose_sum[k],
+                self.count[k] - self.choose_count[k],
+            ),
+        }
+    }
+
+    /// Cell `k`'s mean height in `half`.
+    fn mean_of(&self, k: usize, half: Half) -> Option<f64> {
+        let (sum, n) = self.sum_count(k, half);
+        (n > 0).then(|| sum / n as f64)
     }
 }
 
@@ -209,6 +251,8 @@ pub struct FlatnessGrid {
     bed: f64,
     /// The scan layer's stations, in the order they came, with their position σ.
     stations: Vec<((u64, u32), f64)>,
+    /// Points offered through [`FlatnessGrid::add_point`], which picks their [`Half`].
+    offered: u64,
 }
 
 impl FlatnessGrid {
@@ -233,6 +277,8 @@ impl FlatnessGrid {
                     sum: vec![0.0; nu * nv],
                     sq: vec![0.0; nu * nv],
                     count: vec![0; nu * nv],
+                    choose_sum: vec![0.0; nu * nv],
+                    choose_count: vec![0; nu * nv],
                     station: vec![EMPTY; nu * nv],
                 }
             })
@@ -242,6 +288,7 @@ impl FlatnessGrid {
             cells,
             bed: design.bounds().0.z,
             stations: Vec::new(),
+            offered: 0,
         }
     }
 
@@ -252,7 +299,7 @@ impl FlatnessGrid {
 
     /// Bytes the cells take.
     pub fn bytes(&self) -> usize {
-        self.cells.iter().map(|c| c.sum.len() * 21).sum()
+        self.cells.iter().map(|c| c.sum.len() * 33).sum()
     }
 
     /// Forgets every point and station (a new scan layer).
@@ -261,9 +308,12 @@ impl FlatnessGrid {
             c.sum.fill(0.0);
             c.sq.fill(0.0);
             c.count.fill(0);
+            c.choose_sum.fill(0.0);
+            c.choose_count.fill(0);
             c.station.fill(EMPTY);
         }
         self.stations.clear();
+        self.offered = 0;
     }
 
     /// The tag the cells give `station`'s points, registering it on first sight.
@@ -283,7 +333,7 @@ impl FlatnessGrid {
     pub fn add(&mut self, devs: &[PointDeviation], station: &StationView) {
         let tag = self.station(station);
         let min_cos = MAX_INCIDENCE_DEG.to_radians().cos();
-        for d in devs {
+        for (i, d) in devs.iter().enumerate() {
             if d.flags.contains(DeviationFlags::REJECTED) || !d.distance.is_finite() {
                 continue;
             }
@@ -298,12 +348,22 @@ impl FlatnessGrid {
                     continue;
                 }
             }
-            self.add_point(*f as usize, &p, tag);
+            // By its place in the chunk: the recording keeps a chunk's points in order, so a
+            // report read back from it splits them as the live agent did.
+            self.add_to(*f as usize, &p, tag, Half::of(i as u64));
         }
     }
 
-    /// Adds a point to face `f`, seen by the station tagged `tag` ([`FlatnessGrid::station`]).
+    /// Adds a point to face `f`, seen by the station tagged `tag` ([`FlatnessGrid::station`]),
+    /// its [`Half`] by how many points came this way before it.
     pub fn add_point(&mut self, f: usize, p: &Point3<f64>, tag: u8) {
+        let choose = Half::of(self.offered);
+        self.offered += 1;
+        self.add_to(f, p, tag, choose);
+    }
+
+    /// Adds a point to face `f`, to the choosing half when `choose`.
+    fn add_to(&mut self, f: usize, p: &Point3<f64>, tag: u8, choose: bool) {
         let face = &self.faces.faces[f];
         let c = &mut self.cells[f];
         let [u, v, w] = face.coordinates(p);
@@ -316,6 +376,10 @@ impl FlatnessGrid {
         c.sum[k] += w;
         c.sq[k] += w * w;
         c.count[k] += 1;
+        if choose {
+            c.choose_sum[k] += w;
+            c.choose_count[k] += 1;
+        }
         c.station[k] = match c.station[k] {
             EMPTY => tag,
             t if t == tag => tag,
@@ -351,7 +415,7 @@ impl FlatnessGrid {
                         face: f as u32,
                         direction,
                         span,
-                        gap: c.chord.gap,
+                        gap: c.gap,
                         support_distance: d,
                         limit: standard.limit(d),
                         uncertainty: self.gap_uncertainty((f, axis), &setup, c),

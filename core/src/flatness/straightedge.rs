@@ -4,7 +4,7 @@
 
 use nalgebra::Point3;
 
-use super::{BLOCK, FlatnessGrid, FlatnessStandard, LANE, MIN_FILLED, MIXED, chords::Chord};
+use super::{BLOCK, FlatnessGrid, FlatnessStandard, Half, LANE, MIN_FILLED, MIXED, chords::Chord};
 
 /// A bin's length along the layers, metres.
 pub const BIN_ALONG: f64 = 0.01;
@@ -13,11 +13,14 @@ const OUTLIER_FLOOR: f64 = 0.001;
 
 /// A lane's profile: per bin along the straightedge, the mean of the lane's points there
 /// without the cells far from the median cell (a stray return, a mixed pixel at an edge), the
-/// points behind it and which station saw them ([`MIXED`] when several did).
+/// points behind it and which station saw them ([`MIXED`] when several did). Across the layers
+/// each height is then a local quadratic's ([`smooth_across`]), and `weight` the points a
+/// plain mean with the same noise would take.
 #[derive(Debug, Clone, Default)]
 pub struct Profile {
     pub height: Vec<Option<f64>>,
     pub points: Vec<u32>,
+    pub weight: Vec<f64>,
     pub station: Vec<u8>,
 }
 
@@ -35,7 +38,11 @@ pub(crate) struct Setup {
 /// A straightedge position found on a face, with where it lies.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Located {
+    /// The position, chosen on the [`Half::Choose`] points (its `gap` is theirs).
     pub chord: Chord,
+    /// The gap at that position measured on the [`Half::Measure`] points, metres, never below
+    /// zero.
+    pub gap: f64,
     /// The lane (index across the straightedge, in lanes).
     pub lane: usize,
     pub support_distance: f64,
@@ -101,11 +108,13 @@ impl FlatnessGrid {
             .collect()
     }
 
-    /// The profile of lane `lane` on face `f` along `axis`, each cell less its row's level
-    /// and cells `setup.outlier` or farther from their bin's median cell left out, into `out`.
+    /// The profile of lane `lane` on face `f` along `axis` from the points in `half`, each cell
+    /// less its row's level and cells `setup.outlier` or farther from their bin's median cell
+    /// left out, into `out`.
     pub(crate) fn profile(
         &self,
         (f, axis, lane): (usize, usize, usize),
+        half: Half,
         setup: &Setup,
         out: &mut Profile,
     ) {
@@ -141,7 +150,7 @@ impl FlatnessGrid {
                     } else {
                         a * c.nu + l
                     };
-                    if let Some(m) = c.mean(k) {
+                    if let Some(m) = c.mean_of(k, half) {
                         means.push(m - level(k));
                         ks.push(k);
                     }
@@ -155,11 +164,12 @@ impl FlatnessGrid {
             };
             let (mut n, mut sum, mut tag) = (0u32, 0.0, None::<u8>);
             for &k in &ks {
-                if (c.sum[k] / c.count[k] as f64 - level(k) - median).abs() > outlier {
+                let (s, m) = c.sum_count(k, half);
+                if (s / m as f64 - level(k) - median).abs() > outlier {
                     continue;
                 }
-                n += c.count[k];
-                sum += c.sum[k] - level(k) * c.count[k] as f64;
+                n += m;
+                sum += s - level(k) * m as f64;
                 tag = Some(match tag {
                     None => c.station[k],
                     Some(t) if t == c.station[k] => t,
@@ -171,20 +181,30 @@ impl FlatnessGrid {
             out.station.push(tag.unwrap_or(MIXED));
         }
         // A bin that caught the end of a scan line holds a point or two where its neighbours
-        // hold a line's worth: its noise, not the surface, would hold the straightedge up.
-        let mut counts: Vec<u32> = out.points.iter().copied().filter(|&n| n > 0).collect();
-        let typical = median_count(&mut counts);
-        let least = (2 * typical / 3).max(3).min(typical.max(1));
-        for (h, &n) in out.height.iter_mut().zip(&out.points) {
-            if n < least {
-                *h = None;
+        // hold a line's worth: its noise, not the surface, would hold the straightedge up. The
+        // measuring half holds nothing up (the positions are chosen on the other), so it keeps
+        // every bin it has a point in.
+        if half != Half::Measure {
+            let mut counts: Vec<u32> = out.points.iter().copied().filter(|&n| n > 0).collect();
+            let typical = median_count(&mut counts);
+            let least = (2 * typical / 3).max(3).min(typical.max(1));
+            for (h, &n) in out.height.iter_mut().zip(&out.points) {
+                if n < least {
+                    *h = None;
+                }
             }
+        }
+        out.weight.clear();
+        out.weight.extend(out.points.iter().map(|&n| n as f64));
+        if axis == 1 {
+            smooth_across(out);
         }
     }
 
     /// On face `f` along `axis`: the straightedge position that governs (the largest gap for
     /// its limit at the distance between its supports), and per table distance the deepest gap
-    /// with its supports at most that far apart. `None` where no position counts.
+    /// with its supports at most that far apart, each chosen on one half of the points and
+    /// measured on the other ([`Half`]). `None` where no position counts.
     pub(crate) fn straightedge(
         &self,
         (f, axis): (usize, usize),
@@ -202,13 +222,18 @@ impl FlatnessGrid {
         let block = (BLOCK / bin).round().max(1.0) as usize;
         let mut governing: Option<(f64, Located)> = None;
         let mut by_span: Vec<Option<Located>> = vec![None; spans.len()];
-        let mut profile = Profile::default();
+        let (mut choose, mut measure) = (Profile::default(), Profile::default());
         for lane in 0..self.lanes(f, axis) {
-            self.profile((f, axis, lane), setup, &mut profile);
-            super::each_chord(&profile.height, max_bins, block, MIN_FILLED, |chord| {
+            self.profile((f, axis, lane), Half::Choose, setup, &mut choose);
+            self.profile((f, axis, lane), Half::Measure, setup, &mut measure);
+            super::each_chord(&choose.height, max_bins, block, MIN_FILLED, |chord| {
+                // A position counts where both halves measured its supports and its deepest bin.
+                let Some(gap) = measured_gap(chord, &measure.height) else {
+                    return;
+                };
                 let d = (chord.j - chord.i) as f64 * bin;
                 let ratio = chord.gap / standard.limit(d);
-                let located = || self.locate(f, axis, lane, chord, d);
+                let located = || self.locate((f, axis, lane), chord, gap, d);
                 if governing.as_ref().is_none_or(|g| ratio > g.0) {
                     governing = Some((ratio, located()));
                 }
@@ -222,8 +247,15 @@ impl FlatnessGrid {
         governing.map(|g| (g.1, by_span))
     }
 
-    /// Where a position on lane `lane` of face `f` along `axis` lies, design frame.
-    fn locate(&self, f: usize, axis: usize, lane: usize, chord: Chord, d: f64) -> Located {
+    /// Where a position on lane `lane` of face `f` along `axis` lies, design frame, with its
+    /// measured `gap`.
+    fn locate(
+        &self,
+        (f, axis, lane): (usize, usize, usize),
+        chord: Chord,
+        gap: f64,
+        d: f64,
+    ) -> Located {
         let face = &self.faces.faces[f];
         let (bin, kl) = self.lane_shape(f, axis);
         let across = self.cells[f].size[1 - axis] * kl as f64 * (lane as f64 + 0.5);
@@ -238,12 +270,63 @@ impl FlatnessGrid {
         };
         Located {
             chord,
+            gap,
             lane,
             support_distance: d,
             at: point(chord.k),
             supports: [point(chord.i), point(chord.j)],
         }
     }
+}
+
+/// Bins either side of a bin whose points a height across the layers is fitted to.
+const SMOOTH_REACH: usize = 3;
+
+/// Each bin of a profile across the layers (1 mm bins, a few points each) as the value at its
+/// centre of a quadratic fitted by least squares, weighted by points, to the measured bins
+/// within [`SMOOTH_REACH`] of it (a Savitzky-Golay filter over uneven bins): noise falls to
+/// about a third of its variance while a rib of 10 mm pitch keeps 94 % of its depth (the
+/// filter's response at a tenth of a cycle per bin), a quadratic's crest all of it. A bin with
+/// fewer than three measured bins in reach keeps its mean. `weight` becomes the points a mean of
+/// the same variance would take (`1 / (XᵀWX)⁻¹₀₀`).
+fn smooth_across(profile: &mut Profile) {
+    let raw = profile.height.clone();
+    for b in 0..raw.len() {
+        if raw[b].is_none() {
+            continue;
+        }
+        let mut normal = nalgebra::Matrix3::<f64>::zeros();
+        let mut rhs = nalgebra::Vector3::<f64>::zeros();
+        let mut used = 0;
+        let from = b.saturating_sub(SMOOTH_REACH);
+        let reach = &raw[from..(b + SMOOTH_REACH + 1).min(raw.len())];
+        for (a, y) in reach.iter().enumerate().map(|(i, y)| (from + i, y)) {
+            let Some(y) = *y else { continue };
+            let x = a as f64 - b as f64;
+            let row = nalgebra::Vector3::new(1.0, x, x * x);
+            let w = profile.points[a] as f64;
+            normal += row * row.transpose() * w;
+            rhs += row * (w * y);
+            used += 1;
+        }
+        if used < 3 {
+            continue;
+        }
+        let Some(inverse) = normal.try_inverse() else {
+            continue;
+        };
+        let fit = inverse * rhs;
+        profile.height[b] = Some(fit[0]);
+        profile.weight[b] = 1.0 / inverse[(0, 0)];
+    }
+}
+
+/// `chord`'s gap read on `height` (the measuring half's profile), never below zero; `None`
+/// where `height` lacks one of its three bins.
+fn measured_gap(chord: Chord, height: &[Option<f64>]) -> Option<f64> {
+    let (a, b, y) = (height[chord.i]?, height[chord.j]?, height[chord.k]?);
+    let t = (chord.k - chord.i) as f64 / (chord.j - chord.i) as f64;
+    Some(((1.0 - t) * a + t * b - y).max(0.0))
 }
 
 /// The median of nonzero bin counts (the lower middle), 0 when none.

@@ -7,11 +7,22 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
 const NOISE: f64 = 0.0003;
-/// What bin medians of a few points leave of the noise in the deepest gap over a face.
+/// What the measuring half's noise and the bins' resolution leave in a gap.
 const SLACK: f64 = 0.0006;
 /// The same across the layers, where a bin is 1 mm long: 3 mm rows leave 10 points in every
-/// third bin, and the deepest gap over a face picks their noise up.
+/// third bin.
 const SLACK_ACROSS: f64 = 0.001;
+
+/// A dent's depth as a straightedge in a lane sees it: `w` at `x` averaged over the lane that
+/// holds `z` (lanes are [`LANE`] wide from the face's foot), negated.
+fn lane_depth(w: impl Fn(f64, f64) -> f64, x: f64, z: f64) -> f64 {
+    let start = (z / LANE).floor() * LANE;
+    let n = 300;
+    -(0..n)
+        .map(|i| w(x, start + LANE * (i as f64 + 0.5) / n as f64))
+        .sum::<f64>()
+        / n as f64
+}
 
 /// Empty cells over the study wall, and the index of its +y face.
 fn wall() -> (FlatnessGrid, usize) {
@@ -188,15 +199,16 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
     for d in [Direction::Along, Direction::Across] {
         assert!(gap(&j, face, d, Some(0.1)).gap < SLACK);
     }
-    // A 6 mm dent, 0.1 m across, at x = 0.3, z = 0.5.
-    let (grid, face) = scanned(|x, z| {
+    // A 6 mm dent, 0.1 m across, at x = 0.3, z = 0.5: 5.45 mm averaged across the lane on it.
+    let dent = |x: f64, z: f64| {
         let r = ((x - 0.3).powi(2) + (z - 0.5).powi(2)).sqrt();
         if r < 0.05 {
             -0.003 * (1.0 + (std::f64::consts::PI * r / 0.05).cos())
         } else {
             0.0
         }
-    });
+    };
+    let (grid, face) = scanned(dent);
     let g = gap(&grid.judge(&ROW6), face, Direction::Along, None);
     eprintln!(
         "6 mm dent 0.1 m wide: {:.2} ± {:.2} mm, supports {:.2} m apart, limit {:.2} mm: {}",
@@ -206,7 +218,7 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
         g.limit * 1e3,
         g.verdict(ISO)
     );
-    assert!((g.gap - 0.006).abs() < SLACK, "{g:?}");
+    assert!((g.gap - lane_depth(dent, 0.3, 0.5)).abs() < SLACK, "{g:?}");
     assert_eq!(g.verdict(ISO), Verdict::Fail, "{g:?}");
     assert!(
         (g.at.x - 0.3).abs() < 0.03 && (g.at.z - 0.5).abs() < 0.03,
@@ -219,14 +231,15 @@ fn a_tilted_face_is_flat_and_a_dent_is_found_where_it_is() {
 /// is 3.44 mm, and it fails.
 #[test]
 fn a_dent_is_judged_at_the_distance_between_its_rims() {
-    let (grid, face) = scanned(|x, z| {
+    let dent = |x: f64, z: f64| {
         let r = (x * x + (z - 0.5).powi(2)).sqrt();
         if r < 0.15 {
             -0.00225 * (1.0 + (std::f64::consts::PI * r / 0.15).cos())
         } else {
             0.0
         }
-    });
+    };
+    let (grid, face) = scanned(dent);
     let j = grid.judge(&ROW6);
     let g = gap(&j, face, Direction::Along, None);
     eprintln!(
@@ -237,28 +250,37 @@ fn a_dent_is_judged_at_the_distance_between_its_rims() {
         g.limit * 1e3,
         g.verdict(ISO)
     );
-    assert!((g.gap - 0.0045).abs() < SLACK, "{g:?}");
+    assert!((g.gap - lane_depth(dent, 0.0, 0.5)).abs() < SLACK, "{g:?}");
     assert!((g.support_distance - 0.3).abs() < 0.03, "{g:?}");
     assert!((g.limit - ROW6.limit(g.support_distance)).abs() < 1e-12);
     assert!(g.limit < 0.0036 && g.limit > 0.0033, "{g:?}");
     assert_eq!(g.verdict(ISO), Verdict::Fail, "{g:?}");
-    // The 1 m row still lists the deepest gap with supports within 1 m, judged at its own
-    // supports too.
+    // The 1 m row lists the deepest gap with supports within 1 m, judged at its own supports
+    // too: the same dent, measured as deep within their uncertainties. Its straightedge may rest
+    // on the flat beyond the rims, where the limit is near the dent's depth: never a pass.
     let metre = gap(&j, face, Direction::Along, Some(1.0));
-    assert!(metre.gap >= g.gap - 1e-12 && metre.verdict(ISO) == Verdict::Fail);
+    assert!(
+        (metre.gap - g.gap).abs() <= metre.uncertainty + g.uncertainty,
+        "{metre:?} against {g:?}"
+    );
+    assert_ne!(metre.verdict(ISO), Verdict::Pass, "{metre:?}");
 }
 
 /// Layer ribs of 10, 20 and 50 mm pitch, 2 mm amplitude (4 mm crest to trough), scanned from
 /// 1.5 m at 2 mm point spacing with 0.3 mm noise: the straightedge across the layers on the
-/// crests measures them within 25 % (the old bins read 0.34 mm at 10 mm pitch). The issue asks
-/// 15 %: the deepest gap over a whole face picks up the noise of 1 mm bins of a few points each
-/// and reads high (4.66, 4.73 and 4.80 mm at 10, 20 and 50 mm pitch), which is not met yet.
+/// crests measures them within 15 % (the old 10 mm bins read 0.34 mm at 10 mm pitch; read from
+/// the points that chose the position, 4.66-4.80 mm). Seeds 1-7 gave 3.46-4.27 mm, U about
+/// 0.3 mm; `ASBUILT_RIB_SEED` picks another.
 #[test]
 fn layer_ribs_are_measured_across_the_layers() {
+    let seed = std::env::var("ASBUILT_RIB_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(3);
     for pitch in [0.010, 0.020, 0.050] {
         let (mut grid, face) = wall();
         let tag = grid.station(&station(0, 0.001));
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let ribs = move |_: f64, z: f64| 0.002 * (std::f64::consts::TAU * z / pitch).cos();
         raster(
             &mut grid,
@@ -280,7 +302,7 @@ fn layer_ribs_are_measured_across_the_layers() {
             g.limit * 1e3,
             g.verdict(ISO)
         );
-        let within = 0.25;
+        let within = 0.15;
         assert!(
             (g.gap - 0.004).abs() < within * 0.004,
             "pitch {pitch}: {:.2} mm, {g:?}",

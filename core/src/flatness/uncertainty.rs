@@ -17,7 +17,7 @@
 use nalgebra::Vector3;
 
 use super::straightedge::{Located, Profile, Setup};
-use super::{FlatnessGrid, MIXED};
+use super::{FlatnessGrid, Half, MIXED};
 
 /// The coverage factor of every U reported.
 pub const COVERAGE_FACTOR: f64 = 2.0;
@@ -90,7 +90,7 @@ impl FlatnessGrid {
         at: &Located,
     ) -> f64 {
         let mut profile = Profile::default();
-        self.profile((f, axis, at.lane), setup, &mut profile);
+        self.profile((f, axis, at.lane), Half::Measure, setup, &mut profile);
         let (i, j, k) = (at.chord.i, at.chord.j, at.chord.k);
         let t = (k - i) as f64 / (j - i) as f64;
         let sigma = setup.sigma;
@@ -98,7 +98,7 @@ impl FlatnessGrid {
         let mut var = 0.0;
         let mut pose = Vec::with_capacity(3);
         for (b, c) in [(i, 1.0 - t), (j, t), (k, -1.0)] {
-            let n = profile.points[b].max(1) as f64;
+            let n = profile.weight[b].max(1.0);
             var += c * c * sigma * sigma / n;
             var += c * c * resolution(&profile.height, b).powi(2) / 3.0;
             pose.push((profile.station[b], c, normal));

@@ -150,7 +150,7 @@ fn bench_findings(
     g.throughput(Throughput::Elements(samples.len() as u64));
     g.bench_function("findings_100k_samples", |b| {
         b.iter(|| {
-            find(&results, &outcomes, &sharp, area_per_sample, &params)
+            find(&results, &outcomes, &sharp, area_per_sample, &params, 0.001)
                 .layers
                 .len()
         })

@@ -490,6 +490,8 @@ mod tests {
                         mean: 0.0,
                         width_deviation: l.1 + wobble,
                         shift: [l.2[0] + wobble, l.2[1]],
+                        width_uncertainty: 0.001,
+                        shift_uncertainty: 0.001,
                     })
                     .unwrap();
             }

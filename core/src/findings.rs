@@ -12,6 +12,14 @@
 //!   than four sample spacings; each region's extent, area and peak.
 //! - **Missing material**: samples classified missing by coverage, linked the same way.
 //!
+//! Every value carries its expanded uncertainty U (k = 2, GUM): the fit's own (the residuals'
+//! spread through the normal equations, counted once per cylinder's worth of samples because
+//! neighbouring cylinders share their points), and the stations' pose σ. A width and a shift
+//! are fitted only where opposite sides were seen, which no one station sees: the width takes
+//! the difference of two stations' errors (`2σ²`), the shift their mean (`σ²/2`); a top and a
+//! peak one station's (`σ²`). An area's edge is
+//! known to a sample: each of its edge samples is in or out (rectangular, half a sample's area).
+//!
 //! Samples whose cylinder reaches over a sharp design edge (the surface turns by more than 30°
 //! within the cylinder's radius) are left out of fits and regions: there the cylinder averages
 //! two faces and shows a deviation that is not in the print.
@@ -22,6 +30,7 @@ use rustc_hash::FxHashMap;
 use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
 use crate::m3c2::streaming::CoreResult;
+use crate::verdict::COVERAGE_FACTOR;
 use asbuilt_protocol::{RegionFinding, StationFindings};
 
 /// What findings are drawn with.
@@ -58,6 +67,8 @@ pub struct TopRow {
     pub height_deviation: f64,
     /// Design samples on the top with an M3C2 distance.
     pub samples: u32,
+    /// The deviation's expanded uncertainty (k = 2), metres.
+    pub uncertainty: f64,
 }
 
 /// Excess (d > tolerance), deficit (d < −tolerance) or missing material: the kind the agent's
@@ -87,6 +98,10 @@ pub struct Region {
     pub mean: f64,
     /// Layer bands it spans, when the layer height is known.
     pub layers: Option<(u32, u32)>,
+    /// The peak's expanded uncertainty (k = 2), metres; NaN for missing material.
+    pub peak_uncertainty: f64,
+    /// The area's expanded uncertainty (k = 2), m².
+    pub area_uncertainty: f64,
 }
 
 /// What a scan layer's stations show: layer bands, the top, areas out of tolerance, missing
@@ -108,14 +123,29 @@ const SIDE_MAX_NZ: f64 = 0.5;
 /// The cap: the normal within 25° of up.
 const TOP_MIN_NZ: f64 = 0.9;
 
-/// `sharp_edges`: the design's, from [`crate::Design::sharp_edges`].
+/// How much the mean of core points' distances varies beyond what their count says: each scan
+/// point lands in about `π r²` over a sample's area of cylinders, so that many neighbouring
+/// core points share their points.
+fn overlap(p: &FindingParams, area_per_sample: f64) -> f64 {
+    (std::f64::consts::PI * p.radius * p.radius / area_per_sample.max(f64::MIN_POSITIVE)).max(1.0)
+}
+
+/// `sharp_edges`: the design's, from [`crate::Design::sharp_edges`]; `pose_sigma`: the stations'
+/// position σ per axis, metres (0 when unknown).
 pub fn find(
     m3c2: &[CoreResult],
     coverage: &[SampleOutcome],
     sharp_edges: &[[Point3<f64>; 2]],
     area_per_sample: f64,
     p: &FindingParams,
+    pose_sigma: f64,
 ) -> Findings {
+    let pose = if pose_sigma.is_finite() {
+        pose_sigma.max(0.0)
+    } else {
+        0.0
+    };
+    let shared = overlap(p, area_per_sample);
     // Both were built from the same design samples: their sample indices line them up.
     let samples = m3c2
         .iter()
@@ -128,8 +158,8 @@ pub fn find(
     let mut out = Findings {
         layers: p
             .layer_height
-            .map_or_else(Vec::new, |h| layer_rows(m3c2, &usable, h)),
-        top: top_row(m3c2, &usable, p),
+            .map_or_else(Vec::new, |h| layer_rows(m3c2, &usable, h, (shared, pose))),
+        top: top_row(m3c2, &usable, p, (shared, pose)),
         ..Findings::default()
     };
     // Samples are random, so a thin strip (the top of a sagging layer) needs a generous link to
@@ -148,7 +178,7 @@ pub fn find(
                 kind,
                 m3c2,
                 &ids,
-                area_per_sample,
+                (area_per_sample, pose),
                 &band_of,
             ));
         }
@@ -191,8 +221,14 @@ fn usable_core_points(
 }
 
 /// Per layer band of height `h`, lowest first: the mean distance on its sides and the width
-/// and shift fitted to them.
-fn layer_rows(m3c2: &[CoreResult], usable: &[bool], h: f64) -> Vec<LayerRow> {
+/// and shift fitted to them, with their U from the fit (its variance times `shared`) and the
+/// pose σ.
+fn layer_rows(
+    m3c2: &[CoreResult],
+    usable: &[bool],
+    h: f64,
+    (shared, pose): (f64, f64),
+) -> Vec<LayerRow> {
     let mut bands: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
     for (i, r) in m3c2.iter().enumerate() {
         if usable[i] && r.normal.z.abs() < SIDE_MAX_NZ {
@@ -210,14 +246,21 @@ fn layer_rows(m3c2: &[CoreResult], usable: &[bool], h: f64) -> Vec<LayerRow> {
             let d = |i: usize| m3c2[i].distance.unwrap_or(0.0);
             let mean = idx.iter().map(|&i| d(i)).sum::<f64>() / idx.len() as f64;
             let fit = fit_width(m3c2, idx);
+            let k = COVERAGE_FACTOR;
             LayerRow {
                 layer,
                 z_min: layer as f64 * h,
                 z_max: (layer + 1) as f64 * h,
                 samples: idx.len() as u32,
                 mean,
-                width_deviation: fit.map_or(f64::NAN, |f| 2.0 * f.0),
-                shift: fit.map_or([f64::NAN; 2], |f| [f.1, f.2]),
+                width_deviation: fit.map_or(f64::NAN, |f| 2.0 * f.half_width),
+                shift: fit.map_or([f64::NAN; 2], |f| f.shift),
+                width_uncertainty: fit.map_or(f64::NAN, |f| {
+                    k * (4.0 * shared * f.variance[0] + 2.0 * pose * pose).sqrt()
+                }),
+                shift_uncertainty: fit.map_or(f64::NAN, |f| {
+                    k * (shared * f.variance[1].max(f.variance[2]) + 0.5 * pose * pose).sqrt()
+                }),
             }
         })
         .collect()
@@ -225,7 +268,12 @@ fn layer_rows(m3c2: &[CoreResult], usable: &[bool], h: f64) -> Vec<LayerRow> {
 
 /// The top of the print against the printed height: the mean distance on the cap within half a
 /// band of it; `None` without a printed height or samples there.
-fn top_row(m3c2: &[CoreResult], usable: &[bool], p: &FindingParams) -> Option<TopRow> {
+fn top_row(
+    m3c2: &[CoreResult],
+    usable: &[bool],
+    p: &FindingParams,
+    (shared, pose): (f64, f64),
+) -> Option<TopRow> {
     if !p.printed_height.is_finite() {
         return None;
     }
@@ -238,9 +286,19 @@ fn top_row(m3c2: &[CoreResult], usable: &[bool], p: &FindingParams) -> Option<To
         })
         .filter_map(|i| m3c2[i].distance)
         .collect();
-    (!top.is_empty()).then(|| TopRow {
-        height_deviation: top.iter().sum::<f64>() / top.len() as f64,
-        samples: top.len() as u32,
+    (!top.is_empty()).then(|| {
+        let n = top.len() as f64;
+        let mean = top.iter().sum::<f64>() / n;
+        let spread = if top.len() > 1 {
+            top.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1.0)
+        } else {
+            0.0
+        };
+        TopRow {
+            height_deviation: mean,
+            samples: top.len() as u32,
+            uncertainty: COVERAGE_FACTOR * (shared * spread / n + pose * pose).sqrt(),
+        }
     })
 }
 
@@ -260,7 +318,7 @@ fn out_of_tolerance(
     kind: RegionKind,
     m3c2: &[CoreResult],
     ids: &[usize],
-    area_per_sample: f64,
+    (area_per_sample, pose): (f64, f64),
     band_of: &dyn Fn(f64) -> Option<u32>,
 ) -> Region {
     let d: Vec<f64> = ids
@@ -274,6 +332,10 @@ fn out_of_tolerance(
     let mut r = region(kind, &pts, area_per_sample, band_of);
     r.peak = d[peak_k];
     r.peak_at = pts[peak_k];
+    // The peak is one cylinder's mean: its points' spread over their count, and its station.
+    let c = &m3c2[ids[peak_k]];
+    let mean_var = c.spread.map_or(0.0, |s| s * s / c.count.max(1) as f64);
+    r.peak_uncertainty = COVERAGE_FACTOR * (mean_var + pose * pose).sqrt();
     r.mean = d.iter().sum::<f64>() / d.len() as f64;
     r
 }
@@ -323,10 +385,15 @@ fn region(
         max = max.sup(p);
         sum += p.coords;
     }
+    // Edge samples of a compact area of n: about its perimeter, 2√(πn), at most n.
+    let n = pts.len() as f64;
+    let edge = (2.0 * (std::f64::consts::PI * n).sqrt()).min(n);
     Region {
         kind,
         samples: pts.len() as u32,
-        area_m2: pts.len() as f64 * area_per_sample,
+        area_m2: n * area_per_sample,
+        area_uncertainty: COVERAGE_FACTOR * area_per_sample * (edge / 12.0).sqrt(),
+        peak_uncertainty: f64::NAN,
         centroid: Point3::from(sum / pts.len() as f64),
         min,
         max,
@@ -337,8 +404,18 @@ fn region(
     }
 }
 
+/// A band's width and shift fitted to its sides' distances.
+#[derive(Debug, Clone, Copy)]
+struct WidthFit {
+    half_width: f64,
+    shift: [f64; 2],
+    /// The variances of `w/2, tₓ, t_y` from the residuals (σ² (XᵀX)⁻¹'s diagonal), as if the
+    /// core points were independent.
+    variance: [f64; 3],
+}
+
 /// `w/2, tₓ, t_y` by least squares, refitted once without residuals beyond 3 robust σ.
-fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<(f64, f64, f64)> {
+fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<WidthFit> {
     let solve = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64, f64)> {
         let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
         let mut n = 0usize;
@@ -379,7 +456,37 @@ fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<(f64, f64, f64)> {
     abs.sort_by(f64::total_cmp);
     let sigma = 1.4826 * abs[abs.len() / 2];
     let cut = (3.0 * sigma).max(1e-4);
-    solve(&|i| res(i).abs() <= cut).or(Some(first))
+    let keep = |i: usize| res(i).abs() <= cut;
+    let (half_width, tx, ty) = solve(&keep).unwrap_or(first);
+    // The fit's covariance from the kept residuals about the final fit.
+    let (mut a, mut ss, mut n) = (Matrix3::<f64>::zeros(), 0.0, 0usize);
+    for &i in idx.iter().filter(|&&i| keep(i)) {
+        let h = m3c2[i].normal.xy();
+        let h = h / h.norm().max(f64::MIN_POSITIVE);
+        let x = Vector3::new(1.0, h.x, h.y);
+        a += x * x.transpose();
+        let r = m3c2[i].distance.unwrap_or(0.0) - (half_width + h.x * tx + h.y * ty);
+        ss += r * r;
+        n += 1;
+    }
+    // A shift no side faces is held at zero by the ridge, not measured: it varies by nothing.
+    let seen = [
+        true,
+        a[(1, 1)] > 0.05 * n as f64,
+        a[(2, 2)] > 0.05 * n as f64,
+    ];
+    let ridge = 1e-6 * n as f64;
+    a[(1, 1)] += ridge;
+    a[(2, 2)] += ridge;
+    let s2 = ss / n.saturating_sub(3).max(1) as f64;
+    let inv = a
+        .try_inverse()
+        .unwrap_or_else(|| Matrix3::from_diagonal_element(f64::NAN));
+    Some(WidthFit {
+        half_width,
+        shift: [tx, ty],
+        variance: [0, 1, 2].map(|c| if seen[c] { s2 * inv[(c, c)] } else { 0.0 }),
+    })
 }
 
 /// Samples whose cylinder sees only their own face: farther than `radius` (and a millimetre)
@@ -481,6 +588,7 @@ impl Findings {
         if let Some(t) = self.top {
             m.top_height_deviation = t.height_deviation;
             m.top_samples = t.samples;
+            m.top_uncertainty = t.uncertainty;
         }
         for &row in &self.layers {
             if m.layers.push(row).is_err() {
@@ -511,6 +619,8 @@ fn region_message(r: &Region) -> RegionFinding {
         max: r.max.into(),
         peak: r.peak,
         peak_at: r.peak_at.into(),
+        peak_uncertainty: r.peak_uncertainty,
+        area_uncertainty: r.area_uncertainty,
         mean: r.mean,
         layers: r.layers.map_or([u32::MAX; 2], |(a, b)| [a, b]),
     }
@@ -561,12 +671,71 @@ mod tests {
     fn width_and_shift_are_separated_per_layer() {
         // Layer 0: 8 mm wider; layer 1 (z 0.1..0.2 → bands 5..9): shifted 6 mm toward +y.
         let r = wall_results(|p, n| if p.z < 0.1 { 0.004 } else { 0.006 * n.y });
-        let f = find(&r, &[], &[], 1e-4, &params());
+        let f = find(&r, &[], &[], 1e-4, &params(), 0.001);
         let row = |l: u32| f.layers.iter().find(|r| r.layer == l).unwrap();
         assert!((row(2).width().unwrap() - 0.008).abs() < 1e-9);
         assert!(row(2).shift_xy().unwrap()[1].abs() < 1e-9);
         assert!(row(7).width().unwrap().abs() < 1e-9);
         assert!((row(7).shift_xy().unwrap()[1] - 0.006).abs() < 1e-6);
+    }
+
+    /// A band's width and shift, each side seen by its own station whose pose is off by 1 mm σ
+    /// and each core point's distance off by 0.5 mm σ: U against twice the spread over repeated
+    /// scans, within 20 %; and the same for a bump's peak.
+    #[test]
+    fn width_shift_and_peak_uncertainty_match_a_monte_carlo() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (pose, noise) = (
+            Normal::new(0.0, 0.001).unwrap(),
+            Normal::new(0.0, 0.0005).unwrap(),
+        );
+        let (mut widths, mut shifts, mut peaks) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut uw, mut us, mut up) = (0.0, 0.0, 0.0);
+        let runs = 200;
+        for _ in 0..runs {
+            let e = [pose.sample(&mut rng), pose.sample(&mut rng)];
+            let mut r = wall_results(|p, n| {
+                let d = (p - Point3::new(0.3, 0.0867, 0.1)).norm();
+                let bump = if n.y > 0.0 && d < 0.05 {
+                    0.012 * (1.0 - d / 0.05)
+                } else {
+                    0.0
+                };
+                bump + e[usize::from(n.y > 0.0)] * n.y
+            });
+            for c in &mut r {
+                *c.distance.as_mut().unwrap() += noise.sample(&mut rng);
+                c.spread = Some(0.0005 * (c.count as f64).sqrt());
+            }
+            let f = find(&r, &[], &[], 1e-4, &params(), 0.001);
+            let row = f.layers.iter().find(|r| r.layer == 2).unwrap();
+            widths.push(row.width_deviation);
+            shifts.push(row.shift[1]);
+            uw += row.width_uncertainty / runs as f64;
+            us += row.shift_uncertainty / runs as f64;
+            let bump = f
+                .regions
+                .iter()
+                .find(|g| g.kind == RegionKind::Excess)
+                .unwrap();
+            peaks.push(bump.peak);
+            up += bump.peak_uncertainty / runs as f64;
+        }
+        for (what, v, u) in [
+            ("width", widths, uw),
+            ("shift", shifts, us),
+            ("peak", peaks, up),
+        ] {
+            let mc = 2.0 * crate::flatness::tests::spread(&v);
+            assert!(
+                (u - mc).abs() < 0.2 * mc,
+                "{what}: U {:.3} mm against the Monte Carlo's {:.3} mm",
+                u * 1e3,
+                mc * 1e3
+            );
+        }
     }
 
     #[test]
@@ -575,7 +744,7 @@ mod tests {
             .into_iter()
             .filter(|c| c.normal.y > 0.0)
             .collect();
-        let f = find(&r, &[], &[], 1e-4, &params());
+        let f = find(&r, &[], &[], 1e-4, &params(), 0.001);
         assert!(f.layers.iter().all(|l| l.width().is_none()));
     }
 
@@ -590,7 +759,7 @@ mod tests {
                 0.0
             }
         });
-        let f = find(&r, &[], &[], 1e-4, &params());
+        let f = find(&r, &[], &[], 1e-4, &params(), 0.001);
         assert_eq!(f.regions.len(), 1, "{:?}", f.regions);
         let g = &f.regions[0];
         assert_eq!(g.kind, RegionKind::Excess);
@@ -617,7 +786,7 @@ mod tests {
                 Point3::new(0.995, y * 0.0867, 0.2),
             ]
         });
-        let f = find(&r, &[], &edges, 1e-4, &params());
+        let f = find(&r, &[], &edges, 1e-4, &params(), 0.001);
         let total: u32 = f.regions.iter().map(|g| g.samples).sum();
         assert_eq!(total, 2 * 200 * 20 - 2 * 20);
         assert!(f.regions.iter().all(|g| g.max.x < 0.985));

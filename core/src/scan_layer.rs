@@ -356,6 +356,7 @@ impl ScanLayer {
             &self.sharp_edges,
             self.area_per_sample,
             &self.findings,
+            sigma,
         );
         let states = if samples {
             let mut states: Vec<SampleState> = outcomes

@@ -352,6 +352,10 @@ fn parse_amount(v: &str, area: bool) -> Result<f64, LimitError> {
     }
 }
 
+/// The coverage factor of every expanded uncertainty U reported (k = 2: about 95 % for a
+/// normal distribution).
+pub const COVERAGE_FACTOR: f64 = 2.0;
+
 /// The limits of a job.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Limits {
@@ -371,6 +375,8 @@ pub struct Limits {
     pub warn_fraction: f64,
     /// Per range of layers, in the order given: later ranges win.
     pub ranges: Vec<LayerLimit>,
+    /// How a measured value and its U are held to a limit.
+    pub rule: DecisionRule,
 }
 
 /// Missing areas larger than this fail unless the crew says otherwise, m² (20 cm², a hand's
@@ -391,6 +397,7 @@ impl Limits {
             creep: tolerance,
             warn_fraction: DEFAULT_WARN_FRACTION,
             ranges: Vec::new(),
+            rule: DecisionRule::default(),
         }
     }
 
@@ -453,32 +460,28 @@ impl Limits {
         limit
     }
 
-    /// The verdict of `value` (a magnitude; its sign is ignored) against `limit`.
-    pub fn judge_value(&self, kind: LimitKind, value: f64, limit: f64) -> Verdict {
+    /// The verdict of `value` (a magnitude; its sign is ignored), measured with expanded
+    /// uncertainty `u`, against `limit` by the limits' [`DecisionRule`]; a pass beyond the warn
+    /// fraction of the limit warns. A missing area is never a pass: material is missing.
+    pub fn judge_value(&self, kind: LimitKind, value: f64, u: f64, limit: f64) -> Verdict {
         let v = value.abs();
-        if kind == LimitKind::MissingArea {
-            // A missing area was reported because material is missing: never a pass.
-            return if v > limit {
-                Verdict::Fail
-            } else {
+        match self.rule.decide(v, u, limit) {
+            Verdict::Pass if kind == LimitKind::MissingArea || v > self.warn_fraction * limit => {
                 Verdict::Warn
-            };
-        }
-        if !v.is_finite() {
-            Verdict::Pass
-        } else if v > limit {
-            Verdict::Fail
-        } else if v > self.warn_fraction * limit {
-            Verdict::Warn
-        } else {
-            Verdict::Pass
+            }
+            verdict => verdict,
         }
     }
 
-    /// The verdict of `value` over `layers`, with the limit it was held to.
-    pub fn judge(&self, kind: LimitKind, value: f64, layers: Option<(u32, u32)>) -> (Verdict, f64) {
+    /// The verdict of `value` measured with `u` over `layers`, with the limit it was held to.
+    pub fn judge(
+        &self,
+        kind: LimitKind,
+        (value, u): (f64, f64),
+        layers: Option<(u32, u32)>,
+    ) -> (Verdict, f64) {
         let limit = self.over(kind, layers);
-        (self.judge_value(kind, value, limit), limit)
+        (self.judge_value(kind, value, u, limit), limit)
     }
 
     /// Problems that make the limits meaningless.
@@ -545,16 +548,41 @@ mod tests {
 
     #[test]
     fn verdicts_warn_beyond_the_fraction_and_fail_beyond_the_limit() {
-        let l = Limits::from_tolerance(0.004);
+        let mut l = Limits::from_tolerance(0.004);
         let w = LimitKind::Width;
-        assert_eq!(l.judge_value(w, 0.0029, 0.004), Verdict::Pass);
-        assert_eq!(l.judge_value(w, -0.0031, 0.004), Verdict::Warn);
-        assert_eq!(l.judge_value(w, 0.004, 0.004), Verdict::Warn);
-        assert_eq!(l.judge_value(w, -0.0041, 0.004), Verdict::Fail);
-        assert_eq!(l.judge_value(w, f64::NAN, 0.004), Verdict::Pass);
+        // ISO 14253-1 (the default): U = 0.5 mm moves the pass and fail zones in.
+        assert_eq!(l.judge_value(w, 0.0029, 0.0005, 0.004), Verdict::Pass);
+        assert_eq!(l.judge_value(w, 0.0031, 0.0005, 0.004), Verdict::Warn);
+        assert_eq!(
+            l.judge_value(w, 0.0039, 0.0005, 0.004),
+            Verdict::Inconclusive
+        );
+        assert_eq!(
+            l.judge_value(w, -0.0041, 0.0005, 0.004),
+            Verdict::Inconclusive
+        );
+        assert_eq!(l.judge_value(w, -0.0046, 0.0005, 0.004), Verdict::Fail);
+        assert_eq!(l.judge_value(w, f64::NAN, 0.0, 0.004), Verdict::NotJudged);
+        // An unknown U proves nothing either way.
+        assert_eq!(
+            l.judge_value(w, 0.001, f64::NAN, 0.004),
+            Verdict::Inconclusive
+        );
         let m = LimitKind::MissingArea;
-        assert_eq!(l.judge_value(m, 0.0001, 0.002), Verdict::Warn);
-        assert_eq!(l.judge_value(m, 0.0021, 0.002), Verdict::Fail);
+        assert_eq!(l.judge_value(m, 0.0001, 0.0001, 0.002), Verdict::Warn);
+        assert_eq!(
+            l.judge_value(m, 0.0021, 0.0002, 0.002),
+            Verdict::Inconclusive
+        );
+        assert_eq!(l.judge_value(m, 0.0025, 0.0002, 0.002), Verdict::Fail);
+        // The simple rule: the value alone.
+        l.rule = DecisionRule::Simple;
+        assert_eq!(l.judge_value(w, 0.0029, 0.01, 0.004), Verdict::Pass);
+        assert_eq!(l.judge_value(w, -0.0031, 0.01, 0.004), Verdict::Warn);
+        assert_eq!(l.judge_value(w, 0.004, 0.01, 0.004), Verdict::Warn);
+        assert_eq!(l.judge_value(w, -0.0041, 0.0, 0.004), Verdict::Fail);
+        assert_eq!(l.judge_value(m, 0.0001, 0.0, 0.002), Verdict::Warn);
+        assert_eq!(l.judge_value(m, 0.0021, 0.0, 0.002), Verdict::Fail);
         assert!(Verdict::Fail > Verdict::Warn && Verdict::Warn > Verdict::Pass);
         assert!(Verdict::Fail > Verdict::Inconclusive && Verdict::Inconclusive > Verdict::Warn);
         assert!(Verdict::NotJudged < Verdict::Pass);

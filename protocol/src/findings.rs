@@ -67,6 +67,11 @@ pub struct LayerFinding {
     pub width_deviation: f64,
     /// Shift of the band in x and y; NaN as above.
     pub shift: [f64; 2],
+    /// The width deviation's expanded uncertainty (k = 2): the fit's and the stations' poses';
+    /// NaN with the width.
+    pub width_uncertainty: f64,
+    /// The shift's (its length's) expanded uncertainty (k = 2); NaN with the shift.
+    pub shift_uncertainty: f64,
 }
 
 impl LayerFinding {
@@ -127,6 +132,11 @@ pub struct RegionFinding {
     pub peak: f64,
     /// Where the peak deviation was measured.
     pub peak_at: [f64; 3],
+    /// The peak's expanded uncertainty (k = 2): its cylinder's mean and the stations' poses;
+    /// NaN for missing material.
+    pub peak_uncertainty: f64,
+    /// The area's expanded uncertainty (k = 2), m²: its edge known to a sample's spacing.
+    pub area_uncertainty: f64,
     /// Mean signed deviation over the region; NaN for missing material.
     pub mean: f64,
     /// First and last layer band; `u32::MAX` when the layer height is unknown.
@@ -154,6 +164,8 @@ pub struct StationFindings {
     pub top_height_deviation: f64,
     /// Design samples on the top that had an M3C2 distance.
     pub top_samples: u32,
+    /// The top height deviation's expanded uncertainty (k = 2); NaN with it.
+    pub top_uncertainty: f64,
     /// The layer bands' side faces, from the bed up.
     pub layers: heapless::Vec<LayerFinding, MAX_LAYER_ROWS>,
     /// Areas out of tolerance, largest first.
@@ -163,7 +175,7 @@ pub struct StationFindings {
     /// Regions or missing areas left out because the lists were full.
     pub truncated: u32,
 }
-crate::codec::message!(StationFindings, "asbuilt.StationFindings.v1", 1);
+crate::codec::message!(StationFindings, "asbuilt.StationFindings.v2", 2, oldest 2);
 
 impl StationFindings {
     /// Empty findings for a station: no layers, no regions, nothing seen of the top.
@@ -178,6 +190,7 @@ impl StationFindings {
             stations: 0,
             top_height_deviation: f64::NAN,
             top_samples: 0,
+            top_uncertainty: f64::NAN,
             layers: heapless::Vec::new(),
             regions: heapless::Vec::new(),
             missing: heapless::Vec::new(),
@@ -219,6 +232,8 @@ mod tests {
             mean: 0.001,
             width_deviation: f64::NAN,
             shift: [0.0, 0.0],
+            width_uncertainty: f64::NAN,
+            shift_uncertainty: 0.001,
         };
         let region = RegionFinding {
             kind: RegionKind::Missing,
@@ -229,6 +244,8 @@ mod tests {
             max: [2.0; 3],
             peak: f64::NAN,
             peak_at: [1.0; 3],
+            peak_uncertainty: f64::NAN,
+            area_uncertainty: 0.001,
             mean: f64::NAN,
             layers: [1, 2],
         };

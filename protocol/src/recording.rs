@@ -185,9 +185,10 @@ pub fn schema_text(channel: Channel) -> &'static str {
              declaration order (points/s, queues, rejects and drops by reason)"
         }
         Channel::Findings => {
-            "asbuilt.StationFindings v1, postcard: the fields of asbuilt-protocol's \
+            "asbuilt.StationFindings v2, postcard: the fields of asbuilt-protocol's \
              StationFindings in declaration order (per-layer width, shift and top height, \
-             regions out of tolerance and missing material; metres, design frame)"
+             regions out of tolerance and missing material, each with its expanded \
+             uncertainty (k = 2); metres, design frame)"
         }
         Channel::Corrections => {
             "asbuilt.LayerCorrection v1, postcard: the fields of asbuilt-protocol's \

@@ -226,6 +226,7 @@ impl Plan {
             bail!("--png writes the maps that --no-maps leaves out: give one of them");
         }
         let mut limits = asbuilt_core::verdict::Limits::from_tolerance(args.tolerance);
+        limits.rule = args.judging.decision_rule.unwrap_or_default();
         for l in &args.judging.limits {
             limits.set(*l);
         }

@@ -357,7 +357,7 @@ impl RecordedJob {
         let max_distance = overrides
             .max_distance
             .unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
-        let verdict_limits = tolerances
+        let mut verdict_limits = tolerances
             .limits_with(tolerance, &overrides.judging.limits)
             .map_err(|e| anyhow::anyhow!("the verdicts' limits ([tolerances], --limit): {e}"))?;
         let recorded =
@@ -374,6 +374,7 @@ impl RecordedJob {
             Some(r) => r,
             None => tolerances.decision_rule().map_err(|e| recorded(&e))?,
         };
+        verdict_limits.rule = rule;
         if !(tolerance > 0.0 && max_distance > 0.0) {
             bail!("--tolerance and --max-distance must be positive metres");
         }

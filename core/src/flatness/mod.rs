@@ -436,4 +436,4 @@ impl FlatnessGrid {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -315,7 +315,7 @@ fn layer_ribs_are_measured_across_the_layers() {
 }
 
 /// The sample standard deviation (the Monte Carlo tests' spread).
-pub(super) fn spread(v: &[f64]) -> f64 {
+pub(crate) fn spread(v: &[f64]) -> f64 {
     let m = v.iter().sum::<f64>() / v.len() as f64;
     (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
 }

@@ -19,8 +19,7 @@ use nalgebra::Vector3;
 use super::straightedge::{Located, Profile, Setup};
 use super::{FlatnessGrid, Half, MIXED};
 
-/// The coverage factor of every U reported.
-pub const COVERAGE_FACTOR: f64 = 2.0;
+pub(crate) use crate::verdict::COVERAGE_FACTOR;
 
 impl FlatnessGrid {
     /// The range noise σ of face `f`'s points, from their spread within its cells; where no

@@ -57,6 +57,8 @@ pub struct LimitsSection {
     pub warn_fraction: f64,
     /// `KIND=VALUE@FIRST-LAST`, in the order they apply.
     pub ranges: Vec<String>,
+    /// How each value and its U were held to its limit.
+    pub decision_rule: asbuilt_core::verdict::DecisionRule,
 }
 
 impl From<&Limits> for LimitsSection {
@@ -74,6 +76,7 @@ impl From<&Limits> for LimitsSection {
                 .iter()
                 .map(|r| format!("{}={}@{}-{}", r.kind.as_str(), r.value, r.first, r.last))
                 .collect(),
+            decision_rule: l.rule,
         }
     }
 }
@@ -244,6 +247,8 @@ pub struct Item {
     pub verdict: Verdict,
     /// Signed metres (m² for missing material).
     pub value: f64,
+    /// Its expanded uncertainty U (k = 2), in the value's unit; `None` where not known (creep).
+    pub uncertainty: Option<f64>,
     /// The limit it was held to, in the value's unit.
     pub limit: f64,
     /// First and last layer band, when known.
@@ -420,7 +425,9 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
     for h in bands.values_mut() {
         if let Some(change) = creep_at(h, u32::MAX) {
             h.width_change = Some(change);
-            let (v, _) = limits.judge(LimitKind::Creep, change, Some((h.layer, h.layer)));
+            // Relative widths leave the stations' pose errors out; what is left of their fits'
+            // uncertainty is not carried in the findings, so creep is judged on its value.
+            let (v, _) = limits.judge(LimitKind::Creep, (change, 0.0), Some((h.layer, h.layer)));
             h.creep_verdict = Some(v);
         }
     }
@@ -461,6 +468,8 @@ struct Raw {
     kind: ItemKind,
     limit_kind: LimitKind,
     value: f64,
+    /// U (k = 2); 0 where not carried.
+    uncertainty: f64,
     layers: Option<[u32; 2]>,
     z: [f64; 2],
     at: Option<[f64; 3]>,
@@ -472,12 +481,13 @@ fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
     for r in &f.layers {
         let band = Some([r.layer, r.layer]);
         let z = [r.z_min, r.z_max];
-        let mut push = |kind, limit_kind, value: f64| {
+        let mut push = |kind, limit_kind, (value, uncertainty): (f64, f64)| {
             if value.is_finite() {
                 out.push(Raw {
                     kind,
                     limit_kind,
                     value,
+                    uncertainty,
                     layers: band,
                     z,
                     at: None,
@@ -485,15 +495,19 @@ fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
                 });
             }
         };
-        push(ItemKind::Width, LimitKind::Width, r.width_deviation);
+        push(
+            ItemKind::Width,
+            LimitKind::Width,
+            (r.width_deviation, r.width_uncertainty),
+        );
         push(
             ItemKind::Position,
             LimitKind::Position,
-            r.shift[0].hypot(r.shift[1]),
+            (r.shift[0].hypot(r.shift[1]), r.shift_uncertainty),
         );
         let band_history = history.iter().find(|h| h.layer == r.layer);
         if let Some(c) = band_history.and_then(|h| creep_at(h, f.layer)) {
-            push(ItemKind::Creep, LimitKind::Creep, c);
+            push(ItemKind::Creep, LimitKind::Creep, (c, 0.0));
         }
     }
     if f.top_height_deviation.is_finite() {
@@ -502,6 +516,7 @@ fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
             kind: ItemKind::TopHeight,
             limit_kind: LimitKind::TopHeight,
             value: f.top_height_deviation,
+            uncertainty: f.top_uncertainty,
             layers: Some([f.layer, f.layer]),
             z: [h, h + f.top_height_deviation],
             at: None,
@@ -524,6 +539,11 @@ fn area(g: &RegionFinding) -> Raw {
             LimitKind::Surface
         },
         value: if missing { g.area_m2 } else { g.peak },
+        uncertainty: if missing {
+            g.area_uncertainty
+        } else {
+            g.peak_uncertainty
+        },
         layers: (g.layers[0] != u32::MAX).then_some(g.layers),
         z: [g.min[2], g.max[2]],
         at: Some(g.centroid),
@@ -543,30 +563,51 @@ fn same_finding(a: &Raw, b: &Item) -> bool {
     }
 }
 
-fn describe(kind: ItemKind, value: f64, layers: Option<[u32; 2]>, at: Option<[f64; 3]>) -> String {
+fn describe(raw: &Raw) -> String {
+    let (kind, value, layers, at) = (raw.kind, raw.value, raw.layers, raw.at);
+    let u = raw.uncertainty;
+    let pm = |scale: f64| {
+        if u.is_finite() && u > 0.0 {
+            format!(" ± {:.1}", u * scale)
+        } else {
+            String::new()
+        }
+    };
     match kind {
-        ItemKind::Width => format!("{} width {}", layers_text(layers), mm(value)),
-        ItemKind::Position => format!("{} shifted {:.1} mm", layers_text(layers), value * 1e3),
+        ItemKind::Width => format!(
+            "{} width {:+.1}{} mm",
+            layers_text(layers),
+            value * 1e3,
+            pm(1e3)
+        ),
+        ItemKind::Position => format!(
+            "{} shifted {:.1}{} mm",
+            layers_text(layers),
+            value * 1e3,
+            pm(1e3)
+        ),
         ItemKind::Creep => format!(
             "{} width changed {} since first scanned (beyond the scan layer's common change)",
             layers_text(layers),
             mm(value)
         ),
-        ItemKind::TopHeight => format!("top of the print {}", mm(value)),
+        ItemKind::TopHeight => format!("top of the print {:+.1}{} mm", value * 1e3, pm(1e3)),
         ItemKind::Flatness => format!(
             "gap {:.1} mm under the straightedge at {}",
             value * 1e3,
             at.map_or_else(String::new, xyz)
         ),
         ItemKind::Missing => format!(
-            "missing material, {:.0} cm², {} at {}",
+            "missing material, {:.0}{} cm², {} at {}",
             value * 1e4,
+            pm(1e4),
             layers_text(layers),
             at.map_or_else(String::new, xyz)
         ),
         ItemKind::Excess | ItemKind::Deficit => format!(
-            "{kind} {}, {} at {}",
-            mm(value),
+            "{kind} {:+.1}{} mm, {} at {}",
+            value * 1e3,
+            pm(1e3),
             layers_text(layers),
             at.map_or_else(String::new, xyz)
         ),
@@ -586,7 +627,7 @@ fn scan_layer(
     let mut matched_previous = vec![false; previous.map_or(0, |p| p.items.len())];
     for raw in raw_items(f, history) {
         let layers = raw.layers.map(|[a, b]| (a, b));
-        let (verdict, limit) = limits.judge(raw.limit_kind, raw.value, layers);
+        let (verdict, limit) = limits.judge(raw.limit_kind, (raw.value, raw.uncertainty), layers);
         counts.add(verdict);
         if let Some([a, b]) = raw.layers {
             for (_, v) in band_verdicts.range_mut(a..=b) {
@@ -622,6 +663,7 @@ fn scan_layer(
                 kind: raw.kind,
                 verdict,
                 value: raw.value,
+                uncertainty: (raw.kind != ItemKind::Creep).then_some(raw.uncertainty),
                 limit,
                 layers: raw.layers,
                 z: raw.z,
@@ -630,7 +672,7 @@ fn scan_layer(
                 since: before.map_or(f.layer, |b| b.since),
                 change,
                 previous: before.map(|b| b.value),
-                text: describe(raw.kind, raw.value, raw.layers, raw.at),
+                text: describe(&raw),
             },
         ));
     }
@@ -820,6 +862,8 @@ mod tests {
                     mean: 0.0,
                     width_deviation: width(band),
                     shift: [0.0, 0.0],
+                    width_uncertainty: 0.0005,
+                    shift_uncertainty: 0.0005,
                 })
                 .unwrap();
         }
@@ -836,6 +880,8 @@ mod tests {
             max: [at_x + 0.05, 0.1, 0.15],
             peak,
             peak_at: [at_x, 0.1, 0.1],
+            peak_uncertainty: 0.0005,
+            area_uncertainty: 0.0001,
             mean: peak / 2.0,
             layers: [2, 7],
         }

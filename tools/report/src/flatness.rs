@@ -344,6 +344,7 @@ impl FlatnessSection {
                     kind: crate::ItemKind::Flatness,
                     verdict: g.verdict,
                     value: g.gap_m,
+                    uncertainty: Some(g.uncertainty_m),
                     limit: g.limit_m,
                     layers: None,
                     z: [z, z],

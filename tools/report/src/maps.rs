@@ -1199,6 +1199,7 @@ mod tests {
             kind: crate::ItemKind::Width,
             verdict: Verdict::Fail,
             value: 0.01,
+            uncertainty: Some(0.001),
             limit: 0.005,
             layers: Some([k, k]),
             z: [0.02 * f64::from(k), 0.02 * f64::from(k + 1)],

@@ -127,6 +127,7 @@ class _Options:
     limits: Optional[List[str]] = None
     flatness: Optional[str] = None
     dimensions: Optional[str] = None
+    decision_rule: Optional[str] = None
 
 
 def _local_copies(files: Sequence[str], scratch: str) -> List[str]:
@@ -162,6 +163,7 @@ def inspect_job(job: Job, options: Optional[Dict[str, Any]] = None) -> Dict[str,
                 limits=opts.limits,
                 flatness=opts.flatness,
                 dimensions=opts.dimensions,
+                decision_rule=opts.decision_rule,
                 quiet=True,
             )
     except Exception as e:  # a damaged file, a missing one, a refused option: one error row
@@ -224,6 +226,7 @@ def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
         "flatness_standard": flatness.get("standard") if isinstance(flatness, dict) else None,
         "dimensions_standard": (dimensions.get("standard")
                                 if isinstance(dimensions, dict) else None),
+        "decision_rule": (assessment.get("limits") or {}).get("decision_rule"),
     }
     verdicts = {s["id"]: s for s in assessment.get("stations", [])}
     stations = []
@@ -252,6 +255,7 @@ def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
                 "kind": item.get("kind"),
                 "verdict": item.get("verdict"),
                 "value": _num(item.get("value")),
+                "uncertainty": _num(item.get("uncertainty")),
                 "limit": _num(item.get("limit")),
                 "layer_first": layers[0],
                 "layer_last": layers[1],
@@ -298,6 +302,8 @@ def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
         "last_scan_layer": None if last is None else last.get("layer"),
         "findings_fail": int(counts.get("fail", 0)),
         "findings_warn": int(counts.get("warn", 0)),
+        "findings_inconclusive": int(counts.get("inconclusive", 0)),
+        **_standards_columns(flatness, dimensions),
         "layers_measured": len(last_bands),
         "layers_out_of_tolerance": sum(1 for h in last_bands if h["verdict"] == "fail"),
         "share_layers_out_of_tolerance": (
@@ -307,6 +313,20 @@ def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
         "seconds": None,
     }]
     return {"jobs": jobs, "stations": stations, "findings": findings, "layer_history": history}
+
+
+def _standards_columns(flatness: Any, dimensions: Any) -> Dict[str, Any]:
+    """The standards' verdicts, and what was not judged and why: `not_judged` is its own
+    verdict, never a pass."""
+    flatness = flatness if isinstance(flatness, dict) else {}
+    dimensions = dimensions if isinstance(dimensions, dict) else {}
+    not_judged = flatness.get("not_judged") or []
+    return {
+        "flatness_verdict": flatness.get("verdict"),
+        "flatness_not_judged": len(not_judged) if flatness else None,
+        "flatness_not_judged_reason": flatness.get("not_judged_reason"),
+        "dimensions_verdict": dimensions.get("verdict"),
+    }
 
 
 def _band_verdict(scan_layers: List[Dict], scan_layer: Any, layer: Any) -> Optional[str]:
@@ -334,13 +354,13 @@ def _schemas():
             ("files", pa.int64()), ("started", pa.timestamp("ns", tz="UTC")),
             ("design", pa.string()), ("units", pa.string()), ("tolerance_m", pa.float64()),
             ("limits", pa.string()), ("flatness_standard", pa.string()),
-            ("dimensions_standard", pa.string())]
+            ("dimensions_standard", pa.string()), ("decision_rule", pa.string())]
     f64, i64, s = pa.float64(), pa.int64(), pa.string()
     station = [("station", s), ("verdict", s), ("reason", s)] + [
         (k, i64 if k in _COUNTS else f64) for k in _STATION_FIELDS]
     finding = [("scan_layer", i64), ("printed_height", f64), ("scan_stations", i64),
                ("scan_verdict", s), ("label", s), ("kind", s), ("verdict", s), ("value", f64),
-               ("limit", f64), ("layer_first", i64), ("layer_last", i64), ("z_min", f64),
+               ("uncertainty", f64), ("limit", f64), ("layer_first", i64), ("layer_last", i64), ("z_min", f64),
                ("z_max", f64), ("at_x", f64), ("at_y", f64), ("at_z", f64), ("since", i64),
                ("change", s), ("text", s)]
     band = [("layer", i64), ("z_min", f64), ("z_max", f64), ("scan_layer", i64),
@@ -349,7 +369,9 @@ def _schemas():
             ("verdict", s)]
     job = [("verdict", s), ("summary", s), ("stations", i64), ("points", i64),
            ("scan_layers", i64), ("last_scan_layer", i64), ("findings_fail", i64),
-           ("findings_warn", i64), ("layers_measured", i64), ("layers_out_of_tolerance", i64),
+           ("findings_warn", i64), ("findings_inconclusive", i64), ("flatness_verdict", s),
+           ("flatness_not_judged", i64), ("flatness_not_judged_reason", s),
+           ("dimensions_verdict", s), ("layers_measured", i64), ("layers_out_of_tolerance", i64),
            ("share_layers_out_of_tolerance", f64), ("warnings", i64), ("seconds", f64)]
     error = [("job", s), ("file", s), ("files", i64), ("error", s)]
     return {
@@ -435,7 +457,8 @@ def analyse(sources: Iterable[Any], out: Any, *, workers: Optional[int] = None,
             scheduler: Optional[str] = None, client: Any = None,
             tolerance: Optional[float] = None, max_distance: Optional[float] = None,
             limits: Optional[Sequence[str]] = None, flatness: Optional[str] = None,
-            dimensions: Optional[str] = None, progress: bool = True) -> ArchiveResult:
+            dimensions: Optional[str] = None, decision_rule: Optional[str] = None,
+            progress: bool = True) -> ArchiveResult:
     """Inspects every job of `sources` again on Dask and writes the Parquet dataset and
     summary.html into `out` (its tables are replaced).
 
@@ -443,8 +466,8 @@ def analyse(sources: Iterable[Any], out: Any, *, workers: Optional[int] = None,
     `scheduler` (``"tcp://host:8786"``), else a ``LocalCluster`` of `workers` processes (the
     machine's cores by default) that is closed afterwards. `tolerance`, `max_distance`,
     `limits` (``["width=4mm", "missing_area=10cm2@1-20"]``), `flatness` (``"din18202:6"``)
-    and `dimensions` (``"din18202"``) override each recording's own, as `asbuilt report`'s
-    flags do."""
+    `dimensions` (``"din18202"``) and `decision_rule` (``"iso14253-1"`` or ``"simple"``)
+    override each recording's own, as `asbuilt report`'s flags do."""
     from distributed import Client, LocalCluster, as_completed
 
     if workers is not None and workers < 1:
@@ -456,7 +479,7 @@ def analyse(sources: Iterable[Any], out: Any, *, workers: Optional[int] = None,
     if not jobs:
         raise ValueError("no recordings: name files, globs, folders or URLs")
     options = _Options(tolerance, max_distance, list(limits) if limits else None, flatness,
-                       dimensions).__dict__
+                       dimensions, decision_rule).__dict__
     _check(options)
     schemas = _schemas()
     os.makedirs(out, exist_ok=True)
@@ -613,6 +636,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="a verdict limit, as `asbuilt report --limit`; repeatable")
     p.add_argument("--flatness", metavar="STANDARD:ROW", help="din18202:5|6|7 or aci117:A..D")
     p.add_argument("--dimensions", metavar="STANDARD", help="din18202")
+    p.add_argument("--decision-rule", metavar="RULE",
+                   help="iso14253-1 (guarded: inconclusive within U of a limit) or simple")
     args = p.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         p.error("--workers must be at least 1")
@@ -620,7 +645,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         result = analyse(args.recordings, args.out, workers=args.workers,
                          scheduler=args.scheduler, tolerance=args.tolerance,
                          max_distance=args.max_distance, limits=args.limit,
-                         flatness=args.flatness, dimensions=args.dimensions)
+                         flatness=args.flatness, dimensions=args.dimensions,
+                         decision_rule=args.decision_rule)
     except ValueError as e:
         p.error(str(e))
     ok = result.jobs - len(result.errors)

@@ -94,13 +94,14 @@ fn station<'py>(py: Python<'py>, s: &StationReadBack) -> PyResult<Bound<'py, PyD
 /// `(report, started_ns)`: report.json's content for the job of `paths` (one job's files, in
 /// any order), as `asbuilt report` draws it, holding no station's points; and the Unix time in
 /// ns of the job's first station event (`None` when it has none). `limits` are `--limit`
-/// values (`"width=4mm@1-10"`), `flatness` and `dimensions` the standards as the command line
-/// spells them; each overrides the recording's own. `quiet` keeps the lifecycle's warnings
+/// values (`"width=4mm@1-10"`), `flatness` and `dimensions` the standards and `decision_rule`
+/// (`"iso14253-1"` or `"simple"`) as the command line spells them; each overrides the
+/// recording's own. `quiet` keeps the lifecycle's warnings
 /// back too (what the report itself warns of is in report.json's `warnings`): a fleet's
 /// worker logs stay readable.
 #[pyfunction]
 #[pyo3(signature = (paths, tolerance = None, max_distance = None, limits = None, flatness = None,
-                    dimensions = None, quiet = false))]
+                    dimensions = None, decision_rule = None, quiet = false))]
 #[allow(clippy::too_many_arguments)] // one keyword per option, as Python calls it
 pub fn report_job(
     py: Python<'_>,
@@ -110,6 +111,7 @@ pub fn report_job(
     limits: Option<Vec<String>>,
     flatness: Option<String>,
     dimensions: Option<String>,
+    decision_rule: Option<String>,
     quiet: bool,
 ) -> PyResult<(Py<PyAny>, Option<u64>)> {
     let overrides = Overrides {
@@ -125,8 +127,10 @@ pub fn report_job(
             png: false,
             flatness: flatness.map(|f| parsed("flatness", &f)).transpose()?,
             dimensions: dimensions.map(|d| parsed("dimensions", &d)).transpose()?,
-            // The recording's [tolerances] decision_rule, ISO 14253-1 by default.
-            decision_rule: None,
+            // Else the recording's [tolerances] decision_rule, ISO 14253-1 by default.
+            decision_rule: decision_rule
+                .map(|r| parsed("decision_rule", &r))
+                .transpose()?,
         },
     };
     let (report, started) = py

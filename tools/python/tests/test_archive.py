@@ -121,9 +121,12 @@ def test_a_fleet_on_a_two_worker_cluster_equals_report_on_each_file(tmp_path, fl
                 assert same(row[key], section[key]), (f, key, row[key], section[key])
             assert row["verdict"] == verdicts[section["id"]]["verdict"]
             assert row["reason"] == verdicts[section["id"]]["reason"]
-        items = [(sl["layer"], it["label"], it["kind"], it["verdict"], it["value"], it["text"])
+        assert job["decision_rule"] == expected["assessment"]["limits"]["decision_rule"]
+        items = [(sl["layer"], it["label"], it["kind"], it["verdict"], it["value"],
+                  it["uncertainty"], it["text"])
                  for sl in expected["assessment"]["scan_layers"] for it in sl["items"]]
-        got = [(r["scan_layer"], r["label"], r["kind"], r["verdict"], r["value"], r["text"])
+        got = [(r["scan_layer"], r["label"], r["kind"], r["verdict"], r["value"],
+                r["uncertainty"], r["text"])
                for r in findings if r["job"] == job["job"]]
         assert got == items, f
         bands = sum(len(b["scans"]) for b in expected["assessment"]["layer_history"])
@@ -156,7 +159,8 @@ def test_the_command_line_archives_a_glob_with_one_worker(tmp_path, fleet):
     folder, files = fleet
     out = tmp_path / "cli"
     run = subprocess.run([sys.executable, "-m", "asbuilt", "archive", str(folder / "bunny*.mcap"),
-                          "--out", str(out), "--workers", "1", "--limit", "surface=2mm"],
+                          "--out", str(out), "--workers", "1", "--limit", "surface=2mm",
+                          "--flatness", "din18202:6", "--decision-rule", "simple"],
                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "2 of 2 job(s) inspected" in run.stdout
@@ -166,6 +170,10 @@ def test_the_command_line_archives_a_glob_with_one_worker(tmp_path, fleet):
     jobs = pq.read_table(out / "jobs").to_pylist()
     assert sorted(j["job"] for j in jobs) == ["bunny", "bunny-three"]
     assert all(json.loads(j["limits"])["surface_m"] == 0.002 for j in jobs)
+    # The bunny has no planar face: its flatness is not judged, never a pass, and says why.
+    assert all(j["decision_rule"] == "simple" for j in jobs)
+    assert all(j["flatness_verdict"] == "not_judged" and j["flatness_not_judged_reason"]
+               for j in jobs), jobs
     # A bad limit is refused once, before any job runs.
     bad = subprocess.run([sys.executable, "-m", "asbuilt", "archive", files[3], "--out",
                           str(out), "--workers", "1", "--limit", "wobble=3mm"],

@@ -851,6 +851,7 @@ mod tests {
         f.tolerance = T;
         f.stations = 4;
         f.top_height_deviation = 0.0;
+        f.top_uncertainty = 0.0005;
         for band in 0..=layer {
             let z = 0.02 * f64::from(band);
             f.layers

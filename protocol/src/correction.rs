@@ -67,9 +67,31 @@ impl CorrectionFlags {
     /// No shift was measured on the latest bands: the path advice was held.
     pub const PATH_UNSEEN: u32 = 1 << 8;
 
+    /// Every flag with its name as reports spell it, in bit order.
+    pub const NAMES: [(u32, &'static str); 9] = [
+        (Self::Z_HELD, "z_held"),
+        (Self::Z_CLAMPED, "z_clamped"),
+        (Self::Z_UNSEEN, "z_unseen"),
+        (Self::FLOW_HELD, "flow_held"),
+        (Self::FLOW_CLAMPED, "flow_clamped"),
+        (Self::FLOW_UNSEEN, "flow_unseen"),
+        (Self::PATH_HELD, "path_held"),
+        (Self::PATH_CLAMPED, "path_clamped"),
+        (Self::PATH_UNSEEN, "path_unseen"),
+    ];
+
     /// Whether flag `bit` (one of the constants above) is set.
     pub fn contains(self, bit: u32) -> bool {
         self.0 & bit != 0
+    }
+
+    /// The names of the flags set, in bit order (bits no flag names are left out).
+    pub fn names(self) -> Vec<&'static str> {
+        Self::NAMES
+            .iter()
+            .filter(|(bit, _)| self.contains(*bit))
+            .map(|(_, name)| *name)
+            .collect()
     }
 }
 
@@ -212,5 +234,21 @@ mod tests {
         assert_eq!(back.z_first, c.z_first);
         assert!(back.top.value.is_nan());
         assert!(LayerCorrection::neutral(1, 1, 1, 0).is_neutral());
+    }
+
+    #[test]
+    fn flags_read_as_names_in_bit_order() {
+        let f = CorrectionFlags(
+            CorrectionFlags::PATH_UNSEEN | CorrectionFlags::Z_HELD | CorrectionFlags::FLOW_CLAMPED,
+        );
+        assert_eq!(f.names(), ["z_held", "flow_clamped", "path_unseen"]);
+        assert!(CorrectionFlags(0).names().is_empty());
+        // Every bit has one name, each name once.
+        let all = CorrectionFlags::NAMES.iter().fold(0, |a, (bit, _)| a | bit);
+        assert_eq!(all.count_ones() as usize, CorrectionFlags::NAMES.len());
+        assert_eq!(
+            CorrectionFlags(all).names().len(),
+            CorrectionFlags::NAMES.len()
+        );
     }
 }

@@ -44,6 +44,16 @@ for x in d.get("dimensions", []):
 for p in d.get("plumb", []):
     print(f"| plumb face {p['face']} over {p['height_m']:.2f} m | {mm(p['gap_m'])} ± "
           f"{mm(p['uncertainty_m'])} | {mm(p['limit_m'])} | {p['verdict']} |")
+a = r["assessment"]
+print(f"findings held to their limits by {a['limits']['decision_rule']}: what fails or is "
+      "inconclusive, per scan layer")
+for sl in a["scan_layers"]:
+    c = sl["counts"]
+    print(f"- scan {sl['layer']}: {c['fail']} fail, {c['inconclusive']} inconclusive, "
+          f"{c['warn']} warn, {c['pass']} pass")
+    for it in sl["items"]:
+        if it["verdict"] in ("fail", "inconclusive"):
+            print(f"  - {it['verdict']}: {it['text']} (limit {it['limit']:g})")
 PY
 }
 run defects-seed1 --seed 1

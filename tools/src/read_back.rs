@@ -654,6 +654,25 @@ fn replay_stations(
             // again, which would have recovered it) is read as far as it goes.
             let (log_time, m) = match m {
                 Ok(m) => m,
+                // The agent's findings are drawn again from the chunks: an older release's
+                // are left out, not the job.
+                Err(recording::ReadError::Decode {
+                    topic,
+                    source: asbuilt_protocol::codec::DecodeError::VersionMismatch { found, .. },
+                    ..
+                }) if recording::Channel::from_topic(&topic)
+                    == Some(recording::Channel::Findings) =>
+                {
+                    let note = format!(
+                        "{}: its findings are version {found}, an older release's: the report \
+                         draws them again from the chunks",
+                        path.display()
+                    );
+                    if !cut.contains(&note) {
+                        cut.push(note);
+                    }
+                    return ControlFlow::Continue(());
+                }
                 Err(e) if files.len() > 1 => {
                     cut.push(format!(
                         "{} ends damaged ({e}): read as far as it goes; `asbuilt recover` \

@@ -36,8 +36,12 @@ pub struct Report {
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub findings: Vec<asbuilt_protocol::StationFindings>,
     /// The advice for the layers still to print after each scan layer (its last station's),
-    /// drawn again from a recording whose agent had `[corrections]` on.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    /// drawn again from a recording whose agent had `[corrections]` on. report.json names
+    /// their flags ([`CorrectionRow`]).
+    #[serde(
+        skip_serializing_if = "Vec::is_empty",
+        serialize_with = "corrections_by_name"
+    )]
     pub corrections: Vec<asbuilt_protocol::LayerCorrection>,
     /// The deepest gap under a virtual straightedge per face, direction and span, judged by a
     /// standard (`--flatness`).
@@ -237,6 +241,50 @@ pub struct HistogramSection {
     pub overflow: u64,
     /// Counts of the equal bins between `low` and `high`.
     pub bins: Vec<u64>,
+}
+
+/// A correction as report.json gives it: its flags as names, without the message's padding and
+/// version.
+#[derive(Serialize)]
+struct CorrectionRow<'a> {
+    job: u64,
+    station: u32,
+    attempt: u8,
+    layer: u32,
+    from_layer: u32,
+    first_layers: u32,
+    flags: Vec<&'static str>,
+    z_first: f64,
+    z_then: f64,
+    drift_per_layer: f64,
+    flow: f64,
+    path_offset: [f64; 2],
+    top: &'a asbuilt_protocol::Evidence,
+    width: &'a asbuilt_protocol::Evidence,
+    shift: &'a asbuilt_protocol::Evidence,
+}
+
+fn corrections_by_name<S: serde::Serializer>(
+    cs: &[asbuilt_protocol::LayerCorrection],
+    s: S,
+) -> Result<S::Ok, S::Error> {
+    s.collect_seq(cs.iter().map(|c| CorrectionRow {
+        job: c.job,
+        station: c.station,
+        attempt: c.attempt,
+        layer: c.layer,
+        from_layer: c.from_layer,
+        first_layers: c.first_layers,
+        flags: asbuilt_protocol::CorrectionFlags(c.flags).names(),
+        z_first: c.z_first,
+        z_then: c.z_then,
+        drift_per_layer: c.drift_per_layer,
+        flow: c.flow,
+        path_offset: c.path_offset,
+        top: &c.top,
+        width: &c.width,
+        shift: &c.shift,
+    }))
 }
 
 impl Report {

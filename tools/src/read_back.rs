@@ -621,6 +621,16 @@ fn read_ahead<T: Send>(
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
 /// recording read back gives what the live agent gave, whatever order its file holds. The
 /// files of a job are read in turn, as the agents that wrote them took their inputs.
+/// Findings an older release recorded: the report draws them again from the chunks, so they
+/// are left out (with a warning that names the versions), not the job.
+fn older_findings(e: &recording::ReadError) -> bool {
+    matches!(e, recording::ReadError::Decode {
+        topic,
+        source: asbuilt_protocol::codec::DecodeError::VersionMismatch { .. },
+        ..
+    } if recording::Channel::from_topic(topic) == Some(recording::Channel::Findings))
+}
+
 fn replay_stations(
     files: &[PathBuf],
     job: &RecordedJob,
@@ -654,23 +664,9 @@ fn replay_stations(
             // again, which would have recovered it) is read as far as it goes.
             let (log_time, m) = match m {
                 Ok(m) => m,
-                // The agent's findings are drawn again from the chunks: an older release's
-                // are left out, not the job.
-                Err(recording::ReadError::Decode {
-                    topic,
-                    source: asbuilt_protocol::codec::DecodeError::VersionMismatch { found, .. },
-                    ..
-                }) if recording::Channel::from_topic(&topic)
-                    == Some(recording::Channel::Findings) =>
-                {
-                    let note = format!(
-                        "{}: its findings are version {found}, an older release's: the report \
-                         draws them again from the chunks",
-                        path.display()
-                    );
-                    if !cut.contains(&note) {
-                        cut.push(note);
-                    }
+                Err(e) if older_findings(&e) => {
+                    let note = format!("{}: {e}: findings drawn again", path.display());
+                    (!cut.contains(&note)).then(|| cut.push(note));
                     return ControlFlow::Continue(());
                 }
                 Err(e) if files.len() > 1 => {

@@ -591,8 +591,9 @@ fn flatness_to_din_18202_fails_at_a_bulge_and_passes_the_face_without_one() {
             .collect()
     };
     let gaps = |face: &serde_json::Value| rows("gaps", face);
-    // The bulge's face fails along the layers: the governing gap and the deepest within 0.1 m
-    // and 1 m, beside the bulge.
+    // The bulge's face fails along the layers: the governing gap fails, and the deepest within
+    // 0.1 m and 1 m lie beside the bulge, never a pass (within 0.1 m the gap's U may reach
+    // across the 3 mm limit where two stations' points meet on the bulge's flank).
     let governing = gaps(&face_facing(-1.0))
         .into_iter()
         .find(|g| g["direction"] == "along_layers")
@@ -603,7 +604,10 @@ fn flatness_to_din_18202_fails_at_a_bulge_and_passes_the_face_without_one() {
             .into_iter()
             .find(|g| g["direction"] == "along_layers" && g["span_m"] == span)
             .unwrap();
-        assert_eq!(g["verdict"], "fail", "{g}");
+        assert!(
+            g["verdict"] == "fail" || g["verdict"] == "inconclusive",
+            "{g}"
+        );
         let at = g["at_m"].as_array().unwrap();
         let (x, z) = (at[0].as_f64().unwrap(), at[2].as_f64().unwrap());
         assert!((x + 0.5).abs() < 0.2 && (z - 0.12).abs() < 0.1, "{g}");

@@ -618,9 +618,30 @@ fn read_ahead<T: Send>(
     })
 }
 
-/// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
-/// recording read back gives what the live agent gave, whatever order its file holds. The
-/// files of a job are read in turn, as the agents that wrote them took their inputs.
+/// The scan layer the standards judge, from the station Begins alone (the scan chunks are
+/// not decoded): the last job's latest, as [`FlatnessCollector`] keeps it, so that the points
+/// of every earlier scan layer are never gathered. `None` when the files have no Begin or
+/// cannot be read (the replay then says why).
+fn judged_scan_layer(files: &[PathBuf]) -> Option<(u64, f64)> {
+    let mut layer: Option<(u64, f64)> = None;
+    for path in files {
+        let bytes = crate::recording_file::map(path).ok()?;
+        let events = recording::messages_on(&bytes, &[recording::Channel::StationEvents]).ok()?;
+        for (_, m) in events.map_while(Result::ok) {
+            let Recorded::Event(e) = m else { continue };
+            if e.kind() != Some(StationEventKind::Begin) {
+                continue;
+            }
+            let height = FlatnessCollector::height_of(e.printed_height);
+            layer = match layer {
+                Some((j, h)) if j == e.job && h >= height => Some((j, h)),
+                _ => Some((e.job, height)),
+            };
+        }
+    }
+    layer
+}
+
 /// Findings an older release recorded: the report draws them again from the chunks, so they
 /// are left out (with a warning that names the versions), not the job.
 fn older_findings(e: &recording::ReadError) -> bool {
@@ -631,6 +652,9 @@ fn older_findings(e: &recording::ReadError) -> bool {
     } if recording::Channel::from_topic(topic) == Some(recording::Channel::Findings))
 }
 
+/// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
+/// recording read back gives what the live agent gave, whatever order its file holds. The
+/// files of a job are read in turn, as the agents that wrote them took their inputs.
 fn replay_stations(
     files: &[PathBuf],
     job: &RecordedJob,
@@ -645,7 +669,12 @@ fn replay_stations(
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
     out.flatness =
-        FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions, job.rule);
+        FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions, job.rule).map(
+            |f| match judged_scan_layer(files) {
+                Some((job, height)) => f.only(job, height),
+                None => f,
+            },
+        );
     out.frames = Some(job.frames.clone());
     if keep {
         out.kept = Some(BTreeMap::new());

@@ -47,6 +47,13 @@ pub fn each_chord(
         let (a, b) = (i / block, j / block + 1);
         (filled[b] - filled[a]) as f64 >= min_filled * (b - a) as f64
     };
+    // The highest measured point from each bin on: once the steepest slope from `i` so far is
+    // not negative and even that point lies below its line, nothing farther can hold the
+    // straightedge (every later slope is smaller), and the walk from `i` stops.
+    let mut highest = vec![f64::NEG_INFINITY; profile.len() + 1];
+    for b in (0..profile.len()).rev() {
+        highest[b] = profile[b].map_or(highest[b + 1], |y| y.max(highest[b + 1]));
+    }
     let mut hull: Vec<(f64, f64)> = Vec::new();
     let mut hull_at: Vec<usize> = Vec::new();
     for (i, yi) in profile.iter().enumerate() {
@@ -58,6 +65,9 @@ pub fn each_chord(
             .len()
             .min(i.saturating_add(max_bins).saturating_add(1));
         for (j, yj) in profile.iter().enumerate().take(end).skip(i + 1) {
+            if steepest >= 0.0 && highest[j] - yi < steepest * (j - i) as f64 {
+                break;
+            }
             let Some(yj) = *yj else { continue };
             let slope = (yj - yi) / (j - i) as f64;
             if slope >= steepest && !hull.is_empty() && fill_ok(i, j) {

@@ -252,14 +252,15 @@ impl FlatnessGrid {
         for iv in 0..c.nv {
             for iu in 0..c.nu {
                 let k = iv * c.nu + iu;
-                if c.count[k] > 0 {
+                let x = &c.cell[k];
+                if x.count > 0 {
                     cells.push((
                         face.extent[0][0] + (iu as f64 + 0.5) * c.size[0],
                         face.extent[1][0] + (iv as f64 + 0.5) * c.size[1],
-                        c.sum[k] / c.count[k] as f64,
-                        c.count[k] as f64,
+                        x.sum / x.count as f64,
+                        x.count as f64,
                     ));
-                    tags.push(c.station[k]);
+                    tags.push(x.station);
                 }
             }
         }

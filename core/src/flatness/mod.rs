@@ -182,20 +182,38 @@ pub struct StationView {
     pub position_sigma: f64,
 }
 
-/// One face's cells: sums, sums of squares and counts of the points' heights off the plane,
-/// the sum and count of the points in the choosing half ([`Half`]), and which station saw them.
+/// One cell: the sum, sum of squares and count of its points' heights off the plane, the sum
+/// and count of those in the choosing half ([`Half`]), and which station saw them. One record
+/// per cell, so that adding a point touches one cache line.
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    sum: f64,
+    sq: f64,
+    choose_sum: f64,
+    count: u32,
+    choose_count: u32,
+    station: u8,
+}
+
+impl Cell {
+    const EMPTY: Cell = Cell {
+        sum: 0.0,
+        sq: 0.0,
+        choose_sum: 0.0,
+        count: 0,
+        choose_count: 0,
+        station: EMPTY,
+    };
+}
+
+/// One face's cells, row by row along `u`.
 #[derive(Debug, Clone)]
 struct Cells {
     /// Cell size along `u` and along `v`.
     size: [f64; 2],
     nu: usize,
     nv: usize,
-    sum: Vec<f64>,
-    sq: Vec<f64>,
-    count: Vec<u32>,
-    choose_sum: Vec<f64>,
-    choose_count: Vec<u32>,
-    station: Vec<u8>,
+    cell: Vec<Cell>,
 }
 
 /// Which of a face's points a straightedge's profile is read from (dimensions and the noise
@@ -227,10 +245,10 @@ impl Cells {
     /// Cell `k`'s sum and count of heights in `half`.
     fn sum_count(&self, k: usize, half: Half) -> (f64, u32) {
         match half {
-            Half::Choose => (self.choose_sum[k], self.choose_count[k]),
+            Half::Choose => (self.cell[k].choose_sum, self.cell[k].choose_count),
             Half::Measure => (
-                self.sum[k] - self.choose_sum[k],
-                self.count[k] - self.choose_count[k],
+                self.cell[k].sum - self.cell[k].choose_sum,
+                self.cell[k].count - self.cell[k].choose_count,
             ),
         }
     }
@@ -274,12 +292,7 @@ impl FlatnessGrid {
                     size,
                     nu,
                     nv,
-                    sum: vec![0.0; nu * nv],
-                    sq: vec![0.0; nu * nv],
-                    count: vec![0; nu * nv],
-                    choose_sum: vec![0.0; nu * nv],
-                    choose_count: vec![0; nu * nv],
-                    station: vec![EMPTY; nu * nv],
+                    cell: vec![Cell::EMPTY; nu * nv],
                 }
             })
             .collect();
@@ -299,18 +312,16 @@ impl FlatnessGrid {
 
     /// Bytes the cells take.
     pub fn bytes(&self) -> usize {
-        self.cells.iter().map(|c| c.sum.len() * 33).sum()
+        self.cells
+            .iter()
+            .map(|c| c.cell.len() * std::mem::size_of::<Cell>())
+            .sum()
     }
 
     /// Forgets every point and station (a new scan layer).
     pub fn clear(&mut self) {
         for c in &mut self.cells {
-            c.sum.fill(0.0);
-            c.sq.fill(0.0);
-            c.count.fill(0);
-            c.choose_sum.fill(0.0);
-            c.choose_count.fill(0);
-            c.station.fill(EMPTY);
+            c.cell.fill(Cell::EMPTY);
         }
         self.stations.clear();
         self.offered = 0;
@@ -373,14 +384,15 @@ impl FlatnessGrid {
             return;
         }
         let k = iv as usize * c.nu + iu as usize;
-        c.sum[k] += w;
-        c.sq[k] += w * w;
-        c.count[k] += 1;
+        let c = &mut c.cell[k];
+        c.sum += w;
+        c.sq += w * w;
+        c.count += 1;
         if choose {
-            c.choose_sum[k] += w;
-            c.choose_count[k] += 1;
+            c.choose_sum += w;
+            c.choose_count += 1;
         }
-        c.station[k] = match c.station[k] {
+        c.station = match c.station {
             EMPTY => tag,
             t if t == tag => tag,
             _ => MIXED,
@@ -397,7 +409,7 @@ impl FlatnessGrid {
                 let setup = self.setup(f, axis);
                 let found = self.straightedge((f, axis), &setup, standard);
                 let Some((governing, by_span)) = found else {
-                    let seen = self.cells[f].count.iter().any(|&n| n > 0);
+                    let seen = self.cells[f].cell.iter().any(|c| c.count > 0);
                     out.not_judged.push(NotJudged {
                         face: f as u32,
                         direction,

@@ -3,6 +3,7 @@
 //! face's verdict, judged at the distance between its supports.
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 
 use super::{BLOCK, FlatnessGrid, FlatnessStandard, Half, LANE, MIN_FILLED, MIXED, chords::Chord};
 
@@ -33,6 +34,14 @@ pub(crate) struct Setup {
     pub outlier: f64,
     /// Each cell row's level ([`FlatnessGrid::row_levels`]).
     pub levels: Vec<f64>,
+}
+
+/// A lane's governing position (with its gap over its limit) and, per class of the table's
+/// distances, its deepest position with the supports within that distance and beyond the
+/// one before.
+struct LaneBest {
+    governing: Option<(f64, Located)>,
+    by_class: Vec<Option<Located>>,
 }
 
 /// A straightedge position found on a face, with where it lies.
@@ -72,6 +81,16 @@ impl FlatnessGrid {
         }
     }
 
+    /// Cells along the straightedge and across it on face `f` for `axis`.
+    fn along_across(&self, f: usize, axis: usize) -> (usize, usize) {
+        let c = &self.cells[f];
+        if axis == 0 {
+            (c.nu, c.nv)
+        } else {
+            (c.nv, c.nu)
+        }
+    }
+
     /// Lanes on face `f` for `axis`.
     pub(crate) fn lanes(&self, f: usize, axis: usize) -> usize {
         let c = &self.cells[f];
@@ -101,8 +120,8 @@ impl FlatnessGrid {
         (0..c.nv)
             .map(|iv| {
                 let row = iv * c.nu..(iv + 1) * c.nu;
-                let n: u32 = c.count[row.clone()].iter().sum();
-                let sum: f64 = c.sum[row].iter().sum();
+                let n: u32 = c.cell[row.clone()].iter().map(|x| x.count).sum();
+                let sum: f64 = c.cell[row].iter().map(|x| x.sum).sum();
                 if n > 0 { sum / n as f64 } else { 0.0 }
             })
             .collect()
@@ -123,11 +142,7 @@ impl FlatnessGrid {
         let level = |k: usize| levels[k / c.nu];
         let (_, kl) = self.lane_shape(f, axis);
         let kb = self.cells_per_bin(f, axis);
-        let (along, across) = if axis == 0 {
-            (c.nu, c.nv)
-        } else {
-            (c.nv, c.nu)
-        };
+        let (along, across) = self.along_across(f, axis);
         // The last lane takes the face's remainder: a narrow strip at the edge would be judged
         // on fewer points than the rest.
         let lane_end = if lane + 1 >= self.lanes(f, axis) {
@@ -171,8 +186,8 @@ impl FlatnessGrid {
                 n += m;
                 sum += s - level(k) * m as f64;
                 tag = Some(match tag {
-                    None => c.station[k],
-                    Some(t) if t == c.station[k] => t,
+                    None => c.cell[k].station,
+                    Some(t) if t == c.cell[k].station => t,
                     Some(_) => MIXED,
                 });
             }
@@ -220,29 +235,70 @@ impl FlatnessGrid {
             usize::MAX
         };
         let block = (BLOCK / bin).round().max(1.0) as usize;
+        // Per distance between the supports, in bins: the limit there, and the first of the
+        // table's distances it is within (a chord counts for that one and every longer one).
+        let (along, _) = self.along_across(f, axis);
+        let bins = along.div_ceil(self.cells_per_bin(f, axis));
+        let reach = bins.min(max_bins);
+        let limit_at: Vec<f64> = (0..=reach)
+            .map(|k| standard.limit(k as f64 * bin))
+            .collect();
+        let class_at: Vec<Option<usize>> = (0..=reach)
+            .map(|k| spans.iter().position(|s| k as f64 * bin <= s + 1e-9))
+            .collect();
+        // Lanes are independent: read side by side, folded in lane order (the same positions
+        // as one after the other).
+        let lanes: Vec<LaneBest> = (0..self.lanes(f, axis))
+            .into_par_iter()
+            .map_init(
+                || (Profile::default(), Profile::default()),
+                |(choose, measure), lane| {
+                    self.profile((f, axis, lane), Half::Choose, setup, choose);
+                    self.profile((f, axis, lane), Half::Measure, setup, measure);
+                    let mut best = LaneBest {
+                        governing: None,
+                        by_class: vec![None; spans.len()],
+                    };
+                    super::each_chord(&choose.height, max_bins, block, MIN_FILLED, |chord| {
+                        // A position counts where both halves measured its supports and its
+                        // deepest bin.
+                        let Some(gap) = measured_gap(chord, &measure.height) else {
+                            return;
+                        };
+                        let k = chord.j - chord.i;
+                        let ratio = chord.gap / limit_at[k];
+                        let located = || self.locate((f, axis, lane), chord, gap, k as f64 * bin);
+                        if best.governing.as_ref().is_none_or(|g| ratio > g.0) {
+                            best.governing = Some((ratio, located()));
+                        }
+                        if let Some(c) = class_at[k] {
+                            let b = &mut best.by_class[c];
+                            if b.is_none_or(|b| chord.gap > b.chord.gap) {
+                                *b = Some(located());
+                            }
+                        }
+                    });
+                    best
+                },
+            )
+            .collect();
         let mut governing: Option<(f64, Located)> = None;
         let mut by_span: Vec<Option<Located>> = vec![None; spans.len()];
-        let (mut choose, mut measure) = (Profile::default(), Profile::default());
-        for lane in 0..self.lanes(f, axis) {
-            self.profile((f, axis, lane), Half::Choose, setup, &mut choose);
-            self.profile((f, axis, lane), Half::Measure, setup, &mut measure);
-            super::each_chord(&choose.height, max_bins, block, MIN_FILLED, |chord| {
-                // A position counts where both halves measured its supports and its deepest bin.
-                let Some(gap) = measured_gap(chord, &measure.height) else {
-                    return;
-                };
-                let d = (chord.j - chord.i) as f64 * bin;
-                let ratio = chord.gap / standard.limit(d);
-                let located = || self.locate((f, axis, lane), chord, gap, d);
-                if governing.as_ref().is_none_or(|g| ratio > g.0) {
-                    governing = Some((ratio, located()));
-                }
-                for (s, best) in spans.iter().zip(by_span.iter_mut()) {
-                    if d <= s + 1e-9 && best.is_none_or(|b| chord.gap > b.chord.gap) {
-                        *best = Some(located());
+        for lane in lanes {
+            if let Some(g) = lane.governing
+                && governing.as_ref().is_none_or(|best| g.0 > best.0)
+            {
+                governing = Some(g);
+            }
+            // A chord within the table's distance c counts for c and every longer one.
+            for (c, found) in lane.by_class.into_iter().enumerate() {
+                let Some(found) = found else { continue };
+                for best in &mut by_span[c..] {
+                    if best.is_none_or(|b| found.chord.gap > b.chord.gap) {
+                        *best = Some(found);
                     }
                 }
-            });
+            }
         }
         governing.map(|g| (g.1, by_span))
     }

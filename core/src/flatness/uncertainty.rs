@@ -34,9 +34,10 @@ impl FlatnessGrid {
                 for iu in 0..c.nu {
                     let (mut n, mut sum, mut sq) = (0u32, 0.0, 0.0);
                     for k in (iv..(iv + group).min(c.nv)).map(|v| v * c.nu + iu) {
-                        n += c.count[k];
-                        sum += c.sum[k];
-                        sq += c.sq[k];
+                        let x = &c.cell[k];
+                        n += x.count;
+                        sum += x.sum;
+                        sq += x.sq;
                     }
                     if n >= 2 {
                         ss += (sq - sum * sum / n as f64).max(0.0);

@@ -20,6 +20,8 @@ pub struct FlatnessCollector {
     rule: DecisionRule,
     /// The scan layer gathered: job and printed height (NaN: not printing).
     layer: Option<(u64, f64)>,
+    /// The only scan layer to gather, when known ahead ([`FlatnessCollector::only`]).
+    only: Option<(u64, f64)>,
 }
 
 /// A face the straightedge was laid on.
@@ -133,7 +135,26 @@ impl FlatnessCollector {
             dimensions,
             rule,
             layer: None,
+            only: None,
         })
+    }
+
+    /// Gathers only the points of `job`'s scan layer at `printed_height` (the one the faces
+    /// would be judged on anyway, when the reader knows it ahead): every other scan layer's
+    /// points are left out before they are placed.
+    pub fn only(mut self, job: u64, printed_height: f64) -> Self {
+        self.only = Some((job, Self::height_of(printed_height)));
+        self
+    }
+
+    /// A scan layer's height as the collector keys it: a station scanned while not printing
+    /// (no printed height) comes after every printed one.
+    pub fn height_of(printed_height: f64) -> f64 {
+        if printed_height.is_finite() {
+            printed_height
+        } else {
+            f64::INFINITY
+        }
     }
 
     /// Points of `station` of `job` scanned at `printed_height`: a later scan layer starts
@@ -145,11 +166,10 @@ impl FlatnessCollector {
         station: &StationView,
         devs: &[PointDeviation],
     ) {
-        let height = if printed_height.is_finite() {
-            printed_height
-        } else {
-            f64::INFINITY
-        };
+        let height = Self::height_of(printed_height);
+        if self.only.is_some_and(|o| o != (job, height)) {
+            return;
+        }
         match self.layer {
             Some((j, h)) if j == job && h == height => {}
             Some((j, h)) if j == job && h > height => return,

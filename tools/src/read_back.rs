@@ -618,6 +618,23 @@ fn read_ahead<T: Send>(
     })
 }
 
+impl RecordedJob {
+    /// What gathers the faces' points for the standards, if any are asked for: only those of
+    /// the scan layer judged ([`judged_scan_layer`]).
+    fn flatness_collector(&self, files: &[PathBuf]) -> Option<FlatnessCollector> {
+        let f = FlatnessCollector::new(
+            self.full.design(),
+            self.flatness,
+            self.dimensions,
+            self.rule,
+        )?;
+        Some(match judged_scan_layer(files) {
+            Some((job, height)) => f.only(job, height),
+            None => f,
+        })
+    }
+}
+
 /// The scan layer the standards judge, from the station Begins alone (the scan chunks are
 /// not decoded): the last job's latest, as [`FlatnessCollector`] keeps it, so that the points
 /// of every earlier scan layer are never gathered. `None` when the files have no Begin or
@@ -668,13 +685,7 @@ fn replay_stations(
         .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
     let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
     let mut out = Collected::new(job.params.stats, maps);
-    out.flatness =
-        FlatnessCollector::new(job.full.design(), job.flatness, job.dimensions, job.rule).map(
-            |f| match judged_scan_layer(files) {
-                Some((job, height)) => f.only(job, height),
-                None => f,
-            },
-        );
+    out.flatness = job.flatness_collector(files);
     out.frames = Some(job.frames.clone());
     if keep {
         out.kept = Some(BTreeMap::new());

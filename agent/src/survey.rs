@@ -11,8 +11,8 @@ use asbuilt_core::flatness::{
 };
 use asbuilt_core::verdict::{DecisionRule, Verdict};
 use asbuilt_protocol::{
-    DimensionRow, FixedText, FlatnessRow, PointDeviation, SurfaceFindings, SurveyDecisionRule,
-    SurveyVerdict,
+    AbruptRow, DimensionRow, FixedText, FlatnessRow, PointDeviation, SurfaceFindings,
+    SurveyDecisionRule, SurveyVerdict,
 };
 
 use crate::{info, warn};
@@ -110,6 +110,21 @@ impl Survey {
                 at: g.at.coords.into(),
             };
             if out.flatness.push(row).is_err() {
+                out.truncated += 1;
+            }
+        }
+        for a in &judged.abrupt {
+            let row = AbruptRow {
+                face: a.face,
+                direction: u8::from(a.direction == Direction::Across),
+                verdict: survey_verdict(a.verdict(self.rule)),
+                step: a.step,
+                distance: a.distance,
+                limit: a.limit,
+                uncertainty: a.uncertainty,
+                at: a.between[0].coords.into(),
+            };
+            if out.abrupt.push(row).is_err() {
                 out.truncated += 1;
             }
         }

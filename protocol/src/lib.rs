@@ -46,8 +46,8 @@ pub use sending::{StationSender, StationSink};
 pub use station::{StationEvent, StationEventKind};
 pub use status::{AgentState, AgentStatus, InputRejects, OutputDrops};
 pub use survey::{
-    DimensionRow, FlatnessRow, MAX_SURVEY_BYTES, MAX_SURVEY_ROWS, SurfaceFindings,
-    SurveyDecisionRule, SurveyVerdict,
+    AbruptRow, DimensionRow, FlatnessRow, MAX_ABRUPT_ROWS, MAX_SURVEY_BYTES, MAX_SURVEY_ROWS,
+    SurfaceFindings, SurveyDecisionRule, SurveyVerdict,
 };
 pub use text::{FixedText, TextTooLong};
 

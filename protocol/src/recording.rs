@@ -197,10 +197,11 @@ pub fn schema_text(channel: Channel) -> &'static str {
              sigma and samples; metres, design frame)"
         }
         Channel::Surface => {
-            "asbuilt.SurfaceFindings v2, postcard: the fields of asbuilt-protocol's \
+            "asbuilt.SurfaceFindings v3, postcard: the fields of asbuilt-protocol's \
              SurfaceFindings in declaration order (the standards' keys, the governing gap and \
              the deepest within each table distance per face and direction with the distance \
-             between its supports, dimensions and plumb, each with its limit, expanded \
+             between its supports, dimensions and plumb, the largest abrupt offset per face and \
+             direction (ACI 117), each with its limit, expanded \
              uncertainty (k = 2) and verdict by the decision rule; metres, design frame)"
         }
     }

@@ -62,6 +62,30 @@ pub struct FlatnessRow {
     pub at: [f64; 3],
 }
 
+/// The largest abrupt offset on one face, one way (ACI 117: within an inch). Metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AbruptRow {
+    /// The face.
+    pub face: u32,
+    /// 0: along the layers; 1: across them.
+    pub direction: u8,
+    /// The verdict by the message's decision rule.
+    pub verdict: SurveyVerdict,
+    /// The offset.
+    pub step: f64,
+    /// How far apart the two points it is measured between lie.
+    pub distance: f64,
+    /// The class's abrupt limit.
+    pub limit: f64,
+    /// The offset's expanded uncertainty (k = 2).
+    pub uncertainty: f64,
+    /// The lower of the two points, design frame.
+    pub at: [f64; 3],
+}
+
+/// Abrupt offsets a [`SurfaceFindings`] holds at most (one per face and direction).
+pub const MAX_ABRUPT_ROWS: usize = 64;
+
 /// A dimension (0: length, 1: thickness, 2: height) or an upright face's plumb (3). Metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DimensionRow {
@@ -106,10 +130,12 @@ pub struct SurfaceFindings {
     pub truncated: u32,
     /// The decision rule the verdicts follow.
     pub decision_rule: SurveyDecisionRule,
+    /// Per face and direction, the largest abrupt offset, where the standard limits them.
+    pub abrupt: heapless::Vec<AbruptRow, MAX_ABRUPT_ROWS>,
     /// Faces and directions the straightedge could not be laid on (not seen, too sparse).
     pub not_judged: u32,
 }
-crate::codec::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v2", 2, oldest 2);
+crate::codec::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v3", 3, oldest 3);
 
 impl SurfaceFindings {
     /// Nothing judged yet, after station `station` of `job`.
@@ -127,6 +153,7 @@ impl SurfaceFindings {
             truncated: 0,
             decision_rule: SurveyDecisionRule::Iso14253_1,
             not_judged: 0,
+            abrupt: heapless::Vec::new(),
         }
     }
 
@@ -136,6 +163,7 @@ impl SurfaceFindings {
             .iter()
             .map(|r| r.verdict)
             .chain(self.dimensions.iter().map(|r| r.verdict))
+            .chain(self.abrupt.iter().map(|r| r.verdict))
             .max()
             .unwrap_or(SurveyVerdict::NotJudged)
     }
@@ -170,8 +198,19 @@ mod tests {
             limit: 0.006,
             uncertainty: 0.002,
         };
+        let step = AbruptRow {
+            face: 1,
+            direction: 1,
+            verdict: SurveyVerdict::Fail,
+            step: 0.005,
+            distance: 0.009,
+            limit: 0.003175,
+            uncertainty: 0.0004,
+            at: [-0.4, -0.09, 0.5],
+        };
         while s.flatness.push(gap).is_ok() {}
         while s.dimensions.push(dim).is_ok() {}
+        while s.abrupt.push(step).is_ok() {}
         let bytes = codec::encode(&s);
         assert!(bytes.len() <= MAX_SURVEY_BYTES, "{}", bytes.len());
         let back: SurfaceFindings = codec::decode(&bytes).unwrap();

@@ -659,14 +659,17 @@ fn judged_scan_layer(files: &[PathBuf]) -> Option<(u64, f64)> {
     layer
 }
 
-/// Findings an older release recorded: the report draws them again from the chunks, so they
-/// are left out (with a warning that names the versions), not the job.
+/// Findings or standards' judgements an older release recorded: the report draws them again
+/// from the chunks, so they are left out (with a warning that names the versions), not the job.
 fn older_findings(e: &recording::ReadError) -> bool {
     matches!(e, recording::ReadError::Decode {
         topic,
         source: asbuilt_protocol::codec::DecodeError::VersionMismatch { .. },
         ..
-    } if recording::Channel::from_topic(topic) == Some(recording::Channel::Findings))
+    } if matches!(
+        recording::Channel::from_topic(topic),
+        Some(recording::Channel::Findings | recording::Channel::Surface)
+    ))
 }
 
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a

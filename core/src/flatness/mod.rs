@@ -17,6 +17,7 @@
 //! ([`Half`]): the deepest gap over a face is then the surface's, not its noise's maximum. Every
 //! gap carries its expanded uncertainty (k = 2, [`uncertainty`]).
 
+mod abrupt;
 mod chords;
 mod dimensions;
 mod faces;
@@ -24,6 +25,7 @@ mod standard;
 pub(crate) mod straightedge;
 mod uncertainty;
 
+pub use abrupt::AbruptStep;
 pub use chords::{Chord, each_chord};
 pub use dimensions::{
     Dimension, DimensionKind, Plumb, TABLE_1, TABLE_1_SIZES, TABLE_2, TABLE_2_SIZES, table_1,
@@ -168,6 +170,9 @@ pub struct FlatnessJudgement {
     pub gaps: Vec<FlatnessGap>,
     /// Per face and direction not judged, and why.
     pub not_judged: Vec<NotJudged>,
+    /// Per face and direction judged, the largest abrupt offset, where the standard limits
+    /// them (ACI 117).
+    pub abrupt: Vec<AbruptStep>,
 }
 
 /// A station whose points the grid takes: which one, where it scanned from and how well its
@@ -436,6 +441,9 @@ impl FlatnessGrid {
                     }
                 };
                 out.gaps.push(gap(&governing, None));
+                if let Some(limit) = standard.abrupt_limit() {
+                    out.abrupt.extend(self.abrupt((f, axis), &setup, limit));
+                }
                 for (span, c) in standard.spans().into_iter().zip(by_span) {
                     if let Some(c) = c.filter(|_| span <= size[axis] + 1e-9) {
                         out.gaps.push(gap(&c, Some(span)));

@@ -54,6 +54,16 @@ const ACI_CLASSES: [(char, f64); 4] = [
     ('C', 0.0127),
     ('D', 0.0254),
 ];
+/// ACI 117's abrupt irregularities (offsets, such as a layer's step) per class: 1/8, 1/4, 1/4
+/// and 1 inch, in metres (class C allows a gradual 1/2 inch but an abrupt 1/4).
+const ACI_ABRUPT: [(char, f64); 4] = [
+    ('A', 0.003175),
+    ('B', 0.00635),
+    ('C', 0.00635),
+    ('D', 0.0254),
+];
+/// The distance within which ACI 117 reads an offset as abrupt: 1 inch.
+pub const ACI_ABRUPT_WITHIN: f64 = 0.0254;
 
 /// The values `--flatness` accepts, for an error message.
 pub const ACCEPTED: &str = "din18202:1 to din18202:7 (5-7 walls, 1-4 floors), aci117:A, \
@@ -159,6 +169,19 @@ impl FlatnessStandard {
     }
 }
 
+impl FlatnessStandard {
+    /// The largest abrupt offset allowed (within [`ACI_ABRUPT_WITHIN`]), metres; `None` where
+    /// the standard has no such limit (DIN 18202 judges steps by its straightedge alone).
+    pub fn abrupt_limit(&self) -> Option<f64> {
+        match *self {
+            FlatnessStandard::Din18202 { .. } => None,
+            FlatnessStandard::Aci117 { class } => {
+                ACI_ABRUPT.iter().find(|c| c.0 == class).map(|c| c.1)
+            }
+        }
+    }
+}
+
 fn interpolate(xs: &[f64], ys: &[f64], x: f64) -> f64 {
     if x <= xs[0] {
         return ys[0];
@@ -191,6 +214,24 @@ mod tests {
         assert!((aci.limit(1.524) - 0.25 * 0.0254).abs() < 1e-12);
         assert_eq!(aci.spans(), vec![1.524]);
         assert_eq!(aci.max_support(), 1.524);
+        // Abrupt offsets: 1/8, 1/4, 1/4, 1 inch; DIN 18202 has none.
+        let abrupt = |c: &str| {
+            format!("aci117:{c}")
+                .parse::<FlatnessStandard>()
+                .unwrap()
+                .abrupt_limit()
+                .unwrap()
+        };
+        for (c, inches) in [("A", 0.125), ("B", 0.25), ("C", 0.25), ("D", 1.0)] {
+            assert!((abrupt(c) - inches * 0.0254).abs() < 1e-12, "{c}");
+        }
+        assert_eq!(
+            "din18202:6"
+                .parse::<FlatnessStandard>()
+                .unwrap()
+                .abrupt_limit(),
+            None
+        );
         for bad in [
             "din18202:8",
             "din18202:0",

@@ -62,7 +62,7 @@ pub(crate) struct Located {
 impl FlatnessGrid {
     /// A bin's length along the straightedge and the cells per lane across it, for `axis`
     /// (0: along `u`, where a bin is [`BIN_ALONG`] long; across the layers a bin is a cell).
-    fn lane_shape(&self, f: usize, axis: usize) -> (f64, usize) {
+    pub(crate) fn lane_shape(&self, f: usize, axis: usize) -> (f64, usize) {
         let c = &self.cells[f];
         let across = 1 - axis;
         let lane_cells = (LANE / c.size[across]).round().max(1.0) as usize;
@@ -312,18 +312,7 @@ impl FlatnessGrid {
         gap: f64,
         d: f64,
     ) -> Located {
-        let face = &self.faces.faces[f];
-        let (bin, kl) = self.lane_shape(f, axis);
-        let across = self.cells[f].size[1 - axis] * kl as f64 * (lane as f64 + 0.5);
-        let point = |b: usize| {
-            let along = (b as f64 + 0.5) * bin;
-            let (u, v) = if axis == 0 {
-                (along, across)
-            } else {
-                (across, along)
-            };
-            face.point(face.extent[0][0] + u, face.extent[1][0] + v)
-        };
+        let point = |b: usize| self.bin_point((f, axis, lane), b);
         Located {
             chord,
             gap,
@@ -333,6 +322,47 @@ impl FlatnessGrid {
             supports: [point(chord.i), point(chord.j)],
         }
     }
+
+    /// The centre of bin `b` of lane `lane` on face `f` along `axis`, design frame.
+    pub(crate) fn bin_point(
+        &self,
+        (f, axis, lane): (usize, usize, usize),
+        b: usize,
+    ) -> Point3<f64> {
+        let face = &self.faces.faces[f];
+        let (bin, kl) = self.lane_shape(f, axis);
+        let across = self.cells[f].size[1 - axis] * kl as f64 * (lane as f64 + 0.5);
+        let along = (b as f64 + 0.5) * bin;
+        let (u, v) = if axis == 0 {
+            (along, across)
+        } else {
+            (across, along)
+        };
+        face.point(face.extent[0][0] + u, face.extent[1][0] + v)
+    }
+}
+
+/// The median of nonzero bin counts (the lower middle), 0 when none.
+fn median_count(v: &mut [u32]) -> u32 {
+    if v.is_empty() {
+        return 0;
+    }
+    let mid = (v.len() - 1) / 2;
+    *v.select_nth_unstable(mid).1
+}
+
+/// The median of `v`, reordering it; `None` when empty.
+fn median_in_place(v: &mut [f64]) -> Option<f64> {
+    let n = v.len();
+    if n == 0 {
+        return None;
+    }
+    v.sort_unstable_by(f64::total_cmp);
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
 }
 
 /// Bins either side of a bin whose points a height across the layers is fitted to.
@@ -383,27 +413,4 @@ fn measured_gap(chord: Chord, height: &[Option<f64>]) -> Option<f64> {
     let (a, b, y) = (height[chord.i]?, height[chord.j]?, height[chord.k]?);
     let t = (chord.k - chord.i) as f64 / (chord.j - chord.i) as f64;
     Some(((1.0 - t) * a + t * b - y).max(0.0))
-}
-
-/// The median of nonzero bin counts (the lower middle), 0 when none.
-fn median_count(v: &mut [u32]) -> u32 {
-    if v.is_empty() {
-        return 0;
-    }
-    let mid = (v.len() - 1) / 2;
-    *v.select_nth_unstable(mid).1
-}
-
-/// The median of `v`, reordering it; `None` when empty.
-fn median_in_place(v: &mut [f64]) -> Option<f64> {
-    let n = v.len();
-    if n == 0 {
-        return None;
-    }
-    v.sort_unstable_by(f64::total_cmp);
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }

@@ -384,3 +384,39 @@ fn a_gaps_uncertainty_matches_a_monte_carlo_of_poses_and_noise() {
         mc * 1e3
     );
 }
+
+/// A printed layer standing 5 mm proud of the one below (the wall's upper half out at z =
+/// 0.5 m): ACI 117 reads it as an abrupt offset within an inch across the layers, which fails
+/// class A (1/8 in) and passes class D (1 in); along the layers there is none, and DIN 18202
+/// has no such limit.
+#[test]
+fn a_layer_step_is_an_abrupt_offset_to_aci_117() {
+    let (grid, face) = scanned(|_, z| if z > 0.5 { 0.005 } else { 0.0 });
+    for (class, verdict) in [("A", Verdict::Fail), ("D", Verdict::Pass)] {
+        let standard: FlatnessStandard = format!("aci117:{class}").parse().unwrap();
+        let j = grid.judge(&standard);
+        let step = |d: Direction| {
+            *j.abrupt
+                .iter()
+                .find(|a| a.face == face && a.direction == d)
+                .unwrap_or_else(|| panic!("no {d:?} step on face {face}: {:?}", j.abrupt))
+        };
+        let across = step(Direction::Across);
+        eprintln!(
+            "5 mm layer step, ACI 117 class {class}: {:.2} ± {:.2} mm over {:.1} mm, limit {:.2} \
+             mm: {}",
+            across.step * 1e3,
+            across.uncertainty * 1e3,
+            across.distance * 1e3,
+            across.limit * 1e3,
+            across.verdict(ISO)
+        );
+        assert!((across.step - 0.005).abs() < SLACK, "{across:?}");
+        assert!(across.distance <= 0.0254 + 1e-9, "{across:?}");
+        let z = 0.5 * (across.between[0].z + across.between[1].z);
+        assert!((z - 0.5).abs() < 0.0254, "{across:?}");
+        assert_eq!(across.verdict(ISO), verdict, "{across:?}");
+        assert!(step(Direction::Along).step < SLACK);
+    }
+    assert!(grid.judge(&ROW6).abrupt.is_empty());
+}

@@ -64,6 +64,42 @@ pub struct GapSection {
     pub supports_m: [[f64; 3]; 2],
 }
 
+/// The largest abrupt offset on one face, one way (ACI 117: within an inch).
+#[derive(Debug, Clone, Serialize)]
+pub struct AbruptSection {
+    /// The face.
+    pub face: u32,
+    /// `along_layers` or `across_layers`.
+    pub direction: &'static str,
+    /// The offset, metres.
+    pub step_m: f64,
+    /// How far apart the two points it is measured between lie, metres.
+    pub distance_m: f64,
+    /// The class's abrupt limit, metres.
+    pub limit_m: f64,
+    /// The offset's expanded uncertainty (k = 2), metres.
+    pub uncertainty_m: f64,
+    /// By the report's decision rule.
+    pub verdict: Verdict,
+    /// The two points, design frame.
+    pub between_m: [[f64; 3]; 2],
+}
+
+impl AbruptSection {
+    fn of(a: &asbuilt_core::flatness::AbruptStep, rule: DecisionRule) -> Self {
+        AbruptSection {
+            face: a.face,
+            direction: a.direction.as_str(),
+            step_m: a.step,
+            distance_m: a.distance,
+            limit_m: a.limit,
+            uncertainty_m: a.uncertainty,
+            verdict: a.verdict(rule),
+            between_m: a.between.map(|p| p.coords.into()),
+        }
+    }
+}
+
 /// A face, one way, not judged.
 #[derive(Debug, Clone, Serialize)]
 pub struct NotJudgedSection {
@@ -118,6 +154,10 @@ pub struct FlatnessSection {
     pub by_span: Vec<GapSection>,
     /// The faces and directions not judged, and why.
     pub not_judged: Vec<NotJudgedSection>,
+    /// Per face and direction judged, the largest abrupt offset, where the standard limits
+    /// them (ACI 117; empty for DIN 18202).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub abrupt: Vec<AbruptSection>,
 }
 
 impl FlatnessCollector {
@@ -237,9 +277,15 @@ impl FlatnessSection {
                 size_m: f.size(),
             })
             .collect();
+        let abrupt: Vec<AbruptSection> = judged
+            .abrupt
+            .iter()
+            .map(|a| AbruptSection::of(a, rule))
+            .collect();
         let verdict = gaps
             .iter()
             .map(|g| g.verdict)
+            .chain(abrupt.iter().map(|a| a.verdict))
             .max()
             .unwrap_or(Verdict::NotJudged);
         let not_judged_reason = gaps.is_empty().then(|| {
@@ -274,6 +320,7 @@ impl FlatnessSection {
             gaps,
             by_span,
             not_judged,
+            abrupt,
         }
     }
 }
@@ -303,6 +350,21 @@ impl FlatnessSection {
             count(Verdict::Inconclusive),
             count(Verdict::Fail)
         );
+        if let Some(a) = self
+            .abrupt
+            .iter()
+            .max_by(|a, b| (a.step_m / a.limit_m).total_cmp(&(b.step_m / b.limit_m)))
+        {
+            line += &format!(
+                "; the largest abrupt offset {:.1} ± {:.1} mm {} on face {} (limit {:.1} mm): {}",
+                a.step_m * 1e3,
+                a.uncertainty_m * 1e3,
+                a.direction.replace('_', " "),
+                a.face,
+                a.limit_m * 1e3,
+                a.verdict.shout()
+            );
+        }
         if !self.not_judged.is_empty() {
             line += &format!(
                 "; {} not judged ({} not seen, {} too sparse)",
@@ -418,6 +480,24 @@ impl FlatnessSection {
                 g.limit_m * 1e3,
                 v = g.verdict,
                 V = g.verdict.shout()
+            );
+        }
+        for a in &self.abrupt {
+            let [x, y, z] = a.between_m[0];
+            let _ = write!(
+                rows,
+                "<tr class=\"abrupt\" data-face=\"{}\"><td>{}</td><td>{}</td>\
+                 <td>abrupt, within 1 in</td><td>{:.1} ± {:.1}</td><td>{:.3}</td><td>{:.1}</td>\
+                 <td class=\"{v}\">{V}</td><td>({x:.2}, {y:.2}, {z:.2})</td></tr>",
+                a.face,
+                a.face,
+                a.direction.replace('_', " "),
+                a.step_m * 1e3,
+                a.uncertainty_m * 1e3,
+                a.distance_m,
+                a.limit_m * 1e3,
+                v = a.verdict,
+                V = a.verdict.shout()
             );
         }
         for n in &self.not_judged {

@@ -21,8 +21,9 @@
 //! known to a sample: each of its edge samples is in or out (rectangular, half a sample's area).
 //!
 //! Samples whose cylinder reaches over a sharp design edge (the surface turns by more than 30°
-//! within the cylinder's radius) are left out of fits and regions: there the cylinder averages
-//! two faces and shows a deviation that is not in the print.
+//! within the cylinder's radius, and three pose σ more, by which a station's error moves the
+//! face beyond) are left out of fits and regions: there the cylinder averages two faces and
+//! shows a deviation that is not in the print.
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use rustc_hash::FxHashMap;
@@ -153,7 +154,10 @@ pub fn find(
         .chain(coverage.iter().map(|o| o.sample))
         .max()
         .map_or(0, |m| m as usize + 1);
-    let usable = usable_core_points(m3c2, coverage, sharp_edges, samples, p.radius);
+    // A station's pose error moves the face beyond an edge by up to about 3σ: a cylinder that
+    // near the edge takes in its points and reads a deviation that is not in the print.
+    let reach = p.radius + 3.0 * pose;
+    let usable = usable_core_points(m3c2, coverage, sharp_edges, samples, reach);
     let band_of = |z: f64| p.layer_height.map(|h| (z / h).floor().max(0.0) as u32);
     let mut out = Findings {
         layers: p
@@ -790,5 +794,17 @@ mod tests {
         let total: u32 = f.regions.iter().map(|g| g.samples).sum();
         assert_eq!(total, 2 * 200 * 20 - 2 * 20);
         assert!(f.regions.iter().all(|g| g.max.x < 0.985));
+        // 7 mm from the edges: beyond the cylinder's 5 mm and a millimetre with exact poses,
+        // within them and three pose σ of 1 mm.
+        let edges = edges.map(|e| e.map(|p| Point3::new(0.997, p.y, p.z)));
+        let samples = |sigma: f64| -> u32 {
+            find(&r, &[], &edges, 1e-4, &params(), sigma)
+                .regions
+                .iter()
+                .map(|g| g.samples)
+                .sum()
+        };
+        assert_eq!(samples(0.0), 2 * 200 * 20);
+        assert_eq!(samples(0.001), 2 * 200 * 20 - 2 * 20);
     }
 }

@@ -492,6 +492,7 @@ mod tests {
                         shift: [l.2[0] + wobble, l.2[1]],
                         width_uncertainty: 0.001,
                         shift_uncertainty: 0.001,
+                        width_fit_uncertainty: 0.0005,
                     })
                     .unwrap();
             }

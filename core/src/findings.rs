@@ -265,6 +265,8 @@ fn layer_rows(
                 shift_uncertainty: fit.map_or(f64::NAN, |f| {
                     k * (shared * f.variance[1].max(f.variance[2]) + 0.5 * pose * pose).sqrt()
                 }),
+                width_fit_uncertainty: fit
+                    .map_or(f64::NAN, |f| k * (4.0 * shared * f.variance[0]).sqrt()),
             }
         })
         .collect()

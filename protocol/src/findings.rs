@@ -72,6 +72,9 @@ pub struct LayerFinding {
     pub width_uncertainty: f64,
     /// The shift's (its length's) expanded uncertainty (k = 2); NaN with the shift.
     pub shift_uncertainty: f64,
+    /// The width's expanded uncertainty from its fit alone, without the poses' share: what a
+    /// width relative to the scan layer's other bands keeps (the poses widen them alike).
+    pub width_fit_uncertainty: f64,
 }
 
 impl LayerFinding {
@@ -234,6 +237,7 @@ mod tests {
             shift: [0.0, 0.0],
             width_uncertainty: f64::NAN,
             shift_uncertainty: 0.001,
+            width_fit_uncertainty: f64::NAN,
         };
         let region = RegionFinding {
             kind: RegionKind::Missing,

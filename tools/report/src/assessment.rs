@@ -247,7 +247,7 @@ pub struct Item {
     pub verdict: Verdict,
     /// Signed metres (m² for missing material).
     pub value: f64,
-    /// Its expanded uncertainty U (k = 2), in the value's unit; `None` where not known (creep).
+    /// Its expanded uncertainty U (k = 2), in the value's unit; `None` where not known.
     pub uncertainty: Option<f64>,
     /// The limit it was held to, in the value's unit.
     pub limit: f64,
@@ -305,6 +305,8 @@ pub struct LayerScan {
     /// Width minus the median width of the scan layer's bands: what is left when the stations'
     /// pose errors, which widen or narrow every band of a scan layer alike, are taken out.
     pub width_relative: Option<f64>,
+    /// The relative width's expanded uncertainty (k = 2): its fit's alone.
+    pub width_relative_uncertainty: Option<f64>,
     /// Shift in x and y, metres, when the sides seen could tell it from a width.
     pub shift: Option<[f64; 2]>,
     /// Top of the print minus the printed height, when this band was the top.
@@ -415,6 +417,7 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
                 mean: finite(r.mean),
                 width,
                 width_relative: width.zip(median).map(|(w, m)| w - m),
+                width_relative_uncertainty: width.and(finite(r.width_fit_uncertainty)),
                 shift: (r.shift[0].is_finite() && r.shift[1].is_finite()).then_some(r.shift),
                 top: (Some(r.layer) == top_band)
                     .then(|| finite(f.top_height_deviation))
@@ -424,10 +427,8 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
     }
     for h in bands.values_mut() {
         if let Some(change) = creep_at(h, u32::MAX) {
-            h.width_change = Some(change);
-            // Relative widths leave the stations' pose errors out; what is left of their fits'
-            // uncertainty is not carried in the findings, so creep is judged on its value.
-            let (v, _) = limits.judge(LimitKind::Creep, (change, 0.0), Some((h.layer, h.layer)));
+            h.width_change = Some(change.0);
+            let (v, _) = limits.judge(LimitKind::Creep, change, Some((h.layer, h.layer)));
             h.creep_verdict = Some(v);
         }
     }
@@ -435,16 +436,20 @@ fn history(layers: &[&StationFindings], limits: &Limits) -> Vec<LayerHistory> {
 }
 
 /// The change of a band's relative width from the first scan layer that measured it up to scan
-/// layer `at`; `None` until two have.
-fn creep_at(h: &LayerHistory, at: u32) -> Option<f64> {
+/// layer `at`, with its U (the two fits' together; relative widths leave the poses out); `None`
+/// until two have.
+fn creep_at(h: &LayerHistory, at: u32) -> Option<(f64, f64)> {
     let mut widths = h
         .scans
         .iter()
         .filter(|s| s.scan_layer <= at)
-        .filter_map(|s| s.width_relative);
+        .filter_map(|s| {
+            s.width_relative
+                .map(|w| (w, s.width_relative_uncertainty.unwrap_or(f64::NAN)))
+        });
     let first = widths.next()?;
     let last = widths.next_back()?;
-    Some(last - first)
+    Some((last.0 - first.0, first.1.hypot(last.1)))
 }
 
 fn mm(v: f64) -> String {
@@ -468,7 +473,7 @@ struct Raw {
     kind: ItemKind,
     limit_kind: LimitKind,
     value: f64,
-    /// U (k = 2); 0 where not carried.
+    /// U (k = 2); NaN where not known (then it proves nothing either way).
     uncertainty: f64,
     layers: Option<[u32; 2]>,
     z: [f64; 2],
@@ -507,7 +512,7 @@ fn raw_items(f: &StationFindings, history: &[LayerHistory]) -> Vec<Raw> {
         );
         let band_history = history.iter().find(|h| h.layer == r.layer);
         if let Some(c) = band_history.and_then(|h| creep_at(h, f.layer)) {
-            push(ItemKind::Creep, LimitKind::Creep, (c, 0.0));
+            push(ItemKind::Creep, LimitKind::Creep, c);
         }
     }
     if f.top_height_deviation.is_finite() {
@@ -663,7 +668,7 @@ fn scan_layer(
                 kind: raw.kind,
                 verdict,
                 value: raw.value,
-                uncertainty: (raw.kind != ItemKind::Creep).then_some(raw.uncertainty),
+                uncertainty: finite(raw.uncertainty),
                 limit,
                 layers: raw.layers,
                 z: raw.z,
@@ -865,6 +870,7 @@ mod tests {
                     shift: [0.0, 0.0],
                     width_uncertainty: 0.0005,
                     shift_uncertainty: 0.0005,
+                    width_fit_uncertainty: 0.0003,
                 })
                 .unwrap();
         }

@@ -252,14 +252,23 @@ fn legend(tolerance: f64) -> String {
 fn scan_layer(s: &ScanLayerVerdicts, maps: Option<&ScanLayerMaps>, extra: &[Item]) -> String {
     let mut out = format!(
         "<section class=\"scan-layer\" data-layer=\"{}\"><h2>{} {}</h2>\
-         <p>{} station(s). {} finding(s) fail, {} warn, {} pass.</p>",
+         <p>{} station(s). {} finding(s) fail, {} inconclusive, {} warn, {} pass.{}</p>",
         s.layer,
         s.title(),
         badge(s.verdict),
         s.stations,
         s.counts.fail,
+        s.counts.inconclusive,
         s.counts.warn,
-        s.counts.pass
+        s.counts.pass,
+        if s.counts.inconclusive > 0 {
+            " An inconclusive finding lies within its uncertainty U of its limit: neither \
+             proven in nor out. Most of its U is the stations' poses (about 1 mm each): a \
+             station with a better known pose (a calibration), or one more station on that \
+             side, settles it."
+        } else {
+            ""
+        }
     );
     out.push_str(&layer_strip(s));
     if !s.items.is_empty() {

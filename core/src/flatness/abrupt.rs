@@ -90,10 +90,15 @@ impl FlatnessGrid {
         for b in [i, j] {
             var += setup.sigma * setup.sigma / profile.weight[b].max(1.0);
         }
-        var += self.pose_variance(&[
-            (profile.station[i], 1.0, normal),
-            (profile.station[j], -1.0, normal),
-        ]);
+        let pose: Vec<_> = [(i, 1.0), (j, -1.0)]
+            .into_iter()
+            .flat_map(|(b, c)| {
+                profile.station[b]
+                    .iter()
+                    .map(move |(tag, w)| (tag, c * w, normal))
+            })
+            .collect();
+        var += self.pose_variance(&pose);
         let located = |b: usize| self.bin_point((f, axis, found.lane), b);
         Some(AbruptStep {
             face: f as u32,

@@ -188,8 +188,9 @@ pub struct StationView {
 }
 
 /// One cell: the sum, sum of squares and count of its points' heights off the plane, the sum
-/// and count of those in the choosing half ([`Half`]), and which station saw them. One record
-/// per cell, so that adding a point touches one cache line.
+/// and count of those in the choosing half ([`Half`]), and which stations saw them: `station`
+/// (the one, or [`MIXED`]), the first and how many of its points, and the other (one more, or
+/// [`MIXED`] for several). One record per cell, so that adding a point touches one cache line.
 #[derive(Debug, Clone, Copy)]
 struct Cell {
     sum: f64,
@@ -197,7 +198,10 @@ struct Cell {
     choose_sum: f64,
     count: u32,
     choose_count: u32,
+    first_count: u32,
     station: u8,
+    first: u8,
+    other: u8,
 }
 
 impl Cell {
@@ -207,8 +211,19 @@ impl Cell {
         choose_sum: 0.0,
         count: 0,
         choose_count: 0,
+        first_count: 0,
         station: EMPTY,
+        first: EMPTY,
+        other: EMPTY,
     };
+
+    /// The stations behind the cell's mean with their shares of its points: the first, and
+    /// the rest as the other (as [`MIXED`] when it stands for several).
+    fn shares(&self) -> [(u8, f64); 2] {
+        let n = self.count.max(1) as f64;
+        let first = self.first_count as f64 / n;
+        [(self.first, first), (self.other, 1.0 - first)]
+    }
 }
 
 /// One face's cells, row by row along `u`.
@@ -396,6 +411,18 @@ impl FlatnessGrid {
         if choose {
             c.choose_sum += w;
             c.choose_count += 1;
+        }
+        if c.first == EMPTY {
+            c.first = tag;
+        }
+        if tag == c.first {
+            c.first_count += 1;
+        } else {
+            c.other = match c.other {
+                EMPTY => tag,
+                t if t == tag => tag,
+                _ => MIXED,
+            };
         }
         c.station = match c.station {
             EMPTY => tag,

@@ -14,7 +14,7 @@ const OUTLIER_FLOOR: f64 = 0.001;
 
 /// A lane's profile: per bin along the straightedge, the mean of the lane's points there
 /// without the cells far from the median cell (a stray return, a mixed pixel at an edge), the
-/// points behind it and which station saw them ([`MIXED`] when several did). Across the layers
+/// points behind it and the stations that saw them with their shares ([`Shares`]). Across the layers
 /// each height is then a local quadratic's ([`smooth_across`]), and `weight` the points a
 /// plain mean with the same noise would take.
 #[derive(Debug, Clone, Default)]
@@ -22,7 +22,44 @@ pub struct Profile {
     pub height: Vec<Option<f64>>,
     pub points: Vec<u32>,
     pub weight: Vec<f64>,
-    pub station: Vec<u8>,
+    pub station: Vec<Shares>,
+}
+
+/// The stations behind a bin's mean and their shares of its points (summing to 1): a
+/// station's pose error moves the mean by its share of it. Beyond three stations the rest
+/// count as [`MIXED`] (one more station with the largest σ).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Shares {
+    share: [(u8, f64); 3],
+    len: u8,
+}
+
+impl Shares {
+    /// Adds `weight` to `tag`'s share.
+    fn add(&mut self, tag: u8, weight: f64) {
+        if weight <= 0.0 {
+            return;
+        }
+        let used = &mut self.share[..self.len as usize];
+        if let Some(s) = used.iter_mut().find(|s| s.0 == tag) {
+            s.1 += weight;
+        } else if (self.len as usize) < self.share.len() {
+            self.share[self.len as usize] = (tag, weight);
+            self.len += 1;
+        } else {
+            // Full: the last becomes the rest.
+            let last = &mut self.share[self.share.len() - 1];
+            *last = (MIXED, last.1 + weight);
+        }
+    }
+
+    /// Each station with its share, the shares summing to 1.
+    pub fn iter(&self) -> impl Iterator<Item = (u8, f64)> + '_ {
+        let total: f64 = self.share[..self.len as usize].iter().map(|s| s.1).sum();
+        self.share[..self.len as usize]
+            .iter()
+            .map(move |&(t, w)| (t, w / total))
+    }
 }
 
 /// What every lane of a face, one way, is read with: worked out once per face and direction.
@@ -174,10 +211,10 @@ impl FlatnessGrid {
             let Some(median) = median_in_place(&mut means) else {
                 out.height.push(None);
                 out.points.push(0);
-                out.station.push(MIXED);
+                out.station.push(Shares::default());
                 continue;
             };
-            let (mut n, mut sum, mut tag) = (0u32, 0.0, None::<u8>);
+            let (mut n, mut sum, mut shares) = (0u32, 0.0, Shares::default());
             for &k in &ks {
                 let (s, m) = c.sum_count(k, half);
                 if (s / m as f64 - level(k) - median).abs() > outlier {
@@ -185,15 +222,13 @@ impl FlatnessGrid {
                 }
                 n += m;
                 sum += s - level(k) * m as f64;
-                tag = Some(match tag {
-                    None => c.cell[k].station,
-                    Some(t) if t == c.cell[k].station => t,
-                    Some(_) => MIXED,
-                });
+                for (tag, w) in c.cell[k].shares() {
+                    shares.add(tag, w * m as f64);
+                }
             }
             out.height.push(Some(sum / n as f64));
             out.points.push(n);
-            out.station.push(tag.unwrap_or(MIXED));
+            out.station.push(shares);
         }
         // A bin that caught the end of a scan line holds a point or two where its neighbours
         // hold a line's worth: its noise, not the surface, would hold the straightedge up. The

@@ -8,8 +8,10 @@
 //!   calibration). A station's translation error moves all its points alike, so it cancels in a
 //!   gap measured on one station's points and in a thickness seen by one station from both
 //!   sides; it enters where stations meet. A quantity `Σ c_b y_b` over bins seen by stations
-//!   `s` takes `Σ_s σ_s² (Σ_{b∈s} c_b n̂_b)²`; cells seen by several stations count together
-//!   as one more station with the largest σ. Orientation errors are not modelled (the pose carries no
+//!   `s` takes `Σ_s σ_s² (Σ_b c_b w_{b,s} n̂_b)²`, with `w_{b,s}` station `s`'s share of bin
+//!   `b`'s points (a bin's mean moves by each station's error times its share); a cell keeps
+//!   its first station's count and one other, more than two stations in a cell count as one
+//!   more station with the largest σ. Orientation errors are not modelled (the pose carries no
 //!   angular σ).
 //! - **Resolution**: a bin may miss the true crest or trough inside it by up to an eighth of
 //!   the local second difference (the curvature over half a bin); a rectangular distribution.
@@ -67,9 +69,9 @@ impl FlatnessGrid {
     }
 
     /// The variance pose errors add to `Σ coefficient · (pose error of tag) · direction`, each
-    /// term `(tag, coefficient, direction)`: a station's terms add up before squaring. Cells
-    /// seen by several stations count together as one more station with the largest σ (their
-    /// errors are the same stations' errors, so they add up rather than average out).
+    /// term `(tag, coefficient, direction)` (a bin's coefficient times each station's share):
+    /// a station's terms add up before squaring. [`MIXED`] stands for several stations at once
+    /// and takes the largest σ (their errors add up rather than average out).
     pub(crate) fn pose_variance(&self, terms: &[(u8, f64, Vector3<f64>)]) -> f64 {
         let mut tags: Vec<u8> = terms.iter().map(|t| t.0).collect();
         tags.sort_unstable();
@@ -101,7 +103,11 @@ impl FlatnessGrid {
             let n = profile.weight[b].max(1.0);
             var += c * c * sigma * sigma / n;
             var += c * c * resolution(&profile.height, b).powi(2) / 3.0;
-            pose.push((profile.station[b], c, normal));
+            pose.extend(
+                profile.station[b]
+                    .iter()
+                    .map(|(tag, w)| (tag, c * w, normal)),
+            );
         }
         var += self.pose_variance(&pose);
         COVERAGE_FACTOR * var.sqrt()

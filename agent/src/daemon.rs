@@ -641,12 +641,23 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
                     format!("layers of {:.1} mm", h * 1e3)
                 })
         );
-        lifecycle = lifecycle.with_findings(FindingsStage::new(
-            f.clone(),
-            config.inspect.tolerance,
-            config.inspect.max_distance(),
-            limits.max_points_per_chunk,
-        ));
+        // Checked at start: limits that do not parse were refused there.
+        let mut crew = config
+            .tolerances
+            .limits_with(config.inspect.tolerance, &[])
+            .unwrap_or_else(|_| {
+                asbuilt_core::verdict::Limits::from_tolerance(config.inspect.tolerance)
+            });
+        crew.rule = config.tolerances.decision_rule().unwrap_or_default();
+        lifecycle = lifecycle.with_findings(
+            FindingsStage::new(
+                f.clone(),
+                config.inspect.tolerance,
+                config.inspect.max_distance(),
+                limits.max_points_per_chunk,
+            )
+            .judged_by(crew),
+        );
     }
     // Checked at start: a standard that does not parse was refused there.
     let flatness = config.tolerances.flatness().ok().flatten();

@@ -58,6 +58,8 @@ pub struct FindingsStage {
     /// agent does not.
     keep_samples: bool,
     samples: Vec<SampleState>,
+    /// The crew's limits and decision rule each finding is judged by before it is sent.
+    limits: asbuilt_core::verdict::Limits,
 }
 
 /// Makes a scan layer's state: design samples of the printed design, streaming M3C2 and
@@ -131,7 +133,15 @@ impl FindingsStage {
             scratch: Vec::with_capacity(max_points_per_chunk),
             keep_samples: false,
             samples: Vec::new(),
+            limits: asbuilt_core::verdict::Limits::from_tolerance(tolerance),
         }
+    }
+
+    /// Judges the findings by `limits` (the crew's, with the job's decision rule) instead of
+    /// the tolerance's for every kind.
+    pub fn judged_by(mut self, limits: asbuilt_core::verdict::Limits) -> Self {
+        self.limits = limits;
+        self
     }
 
     /// Keeps the design samples' states of the latest findings, for [`FindingsStage::samples`].
@@ -208,12 +218,14 @@ impl FindingsStage {
             0.0
         };
         let (f, _) = e.layer.measure(sigma, &*e.design, false)?;
-        Some(f.to_message(
+        let mut m = f.to_message(
             (report.job, report.station),
             e.layer.stations(),
             self.maker.tolerance,
             (report.layer, report.printed_height),
-        ))
+        );
+        asbuilt_core::findings::judge_message(&mut m, &self.limits);
+        Some(m)
     }
 
     /// Takes up a scan layer of `job` over `design` from a state its agent recorded; false
@@ -317,12 +329,14 @@ impl FindingsStage {
         e.layer.end_station(origin, sigma, &*e.design);
         let (f, samples) = e.layer.measure(sigma, &*e.design, self.keep_samples)?;
         self.samples = samples;
-        Some(f.to_message(
+        let mut m = f.to_message(
             key,
             e.layer.stations(),
             tolerance,
             (report.layer, report.printed_height),
-        ))
+        );
+        asbuilt_core::findings::judge_message(&mut m, &self.limits);
+        Some(m)
     }
 }
 

@@ -31,6 +31,7 @@ pub struct Survey {
 pub fn survey_verdict(v: Verdict) -> SurveyVerdict {
     match v {
         Verdict::NotJudged => SurveyVerdict::NotJudged,
+        // The standards know no warn fraction.
         Verdict::Pass | Verdict::Warn => SurveyVerdict::Pass,
         Verdict::Inconclusive => SurveyVerdict::Inconclusive,
         Verdict::Fail => SurveyVerdict::Fail,

@@ -493,6 +493,8 @@ mod tests {
                         width_uncertainty: 0.001,
                         shift_uncertainty: 0.001,
                         width_fit_uncertainty: 0.0005,
+                        width_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
+                        shift_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
                     })
                     .unwrap();
             }

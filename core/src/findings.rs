@@ -267,6 +267,8 @@ fn layer_rows(
                 }),
                 width_fit_uncertainty: fit
                     .map_or(f64::NAN, |f| k * (4.0 * shared * f.variance[0]).sqrt()),
+                width_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
+                shift_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
             }
         })
         .collect()
@@ -615,6 +617,50 @@ impl Findings {
     }
 }
 
+/// Each finding of `m` held to `limits` by their decision rule, as the report holds them: a
+/// band's width and shift at its band, the top at the scan layer's last layer, an area's peak
+/// (a missing area's size) over the bands it spans. The agent sends them so judged.
+pub fn judge_message(m: &mut StationFindings, limits: &crate::verdict::Limits) {
+    use crate::verdict::LimitKind;
+    let judge = |kind, value: f64, u: f64, layers| {
+        if value.is_finite() {
+            limits.judge(kind, (value, u), layers).0.into()
+        } else {
+            asbuilt_protocol::SurveyVerdict::NotJudged
+        }
+    };
+    for r in &mut m.layers {
+        let band = Some((r.layer, r.layer));
+        r.width_verdict = judge(
+            LimitKind::Width,
+            r.width_deviation,
+            r.width_uncertainty,
+            band,
+        );
+        let shift = r.shift[0].hypot(r.shift[1]);
+        r.shift_verdict = judge(LimitKind::Position, shift, r.shift_uncertainty, band);
+    }
+    m.top_verdict = judge(
+        LimitKind::TopHeight,
+        m.top_height_deviation,
+        m.top_uncertainty,
+        Some((m.layer, m.layer)),
+    );
+    for g in m.regions.iter_mut().chain(m.missing.iter_mut()) {
+        let layers = (g.layers[0] != u32::MAX).then_some((g.layers[0], g.layers[1]));
+        g.verdict = if g.kind == RegionKind::Missing {
+            judge(
+                LimitKind::MissingArea,
+                g.area_m2,
+                g.area_uncertainty,
+                layers,
+            )
+        } else {
+            judge(LimitKind::Surface, g.peak, g.peak_uncertainty, layers)
+        };
+    }
+}
+
 fn region_message(r: &Region) -> RegionFinding {
     RegionFinding {
         kind: r.kind,
@@ -627,6 +673,7 @@ fn region_message(r: &Region) -> RegionFinding {
         peak_at: r.peak_at.into(),
         peak_uncertainty: r.peak_uncertainty,
         area_uncertainty: r.area_uncertainty,
+        verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
         mean: r.mean,
         layers: r.layers.map_or([u32::MAX; 2], |(a, b)| [a, b]),
     }

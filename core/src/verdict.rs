@@ -352,6 +352,19 @@ fn parse_amount(v: &str, area: bool) -> Result<f64, LimitError> {
     }
 }
 
+impl From<Verdict> for asbuilt_protocol::SurveyVerdict {
+    fn from(v: Verdict) -> Self {
+        use asbuilt_protocol::SurveyVerdict as S;
+        match v {
+            Verdict::NotJudged => S::NotJudged,
+            Verdict::Pass => S::Pass,
+            Verdict::Warn => S::Warn,
+            Verdict::Inconclusive => S::Inconclusive,
+            Verdict::Fail => S::Fail,
+        }
+    }
+}
+
 /// The coverage factor of every expanded uncertainty U reported (k = 2: about 95 % for a
 /// normal distribution).
 pub const COVERAGE_FACTOR: f64 = 2.0;

@@ -8,6 +8,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
+use crate::SurveyVerdict;
 use crate::codec::Message;
 
 /// Layer bands a [`StationFindings`] holds at most.
@@ -75,6 +76,10 @@ pub struct LayerFinding {
     /// The width's expanded uncertainty from its fit alone, without the poses' share: what a
     /// width relative to the scan layer's other bands keeps (the poses widen them alike).
     pub width_fit_uncertainty: f64,
+    /// The width held to the crew's limit for the band by the decision rule.
+    pub width_verdict: SurveyVerdict,
+    /// The shift held to the crew's limit for the band by the decision rule.
+    pub shift_verdict: SurveyVerdict,
 }
 
 impl LayerFinding {
@@ -140,6 +145,9 @@ pub struct RegionFinding {
     pub peak_uncertainty: f64,
     /// The area's expanded uncertainty (k = 2), m²: its edge known to a sample's spacing.
     pub area_uncertainty: f64,
+    /// The peak (the area, for missing material) held to the crew's limit by the decision
+    /// rule.
+    pub verdict: SurveyVerdict,
     /// Mean signed deviation over the region; NaN for missing material.
     pub mean: f64,
     /// First and last layer band; `u32::MAX` when the layer height is unknown.
@@ -169,6 +177,8 @@ pub struct StationFindings {
     pub top_samples: u32,
     /// The top height deviation's expanded uncertainty (k = 2); NaN with it.
     pub top_uncertainty: f64,
+    /// The top held to the crew's limit by the decision rule.
+    pub top_verdict: SurveyVerdict,
     /// The layer bands' side faces, from the bed up.
     pub layers: heapless::Vec<LayerFinding, MAX_LAYER_ROWS>,
     /// Areas out of tolerance, largest first.
@@ -194,6 +204,7 @@ impl StationFindings {
             top_height_deviation: f64::NAN,
             top_samples: 0,
             top_uncertainty: f64::NAN,
+            top_verdict: SurveyVerdict::NotJudged,
             layers: heapless::Vec::new(),
             regions: heapless::Vec::new(),
             missing: heapless::Vec::new(),
@@ -207,6 +218,18 @@ impl StationFindings {
         self.layers
             .iter()
             .filter(move |r| r.width_deviation.abs() > t || r.shift[0].hypot(r.shift[1]) > t)
+    }
+
+    /// The worst verdict of the findings (`NotJudged` before they were judged, or with
+    /// nothing to judge).
+    pub fn verdict(&self) -> SurveyVerdict {
+        self.layers
+            .iter()
+            .flat_map(|r| [r.width_verdict, r.shift_verdict])
+            .chain([self.top_verdict])
+            .chain(self.regions.iter().chain(&self.missing).map(|r| r.verdict))
+            .max()
+            .unwrap_or(SurveyVerdict::NotJudged)
     }
 
     /// Everything a crew should look at: layers out of tolerance, a top out of tolerance,
@@ -238,6 +261,8 @@ mod tests {
             width_uncertainty: f64::NAN,
             shift_uncertainty: 0.001,
             width_fit_uncertainty: f64::NAN,
+            width_verdict: SurveyVerdict::NotJudged,
+            shift_verdict: SurveyVerdict::Pass,
         };
         let region = RegionFinding {
             kind: RegionKind::Missing,
@@ -250,6 +275,7 @@ mod tests {
             peak_at: [1.0; 3],
             peak_uncertainty: f64::NAN,
             area_uncertainty: 0.001,
+            verdict: SurveyVerdict::Fail,
             mean: f64::NAN,
             layers: [1, 2],
         };

@@ -15,14 +15,17 @@ pub const MAX_SURVEY_ROWS: usize = 128;
 /// Upper bound of an encoded [`SurfaceFindings`], bytes.
 pub const MAX_SURVEY_BYTES: usize = 32 * 1024;
 
-/// How a judged quantity stands against its standard's limit, by the job's decision rule; worst
-/// last, so that the worst of several ignores what was not judged.
+/// How a judged quantity stands against its limit (a standard's, or the crew's for findings),
+/// by the job's decision rule; worst last, so that the worst of several ignores what was not
+/// judged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum SurveyVerdict {
     /// Nothing measured well enough to judge it.
     NotJudged,
     /// Within the limit (with the ISO 14253-1 rule: with its uncertainty added).
     Pass,
+    /// A pass beyond the crew's warn fraction of the limit (findings only).
+    Warn,
     /// Within its uncertainty of the limit: neither proven.
     Inconclusive,
     /// Beyond the limit (with the ISO 14253-1 rule: with its uncertainty taken off).

@@ -576,6 +576,7 @@ impl RecordedJob {
                     self.max_distance,
                     self.limits.max_points_per_chunk,
                 )
+                .judged_by(self.verdict_limits.clone())
                 .keeping_samples(),
             ),
             None => lifecycle,

@@ -313,6 +313,27 @@ fn a_small_demo_runs_end_to_end_and_leaves_its_files() {
         .as_f64()
         .unwrap();
     assert!(within(w, 0.012), "{w}");
+    // The agent sent each finding judged as the report judges it: the same verdict for every
+    // band's width of the last scan layer (layer 2's fails).
+    let last = report["assessment"]["scan_layers"]
+        .as_array()
+        .unwrap()
+        .last()
+        .unwrap();
+    for row in rows.iter().filter(|r| r["width_deviation"].is_f64()) {
+        let sent = row["width_verdict"].as_str().unwrap().to_lowercase();
+        let judged = last["items"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|it| it["kind"] == "width" && it["layers"][0] == row["layer"])
+            .map_or("pass", |it| it["verdict"].as_str().unwrap());
+        assert_eq!(sent, judged, "{row}");
+    }
+    assert_eq!(
+        rows.iter().find(|r| r["layer"] == 2).unwrap()["width_verdict"],
+        "Fail"
+    );
     assert!(
         err.contains("rerun ") && err.contains("report.html"),
         "{err}"

@@ -871,6 +871,8 @@ mod tests {
                     width_uncertainty: 0.0005,
                     shift_uncertainty: 0.0005,
                     width_fit_uncertainty: 0.0003,
+                    width_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
+                    shift_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
                 })
                 .unwrap();
         }
@@ -889,6 +891,7 @@ mod tests {
             peak_at: [at_x, 0.1, 0.1],
             peak_uncertainty: 0.0005,
             area_uncertainty: 0.0001,
+            verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
             mean: peak / 2.0,
             layers: [2, 7],
         }

@@ -509,7 +509,7 @@ impl Job {
         let findings: Vec<_> = totals
             .findings
             .take()
-            .map(|(f, stations)| findings_message(args, self.facts.lowest, &f, stations))
+            .map(|(f, stations)| findings_message(plan, self.facts.lowest, &f, stations))
             .into_iter()
             .collect();
         if let Some(v) = self.viewer {
@@ -785,7 +785,7 @@ fn start_viewer(args: &InspectArgs, design: &Design) -> Result<Option<Viewer>> {
 
 /// The job's findings, drawn as the agent draws a scan layer's: offline there is one.
 fn findings_message(
-    args: &InspectArgs,
+    plan: &Plan,
     lowest: f64,
     f: &asbuilt_core::findings::Findings,
     stations: u32,
@@ -800,10 +800,11 @@ fn findings_message(
             ", a row per layer band"
         }
     );
+    let args = &plan.args;
     suite::findings_message(
         f,
         stations,
-        args.tolerance,
+        (args.tolerance, &plan.limits),
         (args.printed_height, args.layer_height),
         lowest,
     )

@@ -153,7 +153,15 @@ pub fn suite<'py>(
     result.set_item("total", convert::to_json(py, &totals)?)?;
     let findings = match &totals.findings {
         Some((f, n)) => {
-            let m = findings_message(f, *n, tolerance, (printed_height, layer_height), lowest);
+            // Judged as an agent with this tolerance and no other limits judges them.
+            let limits = asbuilt_core::verdict::Limits::from_tolerance(tolerance);
+            let m = findings_message(
+                f,
+                *n,
+                (tolerance, &limits),
+                (printed_height, layer_height),
+                lowest,
+            );
             convert::to_json(py, &m)?
         }
         None => py.None(),

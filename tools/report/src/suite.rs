@@ -104,22 +104,25 @@ pub fn printed_layer(printed_height: Option<f64>, layer_height: Option<f64>, low
 }
 
 /// A job's findings as the message the agent sends for a scan layer: offline there is one,
-/// drawn from all `stations`, at the layer [`printed_layer`] counts.
+/// drawn from all `stations`, at the layer [`printed_layer`] counts, each finding judged by
+/// `limits` as the agent judges them.
 pub fn findings_message(
     f: &Findings,
     stations: u32,
-    tolerance: f64,
+    (tolerance, limits): (f64, &asbuilt_core::verdict::Limits),
     (printed_height, layer_height): (Option<f64>, Option<f64>),
     lowest: f64,
 ) -> asbuilt_protocol::StationFindings {
     let layer = printed_layer(printed_height, layer_height, lowest);
     let printed = printed_height.unwrap_or(f64::NAN);
-    f.to_message(
+    let mut m = f.to_message(
         (0, stations.saturating_sub(1)),
         stations,
         tolerance,
         (layer, printed),
-    )
+    );
+    asbuilt_core::findings::judge_message(&mut m, limits);
+    m
 }
 
 /// The suite's parameters, checked and with every default resolved ([`SuiteOptions::resolve`]).

@@ -10,16 +10,11 @@ cd "$(dirname "$0")/../.."
 OUT=${OUT:-out/maps-bench}
 RUNS=${RUNS:-9}
 . tools/bench/inputs.sh
-# One inspect into OUT/NAME, its output into OUT/NAME.log: prints its wall and CPU seconds
-# (user + system, all its threads).
+. tools/bench/timing.sh
+# One inspect into OUT/NAME, its output into OUT/NAME.log: prints its wall and CPU seconds.
 inspect() {
     local name=$1
-    python3 -c 'import resource, subprocess, sys, time
-t = time.monotonic()
-with open(sys.argv[1], "w") as log:
-    subprocess.run(sys.argv[2:], stdout=log, stderr=log, check=True)
-r = resource.getrusage(resource.RUSAGE_CHILDREN)
-print(time.monotonic() - t, r.ru_utime + r.ru_stime)' "$OUT/$name.log" \
+    timed "$OUT/$name.log" \
         target/release/asbuilt inspect --design ../shared/data/stanford-bunny/bun_zipper.ply \
         --units m --scan "$OUT/bunny_shuffled.ply" --translation 0,0,0 --rotation-xyzw 0,0,0,1 \
         --out "$OUT/$name" "${@:2}"
@@ -29,7 +24,6 @@ for i in $(seq "$RUNS"); do
     read -r w c < <(inspect maps); with_wall+=("$w"); with_cpu+=("$c")
     read -r w c < <(inspect no-maps --no-maps); without_wall+=("$w"); without_cpu+=("$c")
 done
-median() { printf '%s\n' "$@" | sort -n | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 cost() {
     awk -v what="$1" -v m="$(median "${@:2:$RUNS}")" -v n="$(median "${@:$((RUNS + 2))}")" \
         'BEGIN { printf "%s: median with maps %.3f s, without %.3f s: the maps cost %.1f %%\n", what, m, n, (m / n - 1) * 100 }'

@@ -14,6 +14,7 @@ BEFORE=${BEFORE:-f4adf65}
 ROOT=$PWD
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
+. tools/bench/timing.sh
 cargo build --release --locked -p asbuilt-tools --bin asbuilt
 # BEFORE in a worktree of its own, built to its own target directory (OLD: a binary already
 # built from it).
@@ -29,24 +30,17 @@ NEW=$ROOT/target/release/asbuilt
 if [ ! -d "$OUT/demo/recording" ]; then
     "$OLD" demo --out "$OUT/demo" > "$OUT/demo.log" 2>&1
 fi
-# One report into OUT/NAME: prints its wall and CPU seconds (user + system, all threads).
+# One report into OUT/NAME: prints its wall and CPU seconds.
 report() {
     local name=$1 bin=$2
-    python3 -c 'import resource, subprocess, sys, time
-t = time.monotonic()
-with open(sys.argv[1], "w") as log:
-    subprocess.run(sys.argv[2:], stdout=log, stderr=log, check=True)
-r = resource.getrusage(resource.RUSAGE_CHILDREN)
-print(time.monotonic() - t, r.ru_utime + r.ru_stime)' "$OUT/$name.log" \
-        "$bin" report "$OUT/demo/recording" --out "$OUT/$name" --flatness din18202:6 \
-        --dimensions din18202
+    timed "$OUT/$name.log" "$bin" report "$OUT/demo/recording" --out "$OUT/$name" \
+        --flatness din18202:6 --dimensions din18202
 }
 old_wall=(); old_cpu=(); new_wall=(); new_cpu=()
 for i in $(seq "$RUNS"); do
     read -r w c < <(report before "$OLD"); old_wall+=("$w"); old_cpu+=("$c")
     read -r w c < <(report after "$NEW"); new_wall+=("$w"); new_cpu+=("$c")
 done
-median() { printf '%s\n' "$@" | sort -n | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 cost() {
     awk -v what="$1" -v b="$(median "${@:2:$RUNS}")" -v a="$(median "${@:$((RUNS + 2))}")" \
         'BEGIN { printf "%s: median before %.3f s, after %.3f s: %+.1f %%\n", what, b, a, (a / b - 1) * 100 }'

@@ -4,7 +4,6 @@
 //! chosen on one half of the points and measured on the other ([`Half`]), as the gaps are.
 
 use nalgebra::Point3;
-use rayon::prelude::*;
 
 use super::standard::ACI_ABRUPT_WITHIN;
 use super::straightedge::{Profile, Setup};
@@ -57,24 +56,17 @@ impl FlatnessGrid {
     ) -> Option<AbruptStep> {
         let (bin, _) = self.lane_shape(f, axis);
         let reach = ((ACI_ABRUPT_WITHIN / bin) + 1e-9).floor().max(1.0) as usize;
-        let found = (0..self.lanes(f, axis))
-            .into_par_iter()
-            .map_init(
-                || (Profile::default(), Profile::default()),
-                |(choose, measure), lane| {
-                    self.profile((f, axis, lane), Half::Choose, setup, choose);
-                    self.profile((f, axis, lane), Half::Measure, setup, measure);
-                    largest_offset(&choose.height, &measure.height, reach).map(
-                        |(bins, chosen, measured)| Found {
-                            lane,
-                            bins,
-                            chosen,
-                            measured,
-                        },
-                    )
-                },
-            )
-            .collect::<Vec<_>>()
+        let found = self
+            .each_lane((f, axis), setup, |lane, choose, measure| {
+                largest_offset(&choose.height, &measure.height, reach).map(
+                    |(bins, chosen, measured)| Found {
+                        lane,
+                        bins,
+                        chosen,
+                        measured,
+                    },
+                )
+            })
             .into_iter()
             .flatten()
             // The first lane's on a tie, as one lane after the other would find it.

@@ -283,40 +283,32 @@ impl FlatnessGrid {
             .collect();
         // Lanes are independent: read side by side, folded in lane order (the same positions
         // as one after the other).
-        let lanes: Vec<LaneBest> = (0..self.lanes(f, axis))
-            .into_par_iter()
-            .map_init(
-                || (Profile::default(), Profile::default()),
-                |(choose, measure), lane| {
-                    self.profile((f, axis, lane), Half::Choose, setup, choose);
-                    self.profile((f, axis, lane), Half::Measure, setup, measure);
-                    let mut best = LaneBest {
-                        governing: None,
-                        by_class: vec![None; spans.len()],
-                    };
-                    super::each_chord(&choose.height, max_bins, block, MIN_FILLED, |chord| {
-                        // A position counts where both halves measured its supports and its
-                        // deepest bin.
-                        let Some(gap) = measured_gap(chord, &measure.height) else {
-                            return;
-                        };
-                        let k = chord.j - chord.i;
-                        let ratio = chord.gap / limit_at[k];
-                        let located = || self.locate((f, axis, lane), chord, gap, k as f64 * bin);
-                        if best.governing.as_ref().is_none_or(|g| ratio > g.0) {
-                            best.governing = Some((ratio, located()));
-                        }
-                        if let Some(c) = class_at[k] {
-                            let b = &mut best.by_class[c];
-                            if b.is_none_or(|b| chord.gap > b.chord.gap) {
-                                *b = Some(located());
-                            }
-                        }
-                    });
-                    best
-                },
-            )
-            .collect();
+        let lanes: Vec<LaneBest> = self.each_lane((f, axis), setup, |lane, choose, measure| {
+            let mut best = LaneBest {
+                governing: None,
+                by_class: vec![None; spans.len()],
+            };
+            super::each_chord(&choose.height, max_bins, block, MIN_FILLED, |chord| {
+                // A position counts where both halves measured its supports and its
+                // deepest bin.
+                let Some(gap) = measured_gap(chord, &measure.height) else {
+                    return;
+                };
+                let k = chord.j - chord.i;
+                let ratio = chord.gap / limit_at[k];
+                let located = || self.locate((f, axis, lane), chord, gap, k as f64 * bin);
+                if best.governing.as_ref().is_none_or(|g| ratio > g.0) {
+                    best.governing = Some((ratio, located()));
+                }
+                if let Some(c) = class_at[k] {
+                    let b = &mut best.by_class[c];
+                    if b.is_none_or(|b| chord.gap > b.chord.gap) {
+                        *b = Some(located());
+                    }
+                }
+            });
+            best
+        });
         let mut governing: Option<(f64, Located)> = None;
         let mut by_span: Vec<Option<Located>> = vec![None; spans.len()];
         for lane in lanes {
@@ -336,6 +328,27 @@ impl FlatnessGrid {
             }
         }
         governing.map(|g| (g.1, by_span))
+    }
+
+    /// `visit` on every lane of face `f` along `axis` with its choosing and measuring halves'
+    /// profiles, lanes side by side, the results in lane order.
+    pub(crate) fn each_lane<T: Send>(
+        &self,
+        (f, axis): (usize, usize),
+        setup: &Setup,
+        visit: impl Fn(usize, &Profile, &Profile) -> T + Sync,
+    ) -> Vec<T> {
+        (0..self.lanes(f, axis))
+            .into_par_iter()
+            .map_init(
+                || (Profile::default(), Profile::default()),
+                |(choose, measure), lane| {
+                    self.profile((f, axis, lane), Half::Choose, setup, choose);
+                    self.profile((f, axis, lane), Half::Measure, setup, measure);
+                    visit(lane, choose, measure)
+                },
+            )
+            .collect()
     }
 
     /// Where a position on lane `lane` of face `f` along `axis` lies, design frame, with its

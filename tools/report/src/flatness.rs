@@ -325,6 +325,30 @@ impl FlatnessSection {
     }
 }
 
+/// One row of the standard's table: `(class, face, direction, what)`, then the value ± U, the
+/// distance it was measured over and the limit (metres, shown in mm and m), its verdict and
+/// where.
+fn table_row(
+    rows: &mut String,
+    (class, face, direction, what): (&str, u32, &str, &str),
+    (value, u, distance, limit): (f64, f64, f64, f64),
+    verdict: Verdict,
+    [x, y, z]: [f64; 3],
+) {
+    use std::fmt::Write;
+    let _ = write!(
+        rows,
+        "<tr class=\"{class}\" data-face=\"{face}\"><td>{face}</td><td>{}</td><td>{what}</td>\
+         <td>{:.1} ± {:.1}</td><td>{distance:.2}</td><td>{:.1}</td><td class=\"{verdict}\">{}</td>\
+         <td>({x:.2}, {y:.2}, {z:.2})</td></tr>",
+        direction.replace('_', " "),
+        value * 1e3,
+        u * 1e3,
+        limit * 1e3,
+        verdict.shout()
+    );
+}
+
 impl FlatnessSection {
     /// One line for the summary, in the words a site manager signs: the standard and its
     /// edition, the rule, what passed, failed, was inconclusive and was not judged.
@@ -458,46 +482,33 @@ impl FlatnessSection {
         use std::fmt::Write;
         let mut rows = String::new();
         for g in self.gaps.iter().chain(&self.by_span) {
-            let [x, y, z] = g.at_m;
-            let _ = write!(
-                rows,
-                "<tr class=\"gap{}\" data-face=\"{}\"><td>{}</td><td>{}</td><td>{}</td>\
-                 <td>{:.1} ± {:.1}</td><td>{:.2}</td><td>{:.1}</td><td class=\"{v}\">{V}</td>\
-                 <td>({x:.2}, {y:.2}, {z:.2})</td></tr>",
-                if g.span_m.is_some() {
-                    " span"
-                } else {
-                    " governing"
-                },
-                g.face,
-                g.face,
-                g.direction.replace('_', " "),
-                g.span_m
-                    .map_or("governing".to_string(), |s| format!("within {s} m")),
-                g.gap_m * 1e3,
-                g.uncertainty_m * 1e3,
-                g.support_distance_m,
-                g.limit_m * 1e3,
-                v = g.verdict,
-                V = g.verdict.shout()
+            let span = g
+                .span_m
+                .map_or("governing".to_string(), |s| format!("within {s} m"));
+            table_row(
+                &mut rows,
+                (
+                    if g.span_m.is_some() {
+                        "gap span"
+                    } else {
+                        "gap governing"
+                    },
+                    g.face,
+                    g.direction,
+                    &span,
+                ),
+                (g.gap_m, g.uncertainty_m, g.support_distance_m, g.limit_m),
+                g.verdict,
+                g.at_m,
             );
         }
         for a in &self.abrupt {
-            let [x, y, z] = a.between_m[0];
-            let _ = write!(
-                rows,
-                "<tr class=\"abrupt\" data-face=\"{}\"><td>{}</td><td>{}</td>\
-                 <td>abrupt, within 1 in</td><td>{:.1} ± {:.1}</td><td>{:.3}</td><td>{:.1}</td>\
-                 <td class=\"{v}\">{V}</td><td>({x:.2}, {y:.2}, {z:.2})</td></tr>",
-                a.face,
-                a.face,
-                a.direction.replace('_', " "),
-                a.step_m * 1e3,
-                a.uncertainty_m * 1e3,
-                a.distance_m,
-                a.limit_m * 1e3,
-                v = a.verdict,
-                V = a.verdict.shout()
+            table_row(
+                &mut rows,
+                ("abrupt", a.face, a.direction, "abrupt, within 1 in"),
+                (a.step_m, a.uncertainty_m, a.distance_m, a.limit_m),
+                a.verdict,
+                a.between_m[0],
             );
         }
         for n in &self.not_judged {

@@ -258,6 +258,8 @@ impl Lanes<4> {
     #[inline(always)]
     unsafe fn set_faces_avx2(&mut self, vertices: &[Point3<f64>], faces: [&[u32; 3]; 4]) {
         use std::arch::x86_64::*;
+        // SAFETY: this function's caller guarantees AVX2, which is all `corner_avx2` needs (it
+        // indexes `vertices` with bounds checks and masks the load past each point).
         let (a, b, c) = unsafe {
             (
                 corner_avx2(vertices, faces, 0),

@@ -179,6 +179,8 @@ fn iceoryx2_type_names_carry_the_version() {
 fn foreign_text_bytes_never_panic() {
     let mut t = FixedText::<8>::new("abc").unwrap();
     // Simulate a peer that wrote a bogus length into shared memory.
+    // SAFETY: FixedText is repr(C) and starts with its u32 length, which any value may hold;
+    // `t` is a live, exclusively borrowed value.
     unsafe {
         let p = &mut t as *mut FixedText<8> as *mut u32;
         *p = 1000;

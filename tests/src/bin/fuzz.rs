@@ -66,17 +66,22 @@ fn check(size: usize) {
 unsafe impl GlobalAlloc for Guard {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         check(layout.size());
+        // SAFETY: the caller's contract for `layout` is the system allocator's.
         unsafe { System.alloc(layout) }
     }
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
         check(layout.size());
+        // SAFETY: the caller's contract for `layout` is the system allocator's.
         unsafe { System.alloc_zeroed(layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         check(new_size);
+        // SAFETY: `ptr` came from this allocator, which is the system's; the caller's contract
+        // holds for it.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from this allocator, which is the system's.
         unsafe { System.dealloc(ptr, layout) }
     }
 }

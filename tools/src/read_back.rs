@@ -663,14 +663,36 @@ fn judged_scan_layer(files: &[PathBuf]) -> Option<(u64, f64)> {
 /// Findings or standards' judgements an older release recorded: the report draws them again
 /// from the chunks, so they are left out (with a warning that names the versions), not the job.
 fn older_findings(e: &recording::ReadError) -> bool {
-    matches!(e, recording::ReadError::Decode {
+    older_note(e).is_some()
+}
+
+/// One line for a file's older findings (the same for each of its messages, so that the
+/// report warns once a file): which messages, which version, which this build reads.
+fn older_note(e: &recording::ReadError) -> Option<String> {
+    let recording::ReadError::Decode {
         topic,
-        source: asbuilt_protocol::codec::DecodeError::VersionMismatch { .. },
+        source:
+            asbuilt_protocol::codec::DecodeError::VersionMismatch {
+                message,
+                found,
+                expected,
+                ..
+            },
         ..
-    } if matches!(
+    } = e
+    else {
+        return None;
+    };
+    matches!(
         recording::Channel::from_topic(topic),
         Some(recording::Channel::Findings | recording::Channel::Surface)
-    ))
+    )
+    .then(|| {
+        format!(
+            "its {message} on {topic} are version {found}, an older release's (this build \
+             writes {expected}): the report draws them again from the chunks"
+        )
+    })
 }
 
 /// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
@@ -709,7 +731,8 @@ fn replay_stations(
             let (log_time, m) = match m {
                 Ok(m) => m,
                 Err(e) if older_findings(&e) => {
-                    let note = format!("{}: {e}: findings drawn again", path.display());
+                    let note =
+                        format!("{}: {}", path.display(), older_note(&e).unwrap_or_default());
                     (!cut.contains(&note)).then(|| cut.push(note));
                     return ControlFlow::Continue(());
                 }
@@ -804,4 +827,37 @@ fn drawn_or_recorded<K: Ord, M: asbuilt_protocol::Message>(
     };
     let differ = bytes(&drawn) != bytes(&recorded);
     (drawn, differ)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use asbuilt_protocol::codec::DecodeError;
+
+    fn mismatch(topic: &str) -> recording::ReadError {
+        recording::ReadError::Decode {
+            index: 40,
+            topic: topic.into(),
+            source: DecodeError::VersionMismatch {
+                message: "asbuilt.StationFindings.v2",
+                found: 1,
+                expected: 2,
+                oldest: 2,
+            },
+        }
+    }
+
+    /// An older release's findings are drawn again, one line a file; an older pose is not
+    /// (the job cannot be replayed without it).
+    #[test]
+    fn older_findings_are_drawn_again_and_said_once() {
+        let a = older_note(&mismatch("/agent/findings")).unwrap();
+        assert_eq!(a, older_note(&mismatch("/agent/findings")).unwrap());
+        assert!(
+            a.contains("version 1") && a.contains("draws them again"),
+            "{a}"
+        );
+        assert!(older_findings(&mismatch("/agent/surface")));
+        assert!(!older_findings(&mismatch("/robot/poses")));
+    }
 }

@@ -9,6 +9,11 @@ use super::FlatnessGrid;
 
 /// Which dimension of the element.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize),
+    serde(rename_all = "snake_case")
+)]
 pub enum DimensionKind {
     /// Between the two farthest-apart upright faces that face each other.
     Length = 0,
@@ -16,6 +21,12 @@ pub enum DimensionKind {
     Thickness = 1,
     /// From the bed to a top face that was seen.
     Height = 2,
+}
+
+impl std::fmt::Display for DimensionKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
 }
 
 impl DimensionKind {

@@ -70,11 +70,21 @@ pub(crate) const MIXED: u8 = 254;
 
 /// Which way the straightedge lies on a face.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub enum Direction {
     /// Along the layers (horizontal on a wall).
+    #[cfg_attr(feature = "serde", serde(rename = "along_layers"))]
     Along,
     /// Across the layers.
+    #[cfg_attr(feature = "serde", serde(rename = "across_layers"))]
     Across,
+}
+
+impl std::fmt::Display for Direction {
+    /// For people: "along layers", "across layers".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.as_str().replace('_', " "))
+    }
 }
 
 impl Direction {
@@ -121,6 +131,11 @@ impl FlatnessGap {
 
 /// Why a face, one way, was not judged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize),
+    serde(rename_all = "snake_case")
+)]
 pub enum NotJudgedReason {
     /// No scan point of the scan layer was matched to it (out of view, or seen only at grazing
     /// incidence).

@@ -5,7 +5,8 @@
 
 use asbuilt_core::Design;
 use asbuilt_core::flatness::{
-    DIN_18202_EDITION, DimensionsStandard, FlatnessGap, FlatnessGrid, FlatnessStandard, StationView,
+    DIN_18202_EDITION, DimensionKind, DimensionsStandard, Direction, FlatnessGap, FlatnessGrid,
+    FlatnessStandard, NotJudgedReason, StationView,
 };
 use asbuilt_core::verdict::{DecisionRule, Verdict};
 use asbuilt_protocol::PointDeviation;
@@ -44,7 +45,7 @@ pub struct GapSection {
     /// The face.
     pub face: u32,
     /// `along_layers` or `across_layers`.
-    pub direction: &'static str,
+    pub direction: Direction,
     /// The table's distance the supports lie within; absent for a governing gap.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub span_m: Option<f64>,
@@ -70,7 +71,7 @@ pub struct AbruptSection {
     /// The face.
     pub face: u32,
     /// `along_layers` or `across_layers`.
-    pub direction: &'static str,
+    pub direction: Direction,
     /// The offset, metres.
     pub step_m: f64,
     /// How far apart the two points it is measured between lie, metres.
@@ -89,7 +90,7 @@ impl AbruptSection {
     fn of(a: &asbuilt_core::flatness::AbruptStep, rule: DecisionRule) -> Self {
         AbruptSection {
             face: a.face,
-            direction: a.direction.as_str(),
+            direction: a.direction,
             step_m: a.step,
             distance_m: a.distance,
             limit_m: a.limit,
@@ -106,16 +107,16 @@ pub struct NotJudgedSection {
     /// The face.
     pub face: u32,
     /// `along_layers` or `across_layers`.
-    pub direction: &'static str,
+    pub direction: Direction,
     /// `not_seen` or `too_sparse`.
-    pub reason: &'static str,
+    pub reason: NotJudgedReason,
 }
 
 impl GapSection {
     fn of(g: &FlatnessGap, rule: DecisionRule) -> Self {
         GapSection {
             face: g.face,
-            direction: g.direction.as_str(),
+            direction: g.direction,
             span_m: g.span,
             gap_m: g.gap,
             support_distance_m: g.support_distance,
@@ -260,8 +261,8 @@ impl FlatnessSection {
             .iter()
             .map(|n| NotJudgedSection {
                 face: n.face,
-                direction: n.direction.as_str(),
-                reason: n.reason.as_str(),
+                direction: n.direction,
+                reason: n.reason,
             })
             .collect();
         let faces_judged: std::collections::BTreeSet<u32> = gaps.iter().map(|g| g.face).collect();
@@ -294,7 +295,7 @@ impl FlatnessSection {
             } else if judged
                 .not_judged
                 .iter()
-                .all(|n| n.reason == asbuilt_core::flatness::NotJudgedReason::NotSeen)
+                .all(|n| n.reason == NotJudgedReason::NotSeen)
             {
                 format!(
                     "none of the design's {} planar face(s) was seen (out of view, or only \
@@ -330,7 +331,7 @@ impl FlatnessSection {
 /// where.
 fn table_row(
     rows: &mut String,
-    (class, face, direction, what): (&str, u32, &str, &str),
+    (class, face, direction, what): (&str, u32, Direction, &str),
     (value, u, distance, limit): (f64, f64, f64, f64),
     verdict: Verdict,
     [x, y, z]: [f64; 3],
@@ -341,7 +342,7 @@ fn table_row(
         "<tr class=\"{class}\" data-face=\"{face}\"><td>{face}</td><td>{}</td><td>{what}</td>\
          <td>{:.1} ± {:.1}</td><td>{distance:.2}</td><td>{:.1}</td><td class=\"{verdict}\">{}</td>\
          <td>({x:.2}, {y:.2}, {z:.2})</td></tr>",
-        direction.replace('_', " "),
+        direction,
         value * 1e3,
         u * 1e3,
         limit * 1e3,
@@ -383,7 +384,7 @@ impl FlatnessSection {
                 "; the largest abrupt offset {:.1} ± {:.1} mm {} on face {} (limit {:.1} mm): {}",
                 a.step_m * 1e3,
                 a.uncertainty_m * 1e3,
-                a.direction.replace('_', " "),
+                a.direction,
                 a.face,
                 a.limit_m * 1e3,
                 a.verdict.shout()
@@ -395,11 +396,11 @@ impl FlatnessSection {
                 self.not_judged.len(),
                 self.not_judged
                     .iter()
-                    .filter(|n| n.reason == "not_seen")
+                    .filter(|n| n.reason == NotJudgedReason::NotSeen)
                     .count(),
                 self.not_judged
                     .iter()
-                    .filter(|n| n.reason == "too_sparse")
+                    .filter(|n| n.reason == NotJudgedReason::TooSparse)
                     .count()
             );
         }
@@ -415,7 +416,7 @@ impl FlatnessSection {
                  points {:.2} m apart (limit {:.1} mm there) at ({x:.2}, {y:.2}, {z:.2}) m",
                 w.gap_m * 1e3,
                 w.uncertainty_m * 1e3,
-                w.direction.replace('_', " "),
+                w.direction,
                 w.face,
                 w.support_distance_m,
                 w.limit_m * 1e3
@@ -465,7 +466,7 @@ impl FlatnessSection {
                         g.face,
                         g.gap_m * 1e3,
                         g.uncertainty_m * 1e3,
-                        g.direction.replace('_', " "),
+                        g.direction,
                         g.support_distance_m,
                         g.limit_m * 1e3,
                         self.standard,
@@ -517,8 +518,8 @@ impl FlatnessSection {
                 "<tr class=\"not_judged\"><td>{}</td><td>{}</td><td colspan=\"6\" \
                  class=\"not_judged\">NOT JUDGED: {}</td></tr>",
                 n.face,
-                n.direction.replace('_', " "),
-                n.reason.replace('_', " ")
+                n.direction,
+                n.reason.as_str().replace('_', " ")
             );
         }
         let faces: Vec<String> = self
@@ -570,7 +571,7 @@ impl FlatnessSection {
 #[derive(Debug, Clone, Serialize)]
 pub struct DimensionSection {
     /// `length`, `thickness` or `height`.
-    pub kind: &'static str,
+    pub kind: DimensionKind,
     /// The faces it is measured between.
     pub faces: [u32; 2],
     /// The design's, metres.
@@ -630,7 +631,7 @@ impl DimensionsSection {
             .dimensions()
             .into_iter()
             .map(|d| DimensionSection {
-                kind: d.kind.as_str(),
+                kind: d.kind,
                 faces: d.faces,
                 nominal_m: d.nominal,
                 measured_m: d.measured,

@@ -91,6 +91,20 @@ pub trait Outputs {
     }
 }
 
+/// Why a recorded scan layer state cannot be taken up (the resume replays the layer instead).
+#[derive(Debug, thiserror::Error)]
+pub enum RestoreError {
+    /// The printed design at the state's height cannot be prepared.
+    #[error("the printed design at its height cannot be prepared: {0}")]
+    Design(#[from] asbuilt_core::printed::PrintedError),
+    /// This agent's configuration has no findings to take the state up into.
+    #[error("findings are off in this configuration")]
+    FindingsOff,
+    /// The state was made for another design or other `[findings]` settings.
+    #[error("the recorded state does not fit this design and these [findings] settings")]
+    DoesNotFit,
+}
+
 /// What bounds the lifecycle's memory and how long it waits.
 #[derive(Debug, Clone, Copy)]
 pub struct LifecycleLimits {
@@ -757,20 +771,17 @@ impl<C: ChunkSource> Lifecycle<C> {
         printed_height: f64,
         state: &ScanLayerState,
         last: Option<(u32, Option<&ScanLayerState>)>,
-    ) -> Result<(), String> {
+    ) -> Result<(), RestoreError> {
         let design = if printed_height.is_finite() {
-            self.designs.at(printed_height).map_err(|e| e.to_string())?
+            self.designs.at(printed_height)?
         } else {
             self.designs.full().clone()
         };
-        let stage = self
-            .findings
-            .as_mut()
-            .ok_or("findings are off in this configuration")?;
+        let stage = self.findings.as_mut().ok_or(RestoreError::FindingsOff)?;
         if stage.restore(job, &design, state, last) {
             Ok(())
         } else {
-            Err("the recorded state does not fit this design and these [findings] settings".into())
+            Err(RestoreError::DoesNotFit)
         }
     }
 

@@ -539,7 +539,7 @@ impl Writer {
         write: impl FnOnce(&mut FileWriter) -> Result<(), mcap::McapError>,
     ) {
         let written = self.file_for(job).and_then(|f| match f {
-            Some(f) => write(&mut f.writer).map_err(|e| e.to_string()),
+            Some(f) => write(&mut f.writer).map_err(WriteError::Message),
             None => Ok(()),
         });
         if let Err(e) = written {
@@ -556,7 +556,7 @@ impl Writer {
     /// The file a message of `job` goes to: the open one, or a new one when the job changes or
     /// the file is full. None for a message without a job before the first job (nothing to
     /// attach it to).
-    fn file_for(&mut self, job: Option<u64>) -> Result<Option<&mut OpenFile>, String> {
+    fn file_for(&mut self, job: Option<u64>) -> Result<Option<&mut OpenFile>, WriteError> {
         if let Some(job) = job {
             let rotate = match &self.file {
                 None => true,
@@ -574,7 +574,7 @@ impl Writer {
         Ok(self.file.as_mut())
     }
 
-    fn open(&mut self, job: u64, part: u32) -> Result<(), String> {
+    fn open(&mut self, job: u64, part: u32) -> Result<(), WriteError> {
         // A file is never overwritten: an agent resuming a job within the second its
         // predecessor opened a file takes the next second, so names still sort in writing order.
         let mut stamp = unix_time_ns() / 1_000_000_000;
@@ -588,10 +588,14 @@ impl Writer {
             match File::create_new(&path) {
                 Ok(f) => break (path, f),
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => stamp += 1,
-                Err(e) => return Err(format!("{}: {e}", path.display())),
+                Err(source) => return Err(WriteError::Create { path, source }),
             }
         };
         let bytes = Arc::new(AtomicU64::new(0));
+        let begun = |source| WriteError::Begin {
+            path: path.clone(),
+            source,
+        };
         let mut writer = RecordingWriter::with_compression(
             Counting {
                 inner: BufWriter::with_capacity(1 << 20, file),
@@ -599,26 +603,26 @@ impl Writer {
             },
             self.compression,
         )
-        .map_err(|e| e.to_string())?;
+        .map_err(begun)?;
         if let Some(f) = &self.foxglove {
             let tolerance = f.tolerance;
             writer = writer
                 .with_foxglove(Box::new(move |d| deviation_colour(d, tolerance)))
-                .map_err(|e| e.to_string())?
+                .map_err(begun)?
                 .foxglove_every(f.every);
         }
-        writer.metadata(&self.meta).map_err(|e| e.to_string())?;
+        writer.metadata(&self.meta).map_err(begun)?;
         let now = unix_time_ns();
         writer
             .attach_design(&self.design_name, &self.design, now)
-            .map_err(|e| e.to_string())?;
+            .map_err(begun)?;
         if let Some(f) = &self.foxglove {
             let vertices = f.mesh.vertices.iter().map(|v| [v.x, v.y, v.z]);
             writer
                 .foxglove_design(now, vertices, &f.mesh.triangles)
-                .map_err(|e| e.to_string())?;
+                .map_err(begun)?;
         }
-        writer.flush().map_err(|e| e.to_string())?;
+        writer.flush().map_err(begun)?;
         info!("recorder: job {job} → {}", path.display());
         self.counters.files.fetch_add(1, Relaxed);
         let preamble = bytes.load(Relaxed);
@@ -658,6 +662,27 @@ impl OpenFile {
     fn writer_bytes(&self) -> u64 {
         self.bytes.load(Relaxed)
     }
+}
+
+/// Why the recorder could not write a message (it says so, and the message is lost; the
+/// agent goes on).
+#[derive(Debug, thiserror::Error)]
+enum WriteError {
+    /// A new file could not be created.
+    #[error("cannot create {}: {source}", path.display())]
+    Create {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// A new file's opening records (header, metadata, design, schemas) could not be written.
+    #[error("cannot begin {}: {source}", path.display())]
+    Begin {
+        path: PathBuf,
+        source: mcap::McapError,
+    },
+    /// The message itself could not be written.
+    #[error("{0}")]
+    Message(mcap::McapError),
 }
 
 /// Free bytes on the file system holding `dir` (for an unprivileged writer); `None` when it

@@ -126,7 +126,7 @@ pub fn scan_folder(dir: &Path) -> Folder {
 pub fn recover_files(paths: &[PathBuf]) {
     for path in paths {
         if let Err(e) = recover_if_unfinished(path) {
-            set_aside(path, &e);
+            set_aside(path, &e.to_string());
         }
     }
 }
@@ -152,28 +152,49 @@ fn is_finished(bytes: &[u8]) -> bool {
     bytes.len() >= 2 * mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC)
 }
 
+/// Why a file whose writer died could not be recovered (it is set aside).
+#[derive(Debug, thiserror::Error)]
+enum RecoverError {
+    /// It could not be read.
+    #[error("{0}")]
+    Read(std::io::Error),
+    /// The recovered copy could not be written or put in its place.
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// What it holds could not be recovered.
+    #[error("{0}")]
+    Recover(mcap::McapError),
+}
+
 /// Rewrites a file whose writer died into a valid recording, next to it first and then over it,
 /// so that a stop during the recovery leaves the original as it was.
-fn recover_if_unfinished(path: &Path) -> Result<(), String> {
-    let map = map(path).map_err(|e| e.to_string())?;
+fn recover_if_unfinished(path: &Path) -> Result<(), RecoverError> {
+    let map = map(path).map_err(RecoverError::Read)?;
     if is_finished(&map) {
         return Ok(());
     }
     let started = Instant::now();
     let tmp = path.with_extension("mcap.recovering");
-    let out = File::create(&tmp).map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;
+    let written = |source| RecoverError::Write {
+        path: tmp.clone(),
+        source,
+    };
+    let out = File::create(&tmp).map_err(written)?;
     let result = recording::recover(&map, std::io::BufWriter::new(out));
     let (w, counts) = match result {
         Ok(r) => r,
         Err(e) => {
             let _ = std::fs::remove_file(&tmp);
-            return Err(e.to_string());
+            return Err(RecoverError::Recover(e));
         }
     };
-    let file = w.into_inner().map_err(|e| e.to_string())?;
-    file.sync_all().map_err(|e| e.to_string())?;
+    let file = w.into_inner().map_err(|e| written(e.into_error()))?;
+    file.sync_all().map_err(written)?;
     drop(map);
-    std::fs::rename(&tmp, path).map_err(|e| e.to_string())?;
+    std::fs::rename(&tmp, path).map_err(written)?;
     info!(
         "resume: recovered {} (its writer stopped without closing it): {} messages, {} \
          attachment(s) kept{}, in {:.2} s",
@@ -406,17 +427,25 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
     seen
 }
 
+/// Why a recorded scan layer state is not taken up.
+#[derive(Debug, thiserror::Error)]
+enum StateError {
+    /// Its bytes do not decode.
+    #[error("it does not decode: {0}")]
+    Decode(#[from] postcard::Error),
+    /// It decodes but cannot be taken up.
+    #[error(transparent)]
+    Restore(#[from] crate::lifecycle::RestoreError),
+}
+
 /// Takes up the scan layer from a recorded state, `r`, and `before`, the one recorded before
 /// `r`'s station first closed (`None`: the scan layer's first station); the states' bytes.
 fn restore<C: ChunkSource>(
     lifecycle: &mut Lifecycle<C>,
     r: &ScanLayerStateRecord,
     before: Option<&ScanLayerStateRecord>,
-) -> Result<usize, String> {
-    let decode = |r: &ScanLayerStateRecord| {
-        postcard::from_bytes::<ScanLayerState>(&r.state)
-            .map_err(|e| format!("it does not decode: {e}"))
-    };
+) -> Result<usize, StateError> {
+    let decode = |r: &ScanLayerStateRecord| postcard::from_bytes::<ScanLayerState>(&r.state);
     let state = decode(r)?;
     let before_state = before.map(decode).transpose()?;
     lifecycle.restore_scan_layer(

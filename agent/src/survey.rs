@@ -27,17 +27,6 @@ pub struct Survey {
     layer: Option<(u64, u64)>,
 }
 
-/// A verdict as the cell's message carries it.
-pub fn survey_verdict(v: Verdict) -> SurveyVerdict {
-    match v {
-        Verdict::NotJudged => SurveyVerdict::NotJudged,
-        // The standards know no warn fraction.
-        Verdict::Pass | Verdict::Warn => SurveyVerdict::Pass,
-        Verdict::Inconclusive => SurveyVerdict::Inconclusive,
-        Verdict::Fail => SurveyVerdict::Fail,
-    }
-}
-
 impl Survey {
     /// Cells over `design`'s planar faces; `None` when no standard is set.
     pub fn new(
@@ -102,7 +91,7 @@ impl Survey {
             let row = FlatnessRow {
                 face: g.face,
                 direction: u8::from(g.direction == Direction::Across),
-                verdict: survey_verdict(g.verdict(self.rule)),
+                verdict: g.verdict(self.rule).into(),
                 span: g.span.unwrap_or(f64::NAN),
                 gap: g.gap,
                 support_distance: g.support_distance,
@@ -118,7 +107,7 @@ impl Survey {
             let row = AbruptRow {
                 face: a.face,
                 direction: u8::from(a.direction == Direction::Across),
-                verdict: survey_verdict(a.verdict(self.rule)),
+                verdict: a.verdict(self.rule).into(),
                 step: a.step,
                 distance: a.distance,
                 limit: a.limit,
@@ -204,7 +193,7 @@ impl Survey {
         let mut off = Vec::new();
         for (what, mut r, deviation) in dims.chain(plumb) {
             let v = rule.decide(deviation, r.uncertainty, r.limit);
-            r.verdict = survey_verdict(v);
+            r.verdict = v.into();
             if v > Verdict::Pass {
                 off.push(format!(
                     "{what} {} {:+.1} ± {:.1} mm (limit ±{:.0})",

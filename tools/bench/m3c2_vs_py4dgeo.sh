@@ -12,6 +12,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-out/m3c2-bench}
+# ASBUILT: another build to time (another revision's, for a before and after).
+ASBUILT=${ASBUILT:-target/release/asbuilt}
 RUNS=${RUNS:-3}
 . tools/bench/inputs.sh
 venv=target/bench-venv
@@ -19,7 +21,7 @@ venv=target/bench-venv
 "$venv/bin/pip" install --quiet --disable-pip-version-check py4dgeo numpy
 BUNNY=../shared/data/stanford-bunny/bun_zipper.ply
 asbuilt() {
-    target/release/asbuilt inspect --design "$BUNNY" --units m --scan "$OUT/bunny_scan.ply" \
+    "$ASBUILT" inspect --design "$BUNNY" --units m --scan "$OUT/bunny_scan.ply" \
         --translation 0,0,0 --rotation-xyzw 0,0,0,1 --method m3c2 --spacing 0.00075 \
         --projection-diameter 0.004 --max-depth 0.01 --max-distance 0.01 \
         --out "$OUT/asbuilt" > "$OUT/asbuilt.log" 2>&1

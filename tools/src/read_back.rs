@@ -661,13 +661,9 @@ fn judged_scan_layer(files: &[PathBuf]) -> Option<(u64, f64)> {
 }
 
 /// Findings or standards' judgements an older release recorded: the report draws them again
-/// from the chunks, so they are left out (with a warning that names the versions), not the job.
-fn older_findings(e: &recording::ReadError) -> bool {
-    older_note(e).is_some()
-}
-
-/// One line for a file's older findings (the same for each of its messages, so that the
-/// report warns once a file): which messages, which version, which this build reads.
+/// from the chunks, so they are left out, not the job. `Some` line for a file's warning (the
+/// same for each of its messages, so that the report warns once a file): which messages, which
+/// version, which this build writes; `None` for any other error.
 fn older_note(e: &recording::ReadError) -> Option<String> {
     let recording::ReadError::Decode {
         topic,
@@ -730,7 +726,7 @@ fn replay_stations(
             // again, which would have recovered it) is read as far as it goes.
             let (log_time, m) = match m {
                 Ok(m) => m,
-                Err(e) if older_findings(&e) => {
+                Err(e) if older_note(&e).is_some() => {
                     let note =
                         format!("{}: {}", path.display(), older_note(&e).unwrap_or_default());
                     (!cut.contains(&note)).then(|| cut.push(note));
@@ -857,7 +853,7 @@ mod tests {
             a.contains("version 1") && a.contains("draws them again"),
             "{a}"
         );
-        assert!(older_findings(&mismatch("/agent/surface")));
-        assert!(!older_findings(&mismatch("/robot/poses")));
+        assert!(older_note(&mismatch("/agent/surface")).is_some());
+        assert!(older_note(&mismatch("/robot/poses")).is_none());
     }
 }

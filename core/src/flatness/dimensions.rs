@@ -271,7 +271,7 @@ impl FlatnessGrid {
                         x.sum / x.count as f64,
                         x.count as f64,
                     ));
-                    tags.push(x.station);
+                    tags.push(x.station());
                 }
             }
         }

@@ -203,9 +203,8 @@ pub struct StationView {
 }
 
 /// One cell: the sum, sum of squares and count of its points' heights off the plane, the sum
-/// and count of those in the choosing half ([`Half`]), and which stations saw them: `station`
-/// (the one, or [`MIXED`]), the first and how many of its points, and the other (one more, or
-/// [`MIXED`] for several). One record per cell, so that adding a point touches one cache line.
+/// and count of those in the choosing half ([`Half`]), and which stations saw them: the first
+/// and how many of its points, and the other (one more, or [`MIXED`] for several). One record per cell, so that adding a point touches one cache line.
 #[derive(Debug, Clone, Copy)]
 struct Cell {
     sum: f64,
@@ -214,7 +213,6 @@ struct Cell {
     count: u32,
     choose_count: u32,
     first_count: u32,
-    station: u8,
     first: u8,
     other: u8,
 }
@@ -227,10 +225,18 @@ impl Cell {
         count: 0,
         choose_count: 0,
         first_count: 0,
-        station: EMPTY,
         first: EMPTY,
         other: EMPTY,
     };
+
+    /// The station that saw the cell, [`MIXED`] when several did, [`EMPTY`] before any.
+    fn station(&self) -> u8 {
+        if self.other == EMPTY {
+            self.first
+        } else {
+            MIXED
+        }
+    }
 
     /// The stations behind the cell's mean with their shares of its points: the first, and
     /// the rest as the other (as [`MIXED`] when it stands for several).
@@ -439,11 +445,6 @@ impl FlatnessGrid {
                 _ => MIXED,
             };
         }
-        c.station = match c.station {
-            EMPTY => tag,
-            t if t == tag => tag,
-            _ => MIXED,
-        };
     }
 
     /// Every face judged by `standard`, in both directions: the gap that governs each, the

@@ -29,8 +29,6 @@ fn job() -> SimJob {
     .map(|d| Defect::parse(d, &job.part).unwrap())
     .collect();
     job.scanner.step_deg = 0.07;
-    // Slower than the scanner, so that ten kills fall within the job.
-    job.rate = Some(0.5e6);
     job
 }
 
@@ -112,36 +110,62 @@ fn wait_serving(agent: &Agent, timeout: Duration) {
 /// job, and starts it again in its folder within a second each time: mostly while it serves
 /// (during a station or between two), sometimes while it starts or resumes. Returns what the
 /// cell got, the agent, and the kills.
+///
+/// The moments are tied to the job's progress, not to the clock, so that every kill falls
+/// within the job however fast the machine: at each of `kills` seeded events of the cell (a
+/// station scanned, sent or reported) the cell waits while the killer lets the agent work a
+/// random while on what it was sent, then kills and restarts it.
 fn run_with_kills(
     job: &SimJob,
     agent: Agent,
     cell: &Cell,
     kills: usize,
 ) -> (SimOutcome, Agent, usize) {
-    use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
-    let done = AtomicBool::new(false);
+    use std::sync::mpsc;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(27);
+    // Every station is at least scanned, sent and reported: three events each.
+    let events = 3 * job.plan().len();
+    assert!(events > kills + 8, "too few stations for {kills} kills");
+    let mut at: Vec<usize> = rand::seq::index::sample(&mut rng, events - 8, kills)
+        .into_iter()
+        .map(|i| i + 1)
+        .collect();
+    at.sort_unstable();
+    let (kill, now) = mpsc::channel::<()>();
+    let (killed_one, done_killing) = mpsc::channel::<()>();
     let (outcome, agent, killed) = std::thread::scope(|s| {
-        let done = &done;
         let killer = s.spawn(move || {
             let mut agent = agent;
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(27);
             let mut killed = 0;
-            while killed < kills && !done.load(Relaxed) {
+            // Ends when the cell is done and drops its sender.
+            while now.recv().is_ok() {
                 if rng.random_bool(0.8) {
                     wait_serving(&agent, Duration::from_secs(30));
                 }
                 std::thread::sleep(Duration::from_millis(rng.random_range(50..900)));
-                if done.load(Relaxed) {
-                    break;
-                }
                 agent.kill_and_restart(Duration::from_millis(rng.random_range(0..1000)));
                 killed += 1;
+                let _ = killed_one.send(());
             }
             (agent, killed)
         });
         // The cell's ports stay on this thread (they are not Send).
-        let outcome = sim::run(job, &cell.ports, true, Duration::from_secs(60), &mut |_| {});
-        done.store(true, Relaxed);
+        let mut seen = 0;
+        let mut on = |e: sim::SimEvent<'_>| {
+            if matches!(
+                e,
+                sim::SimEvent::Scanned { .. }
+                    | sim::SimEvent::Sent { .. }
+                    | sim::SimEvent::Report(_)
+            ) {
+                seen += 1;
+                if at.binary_search(&seen).is_ok() && kill.send(()).is_ok() {
+                    let _ = done_killing.recv();
+                }
+            }
+        };
+        let outcome = sim::run(job, &cell.ports, true, Duration::from_secs(60), &mut on);
+        drop(kill);
         let (agent, killed) = killer.join().unwrap();
         (outcome, agent, killed)
     });

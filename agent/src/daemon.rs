@@ -142,12 +142,16 @@ struct IpcOutputs<'p> {
     /// Reports waiting for the recorder to have them on disk, with their flush ticket and since
     /// when: the cell learns of a station only once a crash can no longer lose it.
     unpublished: std::collections::VecDeque<(u64, Instant, StationReport)>,
+    /// The ticket of the report whose wait for the disk the log has said.
+    slow_disk_said: Option<u64>,
     /// Record each scan layer's findings state after every station (`[recorder] resume`).
     record_states: bool,
 }
 
-/// How long a report waits for the recorder's disk before it is published anyway: a slow disk
-/// must not hold the cell's results back for long.
+/// How long a report waits for the recorder's disk before the log says the disk holds the
+/// cell back. It is never published ahead of its record: a report the cell has and the
+/// recording lacks makes a restarted agent call that attempt interrupted, while the cell kept
+/// the first report it got and never scans the station again.
 const ON_DISK_WAIT: Duration = Duration::from_secs(1);
 
 /// One name per station in the view, the same for its pose, points and report.
@@ -339,20 +343,24 @@ impl IpcOutputs<'_> {
         self.notify();
     }
 
-    /// Publishes the reports the recorder has on disk (all of them when `all`, or when one has
-    /// waited [`ON_DISK_WAIT`]).
+    /// Publishes the reports the recorder has on disk (all of them when `all`: the recorder is
+    /// finished). One that has waited [`ON_DISK_WAIT`] is said once in the log, and waits on.
     fn publish_recorded_reports(&mut self, all: bool) {
         while let Some(&(ticket, since, report)) = self.unpublished.front() {
             let on_disk = self.recorder.as_ref().is_none_or(|r| r.is_on_disk(ticket));
-            let late = since.elapsed() >= ON_DISK_WAIT;
-            if !(on_disk || late || all) {
+            if !(on_disk || all) {
+                if since.elapsed() >= ON_DISK_WAIT && self.slow_disk_said != Some(ticket) {
+                    self.slow_disk_said = Some(ticket);
+                    warn!(
+                        "job {} station {}: its report waits for the recorder to have it on \
+                         disk ({:.1} s so far); the cell is told once it is. Check the \
+                         recording folder's disk",
+                        report.job,
+                        report.station,
+                        since.elapsed().as_secs_f64()
+                    );
+                }
                 break;
-            }
-            if !on_disk {
-                warn!(
-                    "job {} station {}: report published before the recorder had it on disk",
-                    report.job, report.station
-                );
             }
             self.unpublished.pop_front();
             self.publish_report(&report);
@@ -383,6 +391,7 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
         unloaned: 0,
         unpublished: std::collections::VecDeque::new(),
+        slow_disk_said: None,
         record_states: config.recorder.resume && config.findings.enabled,
     };
     let recovering = resumed

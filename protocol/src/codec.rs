@@ -6,80 +6,8 @@
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint};
-
-/// A message type with a versioned name, e.g. `asbuilt.PoseSnapshot.v2`.
-pub trait Message: Serialize + DeserializeOwned {
-    /// The iceoryx2 type name and the MCAP schema name.
-    const TYPE_NAME: &'static str;
-    /// The version this build writes.
-    const VERSION: u16;
-    /// The oldest version this build still reads (its layout and encoding are this one's).
-    const OLDEST: u16 = Self::VERSION;
-    /// The version this instance claims (the payload's own field).
-    fn version(&self) -> u16;
-}
-
-/// Implements [`Message`] for a payload with a `version: u16` field. The name must match the
-/// type's `#[type_name]`, which iceoryx2 compares; a test checks that they agree.
-macro_rules! message {
-    ($ty:ty, $name:literal, $version:literal) => {
-        impl $crate::codec::Message for $ty {
-            const TYPE_NAME: &'static str = $name;
-            const VERSION: u16 = $version;
-            fn version(&self) -> u16 {
-                self.version
-            }
-        }
-    };
-    ($ty:ty, $name:literal, $version:literal, oldest $oldest:literal) => {
-        impl $crate::codec::Message for $ty {
-            const TYPE_NAME: &'static str = $name;
-            const VERSION: u16 = $version;
-            const OLDEST: u16 = $oldest;
-            fn version(&self) -> u16 {
-                self.version
-            }
-        }
-    };
-}
-pub(crate) use message;
-
-/// A record that cannot be read back as the message it claims to be.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DecodeError {
-    #[error(
-        "{message} version {found} cannot be read by this build, which reads versions {oldest} \
-         to {expected}: use the asbuilt release that wrote it, or re-record"
-    )]
-    /// Written by a release with another version of the message.
-    VersionMismatch {
-        /// The message's type name.
-        message: &'static str,
-        /// The version the record claims.
-        found: u16,
-        /// The newest version this build reads.
-        expected: u16,
-        /// The oldest version this build reads.
-        oldest: u16,
-    },
-    /// Postcard could not decode the record (cut short, or not this message).
-    #[error("corrupt {message} record: {reason}")]
-    Corrupt {
-        /// The message's type name.
-        message: &'static str,
-        /// What postcard said.
-        reason: String,
-    },
-    /// More bytes than the message holds: the record is another message.
-    #[error("{message} record has {extra} unread bytes after the message: it is not a {message}")]
-    TrailingBytes {
-        /// The message's type name.
-        message: &'static str,
-        /// Bytes left after the message.
-        extra: usize,
-    },
-}
+pub use crate::message::{DecodeError, Message};
+use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, check_version};
 
 /// One record: the version, then the message.
 pub fn encode<M: Message>(msg: &M) -> Vec<u8> {
@@ -98,7 +26,7 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
             extra: rest.len(),
         });
     }
-    crate::check_version::<M>(msg.version())?;
+    check_version::<M>(msg.version())?;
     Ok(msg)
 }
 
@@ -128,7 +56,7 @@ pub fn decode_scan_chunk(bytes: &[u8]) -> Result<(ChunkHeader, Vec<ScanPoint>), 
     }
     let (header, planes): (ChunkHeader, _) =
         postcard::take_from_bytes(body).map_err(corrupt::<ChunkHeader>)?;
-    crate::check_version::<ChunkHeader>(header.version)?;
+    check_version::<ChunkHeader>(header.version)?;
     let n = header.point_count as usize;
     let want = n.saturating_mul(crate::scan_planes::POINT_BYTES);
     if planes.len() < want {
@@ -175,7 +103,7 @@ fn decode_slice<H: Message, T: DeserializeOwned>(
 ) -> Result<(H, Vec<T>), DecodeError> {
     let body = read_version::<H>(bytes)?;
     let (header, rest): (H, _) = postcard::take_from_bytes(body).map_err(|e| corrupt::<H>(e))?;
-    crate::check_version::<H>(header.version())?;
+    check_version::<H>(header.version())?;
     let (items, rest): (Vec<T>, _) =
         postcard::take_from_bytes(rest).map_err(|e| corrupt::<H>(e))?;
     if !rest.is_empty() {
@@ -200,7 +128,7 @@ fn decode_slice<H: Message, T: DeserializeOwned>(
 fn read_version<M: Message>(bytes: &[u8]) -> Result<&[u8], DecodeError> {
     let (version, body): (u16, _) =
         postcard::take_from_bytes(bytes).map_err(|e| corrupt::<M>(e))?;
-    crate::check_version::<M>(version)?;
+    check_version::<M>(version)?;
     Ok(body)
 }
 

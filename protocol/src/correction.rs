@@ -8,7 +8,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 
 /// A measured quantity a correction rests on. Metres; NaN where it was not measured.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
@@ -141,7 +141,7 @@ pub struct LayerCorrection {
     /// The shift over the latest bands (median per component).
     pub shift: Evidence,
 }
-crate::codec::message!(LayerCorrection, "asbuilt.LayerCorrection.v1", 1);
+crate::message::message!(LayerCorrection, "asbuilt.LayerCorrection.v1", 1);
 
 impl Default for LayerCorrection {
     fn default() -> Self {

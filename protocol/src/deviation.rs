@@ -1,7 +1,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 
 /// The user header of a deviation chunk; a `[PointDeviation]` slice follows, one entry per
 /// scan point of the chunk with the same `sequence`, in the same order.
@@ -31,7 +31,7 @@ pub struct DeviationHeader {
     pub out_of_tolerance: u32,
 }
 
-crate::codec::message!(DeviationHeader, "asbuilt.DeviationHeader.v1", 1);
+crate::message::message!(DeviationHeader, "asbuilt.DeviationHeader.v1", 1);
 
 /// Required by iceoryx2 to loan a sample with this header; a real header comes from `new`.
 impl Default for DeviationHeader {

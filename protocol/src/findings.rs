@@ -9,7 +9,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
 use crate::SurveyVerdict;
-use crate::codec::Message;
+use crate::message::Message;
 
 /// Layer bands a [`StationFindings`] holds at most.
 pub const MAX_LAYER_ROWS: usize = 256;
@@ -36,7 +36,7 @@ pub struct FindingsHeader {
     /// Length of the encoded findings that follow.
     pub bytes: u32,
 }
-crate::codec::message!(FindingsHeader, "asbuilt.FindingsHeader.v1", 1);
+crate::message::message!(FindingsHeader, "asbuilt.FindingsHeader.v1", 1);
 
 impl Default for FindingsHeader {
     fn default() -> Self {
@@ -188,7 +188,7 @@ pub struct StationFindings {
     /// Regions or missing areas left out because the lists were full.
     pub truncated: u32,
 }
-crate::codec::message!(StationFindings, "asbuilt.StationFindings.v2", 2, oldest 2);
+crate::message::message!(StationFindings, "asbuilt.StationFindings.v2", 2, oldest 2);
 
 impl StationFindings {
     /// Empty findings for a station: no layers, no regions, nothing seen of the top.

@@ -7,7 +7,7 @@
 //! | [`TOPIC_DESIGN`] | `foxglove.SceneUpdate` | the design, once per file |
 //! | [`TOPIC_STATIONS`] | `foxglove.FrameTransform` | each pose: [`DESIGN_FRAME`] → `station_<job>_<n>` |
 //! | [`TOPIC_DEVIATIONS`] | `foxglove.PointCloud` | each deviation chunk: design frame, `x y z distance_mm` (f32) and `red green blue alpha` (u8) |
-//! | [`TOPIC_REPORTS`], [`TOPIC_FINDINGS`], [`TOPIC_CORRECTIONS`], [`TOPIC_SURFACE`] | JSON | each station report, findings, correction and surface judgement |
+//! | [`json_topic`] of each channel the message table marks (`/foxglove/reports`, `findings`, `corrections`, `surface`) | JSON | each station report, findings, correction and surface judgement |
 //! | [`TOPIC_SCANS`] (when asked for: `pack`) | `foxglove.PointCloud` | each scan chunk in its station's frame, `x y z intensity` (f32) |
 
 use std::collections::BTreeMap;
@@ -19,7 +19,7 @@ use foxglove::messages::{
     SceneUpdate, Timestamp, TriangleListPrimitive, Vector3, packed_element_field::NumericType,
 };
 
-use crate::recording::Recorded;
+use crate::recording::{Channel, Recorded};
 use crate::{DeviationFlags, DeviationHeader, PointDeviation, PoseSnapshot};
 
 /// The design as a `foxglove.SceneUpdate` (one triangle list), once per recording.
@@ -28,14 +28,15 @@ pub const TOPIC_DESIGN: &str = "/foxglove/design";
 pub const TOPIC_STATIONS: &str = "/foxglove/stations";
 /// Each deviation chunk as a `foxglove.PointCloud` coloured by signed distance.
 pub const TOPIC_DEVIATIONS: &str = "/foxglove/deviations";
-/// Each station report as JSON.
-pub const TOPIC_REPORTS: &str = "/foxglove/reports";
-/// Each station's findings as JSON.
-pub const TOPIC_FINDINGS: &str = "/foxglove/findings";
-/// Each correction for the layers still to print as JSON.
-pub const TOPIC_CORRECTIONS: &str = "/foxglove/corrections";
-/// Each surface judgement (flatness, dimensions, plumb) as JSON.
-pub const TOPIC_SURFACE: &str = "/foxglove/surface";
+/// The topic of a channel's JSON copy: `/foxglove/` and the last part of its service
+/// (`/foxglove/reports`), for the channels whose [`Channel::foxglove_json`] says so.
+pub fn json_topic(channel: Channel) -> String {
+    let service = channel.service();
+    format!(
+        "/foxglove/{}",
+        service.rsplit('/').next().unwrap_or(service)
+    )
+}
 /// Each scan chunk as a `foxglove.PointCloud` in its station's frame (`pack --foxglove`).
 pub const TOPIC_SCANS: &str = "/foxglove/scans";
 /// The frame every point and the design are in; stations hang from it.
@@ -51,10 +52,8 @@ pub(crate) struct FoxgloveChannels {
     design: u16,
     stations: u16,
     deviations: u16,
-    reports: u16,
-    findings: u16,
-    corrections: u16,
-    surface: u16,
+    /// The JSON copies of the channels the message table marks.
+    json: BTreeMap<Channel, u16>,
     /// Scan chunks too (a packed file has no deviations to show).
     scans: Option<u16>,
     colour: Colour,
@@ -89,10 +88,11 @@ impl FoxgloveChannels {
             design: add::<_, SceneUpdate>(mcap, TOPIC_DESIGN)?,
             stations: add::<_, FrameTransform>(mcap, TOPIC_STATIONS)?,
             deviations: add::<_, PointCloud>(mcap, TOPIC_DEVIATIONS)?,
-            reports: add_json(mcap, TOPIC_REPORTS, "asbuilt.StationReport")?,
-            findings: add_json(mcap, TOPIC_FINDINGS, "asbuilt.StationFindings")?,
-            corrections: add_json(mcap, TOPIC_CORRECTIONS, "asbuilt.LayerCorrection")?,
-            surface: add_json(mcap, TOPIC_SURFACE, "asbuilt.SurfaceFindings")?,
+            json: Channel::ALL
+                .into_iter()
+                .filter(|c| c.foxglove_json())
+                .map(|c| Ok((c, add_json(mcap, &json_topic(c), c.schema_name())?)))
+                .collect::<Result<_, mcap::McapError>>()?,
             scans: None,
             colour,
             every: 1,
@@ -125,12 +125,8 @@ impl FoxgloveChannels {
             Recorded::Deviations(h, points) => {
                 Some(self.cloud(h, cloud_points(points, self.every)))
             }
-            Recorded::Report(r) => Some((self.reports, serde_json::to_vec(r).ok()?)),
-            Recorded::Findings(f) => Some((self.findings, serde_json::to_vec(f).ok()?)),
-            Recorded::Correction(c) => Some((self.corrections, serde_json::to_vec(c).ok()?)),
-            Recorded::Surface(s) => Some((self.surface, serde_json::to_vec(s).ok()?)),
             Recorded::Chunk(h, points) => self.scan(h, points),
-            Recorded::Event(_) | Recorded::Status(_) => None,
+            m => Some((*self.json.get(&m.channel())?, m.foxglove_json()?)),
         }
     }
 

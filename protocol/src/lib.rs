@@ -18,24 +18,28 @@ mod findings;
 pub mod foxglove;
 pub mod ipc;
 mod mcap_records;
+mod message;
 mod pose;
 pub mod recording;
+mod records;
 mod report;
 mod scan;
 mod scan_planes;
 mod sending;
+mod services;
 mod station;
 mod status;
 mod survey;
+mod table;
 mod text;
 
-pub use codec::{DecodeError, Message};
 pub use correction::{CorrectionFlags, Evidence, LayerCorrection};
 pub use deviation::{DeviationFlags, DeviationHeader, Feature, PointDeviation};
 pub use findings::{
     FindingsHeader, LayerFinding, MAX_FINDINGS_BYTES, MAX_LAYER_ROWS, MAX_REGIONS, RegionFinding,
     RegionKind, StationFindings,
 };
+pub use message::{ChunkRecord, DecodeError, Message, Record, check_version};
 pub use pose::{PoseMode, PoseSnapshot};
 pub use report::{
     ChunkCounts, DeviationStats, HISTOGRAM_BINS, Histogram, RejectCounts, StationReport,
@@ -58,19 +62,4 @@ pub fn unix_time_ns() -> u64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos() as u64)
         .unwrap_or(0)
-}
-
-/// Checks the version field that every payload carries, for payloads that arrive through shared
-/// memory (where the codec's check does not run).
-pub fn check_version<M: Message>(found: u16) -> Result<(), DecodeError> {
-    if (M::OLDEST..=M::VERSION).contains(&found) {
-        Ok(())
-    } else {
-        Err(DecodeError::VersionMismatch {
-            message: M::TYPE_NAME,
-            found,
-            expected: M::VERSION,
-            oldest: M::OLDEST,
-        })
-    }
 }

@@ -1,7 +1,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 
 /// How the robot's pose is to be read: all six degrees of freedom, or the translation alone with
 /// the scanner's calibrated orientation (a scanner whose azimuth zero never turns).
@@ -56,7 +56,7 @@ pub struct PoseSnapshot {
     pub position_sigma: f64,
 }
 
-crate::codec::message!(PoseSnapshot, "asbuilt.PoseSnapshot.v2", 2, oldest 1);
+crate::message::message!(PoseSnapshot, "asbuilt.PoseSnapshot.v2", 2, oldest 1);
 
 impl PoseSnapshot {
     /// `None` for a value no known sender writes.

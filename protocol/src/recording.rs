@@ -18,13 +18,10 @@ use std::io::{Seek, Write};
 
 use serde::{Deserialize, Serialize};
 
-use crate::codec::{self, DecodeError, Message};
+use crate::codec::{self, DecodeError};
 use crate::foxglove::{Colour, FoxgloveChannels};
 use crate::mcap_records::{Chunks, Damaged, RecordError, Records};
-use crate::{
-    AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, PointDeviation, PoseSnapshot,
-    ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
-};
+use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, StationEvent};
 
 /// The MCAP message encoding of the asbuilt channels: [`crate::codec`]'s postcard records.
 pub const MESSAGE_ENCODING: &str = "asbuilt-postcard";
@@ -69,233 +66,11 @@ impl ScanLayerStateRecord {
     pub const VERSION: u16 = 2;
 }
 
-/// The channels of a recording.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Channel {
-    /// Robot poses, from the cell ([`PoseSnapshot`]).
-    Poses,
-    /// Scan chunks, from the scanner ([`ChunkHeader`] and points).
-    ScanChunks,
-    /// Station Begin and End, from the cell ([`StationEvent`]).
-    StationEvents,
-    /// Deviation chunks, from the agent ([`DeviationHeader`] and deviations).
-    Deviations,
-    /// Station reports, from the agent ([`StationReport`]).
-    Reports,
-    /// The agent's health ([`AgentStatus`]).
-    Status,
-    /// Findings after each report, from the agent ([`StationFindings`]).
-    Findings,
-    /// Advice for the layers still to print, after findings ([`LayerCorrection`]).
-    Corrections,
-    /// Flatness, dimensions and plumb judged by a standard, after a report
-    /// ([`SurfaceFindings`]).
-    Surface,
-}
-
-impl Channel {
-    /// Every channel, in the order a recording declares them.
-    pub const ALL: [Channel; 9] = [
-        Channel::Poses,
-        Channel::ScanChunks,
-        Channel::StationEvents,
-        Channel::Deviations,
-        Channel::Reports,
-        Channel::Status,
-        Channel::Findings,
-        Channel::Corrections,
-        Channel::Surface,
-    ];
-
-    /// The cell's messages to the agent: what a replay sends again.
-    pub const INPUTS: [Channel; 3] = [Channel::Poses, Channel::ScanChunks, Channel::StationEvents];
-
-    /// The MCAP topic of the channel.
-    pub fn topic(self) -> &'static str {
-        match self {
-            Channel::Poses => "/robot/poses",
-            Channel::ScanChunks => "/scanner/chunks",
-            Channel::StationEvents => "/job/stations",
-            Channel::Deviations => "/agent/deviations",
-            Channel::Reports => "/agent/reports",
-            Channel::Status => "/agent/status",
-            Channel::Findings => "/agent/findings",
-            Channel::Corrections => "/agent/corrections",
-            Channel::Surface => "/agent/surface",
-        }
-    }
-
-    /// The channel of an MCAP topic; `None` for a topic asbuilt does not write.
-    pub fn from_topic(topic: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|c| c.topic() == topic)
-    }
-
-    /// The MCAP schema name of the channel's messages.
-    pub fn schema_name(self) -> &'static str {
-        match self {
-            Channel::Poses => PoseSnapshot::TYPE_NAME,
-            Channel::ScanChunks => "asbuilt.ScanChunk.v3",
-            Channel::StationEvents => StationEvent::TYPE_NAME,
-            Channel::Deviations => "asbuilt.DeviationChunk.v1",
-            Channel::Reports => StationReport::TYPE_NAME,
-            Channel::Status => AgentStatus::TYPE_NAME,
-            Channel::Findings => StationFindings::TYPE_NAME,
-            Channel::Corrections => LayerCorrection::TYPE_NAME,
-            Channel::Surface => SurfaceFindings::TYPE_NAME,
-        }
-    }
-}
+pub use crate::table::{Channel, Recorded};
 
 /// The schema data of a channel: its fields, in encoding order, with units.
 pub fn schema_text(channel: Channel) -> &'static str {
-    match channel {
-        Channel::Poses => {
-            "asbuilt.PoseSnapshot v2, postcard: version u16 (varint, also first), mode u8 \
-             (0 flange in base, 1 fixed orientation, 2 scanner in design), attempt u8, \
-             station u32, job u64, sequence u64, timestamp_ns u64, translation [f64; 3] m, \
-             rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m"
-        }
-        Channel::ScanChunks => {
-            "asbuilt.ScanChunk v3: layout u16 (varint; 3), then ChunkHeader in postcard { \
-             version u16, attempt u16, station u32, job u64, sequence u64, timestamp_ns u64, \
-             point_count u32, last u8, _reserved2 [u8; 3] }, then point_count ScanPoints as 20 \
-             byte planes of point_count bytes each: plane 4w+j holds byte j (little-endian) of \
-             word w of every point, the words being x, y, z (f32 m scanner frame), intensity \
-             (f32), then flags u16 (bit 0 invalid), returns u8, _reserved u8. Layout 1 or 2: \
-             the points follow the header as a postcard sequence (varint length) of ScanPoint"
-        }
-        Channel::StationEvents => {
-            "asbuilt.StationEvent v2, postcard: version u16 (varint, also first), kind u8 \
-             (0 begin, 1 end), attempt u8 (1 the first try; 0 in v1), station u32, job u64, timestamp_ns u64, layer u32, \
-             expected_chunks u32, expected_points u64, printed_height f64 m (NaN: not printing), \
-             name [u8; 48] with length u8"
-        }
-        Channel::Deviations => {
-            "asbuilt.DeviationChunk v1, postcard: version u16 (varint), then DeviationHeader, \
-             then a sequence (varint length) of PointDeviation { position [f64; 3] m design \
-             frame, distance f64 m signed (NaN: no match), triangle u32, feature u8, flags u8 }; \
-             see asbuilt-protocol's deviation.rs for the header's fields"
-        }
-        Channel::Reports => {
-            "asbuilt.StationReport v2, postcard: the fields of asbuilt-protocol's \
-             StationReport in declaration order (statistics in metres, counts, histogram)"
-        }
-        Channel::Status => {
-            "asbuilt.AgentStatus v1, postcard: the fields of asbuilt-protocol's AgentStatus in \
-             declaration order (points/s, queues, rejects and drops by reason)"
-        }
-        Channel::Findings => {
-            "asbuilt.StationFindings v2, postcard: the fields of asbuilt-protocol's \
-             StationFindings in declaration order (per-layer width, shift and top height, \
-             regions out of tolerance and missing material, each with its expanded \
-             uncertainty (k = 2); metres, design frame)"
-        }
-        Channel::Corrections => {
-            "asbuilt.LayerCorrection v1, postcard: the fields of asbuilt-protocol's \
-             LayerCorrection in declaration order (z offset per layer for the first layers and \
-             after, drift per layer, flow factor, path offset; each measured error with its \
-             sigma and samples; metres, design frame)"
-        }
-        Channel::Surface => {
-            "asbuilt.SurfaceFindings v3, postcard: the fields of asbuilt-protocol's \
-             SurfaceFindings in declaration order (the standards' keys, the governing gap and \
-             the deepest within each table distance per face and direction with the distance \
-             between its supports, dimensions and plumb, the largest abrupt offset per face and \
-             direction (ACI 117), each with its limit, expanded \
-             uncertainty (k = 2) and verdict by the decision rule; metres, design frame)"
-        }
-    }
-}
-
-/// One decoded message of a recording.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Recorded {
-    /// A robot pose.
-    Pose(PoseSnapshot),
-    /// A scan chunk: its header and points.
-    Chunk(ChunkHeader, Vec<ScanPoint>),
-    /// A station's Begin or End.
-    Event(StationEvent),
-    /// A deviation chunk: its header and one deviation per scan point.
-    Deviations(DeviationHeader, Vec<PointDeviation>),
-    /// A station report.
-    Report(Box<StationReport>),
-    /// An agent status.
-    Status(Box<AgentStatus>),
-    /// A station's findings.
-    Findings(Box<StationFindings>),
-    /// Advice for the layers still to print.
-    Correction(Box<LayerCorrection>),
-    /// Flatness, dimensions and plumb judged by a standard.
-    Surface(Box<SurfaceFindings>),
-}
-
-impl Recorded {
-    /// The channel the message is recorded on.
-    pub fn channel(&self) -> Channel {
-        match self {
-            Recorded::Pose(_) => Channel::Poses,
-            Recorded::Chunk(..) => Channel::ScanChunks,
-            Recorded::Event(_) => Channel::StationEvents,
-            Recorded::Deviations(..) => Channel::Deviations,
-            Recorded::Report(_) => Channel::Reports,
-            Recorded::Status(_) => Channel::Status,
-            Recorded::Findings(_) => Channel::Findings,
-            Recorded::Correction(_) => Channel::Corrections,
-            Recorded::Surface(_) => Channel::Surface,
-        }
-    }
-
-    /// A record of `channel` back into its message.
-    pub fn decode(channel: Channel, bytes: &[u8]) -> Result<Self, DecodeError> {
-        Ok(match channel {
-            Channel::Poses => Recorded::Pose(codec::decode(bytes)?),
-            Channel::ScanChunks => {
-                let (h, p) = codec::decode_scan_chunk(bytes)?;
-                Recorded::Chunk(h, p)
-            }
-            Channel::StationEvents => Recorded::Event(codec::decode(bytes)?),
-            Channel::Deviations => {
-                let (h, p) = codec::decode_deviation_chunk(bytes)?;
-                Recorded::Deviations(h, p)
-            }
-            Channel::Reports => Recorded::Report(Box::new(codec::decode(bytes)?)),
-            Channel::Status => Recorded::Status(Box::new(codec::decode(bytes)?)),
-            Channel::Findings => Recorded::Findings(Box::new(codec::decode(bytes)?)),
-            Channel::Corrections => Recorded::Correction(Box::new(codec::decode(bytes)?)),
-            Channel::Surface => Recorded::Surface(Box::new(codec::decode(bytes)?)),
-        })
-    }
-
-    /// The message as its channel records it.
-    pub fn encode(&self) -> Vec<u8> {
-        match self {
-            Recorded::Pose(m) => codec::encode(m),
-            Recorded::Chunk(h, p) => codec::encode_scan_chunk(h, p),
-            Recorded::Event(m) => codec::encode(m),
-            Recorded::Deviations(h, p) => codec::encode_deviation_chunk(h, p),
-            Recorded::Report(m) => codec::encode(m.as_ref()),
-            Recorded::Status(m) => codec::encode(m.as_ref()),
-            Recorded::Findings(m) => codec::encode(m.as_ref()),
-            Recorded::Correction(m) => codec::encode(m.as_ref()),
-            Recorded::Surface(m) => codec::encode(m.as_ref()),
-        }
-    }
-
-    /// The message's own timestamp, nanoseconds since the Unix epoch (0 when it has none).
-    pub fn timestamp_ns(&self) -> u64 {
-        match self {
-            Recorded::Pose(m) => m.timestamp_ns,
-            Recorded::Chunk(h, _) => h.timestamp_ns,
-            Recorded::Event(m) => m.timestamp_ns,
-            Recorded::Deviations(h, _) => h.timestamp_ns,
-            Recorded::Report(_)
-            | Recorded::Findings(_)
-            | Recorded::Correction(_)
-            | Recorded::Surface(_) => 0,
-            Recorded::Status(m) => m.timestamp_ns,
-        }
-    }
+    channel.schema_text()
 }
 
 /// What the `asbuilt.job` metadata record holds.
@@ -967,7 +742,7 @@ pub struct RecoverCounts {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{PoseMode, StationEventKind};
+    use crate::{PoseMode, PoseSnapshot, StationEventKind};
 
     fn job_messages() -> Vec<Recorded> {
         let mut out = Vec::new();

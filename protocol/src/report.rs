@@ -1,7 +1,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 use crate::text::FixedText;
 
 /// Bins of the signed-distance histogram carried in every report.
@@ -184,7 +184,7 @@ pub struct StationReport {
     pub histogram: Histogram,
 }
 
-crate::codec::message!(StationReport, "asbuilt.StationReport.v2", 2, oldest 1);
+crate::message::message!(StationReport, "asbuilt.StationReport.v2", 2, oldest 1);
 
 impl StationReport {
     /// The status, or `None` for a value no known sender writes.

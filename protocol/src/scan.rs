@@ -1,7 +1,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 
 /// The user header of a scan chunk; the points follow as a `[ScanPoint]` slice payload.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
@@ -29,7 +29,7 @@ pub struct ChunkHeader {
     pub _reserved2: [u8; 3],
 }
 
-crate::codec::message!(ChunkHeader, "asbuilt.ChunkHeader.v2", 2, oldest 1);
+crate::message::message!(ChunkHeader, "asbuilt.ChunkHeader.v2", 2, oldest 1);
 
 /// Required by iceoryx2 to loan a sample with this header; a real header comes from `new`.
 impl Default for ChunkHeader {

@@ -1,7 +1,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 use crate::text::FixedText;
 
 /// Whether a [`StationEvent`] opens or closes a station.
@@ -45,7 +45,7 @@ pub struct StationEvent {
     pub name: FixedText<48>,
 }
 
-crate::codec::message!(StationEvent, "asbuilt.StationEvent.v2", 2, oldest 1);
+crate::message::message!(StationEvent, "asbuilt.StationEvent.v2", 2, oldest 1);
 
 impl StationEvent {
     /// The kind, or `None` for a value no known sender writes.

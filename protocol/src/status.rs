@@ -1,7 +1,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 use crate::report::RejectCounts;
 
 /// What the agent is doing, as [`AgentStatus`] says it.
@@ -119,7 +119,7 @@ pub struct AgentStatus {
     pub output: OutputDrops,
 }
 
-crate::codec::message!(AgentStatus, "asbuilt.AgentStatus.v1", 1);
+crate::message::message!(AgentStatus, "asbuilt.AgentStatus.v1", 1);
 
 impl AgentStatus {
     /// The state, or `None` for a value no known sender writes.

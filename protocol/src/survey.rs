@@ -7,7 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::codec::Message;
+use crate::message::Message;
 use crate::text::FixedText;
 
 /// Gaps, dimensions and plumb rows a [`SurfaceFindings`] holds at most.
@@ -138,7 +138,7 @@ pub struct SurfaceFindings {
     /// Faces and directions the straightedge could not be laid on (not seen, too sparse).
     pub not_judged: u32,
 }
-crate::codec::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v3", 3, oldest 3);
+crate::message::message!(SurfaceFindings, "asbuilt.SurfaceFindings.v3", 3, oldest 3);
 
 impl SurfaceFindings {
     /// Nothing judged yet, after station `station` of `job`.

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use asbuilt_protocol::StationReport;
 use asbuilt_protocol::ipc::ServiceNames;
-use asbuilt_protocol::recording::{self, Channel, Recorded};
+use asbuilt_protocol::recording::{self, Recorded};
 use clap::Args;
 
 use crate::publish::collect_reports;
@@ -89,7 +89,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
         let bad = |e| crate::recording_file::unreadable(f, e);
         for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
             let (log_time, m) = m.map_err(bad)?;
-            if !Channel::INPUTS.contains(&m.channel()) {
+            if !m.channel().is_input() {
                 continue;
             }
             if let Some(speed) = speed {
@@ -151,7 +151,7 @@ fn survey(bytes: &[u8]) -> Result<Survey, recording::ReadError> {
             }
             _ => {}
         }
-        inputs += Channel::INPUTS.contains(&m.channel()) as u64;
+        inputs += m.channel().is_input() as u64;
     }
     Ok((stations, max_points, inputs))
 }

@@ -538,7 +538,7 @@ fn a_recording_with_foxglove_channels_shows_the_design_stations_and_points() {
     );
 
     // Reports and findings as JSON a panel reads.
-    let json: Vec<Value> = by_topic[fx::TOPIC_REPORTS]
+    let json: Vec<Value> = by_topic[fx::json_topic(recording::Channel::Reports).as_str()]
         .iter()
         .map(|b| serde_json::from_slice(b).unwrap())
         .collect();

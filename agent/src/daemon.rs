@@ -9,22 +9,22 @@ use asbuilt_core::Design;
 use asbuilt_core::printed::PrintedDesigns;
 use asbuilt_core::station::InspectParams;
 use asbuilt_protocol::{
-    AgentState, AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, LayerCorrection,
-    OutputDrops, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
-    StationFindings, StationReport, unix_time_ns,
+    AgentState, AgentStatus, ChunkHeader, OutputDrops, PoseSnapshot, ScanPoint, StationEvent,
+    StationEventKind, unix_time_ns,
 };
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 use iceoryx2_bb_posix::signal::SignalHandler;
 
 use crate::config::AgentConfig;
+use crate::fanout::Fanout;
 use crate::findings::FindingsStage;
 use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
 use crate::recorder::{Lent, Recorder};
 use crate::resume::Resumed;
 use crate::{error, info, warn};
 use asbuilt_protocol::ipc::{AgentPorts, ChunkSample, Ipc, IpcError, QueueSizes, ServiceNames};
-use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
+use asbuilt_viewer::{View, Viewer, ViewerParams};
 
 /// Station timeouts are checked this often at least.
 const MAX_TICK: Duration = Duration::from_millis(250);
@@ -127,247 +127,6 @@ impl Drop for LiveChunk {
     }
 }
 
-struct IpcOutputs<'p> {
-    ports: &'p AgentPorts,
-    /// Everything received and sent goes here too, when `[recorder]` is on.
-    recorder: Option<Recorder>,
-    /// The rerun view, when `[viewer]` is on, and points shown so far per open station.
-    viewer: Option<Viewer>,
-    shown: std::collections::BTreeMap<(u64, u32), usize>,
-    frames: &'p asbuilt_core::frames::FrameChain,
-    /// Where deviations go when no shared-memory sample can be loaned, so the station's
-    /// statistics stay whole. Sized once for the largest accepted chunk.
-    scratch: Vec<PointDeviation>,
-    unloaned: u64,
-    /// Reports waiting for the recorder to have them on disk, with their flush ticket and since
-    /// when: the cell learns of a station only once a crash can no longer lose it.
-    unpublished: std::collections::VecDeque<(u64, Instant, StationReport)>,
-    /// The ticket of the report whose wait for the disk the log has said.
-    slow_disk_said: Option<u64>,
-    /// Record each scan layer's findings state after every station (`[recorder] resume`).
-    record_states: bool,
-}
-
-/// How long a report waits for the recorder's disk before the log says the disk holds the
-/// cell back. It is never published ahead of its record: a report the cell has and the
-/// recording lacks makes a restarted agent call that attempt interrupted, while the cell kept
-/// the first report it got and never scans the station again.
-const ON_DISK_WAIT: Duration = Duration::from_secs(1);
-
-/// One name per station in the view, the same for its pose, points and report.
-fn view_name(job: u64, station: u32) -> String {
-    format!("job{job}/station{station}")
-}
-
-impl IpcOutputs<'_> {
-    /// A decimated share of a deviation chunk for the view: at most 1/16 of the per-station
-    /// budget per chunk, and nothing once the budget is spent.
-    fn view_points(&mut self, h: &DeviationHeader, devs: &[PointDeviation]) {
-        let Some(v) = &self.viewer else { return };
-        let max = v.max_points_per_station();
-        let shown = self.shown.entry((h.job, h.station)).or_insert(0);
-        if *shown >= max || devs.is_empty() {
-            return;
-        }
-        let per_chunk = (max / 16).max(1).min(max - *shown);
-        let (positions, distances) = viewer::decimate(devs, viewer::stride(devs.len(), per_chunk));
-        *shown += positions.len();
-        v.show(View::Points {
-            index: h.station,
-            name: view_name(h.job, h.station),
-            positions,
-            distances,
-        });
-    }
-
-    /// Publishes an encoded message (`what`) of a station `(job, station, layer)` behind a
-    /// findings header; a failure is logged, never waited for.
-    fn publish_encoded(
-        &self,
-        publisher: &iceoryx2::port::publisher::Publisher<Ipc, [u8], FindingsHeader>,
-        (job, station, layer): (u64, u32, u32),
-        bytes: &[u8],
-        what: &str,
-    ) {
-        match publisher.loan_slice_uninit(bytes.len()) {
-            Ok(mut sample) => {
-                let header = sample.user_header_mut();
-                header.job = job;
-                header.station = station;
-                header.layer = layer;
-                header.bytes = bytes.len() as u32;
-                let sample = sample.write_from_slice(bytes);
-                if let Err(e) = sample.send() {
-                    warn!("{what} of station {station} not published: {e:?}");
-                }
-                self.notify();
-            }
-            Err(e) => warn!(
-                "{what} of station {station} ({} bytes) not published: {e:?}",
-                bytes.len()
-            ),
-        }
-    }
-
-    fn notify(&self) {
-        if let Err(e) = self.ports.outbox.notify() {
-            warn!("cannot notify output subscribers: {e:?}");
-        }
-    }
-}
-
-impl Outputs for IpcOutputs<'_> {
-    fn wants_scan_layer_state(&self) -> bool {
-        self.record_states && self.recorder.is_some()
-    }
-
-    fn scan_layer_state(
-        &mut self,
-        report: &StationReport,
-        state: &asbuilt_core::scan_layer::ScanLayerState,
-    ) {
-        if let Some(r) = &self.recorder {
-            r.scan_layer_state(asbuilt_protocol::recording::ScanLayerStateRecord {
-                version: asbuilt_protocol::recording::ScanLayerStateRecord::VERSION,
-                job: report.job,
-                station: report.station,
-                attempt: report.attempt,
-                printed_height: report.printed_height,
-                state: postcard::to_allocvec(state).expect("a state of numbers always encodes"),
-            });
-        }
-    }
-
-    fn findings(&mut self, f: &StationFindings) {
-        if let Some(r) = &self.recorder {
-            r.findings(f);
-        }
-        if let Some(v) = &self.viewer {
-            v.show(View::Findings {
-                index: f.station,
-                findings: Box::new(f.clone()),
-            });
-        }
-        let bytes = asbuilt_protocol::codec::encode(f);
-        self.publish_encoded(
-            &self.ports.findings,
-            (f.job, f.station, f.layer),
-            &bytes,
-            "findings",
-        );
-    }
-
-    fn surface(&mut self, s: &asbuilt_protocol::SurfaceFindings) {
-        if let Some(r) = &self.recorder {
-            r.surface(s);
-        }
-        let bytes = asbuilt_protocol::codec::encode(s);
-        self.publish_encoded(
-            &self.ports.surface,
-            (s.job, s.station, s.layer),
-            &bytes,
-            "surface judgement",
-        );
-    }
-
-    fn correction(&mut self, c: &LayerCorrection) {
-        if let Some(r) = &self.recorder {
-            r.correction(c);
-        }
-        if let Some(v) = &self.viewer {
-            v.show(View::Correction(Box::new(*c)));
-        }
-        match self.ports.corrections.send_copy(*c) {
-            Ok(_) => self.notify(),
-            Err(e) => warn!("advice after station {} not published: {e:?}", c.station),
-        }
-    }
-
-    fn deviations(
-        &mut self,
-        n: usize,
-        fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
-    ) {
-        match self.ports.deviations.loan_slice(n) {
-            Ok(mut sample) => {
-                let header = fill(sample.payload_mut());
-                *sample.user_header_mut() = header;
-                if let Some(r) = &mut self.recorder {
-                    r.deviations(&header, sample.payload());
-                }
-                self.view_points(&header, sample.payload());
-                if let Err(e) = sample.send() {
-                    warn!("deviation chunk {} not published: {e:?}", header.sequence);
-                }
-                self.notify();
-            }
-            Err(e) => {
-                self.unloaned += 1;
-                let header = fill(&mut self.scratch[..n]);
-                if let Some(r) = &mut self.recorder {
-                    r.deviations(&header, &self.scratch[..n]);
-                }
-                warn!(
-                    "deviation chunk {} computed but not published, no output sample free \
-                     ({e:?}): subscribers are holding too many",
-                    header.sequence
-                );
-            }
-        }
-    }
-
-    fn report(&mut self, report: &StationReport) {
-        if let Some(r) = &self.recorder {
-            let ticket = r.report(report);
-            self.unpublished
-                .push_back((ticket, Instant::now(), *report));
-        } else {
-            self.publish_report(report);
-        }
-        if let Some(v) = &self.viewer {
-            self.shown.remove(&(report.job, report.station));
-            v.show(View::Report {
-                index: report.station,
-                name: view_name(report.job, report.station),
-                report: Box::new(*report),
-            });
-        }
-    }
-}
-
-impl IpcOutputs<'_> {
-    fn publish_report(&self, report: &StationReport) {
-        if let Err(e) = self.ports.reports.send_copy(*report) {
-            warn!("report of station {} not published: {e:?}", report.station);
-        }
-        self.notify();
-    }
-
-    /// Publishes the reports the recorder has on disk (all of them when `all`: the recorder is
-    /// finished). One that has waited [`ON_DISK_WAIT`] is said once in the log, and waits on.
-    fn publish_recorded_reports(&mut self, all: bool) {
-        while let Some(&(ticket, since, report)) = self.unpublished.front() {
-            let on_disk = self.recorder.as_ref().is_none_or(|r| r.is_on_disk(ticket));
-            if !(on_disk || all) {
-                if since.elapsed() >= ON_DISK_WAIT && self.slow_disk_said != Some(ticket) {
-                    self.slow_disk_said = Some(ticket);
-                    warn!(
-                        "job {} station {}: its report waits for the recorder to have it on \
-                         disk ({:.1} s so far); the cell is told once it is. Check the \
-                         recording folder's disk",
-                        report.job,
-                        report.station,
-                        since.elapsed().as_secs_f64()
-                    );
-                }
-                break;
-            }
-            self.unpublished.pop_front();
-            self.publish_report(&report);
-        }
-    }
-}
-
 /// Runs the agent until SIGINT or SIGTERM. Returns after every open station got its report.
 pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     // Install the termination handler before the long design load, so a stop request during
@@ -382,18 +141,16 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let design = loaded.designs.whole_design().clone();
     let mut lifecycle = make_lifecycle(config, loaded.designs);
     let mut resumed = resume(config, &mut lifecycle);
-    let mut out = IpcOutputs {
-        ports: &ports,
-        recorder: start_recorder(config, design, loaded.file)?,
-        viewer: start_viewer(config, loaded.view)?,
-        shown: Default::default(),
-        frames: &config.frames,
-        scratch: vec![PointDeviation::default(); limits.max_points_per_chunk],
-        unloaned: 0,
-        unpublished: std::collections::VecDeque::new(),
-        slow_disk_said: None,
-        record_states: config.recorder.resume && config.findings.enabled,
-    };
+    let mut out = Fanout::new(
+        &ports,
+        (
+            start_recorder(config, design, loaded.file)?,
+            start_viewer(config, loaded.view)?,
+        ),
+        &config.frames,
+        limits.max_points_per_chunk,
+        config.recorder.resume && config.findings.enabled,
+    );
     let recovering = resumed
         .as_mut()
         .and_then(|r| finish_resume(r, &mut lifecycle, &mut out));
@@ -576,7 +333,7 @@ fn resume(config: &AgentConfig, lifecycle: &mut AgentLifecycle) -> Option<Resume
 fn finish_resume(
     r: &mut Resumed,
     lifecycle: &mut AgentLifecycle,
-    out: &mut IpcOutputs<'_>,
+    out: &mut Fanout<'_>,
 ) -> Option<std::thread::JoinHandle<()>> {
     if let Some(report) = &r.findings_due {
         info!(
@@ -775,7 +532,7 @@ fn start_viewer(
 /// recorder, publishing the reports that waited for the disk.
 fn shut_down(
     mut lifecycle: AgentLifecycle,
-    mut out: IpcOutputs<'_>,
+    mut out: Fanout<'_>,
     mut held: HeldControl,
     status: &mut StatusReporter,
     started: Instant,
@@ -864,7 +621,7 @@ impl HeldControl {
     /// and poses go first, and again before any chunk whose station is not ready, because the
     /// cell sends a station's Begin and pose before its chunks but on other services. What
     /// cannot be taken yet is held here.
-    fn drain(&mut self, lifecycle: &mut AgentLifecycle, out: &mut IpcOutputs<'_>) -> Drained {
+    fn drain(&mut self, lifecycle: &mut AgentLifecycle, out: &mut Fanout<'_>) -> Drained {
         let ports = out.ports;
         let deadline = Instant::now() + DRAIN_SLICE;
         loop {
@@ -893,10 +650,7 @@ impl HeldControl {
                     }
                 }
                 any = true;
-                let lent = out
-                    .recorder
-                    .as_mut()
-                    .and_then(|r| r.chunk(sample.user_header(), sample.payload()));
+                let lent = out.took_chunk(&sample);
                 let now = Instant::now();
                 lifecycle.on_chunk(AgentChunk::Live(LiveChunk::new(sample, lent)), now, out);
                 if SignalHandler::termination_requested() {
@@ -916,7 +670,7 @@ impl HeldControl {
 
     /// Reads station events, then poses, until their queues are empty or a new station finds
     /// no slot; whether anything was read.
-    fn drain_control(&mut self, lifecycle: &mut AgentLifecycle, out: &mut IpcOutputs<'_>) -> bool {
+    fn drain_control(&mut self, lifecycle: &mut AgentLifecycle, out: &mut Fanout<'_>) -> bool {
         let ports = out.ports;
         let mut any = false;
         while let Some(ev) = self
@@ -930,9 +684,7 @@ impl HeldControl {
                 break;
             }
             any = true;
-            if let Some(r) = &out.recorder {
-                r.event(&ev);
-            }
+            out.took_event(&ev);
             lifecycle.on_event(&ev, Instant::now(), out);
         }
         while let Some(p) = self.pose.take().or_else(|| next(&ports.poses, "poses")) {
@@ -941,18 +693,7 @@ impl HeldControl {
                 break;
             }
             any = true;
-            if let Some(r) = &out.recorder {
-                r.pose(&p);
-            }
-            if let (Some(v), Ok(t)) = (&out.viewer, out.frames.t_design_scanner(&p)) {
-                v.show(View::Station {
-                    index: p.station,
-                    name: view_name(p.job, p.station),
-                    layer: lifecycle.layer_of(p.job, p.station),
-                    pose: t,
-                    time_ns: p.timestamp_ns,
-                });
-            }
+            out.took_pose(&p, lifecycle.layer_of(p.job, p.station));
             lifecycle.on_pose(&p, Instant::now(), out);
         }
         any
@@ -1007,7 +748,7 @@ impl StatusReporter {
         &mut self,
         ports: &AgentPorts,
         lifecycle: &AgentLifecycle,
-        out: &IpcOutputs<'_>,
+        out: &Fanout<'_>,
         state: AgentState,
     ) {
         use std::sync::atomic::Ordering::Relaxed;
@@ -1030,12 +771,7 @@ impl StatusReporter {
         self.last_points = s.points_processed;
         self.last_at = now;
         self.next = now + self.period;
-        if let Some(r) = &out.recorder {
-            r.status(&s);
-        }
-        if let Err(e) = ports.status.send_copy(s) {
-            warn!("status not published: {e:?}");
-        }
+        out.status(&s);
         log_health(&s);
     }
 }

@@ -20,10 +20,7 @@ use std::thread::JoinHandle;
 use asbuilt_protocol::foxglove::cloud_points;
 use asbuilt_protocol::ipc::ChunkSample;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter, ScanLayerStateRecord};
-use asbuilt_protocol::{
-    AgentStatus, ChunkHeader, DeviationHeader, PointDeviation, PoseSnapshot, ScanPoint,
-    StationEvent, StationFindings, StationReport, unix_time_ns,
-};
+use asbuilt_protocol::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, unix_time_ns};
 
 use asbuilt_core::Design;
 use asbuilt_core::colour::deviation_colour;
@@ -172,48 +169,23 @@ impl Recorder {
         }
     }
 
-    /// Records a pose.
-    pub fn pose(&self, p: &PoseSnapshot) {
-        self.small(Recorded::Pose(*p));
-    }
-
-    /// Records a station event; a Begin is flushed like a report, so that an agent resuming
-    /// after a crash knows the station began and reports it interrupted.
-    pub fn event(&self, e: &StationEvent) {
-        if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin) {
-            self.flushed(Recorded::Event(*e));
+    /// Records a message of the cell or of the agent (chunks have [`Recorder::chunk`] and
+    /// [`Recorder::deviations`]). What the cell or the printer acts on (a report, findings, a
+    /// surface judgement, advice: the table's per-station results) and a station's Begin are
+    /// never left out and are flushed, so that a crash keeps them and an agent resuming knows
+    /// of them; their ticket comes back, for [`Recorder::is_on_disk`]: the message and
+    /// everything before it are in the file once that flush is done. Reports wait for queue
+    /// room (only a stalled writer could make them wait). Other messages are left out, and
+    /// said, when the queue is full.
+    pub fn record(&self, m: Recorded) -> Option<u64> {
+        let begins = matches!(&m, Recorded::Event(e)
+            if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin));
+        if m.channel().is_per_station() || begins {
+            Some(self.flushed(m))
         } else {
-            self.small(Recorded::Event(*e));
+            self.small(m);
+            None
         }
-    }
-
-    /// Records a status.
-    pub fn status(&self, s: &AgentStatus) {
-        self.small(Recorded::Status(Box::new(*s)));
-    }
-
-    /// Reports are never dropped: the agent waits for queue room (only a stalled writer could
-    /// make it wait), then the station's chunk is closed and flushed. Returns the ticket that
-    /// [`Recorder::is_on_disk`] takes: the report and everything before it are in the file
-    /// once that flush is done.
-    pub fn report(&self, r: &StationReport) -> u64 {
-        self.flushed(Recorded::Report(Box::new(*r)))
-    }
-
-    /// Records a station's findings, and flushes them like a report.
-    pub fn findings(&self, f: &StationFindings) {
-        self.flushed(Recorded::Findings(Box::new(f.clone())));
-    }
-
-    /// Records a surface judgement (flatness, dimensions, plumb), flushed like findings.
-    pub fn surface(&self, s: &asbuilt_protocol::SurfaceFindings) {
-        self.flushed(Recorded::Surface(Box::new(s.clone())));
-    }
-
-    /// Records advice for the layers still to print, flushed like a report: an agent resuming
-    /// the job builds its next advice on it.
-    pub fn correction(&self, c: &asbuilt_protocol::LayerCorrection) {
-        self.flushed(Recorded::Correction(Box::new(*c)));
     }
 
     /// Attaches a scan layer's findings state after a station, flushed like a report: an agent

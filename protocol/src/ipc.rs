@@ -1,15 +1,9 @@
-//! The iceoryx2 services of one print cell, named under a prefix:
-//!
-//! | service                    | payload                                 | direction      |
-//! |----------------------------|-----------------------------------------|----------------|
-//! | `P/robot/poses`            | `PoseSnapshot`                          | cell → agent   |
-//! | `P/scanner/chunks`         | `ChunkHeader` + `[ScanPoint]`           | cell → agent   |
-//! | `P/job/stations`           | `StationEvent`                          | cell → agent   |
-//! | `P/agent/inbox`            | event: "input waiting"                  | cell → agent   |
-//! | `P/agent/deviations`       | `DeviationHeader` + `[PointDeviation]`  | agent → cell   |
-//! | `P/agent/reports`          | `StationReport`                         | agent → cell   |
-//! | `P/agent/status`           | `AgentStatus`                           | agent → cell   |
-//! | `P/agent/outbox`           | event: "output published"               | agent → cell   |
+//! The iceoryx2 services of one print cell, named under a prefix `P`: one per row of the
+//! message table (`table.rs`: `P/robot/poses`, `P/scanner/chunks`, `P/job/stations` from the
+//! cell; `P/agent/status`, `…/reports`, `…/findings`, `…/corrections`, `…/surface`,
+//! `…/deviations` from the agent), and two events, `P/agent/inbox` ("input waiting") and
+//! `P/agent/outbox` ("output published"). The ports of both sides follow from the table; this
+//! module sends on the cell's.
 //!
 //! Delivery, chosen so that nothing is lost silently:
 //! - **Inputs** do not overflow. When the agent's queue is full, a publisher is held back

@@ -253,6 +253,9 @@ pub fn cell_outbox(node: &Node<Ipc>, name: &str) -> Result<Listener<Ipc>, IpcErr
 pub trait Stream {
     /// Whether the cell sends it (an input of the agent; what a replay sends again).
     const FROM_CELL: bool;
+    /// Whether it is one of the agent's per-station results, which the cell or the printer
+    /// acts on: recorded and flushed before it is sent, and kept in the service's history.
+    const PER_STATION: bool = false;
     /// The agent's port.
     type AgentPort;
     /// The cell's port.
@@ -458,6 +461,7 @@ impl Stream for DeviationChunks {
 
 impl<T: std::fmt::Debug + ZeroCopySend + 'static> Stream for PerStation<T> {
     const FROM_CELL: bool = false;
+    const PER_STATION: bool = true;
     type AgentPort = Publisher<Ipc, T, ()>;
     type CellPort = Subscriber<Ipc, T, ()>;
 
@@ -493,6 +497,7 @@ impl<T: std::fmt::Debug + ZeroCopySend + 'static> Stream for PerStation<T> {
 
 impl<const MAX: usize> Stream for Encoded<MAX> {
     const FROM_CELL: bool = false;
+    const PER_STATION: bool = true;
     type AgentPort = Publisher<Ipc, [u8], FindingsHeader>;
     type CellPort = Subscriber<Ipc, [u8], FindingsHeader>;
 

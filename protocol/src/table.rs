@@ -118,6 +118,15 @@ macro_rules! messages {
                 }
             }
 
+            /// Whether it is one of the agent's per-station results, which the cell or the
+            /// printer acts on: recorded and flushed before it is sent.
+            pub fn is_per_station(self) -> bool {
+                match self {
+                    $( Channel::$ch => <$kind as $crate::services::Stream>::PER_STATION, )*
+                    $( Channel::$cch => <$ckind as $crate::services::Stream>::PER_STATION, )*
+                }
+            }
+
             /// The MCAP schema name of the channel's messages.
             pub fn schema_name(self) -> &'static str {
                 match self {
@@ -379,6 +388,7 @@ mod tests {
         assert_eq!(Channel::from_topic("/agent/pings"), Some(Channel::Pings));
         assert_eq!(Channel::Pings.schema_name(), "asbuilt.Ping.v1");
         assert!(!Channel::Pings.is_input() && Channel::Poses.is_input());
+        assert!(Channel::Pings.is_per_station() && !Channel::Status.is_per_station());
         assert_eq!(Channel::ALL.len(), 4);
         let ping = Ping {
             version: 1,

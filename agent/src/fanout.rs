@@ -1,0 +1,426 @@
+//! What goes out and what is recorded of what comes in: the agent's results to the cell's
+//! ports, the recorder and the view, in one place. A report reaches the cell only once the
+//! recorder has it on disk.
+
+use std::time::{Duration, Instant};
+
+use asbuilt_protocol::ipc::{AgentPorts, ChunkSample, Ipc};
+use asbuilt_protocol::recording::Recorded;
+use asbuilt_protocol::{
+    AgentStatus, DeviationHeader, FindingsHeader, LayerCorrection, PointDeviation, PoseSnapshot,
+    StationEvent, StationFindings, StationReport,
+};
+use asbuilt_viewer::{self as viewer, View, Viewer};
+
+use crate::lifecycle::Outputs;
+use crate::recorder::{Lent, Recorder};
+use crate::warn;
+
+/// Where the agent's results go: the cell's ports, the recorder and the view. What comes in
+/// from the cell is recorded and shown here too ([`Fanout::took_event`], [`Fanout::took_pose`],
+/// [`Fanout::took_chunk`]).
+pub(crate) struct Fanout<'p> {
+    pub(crate) ports: &'p AgentPorts,
+    /// Everything received and sent goes here too, when `[recorder]` is on.
+    pub(crate) recorder: Option<Recorder>,
+    /// The rerun view, when `[viewer]` is on, and points shown so far per open station.
+    pub(crate) viewer: Option<Viewer>,
+    pub(crate) shown: std::collections::BTreeMap<(u64, u32), usize>,
+    pub(crate) frames: &'p asbuilt_core::frames::FrameChain,
+    /// Where deviations go when no shared-memory sample can be loaned, so the station's
+    /// statistics stay whole. Sized once for the largest accepted chunk.
+    pub(crate) scratch: Vec<PointDeviation>,
+    pub(crate) unloaned: u64,
+    /// Reports waiting for the recorder to have them on disk, with their flush ticket and since
+    /// when: the cell learns of a station only once a crash can no longer lose it.
+    pub(crate) unpublished: std::collections::VecDeque<(u64, Instant, StationReport)>,
+    /// The ticket of the report whose wait for the disk the log has said.
+    pub(crate) slow_disk_said: Option<u64>,
+    /// Record each scan layer's findings state after every station (`[recorder] resume`).
+    pub(crate) record_states: bool,
+}
+
+impl<'p> Fanout<'p> {
+    /// The agent's outputs on `ports`, with the recorder and view when they are on; deviations
+    /// that find no shared-memory sample go to a scratch buffer of `max_points_per_chunk`.
+    pub(crate) fn new(
+        ports: &'p AgentPorts,
+        (recorder, viewer): (Option<Recorder>, Option<Viewer>),
+        frames: &'p asbuilt_core::frames::FrameChain,
+        max_points_per_chunk: usize,
+        record_states: bool,
+    ) -> Self {
+        Self {
+            ports,
+            recorder,
+            viewer,
+            shown: Default::default(),
+            frames,
+            scratch: vec![PointDeviation::default(); max_points_per_chunk],
+            unloaned: 0,
+            unpublished: std::collections::VecDeque::new(),
+            slow_disk_said: None,
+            record_states,
+        }
+    }
+
+    /// A station event taken from the cell: recorded.
+    pub(crate) fn took_event(&self, ev: &StationEvent) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Event(*ev));
+        }
+    }
+
+    /// A pose taken from the cell, of a station of scan layer `layer`: recorded and shown.
+    pub(crate) fn took_pose(&self, p: &PoseSnapshot, layer: u32) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Pose(*p));
+        }
+        if let (Some(v), Ok(t)) = (&self.viewer, self.frames.t_design_scanner(p)) {
+            v.show(View::Station {
+                index: p.station,
+                name: view_name(p.job, p.station),
+                layer,
+                pose: t,
+                time_ns: p.timestamp_ns,
+            });
+        }
+    }
+
+    /// A scan chunk taken from the cell: recorded, where the recorder's writer may read it in
+    /// shared memory (then it comes back lent, to be given back when the lifecycle is done).
+    pub(crate) fn took_chunk(&mut self, sample: &ChunkSample) -> Option<Lent<ChunkSample>> {
+        self.recorder
+            .as_mut()
+            .and_then(|r| r.chunk(sample.user_header(), sample.payload()))
+    }
+
+    /// The agent's status: recorded and published (its health line is the caller's).
+    pub(crate) fn status(&self, s: &AgentStatus) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Status(Box::new(*s)));
+        }
+        if let Err(e) = self.ports.status.send_copy(*s) {
+            warn!("status not published: {e:?}");
+        }
+    }
+}
+
+/// How long a report waits for the recorder's disk before the log says the disk holds the
+/// cell back. It is never published ahead of its record: a report the cell has and the
+/// recording lacks makes a restarted agent call that attempt interrupted, while the cell kept
+/// the first report it got and never scans the station again.
+const ON_DISK_WAIT: Duration = Duration::from_secs(1);
+
+/// One name per station in the view, the same for its pose, points and report.
+fn view_name(job: u64, station: u32) -> String {
+    format!("job{job}/station{station}")
+}
+
+impl Fanout<'_> {
+    /// A decimated share of a deviation chunk for the view: at most 1/16 of the per-station
+    /// budget per chunk, and nothing once the budget is spent.
+    fn view_points(&mut self, h: &DeviationHeader, devs: &[PointDeviation]) {
+        let Some(v) = &self.viewer else { return };
+        let max = v.max_points_per_station();
+        let shown = self.shown.entry((h.job, h.station)).or_insert(0);
+        if *shown >= max || devs.is_empty() {
+            return;
+        }
+        let per_chunk = (max / 16).max(1).min(max - *shown);
+        let (positions, distances) = viewer::decimate(devs, viewer::stride(devs.len(), per_chunk));
+        *shown += positions.len();
+        v.show(View::Points {
+            index: h.station,
+            name: view_name(h.job, h.station),
+            positions,
+            distances,
+        });
+    }
+
+    /// Publishes an encoded message (`what`) of a station `(job, station, layer)` behind a
+    /// findings header; a failure is logged, never waited for.
+    fn publish_encoded(
+        &self,
+        publisher: &iceoryx2::port::publisher::Publisher<Ipc, [u8], FindingsHeader>,
+        (job, station, layer): (u64, u32, u32),
+        bytes: &[u8],
+        what: &str,
+    ) {
+        match publisher.loan_slice_uninit(bytes.len()) {
+            Ok(mut sample) => {
+                let header = sample.user_header_mut();
+                header.job = job;
+                header.station = station;
+                header.layer = layer;
+                header.bytes = bytes.len() as u32;
+                let sample = sample.write_from_slice(bytes);
+                if let Err(e) = sample.send() {
+                    warn!("{what} of station {station} not published: {e:?}");
+                }
+                self.notify();
+            }
+            Err(e) => warn!(
+                "{what} of station {station} ({} bytes) not published: {e:?}",
+                bytes.len()
+            ),
+        }
+    }
+
+    fn notify(&self) {
+        if let Err(e) = self.ports.outbox.notify() {
+            warn!("cannot notify output subscribers: {e:?}");
+        }
+    }
+}
+
+impl Outputs for Fanout<'_> {
+    fn wants_scan_layer_state(&self) -> bool {
+        self.record_states && self.recorder.is_some()
+    }
+
+    fn scan_layer_state(
+        &mut self,
+        report: &StationReport,
+        state: &asbuilt_core::scan_layer::ScanLayerState,
+    ) {
+        if let Some(r) = &self.recorder {
+            r.scan_layer_state(asbuilt_protocol::recording::ScanLayerStateRecord {
+                version: asbuilt_protocol::recording::ScanLayerStateRecord::VERSION,
+                job: report.job,
+                station: report.station,
+                attempt: report.attempt,
+                printed_height: report.printed_height,
+                state: postcard::to_allocvec(state).expect("a state of numbers always encodes"),
+            });
+        }
+    }
+
+    fn findings(&mut self, f: &StationFindings) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Findings(Box::new(f.clone())));
+        }
+        if let Some(v) = &self.viewer {
+            v.show(View::Findings {
+                index: f.station,
+                findings: Box::new(f.clone()),
+            });
+        }
+        let bytes = asbuilt_protocol::codec::encode(f);
+        self.publish_encoded(
+            &self.ports.findings,
+            (f.job, f.station, f.layer),
+            &bytes,
+            "findings",
+        );
+    }
+
+    fn surface(&mut self, s: &asbuilt_protocol::SurfaceFindings) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Surface(Box::new(s.clone())));
+        }
+        let bytes = asbuilt_protocol::codec::encode(s);
+        self.publish_encoded(
+            &self.ports.surface,
+            (s.job, s.station, s.layer),
+            &bytes,
+            "surface judgement",
+        );
+    }
+
+    fn correction(&mut self, c: &LayerCorrection) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Correction(Box::new(*c)));
+        }
+        if let Some(v) = &self.viewer {
+            v.show(View::Correction(Box::new(*c)));
+        }
+        match self.ports.corrections.send_copy(*c) {
+            Ok(_) => self.notify(),
+            Err(e) => warn!("advice after station {} not published: {e:?}", c.station),
+        }
+    }
+
+    fn deviations(
+        &mut self,
+        n: usize,
+        fill: &mut dyn FnMut(&mut [PointDeviation]) -> DeviationHeader,
+    ) {
+        match self.ports.deviations.loan_slice(n) {
+            Ok(mut sample) => {
+                let header = fill(sample.payload_mut());
+                *sample.user_header_mut() = header;
+                if let Some(r) = &mut self.recorder {
+                    r.deviations(&header, sample.payload());
+                }
+                self.view_points(&header, sample.payload());
+                if let Err(e) = sample.send() {
+                    warn!("deviation chunk {} not published: {e:?}", header.sequence);
+                }
+                self.notify();
+            }
+            Err(e) => {
+                self.unloaned += 1;
+                let header = fill(&mut self.scratch[..n]);
+                if let Some(r) = &mut self.recorder {
+                    r.deviations(&header, &self.scratch[..n]);
+                }
+                warn!(
+                    "deviation chunk {} computed but not published, no output sample free \
+                     ({e:?}): subscribers are holding too many",
+                    header.sequence
+                );
+            }
+        }
+    }
+
+    fn report(&mut self, report: &StationReport) {
+        if let Some(r) = &self.recorder {
+            let ticket = r.record(Recorded::Report(Box::new(*report))).unwrap_or(0);
+            self.unpublished
+                .push_back((ticket, Instant::now(), *report));
+        } else {
+            self.publish_report(report);
+        }
+        if let Some(v) = &self.viewer {
+            self.shown.remove(&(report.job, report.station));
+            v.show(View::Report {
+                index: report.station,
+                name: view_name(report.job, report.station),
+                report: Box::new(*report),
+            });
+        }
+    }
+}
+
+impl Fanout<'_> {
+    pub(crate) fn publish_report(&self, report: &StationReport) {
+        if let Err(e) = self.ports.reports.send_copy(*report) {
+            warn!("report of station {} not published: {e:?}", report.station);
+        }
+        self.notify();
+    }
+
+    /// Publishes the reports the recorder has on disk (all of them when `all`: the recorder is
+    /// finished). One that has waited [`ON_DISK_WAIT`] is said once in the log, and waits on.
+    pub(crate) fn publish_recorded_reports(&mut self, all: bool) {
+        while let Some(&(ticket, since, report)) = self.unpublished.front() {
+            let on_disk = self.recorder.as_ref().is_none_or(|r| r.is_on_disk(ticket));
+            if !(on_disk || all) {
+                if since.elapsed() >= ON_DISK_WAIT && self.slow_disk_said != Some(ticket) {
+                    self.slow_disk_said = Some(ticket);
+                    warn!(
+                        "job {} station {}: its report waits for the recorder to have it on \
+                         disk ({:.1} s so far); the cell is told once it is. Check the \
+                         recording folder's disk",
+                        report.job,
+                        report.station,
+                        since.elapsed().as_secs_f64()
+                    );
+                }
+                break;
+            }
+            self.unpublished.pop_front();
+            self.publish_report(&report);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use asbuilt_core::Design;
+    use asbuilt_core::frames::FrameChain;
+    use asbuilt_protocol::ipc::{CellPorts, QueueSizes, ServiceNames};
+    use asbuilt_protocol::recording::{self, JobMetadata};
+    use iceoryx2::prelude::*;
+
+    use super::*;
+    use crate::config::RecorderConfig;
+
+    fn tetrahedron() -> Arc<Design> {
+        let v = nalgebra::Point3::new;
+        let vertices = vec![
+            v(0.0, 0.0, 0.0),
+            v(1.0, 0.0, 0.0),
+            v(0.0, 1.0, 0.0),
+            v(0.0, 0.0, 1.0),
+        ];
+        let triangles = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        Arc::new(Design::from_indexed(vertices, triangles, 1.0).unwrap())
+    }
+
+    /// The reports in the recording folder's files as they are on disk now.
+    fn recorded_reports(dir: &std::path::Path) -> Vec<StationReport> {
+        let mut out = Vec::new();
+        for f in std::fs::read_dir(dir).unwrap() {
+            let bytes = std::fs::read(f.unwrap().path()).unwrap();
+            let Ok(messages) = recording::messages(&bytes) else {
+                continue;
+            };
+            // A file still being written ends in the middle: what is before is read.
+            for m in messages.map_while(Result::ok) {
+                if let (_, Recorded::Report(r)) = m {
+                    out.push(*r);
+                }
+            }
+        }
+        out
+    }
+
+    /// Durable, then said: with the recorder on, the cell gets a station's report only once
+    /// the recording's file holds it; without one, at once.
+    #[test]
+    fn a_report_reaches_the_cell_only_once_its_record_is_on_disk() {
+        let names = ServiceNames::new(&format!("asbuilt-fanout-test/{}", std::process::id()));
+        let node = NodeBuilder::new().create::<Ipc>().unwrap();
+        let queues = QueueSizes {
+            max_points_per_chunk: 16,
+            chunk_queue: 2,
+            pending_chunks: 1,
+            lent_chunks: 0,
+        };
+        let ports = AgentPorts::create(&node, &names, queues).unwrap();
+        let cell = CellPorts::try_open(&node, &names, 16).unwrap();
+        let frames = FrameChain::default();
+        let dir = tempfile::tempdir().unwrap();
+        let config = RecorderConfig {
+            dir: Some(dir.path().to_path_buf()),
+            ..Default::default()
+        };
+        let recorder = Recorder::start(
+            &config,
+            JobMetadata::default(),
+            (std::path::Path::new("design.stl"), Vec::new()),
+            tetrahedron(),
+            0.005,
+        )
+        .unwrap();
+        let mut out = Fanout::new(&ports, (Some(recorder), None), &frames, 16, false);
+
+        let mut sent = StationReport::new(7, 3);
+        sent.points_received = 1234;
+        sent.printed_height = 0.5;
+        out.report(&sent);
+        let start = Instant::now();
+        let got = loop {
+            out.publish_recorded_reports(false);
+            if let Some(r) = cell.reports.receive().unwrap() {
+                break *r.payload();
+            }
+            assert!(start.elapsed() < Duration::from_secs(10), "never published");
+            std::thread::sleep(Duration::from_millis(1));
+        };
+        assert_eq!(got, sent);
+        assert_eq!(recorded_reports(dir.path()), vec![sent]);
+
+        // Without a recorder nothing waits.
+        let mut out = Fanout::new(&ports, (None, None), &frames, 16, false);
+        out.report(&sent);
+        assert_eq!(
+            cell.reports.receive().unwrap().map(|r| *r.payload()),
+            Some(sent)
+        );
+    }
+}

@@ -337,7 +337,7 @@ fn summary(job: &SimJob, o: &SimOutcome, out: &Path, recording: &Path) {
             }
         }
         match by_layer.iter().find(|f| f.layer + 1 == k) {
-            Some(f) => eprintln!("  {}", sim_cmd::findings_line(f).trim_start()),
+            Some(f) => eprintln!("  {}", asbuilt_sim::lines::findings_line(f).trim_start()),
             None => eprintln!("    no findings came back for this layer"),
         }
         if job.closed_loop {
@@ -351,7 +351,7 @@ fn summary(job: &SimJob, o: &SimOutcome, out: &Path, recording: &Path) {
                 eprintln!(
                     "    closed loop: top as built {:+.1} mm; {}",
                     top.top_error_m * 1e3,
-                    advice.map_or("no advice came".into(), sim_cmd::advice_text)
+                    advice.map_or("no advice came".into(), asbuilt_sim::lines::advice_text)
                 );
             }
         }

@@ -58,7 +58,7 @@ pub struct InspectArgs {
     pub tolerance: f64,
     /// Verdict limits, standards and the maps as PNG files.
     #[command(flatten)]
-    pub judging: crate::judging::Judging,
+    pub judging: asbuilt_readback::Judging,
     /// Points farther than this from the design have no match (flagged, never clamped).
     /// Metres; default 10 × tolerance.
     #[arg(long)]

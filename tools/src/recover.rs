@@ -24,7 +24,7 @@ pub fn run(args: RecoverArgs) -> Result<ExitCode> {
             args.fixed.display()
         );
     }
-    let bytes = crate::recording_file::map(&args.broken)?;
+    let bytes = asbuilt_readback::files::map(&args.broken)?;
     let out = File::create(&args.fixed)
         .with_context(|| format!("cannot write {}", args.fixed.display()))?;
     let (_, counts) = asbuilt_protocol::recording::recover(&bytes, BufWriter::new(out))

@@ -50,11 +50,12 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
                 .with_context(|| format!("--speed {s:?}: give a factor such as 1.0, or max"))?,
         ),
     };
-    let files = crate::recording_file::job_files(&args.recordings, args.job)?;
+    let files = asbuilt_readback::files::job_files(&args.recordings, args.job)?;
     let (mut stations, mut max_points, mut inputs) = (BTreeSet::new(), 1, 0);
     for f in &files {
-        let bytes = crate::recording_file::map(f)?;
-        let (s, m, i) = survey(&bytes).map_err(|e| crate::recording_file::unreadable(f, e))?;
+        let bytes = asbuilt_readback::files::map(f)?;
+        let (s, m, i) =
+            survey(&bytes).map_err(|e| asbuilt_readback::ReadBackError::unreadable(f, e))?;
         stations.extend(s);
         max_points = max_points.max(m);
         inputs += i;
@@ -85,8 +86,8 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     // In the order the agent processed them: an End recorded ahead of its chunks follows them;
     // the files of a job one after the other.
     for f in &files {
-        let bytes = crate::recording_file::map(f)?;
-        let bad = |e| crate::recording_file::unreadable(f, e);
+        let bytes = asbuilt_readback::files::map(f)?;
+        let bad = |e| asbuilt_readback::ReadBackError::unreadable(f, e);
         for m in recording::messages_in_agent_order(&bytes).map_err(bad)? {
             let (log_time, m) = m.map_err(bad)?;
             if !m.channel().is_input() {

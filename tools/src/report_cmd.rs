@@ -3,7 +3,7 @@
 //!
 //! The design comes from the recording's attachment and the settings from its configuration,
 //! so the review needs nothing but the file. Every station is recomputed from its recorded pose
-//! and scan chunks with the same inspector the agent runs ([`crate::read_back`]).
+//! and scan chunks with the same inspector the agent runs ([`asbuilt_readback`]).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -12,7 +12,7 @@ use anyhow::{Context, Result};
 use asbuilt_report::{Report, summary_table};
 use clap::Args;
 
-use crate::read_back::{Overrides, read};
+use asbuilt_readback::{Overrides, read};
 
 /// `asbuilt report`'s arguments.
 #[derive(Args)]
@@ -35,7 +35,7 @@ pub struct ReportArgs {
     #[arg(long)]
     max_distance: Option<f64>,
     #[command(flatten)]
-    judging: crate::judging::Judging,
+    judging: asbuilt_readback::Judging,
 }
 
 /// Writes report.json and report.html for a recording and prints its summary table.
@@ -63,14 +63,14 @@ pub fn run(args: ReportArgs) -> Result<ExitCode> {
 }
 
 /// Writes `out/report.json` and `out/report.html` for the job `recordings` name (see
-/// [`crate::recording_file::job_files`]), and returns the report.
+/// [`asbuilt_readback::files::job_files`]), and returns the report.
 pub fn write(
     recordings: &[PathBuf],
     out: &std::path::Path,
     overrides: Overrides,
 ) -> Result<Report> {
     let png = overrides.judging.png;
-    let files = crate::recording_file::job_files(recordings, overrides.job)?;
+    let files = asbuilt_readback::files::job_files(recordings, overrides.job)?;
     let (report, _) = read(&files, overrides, false)?;
     let source = match files.as_slice() {
         [one] => one.display().to_string(),

@@ -7,7 +7,8 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ipc::{CellPorts, ServiceNames};
-use asbuilt_protocol::{PoseMode, StationFindings, StationReport, StationStatus};
+use asbuilt_protocol::{PoseMode, StationStatus};
+use asbuilt_sim::lines::{findings_line, interruptions_line, printing_line, report_line};
 use asbuilt_sim::{JobSpec, PartSpec, SimEvent, SimJob, SimOutcome};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -227,23 +228,6 @@ pub fn run_with_progress(
     Ok(outcome)
 }
 
-/// The station attempts that did not end complete, in one line: "2 interruption(s): L016-S4
-/// attempt 1 (reported Interrupted), …".
-pub fn interruptions_line(plan: &[asbuilt_sim::PlannedStation], o: &SimOutcome) -> String {
-    let items: Vec<String> = o
-        .retries
-        .iter()
-        .map(|(station, attempt, why)| {
-            let name = plan
-                .iter()
-                .find(|p| p.index == *station)
-                .map_or_else(|| format!("station {station}"), |p| p.name.clone());
-            format!("{name} attempt {attempt} ({why})")
-        })
-        .collect();
-    format!("{} interruption(s): {}", items.len(), items.join(", "))
-}
-
 /// A line above the progress bar, or on stderr when there is no terminal to draw one on.
 fn say(bar: &ProgressBar, line: String) {
     if bar.is_hidden() {
@@ -251,123 +235,6 @@ fn say(bar: &ProgressBar, line: String) {
     } else {
         bar.println(line);
     }
-}
-
-/// One line for a station report, as `sim` and `demo` print it.
-pub fn report_line(r: &StationReport) -> String {
-    format!(
-        "  {:<10} layer {:>3} {:?}: {:>8} points, median |d| {:.2} mm, p95 {:.2} mm, {:.1} % in \
-         tolerance",
-        r.name.as_str(),
-        r.layer + 1,
-        r.status().unwrap_or(StationStatus::Incomplete),
-        r.points_received,
-        r.stats.median_abs * 1e3,
-        r.stats.p95_abs * 1e3,
-        100.0 * r.stats.within as f64 / r.stats.count.max(1) as f64
-    )
-}
-
-/// One line for the layers the closed-loop printer prints next, and the advice it applies.
-pub fn printing_line(
-    layers: (u32, u32),
-    advice: Option<&asbuilt_protocol::LayerCorrection>,
-) -> String {
-    let what = match advice {
-        None => "as designed (no advice came)".to_string(),
-        Some(c) if c.is_neutral() => "as designed (advice: nothing to correct)".to_string(),
-        Some(c) => advice_text(c),
-    };
-    format!(
-        "  printing layers {}–{}: {what}",
-        layers.0 + 1,
-        layers.1 + 1
-    )
-}
-
-/// Advice in a few words: the z offsets, the flow and the path.
-pub fn advice_text(c: &asbuilt_protocol::LayerCorrection) -> String {
-    let mut items = Vec::new();
-    if c.z_first != 0.0 || c.z_then != 0.0 {
-        if c.first_layers > 0 && c.z_first != c.z_then {
-            items.push(format!(
-                "z {:+.2} mm a layer for {} layers, then {:+.2}",
-                c.z_first * 1e3,
-                c.first_layers,
-                c.z_then * 1e3
-            ));
-        } else {
-            items.push(format!("z {:+.2} mm a layer", c.z_then * 1e3));
-        }
-    }
-    if c.flow != 1.0 {
-        items.push(format!("flow ×{:.3}", c.flow));
-    }
-    if c.path_offset != [0.0, 0.0] {
-        items.push(format!(
-            "path ({:+.1}, {:+.1}) mm",
-            c.path_offset[0] * 1e3,
-            c.path_offset[1] * 1e3
-        ));
-    }
-    if items.is_empty() {
-        "nothing to correct".into()
-    } else {
-        format!("advised {}", items.join(", "))
-    }
-}
-
-/// One line for a scan layer's findings, as `sim` and `demo` print it.
-pub fn findings_line(f: &StationFindings) -> String {
-    let mut items = Vec::new();
-    if f.top_height_deviation.abs() > f.tolerance {
-        items.push(format!("top {:+.1} mm", f.top_height_deviation * 1e3));
-    }
-    for l in f.layers_out_of_tolerance() {
-        let w = l.width_deviation;
-        let s = l.shift[0].hypot(l.shift[1]);
-        items.push(if w.abs() > f.tolerance {
-            format!("layer {} width {:+.1} mm", l.layer, w * 1e3)
-        } else {
-            format!("layer {} shifted {:.1} mm", l.layer, s * 1e3)
-        });
-    }
-    for g in f.missing.iter() {
-        items.push(format!(
-            "missing {:.0} cm² at ({:.2}, {:.2}, {:.2})",
-            g.area_m2 * 1e4,
-            g.centroid[0],
-            g.centroid[1],
-            g.centroid[2]
-        ));
-    }
-    for g in f.regions.iter() {
-        items.push(format!(
-            "{} {:+.1} mm at ({:.2}, {:.2}, {:.2})",
-            g.kind.as_str(),
-            g.peak * 1e3,
-            g.centroid[0],
-            g.centroid[1],
-            g.centroid[2]
-        ));
-    }
-    // A line, not a table: the largest few; report.json and report.html have them all.
-    const SHOWN: usize = 8;
-    let more = items.len().saturating_sub(SHOWN);
-    items.truncate(SHOWN);
-    if more > 0 {
-        items.push(format!("{more} more in the report"));
-    }
-    format!(
-        "  findings after {} station(s) of layer {}: {}",
-        f.stations,
-        f.layer + 1,
-        if items.is_empty() {
-            "none beyond the tolerance".to_string()
-        } else {
-            items.join("; ")
-        }
-    )
 }
 
 fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {

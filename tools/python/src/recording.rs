@@ -5,14 +5,14 @@
 use std::path::PathBuf;
 
 use asbuilt_agent::log::{self, Level};
-use asbuilt_tools::judging::Judging;
-use asbuilt_tools::read_back::{Overrides, StationReadBack, read_back};
+use asbuilt_readback::Judging;
+use asbuilt_readback::{Overrides, StationReadBack, read_back};
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::commands::parsed;
-use crate::convert::{self, anyhow_err};
+use crate::convert::{self, runtime};
 
 /// `(report, stations)`: report.json's content as `asbuilt report` writes it, and a dict per
 /// station (see `asbuilt.Station`).
@@ -38,7 +38,7 @@ pub fn read_recording_parts<'py>(
             log::set_min_level(before);
             read
         })
-        .map_err(anyhow_err)?;
+        .map_err(runtime)?;
     let list = PyList::empty(py);
     for s in &stations {
         list.append(station(py, s)?)?;
@@ -136,10 +136,10 @@ pub fn report_job(
     let (report, started) = py
         .detach(|| {
             let before = log::set_min_level(if quiet { Level::Error } else { Level::Warn });
-            let read = asbuilt_tools::read_back::report(&paths, overrides);
+            let read = asbuilt_readback::report(&paths, overrides);
             log::set_min_level(before);
             read
         })
-        .map_err(anyhow_err)?;
+        .map_err(runtime)?;
     Ok((convert::to_json(py, &report)?, started))
 }

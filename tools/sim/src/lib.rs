@@ -11,6 +11,7 @@ mod asbuilt;
 mod cell;
 mod defect_spec;
 mod defects;
+pub mod lines;
 mod part;
 mod scanner;
 mod spec;

@@ -8,7 +8,14 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+mod error;
+pub mod files;
+mod judging;
+
+pub use error::ReadBackError;
+pub use judging::Judging;
+
+type Result<T, E = ReadBackError> = std::result::Result<T, E>;
 use asbuilt_agent::findings::FindingsStage;
 use asbuilt_agent::lifecycle::{Lifecycle, Outputs};
 use asbuilt_core::frames::FrameChain;
@@ -197,7 +204,7 @@ pub struct Overrides {
     /// With a recording folder, the job to read instead of the newest.
     pub job: Option<u64>,
     /// Limits and standards instead of the recorded ones, and the maps as PNG files.
-    pub judging: crate::judging::Judging,
+    pub judging: Judging,
 }
 
 /// One station of a recording as the report reads it back: what came in and what the agent's
@@ -230,7 +237,7 @@ pub fn read_back(
     recording_path: &std::path::Path,
     overrides: Overrides,
 ) -> Result<(Report, Vec<StationReadBack>)> {
-    let files = crate::recording_file::job_files(&[recording_path.to_path_buf()], overrides.job)?;
+    let files = files::job_files(&[recording_path.to_path_buf()], overrides.job)?;
     read(&files, overrides, true)
 }
 
@@ -238,27 +245,27 @@ pub fn read_back(
 /// agent's folder), as `asbuilt report` draws it, without keeping any station's points; and
 /// when the job started: the first station event's time in its first file (Unix ns), if any.
 pub fn report(recordings: &[PathBuf], overrides: Overrides) -> Result<(Report, Option<u64>)> {
-    let files = crate::recording_file::job_files(recordings, overrides.job)?;
+    let files = files::job_files(recordings, overrides.job)?;
     let (report, _) = read(&files, overrides, false)?;
     Ok((report, started_ns(&files[0])))
 }
 
 /// The time of the first station event of a recording, when it has one.
 fn started_ns(path: &std::path::Path) -> Option<u64> {
-    let bytes = crate::recording_file::map(path).ok()?;
+    let bytes = files::map(path).ok()?;
     let mut events = recording::messages_on(&bytes, &[recording::Channel::StationEvents]).ok()?;
     events.find_map(|m| m.ok()).map(|(log_time, _)| log_time)
 }
 
 /// The job of `files` (oldest first), read back: its settings and design from the first file,
 /// its stations from all of them in turn.
-pub(crate) fn read(
+pub fn read(
     files: &[PathBuf],
     overrides: Overrides,
     keep: bool,
 ) -> Result<(Report, Vec<StationReadBack>)> {
     let first = &files[0];
-    let bytes = crate::recording_file::map(first)?;
+    let bytes = files::map(first)?;
     let (job, designs) = RecordedJob::read(first, &bytes, overrides)?;
     same_design(files, &bytes)?;
     drop(bytes);
@@ -307,61 +314,58 @@ impl RecordedJob {
         bytes: &[u8],
         overrides: Overrides,
     ) -> Result<(Self, PrintedDesigns)> {
-        let bad = |e| crate::recording_file::unreadable(path, e);
+        let bad = |e| ReadBackError::unreadable(path, e);
         let (meta, attachments) = recording::job(bytes).map_err(bad)?;
-        let meta = meta.with_context(|| {
-            format!(
-                "{} has no asbuilt.job metadata: it was not written by asbuilt",
-                path.display()
-            )
-        })?;
+        let meta = meta.ok_or_else(|| ReadBackError::NotAsbuilt(path.to_path_buf()))?;
         let (name, design_bytes) = attachments
             .into_iter()
             .find(|(n, _)| n.starts_with(recording::ATTACHMENT_DESIGN))
-            .with_context(|| format!("{} carries no design attachment", path.display()))?;
+            .ok_or_else(|| ReadBackError::NoDesign(path.to_path_buf()))?;
         // "m" or "mm"; older recordings wrote "Metres" or "Millimetres".
         let units: Units = meta
             .design_units
             .to_ascii_lowercase()
             .parse()
-            .map_err(|e: String| anyhow::anyhow!("the recording's design units: {e}"))?;
+            .map_err(ReadBackError::Units)?;
         // The design as it was, read from the recording's bytes; its name gives the format.
-        let design = asbuilt_io::read_design_bytes(&design_bytes, &name, units)
-            .with_context(|| format!("the design recorded in {}", path.display()))?;
-        let (frames, settings, limits, findings, tolerances, corrections) = if meta.writer
-            == "asbuilt-agent"
-        {
-            use asbuilt_agent::config::{
-                recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
-                recorded_tolerances,
+        let design =
+            asbuilt_io::read_design_bytes(&design_bytes, &name, units).map_err(|source| {
+                ReadBackError::Design {
+                    path: path.to_path_buf(),
+                    source,
+                }
+            })?;
+        let (frames, settings, limits, findings, tolerances, corrections) =
+            if meta.writer == "asbuilt-agent" {
+                use asbuilt_agent::config::{
+                    recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
+                    recorded_tolerances,
+                };
+                let problems = ReadBackError::Config;
+                let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
+                let limits = recorded_limits(&meta.config).map_err(problems)?;
+                let findings = recorded_findings(&meta.config).map_err(problems)?;
+                let tolerances = recorded_tolerances(&meta.config).map_err(problems)?;
+                let corrections = recorded_corrections(&meta.config).map_err(problems)?;
+                (
+                    frames,
+                    settings,
+                    limits,
+                    findings.enabled.then_some(findings),
+                    tolerances,
+                    corrections.enabled.then_some(corrections),
+                )
+            } else {
+                Default::default()
             };
-            let problems =
-                |p: Vec<String>| anyhow::anyhow!("the recording's configuration: {}", p.join("; "));
-            let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
-            let limits = recorded_limits(&meta.config).map_err(problems)?;
-            let findings = recorded_findings(&meta.config).map_err(problems)?;
-            let tolerances = recorded_tolerances(&meta.config).map_err(problems)?;
-            let corrections = recorded_corrections(&meta.config).map_err(problems)?;
-            (
-                frames,
-                settings,
-                limits,
-                findings.enabled.then_some(findings),
-                tolerances,
-                corrections.enabled.then_some(corrections),
-            )
-        } else {
-            Default::default()
-        };
         let tolerance = overrides.tolerance.unwrap_or(settings.tolerance);
         let max_distance = overrides
             .max_distance
             .unwrap_or_else(|| settings.max_distance.unwrap_or(10.0 * tolerance));
         let mut verdict_limits = tolerances
             .limits_with(tolerance, &overrides.judging.limits)
-            .map_err(|e| anyhow::anyhow!("the verdicts' limits ([tolerances], --limit): {e}"))?;
-        let recorded =
-            |e: &dyn std::fmt::Display| anyhow::anyhow!("the recording's [tolerances]: {e}");
+            .map_err(|e| ReadBackError::Limits(e.to_string()))?;
+        let recorded = |e: &dyn std::fmt::Display| ReadBackError::Tolerances(e.to_string());
         let flatness = match overrides.judging.flatness {
             Some(f) => Some(f),
             None => tolerances.flatness().map_err(|e| recorded(&e))?,
@@ -376,7 +380,7 @@ impl RecordedJob {
         };
         verdict_limits.rule = rule;
         if !(tolerance > 0.0 && max_distance > 0.0) {
-            bail!("--tolerance and --max-distance must be positive metres");
+            return Err(ReadBackError::NotPositive);
         }
         // Stations scanned while printing were compared with the design as printed then.
         let designs = PrintedDesigns::new(
@@ -535,23 +539,22 @@ struct Replayed {
 /// with another design file cannot go on with the same job.
 fn same_design(files: &[PathBuf], first: &[u8]) -> Result<()> {
     let sha = |path: &std::path::Path, bytes: &[u8]| -> Result<String> {
-        let (meta, _) =
-            recording::job(bytes).map_err(|e| crate::recording_file::unreadable(path, e))?;
+        let (meta, _) = recording::job(bytes).map_err(|e| ReadBackError::unreadable(path, e))?;
         Ok(meta.map(|m| m.design_sha256).unwrap_or_default())
     };
     let expected = sha(&files[0], first)?;
     for f in &files[1..] {
         // A later file whose writer died is read as far as it goes (and said so) below.
-        let Ok(found) = sha(f, &crate::recording_file::map(f)?) else {
+        let Ok(found) = sha(f, &files::map(f)?) else {
             continue;
         };
         if found != expected {
-            bail!(
-                "{} was recorded against another design (sha256 {found}) than {} ({expected}): \
-                 the files are not one job",
-                f.display(),
-                files[0].display()
-            );
+            return Err(ReadBackError::OtherDesign {
+                file: f.clone(),
+                found,
+                first: files[0].clone(),
+                expected,
+            });
         }
     }
     Ok(())
@@ -643,7 +646,7 @@ impl RecordedJob {
 fn judged_scan_layer(files: &[PathBuf]) -> Option<(u64, f64)> {
     let mut layer: Option<(u64, f64)> = None;
     for path in files {
-        let bytes = crate::recording_file::map(path).ok()?;
+        let bytes = files::map(path).ok()?;
         let events = recording::messages_on(&bytes, &[recording::Channel::StationEvents]).ok()?;
         for (_, m) in events.map_while(Result::ok) {
             let Recorded::Event(e) = m else { continue };
@@ -718,8 +721,8 @@ fn replay_stations(
     let start = Instant::now();
     let mut cut = Vec::new();
     for path in files {
-        let bytes = crate::recording_file::map(path)?;
-        let bad = |e| crate::recording_file::unreadable(path, e);
+        let bytes = files::map(path)?;
+        let bad = |e| ReadBackError::unreadable(path, e);
         let messages = recording::messages_in_agent_order(&bytes).map_err(bad)?;
         read_ahead(messages, |m| {
             // Of a job in several files, one whose writer died (an agent killed and not started
@@ -786,7 +789,7 @@ fn replay_stations(
         total.merge(t);
     }
     if done.is_empty() {
-        bail!("{} holds no station", files[0].display());
+        return Err(ReadBackError::NoStation(files[0].clone()));
     }
     let (findings, findings_differ) = drawn_or_recorded(job.findings.is_some(), drawn, recorded);
     let (corrections, corrections_differ) =

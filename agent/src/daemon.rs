@@ -186,6 +186,31 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     };
     // At once, not after a period: a cell learns that this agent (a new process id) serves.
     status.publish(&ports, &lifecycle, &out, AgentState::Serving);
+    let held = serve(&waitset, &node, &mut lifecycle, &mut out, &mut status);
+
+    let summary = shut_down(lifecycle, out, held, &mut status, started);
+    join(
+        recovering,
+        "resume: recovering unfinished files failed; the next start tries again",
+    );
+    join(
+        loaded.caching,
+        "design: caching the index failed; the next start indexes again",
+    );
+    Ok(summary)
+}
+
+/// The loop: waits on the inbox and the tick, drains the inputs into the lifecycle, closes
+/// silent stations, publishes reports once on disk and the status on its period, until a stop
+/// is requested. Returns what it still holds, for the shutdown.
+fn serve(
+    waitset: &WaitSet<Ipc>,
+    node: &Node<Ipc>,
+    lifecycle: &mut AgentLifecycle,
+    out: &mut Fanout<'_>,
+    status: &mut StatusReporter,
+) -> HeldControl {
+    let ports = out.ports;
     let mut terminated = false;
     let mut held = HeldControl::default();
     let mut more = false;
@@ -215,29 +240,19 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
         if let Err(e) = ports.inbox.try_wait(|_| {}) {
             warn!("inbox: {e:?}");
         }
-        lifecycle.poll_designs(Instant::now(), &mut out);
-        let drained = held.drain(&mut lifecycle, &mut out);
+        lifecycle.poll_designs(Instant::now(), out);
+        let drained = held.drain(lifecycle, out);
         terminated = drained == Drained::Stop;
         more = drained == Drained::More;
         let now = Instant::now();
-        lifecycle.on_tick(now, &mut out);
+        lifecycle.on_tick(now, out);
         out.publish_recorded_reports(false);
         if now >= status.next {
-            status.dead_nodes += cleanup_dead_nodes(&node);
-            status.publish(&ports, &lifecycle, &out, AgentState::Serving);
+            status.dead_nodes += cleanup_dead_nodes(node);
+            status.publish(ports, lifecycle, out, AgentState::Serving);
         }
     }
-
-    let summary = shut_down(lifecycle, out, held, &mut status, started);
-    join(
-        recovering,
-        "resume: recovering unfinished files failed; the next start tries again",
-    );
-    join(
-        loaded.caching,
-        "design: caching the index failed; the next start indexes again",
-    );
-    Ok(summary)
+    held
 }
 
 /// Waits for a helper thread (its work is done or safely cut short); says `failed` if it

@@ -15,7 +15,7 @@ use clap::Args;
 use iceoryx2::prelude::*;
 
 use asbuilt_io::scan::ScanFile;
-use asbuilt_io::stations;
+use asbuilt_io::stations::{self, Station};
 
 /// `asbuilt publish`'s arguments.
 #[derive(Args)]
@@ -104,35 +104,15 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     let started = Instant::now();
     let mut sent_points = 0u64;
     let mut reports = Vec::new();
+    let job = Job {
+        args: &args,
+        stations: &stations,
+        ports: &ports,
+        rate,
+        started,
+    };
     let send = |station: u32, attempt: u8, sent_points: &mut u64| -> Result<()> {
-        let st = &stations[station as usize];
-        let file = ScanFile::open(&st.scan)?;
-        if attempt == 1 {
-            eprintln!("station {}: pose from {}", st.id, st.pose_source);
-        }
-        let declared = file.scans[st.scan_index].points;
-        let chunks = declared.map_or(0, |n| n.div_ceil(args.chunk_points as u64));
-        let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
-        begin.name = FixedText::truncated(&st.id);
-        begin.expected_chunks = chunks as u32;
-        begin.expected_points = declared.unwrap_or(0);
-        begin.attempt = attempt;
-        let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
-        pose.translation = st.translation;
-        pose.rotation_xyzw = st.rotation_xyzw;
-        pose.position_sigma = st.position_sigma;
-        let mut sink = Paced {
-            ports: &ports,
-            rate,
-            started,
-            sent_before: *sent_points,
-        };
-        let mut sender = StationSender::start(begin, pose, &mut sink)?;
-        file.stream(st.scan_index, args.chunk_points, &mut |chunk| {
-            Ok(sender.chunk(chunk, &mut sink)?)
-        })?;
-        *sent_points += sender.points_sent();
-        sender.finish(&mut sink)?;
+        *sent_points += job.send(station, attempt, *sent_points)?;
         Ok(())
     };
     for station in 0..stations.len() as u32 {
@@ -185,6 +165,52 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     }
     tell_rate("sent", sent_points, started, reports.len(), expected);
     Ok(reports_verdict(expected, &reports, args.wait))
+}
+
+/// What sending a station needs: the command's arguments, the stations, the cell's ports and
+/// the pace.
+struct Job<'a> {
+    args: &'a PublishArgs,
+    stations: &'a [Station],
+    ports: &'a CellPorts,
+    rate: Option<f64>,
+    started: Instant,
+}
+
+impl Job<'_> {
+    /// Sends attempt `attempt` of `station` (`sent_before` points sent so far, for the pace);
+    /// returns the points sent.
+    fn send(&self, station: u32, attempt: u8, sent_before: u64) -> Result<u64> {
+        let st = &self.stations[station as usize];
+        let file = ScanFile::open(&st.scan)?;
+        if attempt == 1 {
+            eprintln!("station {}: pose from {}", st.id, st.pose_source);
+        }
+        let declared = file.scans[st.scan_index].points;
+        let chunks = declared.map_or(0, |n| n.div_ceil(self.args.chunk_points as u64));
+        let mut begin = StationEvent::new(StationEventKind::Begin, self.args.job, station);
+        begin.name = FixedText::truncated(&st.id);
+        begin.expected_chunks = chunks as u32;
+        begin.expected_points = declared.unwrap_or(0);
+        begin.attempt = attempt;
+        let mut pose = PoseSnapshot::new(self.args.job, station, PoseMode::DesignScanner);
+        pose.translation = st.translation;
+        pose.rotation_xyzw = st.rotation_xyzw;
+        pose.position_sigma = st.position_sigma;
+        let mut sink = Paced {
+            ports: self.ports,
+            rate: self.rate,
+            started: self.started,
+            sent_before,
+        };
+        let mut sender = StationSender::start(begin, pose, &mut sink)?;
+        file.stream(st.scan_index, self.args.chunk_points, &mut |chunk| {
+            Ok(sender.chunk(chunk, &mut sink)?)
+        })?;
+        let sent = sender.points_sent();
+        sender.finish(&mut sink)?;
+        Ok(sent)
+    }
 }
 
 /// How long a station's report that is not complete is waited on for a newer one.

@@ -284,53 +284,9 @@ impl<C: ChunkSource> Lifecycle<C> {
             self.reject_held(p.chunk);
         }
         let s = self.open.swap_remove(i);
-        let expected = s.expected_chunks();
-        let mut report = s.inspector.report(key.0, key.1, &s.name());
-        report.attempt = s.attempt.min(u8::MAX.into()) as u8;
-        let mut chunks = s.tracker.finish(expected);
-        chunks.empty = s.empty;
-        chunks.oversized = s.oversized;
-        report.chunks = chunks;
-        if let Some(e) = s.begin.or(s.end) {
-            report.layer = e.layer;
-            report.printed_height = e.printed_height;
-        }
-        report.position_sigma = s.pose.map(|p| p.position_sigma).unwrap_or(f64::NAN);
-        let expected_points = s.expected_points();
-        let complete = s.pose.is_some()
-            && s.tracker.is_complete(expected)
-            && (expected_points == 0 || report.points_received == expected_points)
-            && s.finished_sending();
-        let status = forced.unwrap_or(if complete {
-            StationStatus::Complete
-        } else {
-            StationStatus::Incomplete
-        });
-        report.status = status as u8;
-        let interrupted = status == StationStatus::Interrupted;
-        let mut drawn = None;
-        if s.findings == Some(true)
-            && let Some(stage) = self.findings.as_mut()
-        {
-            if interrupted {
-                // An interrupted try adds nothing: its next attempt scans the station again.
-                stage.abandon(key);
-            } else {
-                let origin = s
-                    .pose
-                    .and_then(|p| self.frames.t_design_scanner(&p).ok())
-                    .map(|t| nalgebra::Point3::from(t.translation.vector));
-                drawn = stage.end(key, origin, &report);
-                // The scan layer's state goes out before the report: a report on disk means
-                // its layer's state is too, for an agent that resumes the job.
-                if drawn.is_some()
-                    && out.wants_scan_layer_state()
-                    && let Some(state) = stage.layer_state(key.0, &s.design)
-                {
-                    out.scan_layer_state(&report, &state);
-                }
-            }
-        }
+        let report = station_report(&s, forced);
+        let interrupted = report.status() == Some(StationStatus::Interrupted);
+        let drawn = self.draw_findings(&s, &report, interrupted, out);
         out.tally(s.inspector.tally());
         out.report(&report);
         if !interrupted && let Some(sv) = &self.survey {
@@ -362,26 +318,94 @@ impl<C: ChunkSource> Lifecycle<C> {
             .begin
             .map_or_else(asbuilt_protocol::unix_time_ns, |b| b.timestamp_ns);
         self.closed.push(key, s.attempt, begun);
-        let st = &report.stats;
-        info!(
-            "job {} station {} ({}){} {:?}: {} points, {} matched, {} rejected, {} no match; chunks \
-             {} received / {} expected, {} missing; median |d| {:.3} mm, p95 {:.3} mm",
-            key.0,
-            key.1,
-            report.name.as_str(),
-            attempt_text(s.attempt),
-            status,
-            report.points_received,
-            st.count,
-            report.rejected.total(),
-            report.no_match,
-            chunks.received,
-            chunks.expected,
-            chunks.missing,
-            st.median_abs * 1e3,
-            st.p95_abs * 1e3
-        );
+        log_closed(&report, s.attempt);
     }
+
+    /// The station's end in its scan layer's findings: the findings drawn after it (none for
+    /// an interrupted try, which adds nothing: its next attempt scans the station again). The
+    /// scan layer's state goes out before the report: a report on disk means its layer's state
+    /// is too, for an agent that resumes the job.
+    fn draw_findings(
+        &mut self,
+        s: &OpenStation,
+        report: &StationReport,
+        interrupted: bool,
+        out: &mut impl Outputs,
+    ) -> Option<StationFindings> {
+        if s.findings != Some(true) {
+            return None;
+        }
+        let stage = self.findings.as_mut()?;
+        if interrupted {
+            stage.abandon(s.key);
+            return None;
+        }
+        let origin = s
+            .pose
+            .and_then(|p| self.frames.t_design_scanner(&p).ok())
+            .map(|t| nalgebra::Point3::from(t.translation.vector));
+        let drawn = stage.end(s.key, origin, report);
+        if drawn.is_some()
+            && out.wants_scan_layer_state()
+            && let Some(state) = stage.layer_state(s.key.0, &s.design)
+        {
+            out.scan_layer_state(report, &state);
+        }
+        drawn
+    }
+}
+
+/// A closing station's report: its statistics, chunks, layer and pose σ, and its status (the
+/// `forced` one, else complete when its pose, every chunk and every point came).
+fn station_report(s: &OpenStation, forced: Option<StationStatus>) -> StationReport {
+    let key = s.key;
+    let expected = s.expected_chunks();
+    let mut report = s.inspector.report(key.0, key.1, &s.name());
+    report.attempt = s.attempt.min(u8::MAX.into()) as u8;
+    let mut chunks = s.tracker.finish(expected);
+    chunks.empty = s.empty;
+    chunks.oversized = s.oversized;
+    report.chunks = chunks;
+    if let Some(e) = s.begin.or(s.end) {
+        report.layer = e.layer;
+        report.printed_height = e.printed_height;
+    }
+    report.position_sigma = s.pose.map(|p| p.position_sigma).unwrap_or(f64::NAN);
+    let expected_points = s.expected_points();
+    let complete = s.pose.is_some()
+        && s.tracker.is_complete(expected)
+        && (expected_points == 0 || report.points_received == expected_points)
+        && s.finished_sending();
+    let status = forced.unwrap_or(if complete {
+        StationStatus::Complete
+    } else {
+        StationStatus::Incomplete
+    });
+    report.status = status as u8;
+    report
+}
+
+/// The log line of a closed station.
+fn log_closed(report: &StationReport, attempt: u16) {
+    let (st, chunks) = (&report.stats, &report.chunks);
+    info!(
+        "job {} station {} ({}){} {:?}: {} points, {} matched, {} rejected, {} no match; chunks \
+         {} received / {} expected, {} missing; median |d| {:.3} mm, p95 {:.3} mm",
+        report.job,
+        report.station,
+        report.name.as_str(),
+        attempt_text(attempt),
+        report.status().unwrap_or(StationStatus::Incomplete),
+        report.points_received,
+        st.count,
+        report.rejected.total(),
+        report.no_match,
+        chunks.received,
+        chunks.expected,
+        chunks.missing,
+        st.median_abs * 1e3,
+        st.p95_abs * 1e3
+    );
 }
 
 /// " attempt n" after a station's name, for a second try or later.

@@ -87,6 +87,32 @@ fn widen(d2: f64, hair: f64) -> f64 {
     w * w
 }
 
+/// A leaf's `m` triangles `ids`, loaded in `lanes`, measured against the best so far: the
+/// closest within `limit2` (ties to the lowest design id) becomes `best`, and the bound
+/// tightens to it and a hair. Always inlined, not a closure: one left out of line would run
+/// without AVX2.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    mesh: &Mesh,
+    p: &Point3<f64>,
+    limit2: f64,
+    m: usize,
+    lanes: &Lanes<4>,
+    ids: &[u32; 4],
+    best: &mut Option<(u32, f64)>,
+    bound2: &mut f64,
+    hair: f64,
+) {
+    let d2 = lanes.dist2(p);
+    for (&t, &d2) in ids[..m].iter().zip(&d2) {
+        if d2 <= limit2 && super::better_internal(mesh, t, d2, *best) {
+            *best = Some((t, d2));
+            *bound2 = widen(d2, hair);
+        }
+    }
+}
+
 #[inline]
 fn box_dist2(n: &Node, p: &Point3<f64>) -> f64 {
     let mut d2 = 0.0;
@@ -207,28 +233,6 @@ impl Bvh {
             let mut bound2 = widen(limit2, hair);
             let mut lanes = Lanes::<L>::default();
             let mut ids = [0u32; L];
-            // Not a closure: one left out of line would run without AVX2.
-            #[inline(always)]
-            #[allow(clippy::too_many_arguments)]
-            fn measure(
-                mesh: &Mesh,
-                p: &Point3<f64>,
-                limit2: f64,
-                m: usize,
-                lanes: &Lanes<4>,
-                ids: &[u32; 4],
-                best: &mut Option<(u32, f64)>,
-                bound2: &mut f64,
-                hair: f64,
-            ) {
-                let d2 = lanes.dist2(p);
-                for (&t, &d2) in ids[..m].iter().zip(&d2) {
-                    if d2 <= limit2 && super::better_internal(mesh, t, d2, *best) {
-                        *best = Some((t, d2));
-                        *bound2 = widen(d2, hair);
-                    }
-                }
-            }
             if let Some(h) = hint
                 && (h as usize) < mesh.len()
                 && filter.triangle(mesh, h as usize)

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use asbuilt_core::coverage::SampleClass;
 use asbuilt_core::scan_layer::{SampleState, defaults};
 use asbuilt_report::suite::{Suite, SuiteOptions, findings_message, parse_methods};
+use asbuilt_report::{SuiteSection, SuiteTotals};
 use nalgebra::Point3;
 use numpy::{IntoPyArray, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -144,9 +145,27 @@ pub fn suite<'py>(
             Ok((sections, suite.finish(&index, &out_dir)?))
         })
         .map_err(anyhow_err)?;
+    suite_result(
+        py,
+        (&sections, &totals),
+        tolerance,
+        (printed_height, layer_height),
+        lowest,
+    )
+}
+
+/// What `suite` returns: each station's section, the totals, the findings judged as an agent
+/// with this tolerance and no other limits judges them, and the design samples.
+fn suite_result<'py>(
+    py: Python<'py>,
+    (sections, totals): (&[SuiteSection], &SuiteTotals),
+    tolerance: f64,
+    heights: (Option<f64>, Option<f64>),
+    lowest: f64,
+) -> PyResult<Bound<'py, PyDict>> {
     let result = PyDict::new(py);
     let list = PyList::empty(py);
-    for s in &sections {
+    for s in sections {
         list.append(convert::to_json(py, s)?)?;
     }
     result.set_item("stations", list)?;
@@ -155,13 +174,7 @@ pub fn suite<'py>(
         Some((f, n)) => {
             // Judged as an agent with this tolerance and no other limits judges them.
             let limits = asbuilt_core::verdict::Limits::from_tolerance(tolerance);
-            let m = findings_message(
-                f,
-                *n,
-                (tolerance, &limits),
-                (printed_height, layer_height),
-                lowest,
-            );
+            let m = findings_message(f, *n, (tolerance, &limits), heights, lowest);
             convert::to_json(py, &m)?
         }
         None => py.None(),

@@ -335,29 +335,14 @@ impl RecordedJob {
                     source,
                 }
             })?;
-        let (frames, settings, limits, findings, tolerances, corrections) =
-            if meta.writer == "asbuilt-agent" {
-                use asbuilt_agent::config::{
-                    recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
-                    recorded_tolerances,
-                };
-                let problems = ReadBackError::Config;
-                let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
-                let limits = recorded_limits(&meta.config).map_err(problems)?;
-                let findings = recorded_findings(&meta.config).map_err(problems)?;
-                let tolerances = recorded_tolerances(&meta.config).map_err(problems)?;
-                let corrections = recorded_corrections(&meta.config).map_err(problems)?;
-                (
-                    frames,
-                    settings,
-                    limits,
-                    findings.enabled.then_some(findings),
-                    tolerances,
-                    corrections.enabled.then_some(corrections),
-                )
-            } else {
-                Default::default()
-            };
+        let RecordedConfig {
+            frames,
+            settings,
+            limits,
+            findings,
+            tolerances,
+            corrections,
+        } = RecordedConfig::read(&meta)?;
         let tolerance = overrides.tolerance.unwrap_or(settings.tolerance);
         let max_distance = overrides
             .max_distance
@@ -535,6 +520,44 @@ struct Replayed {
     kept: BTreeMap<(u64, u32), Kept>,
 }
 
+/// What an agent's configuration, recorded with its job, says; the defaults for a file another
+/// writer made (`asbuilt pack`).
+#[derive(Default)]
+struct RecordedConfig {
+    frames: FrameChain,
+    settings: asbuilt_agent::config::InspectConfig,
+    limits: asbuilt_agent::config::Limits,
+    /// `[findings]`, when on.
+    findings: Option<asbuilt_agent::config::FindingsConfig>,
+    tolerances: asbuilt_agent::config::TolerancesConfig,
+    /// `[corrections]`, when on.
+    corrections: Option<asbuilt_agent::config::CorrectionsConfig>,
+}
+
+impl RecordedConfig {
+    fn read(meta: &recording::JobMetadata) -> Result<Self> {
+        use asbuilt_agent::config::{
+            recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
+            recorded_tolerances,
+        };
+        if meta.writer != "asbuilt-agent" {
+            return Ok(Self::default());
+        }
+        let problems = ReadBackError::Config;
+        let (frames, settings) = recorded_settings(&meta.config).map_err(problems)?;
+        let findings = recorded_findings(&meta.config).map_err(problems)?;
+        let corrections = recorded_corrections(&meta.config).map_err(problems)?;
+        Ok(Self {
+            frames,
+            settings,
+            limits: recorded_limits(&meta.config).map_err(problems)?,
+            findings: findings.enabled.then_some(findings),
+            tolerances: recorded_tolerances(&meta.config).map_err(problems)?,
+            corrections: corrections.enabled.then_some(corrections),
+        })
+    }
+}
+
 /// Every file of a job was recorded against the design of the first: an agent started again
 /// with another design file cannot go on with the same job.
 fn same_design(files: &[PathBuf], first: &[u8]) -> Result<()> {
@@ -694,27 +717,22 @@ fn older_note(e: &recording::ReadError) -> Option<String> {
     })
 }
 
-/// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
-/// recording read back gives what the live agent gave, whatever order its file holds. The
-/// files of a job are read in turn, as the agents that wrote them took their inputs.
-fn replay_stations(
+/// What the agent recorded of its own results while the files are fed, and what cut them short.
+struct Fed {
+    /// The latest findings of each scan layer, as recorded.
+    findings: BTreeMap<(u64, u64), StationFindings>,
+    /// The latest advice after each scan layer, as recorded.
+    advice: BTreeMap<(u64, u32), LayerCorrection>,
+    /// Files read only as far as they go, and why.
+    cut: Vec<String>,
+}
+
+/// Feeds the files' inputs to `lifecycle` in the agent's order, on the recording's clock.
+fn feed_files(
     files: &[PathBuf],
-    job: &RecordedJob,
-    designs: PrintedDesigns,
-    keep: bool,
-) -> Result<Replayed> {
-    let mut lifecycle = job.lifecycle(designs);
-    let spacing = job
-        .findings
-        .as_ref()
-        .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
-    let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
-    let mut out = Collected::new(job.params.stats, maps);
-    out.flatness = job.flatness_collector(files);
-    out.frames = Some(job.frames.clone());
-    if keep {
-        out.kept = Some(BTreeMap::new());
-    }
+    lifecycle: &mut Lifecycle<(ChunkHeader, Vec<ScanPoint>)>,
+    out: &mut Collected,
+) -> Result<Fed> {
     let mut recorded = BTreeMap::new();
     let mut advised = BTreeMap::new();
     let mut first_time = None;
@@ -757,11 +775,40 @@ fn replay_stations(
                 Recorded::Correction(c) => {
                     advised.insert((c.job, c.layer), *c);
                 }
-                m => asbuilt_agent::replay::feed(&mut lifecycle, m, now, &mut out),
+                m => asbuilt_agent::replay::feed(lifecycle, m, now, out),
             }
             ControlFlow::Continue(())
         })?;
     }
+    Ok(Fed {
+        findings: recorded,
+        advice: advised,
+        cut,
+    })
+}
+
+/// The agent's own station lifecycle, fed in the order the agent processed the inputs: a
+/// recording read back gives what the live agent gave, whatever order its file holds. The
+/// files of a job are read in turn, as the agents that wrote them took their inputs.
+fn replay_stations(
+    files: &[PathBuf],
+    job: &RecordedJob,
+    designs: PrintedDesigns,
+    keep: bool,
+) -> Result<Replayed> {
+    let mut lifecycle = job.lifecycle(designs);
+    let spacing = job
+        .findings
+        .as_ref()
+        .map_or(asbuilt_core::scan_layer::defaults::SPACING, |f| f.spacing);
+    let maps = MapCollector::new(job.full.design(), job.tolerance, spacing);
+    let mut out = Collected::new(job.params.stats, maps);
+    out.flatness = job.flatness_collector(files);
+    out.frames = Some(job.frames.clone());
+    if keep {
+        out.kept = Some(BTreeMap::new());
+    }
+    let fed = feed_files(files, &mut lifecycle, &mut out)?;
     lifecycle.wait_designs(Instant::now(), &mut out);
     // The file is over: stations that said they were done close as the idle agent closes them,
     // the others (the agent stopped, a publisher died) as far as recorded.
@@ -791,9 +838,10 @@ fn replay_stations(
     if done.is_empty() {
         return Err(ReadBackError::NoStation(files[0].clone()));
     }
-    let (findings, findings_differ) = drawn_or_recorded(job.findings.is_some(), drawn, recorded);
+    let (findings, findings_differ) =
+        drawn_or_recorded(job.findings.is_some(), drawn, fed.findings);
     let (corrections, corrections_differ) =
-        drawn_or_recorded(job.corrections.is_some(), drawn_advice, advised);
+        drawn_or_recorded(job.corrections.is_some(), drawn_advice, fed.advice);
     Ok(Replayed {
         maps: maps.finish(),
         stations: done.into_values().collect(),
@@ -805,7 +853,7 @@ fn replay_stations(
         judged: flatness.map(FlatnessCollector::finish).unwrap_or_default(),
         unfinished,
         interrupted,
-        cut,
+        cut: fed.cut,
         kept: kept.unwrap_or_default(),
     })
 }

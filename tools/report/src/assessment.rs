@@ -619,6 +619,24 @@ fn describe(raw: &Raw) -> String {
     }
 }
 
+/// How a finding of `value` against `limit` changed since the scan layer `before` held it: by
+/// more than the margin between the warning and the limit (at least a tenth of the limit) it
+/// grew or shrank.
+fn change_since(value: f64, before: Option<&Item>, limits: &Limits, limit: f64) -> Change {
+    let Some(b) = before else {
+        return Change::New;
+    };
+    let d = value.abs() - b.value.abs();
+    let step = (1.0 - limits.warn_fraction).max(0.1) * limit;
+    if d > step {
+        Change::Grown
+    } else if d < -step {
+        Change::Shrunk
+    } else {
+        Change::Steady
+    }
+}
+
 fn scan_layer(
     f: &StationFindings,
     history: &[LayerHistory],
@@ -647,20 +665,7 @@ fn scan_layer(
             matched_previous[i] = true;
             Some(&p.items[i])
         });
-        let change = match before {
-            None => Change::New,
-            Some(b) => {
-                let d = raw.value.abs() - b.value.abs();
-                let step = (1.0 - limits.warn_fraction).max(0.1) * limit;
-                if d > step {
-                    Change::Grown
-                } else if d < -step {
-                    Change::Shrunk
-                } else {
-                    Change::Steady
-                }
-            }
-        };
+        let change = change_since(raw.value, before, limits, limit);
         items.push((
             verdict,
             Item {

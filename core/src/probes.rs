@@ -30,9 +30,11 @@ use crate::cells::floor_i64;
 
 mod clip;
 mod coords;
+mod fine;
 use clip::Clip;
 pub(crate) use coords::Coords;
 pub use coords::Run;
+use fine::{Fine, Ys};
 
 /// A cylinder's box is cut column by column when it spans at most this many fine cells in y
 /// (a cylinder ten times longer than wide spans 22).
@@ -108,85 +110,6 @@ pub struct ProbeGrid {
     fine: Option<Fine>,
 }
 
-struct Fine {
-    width: f64,
-    per_cell: i64,
-    /// For cylinders, each probe's box; empty for narrowing balls, whose box follows the state.
-    half_box: Vec<Vector3<f64>>,
-    /// [`Fine::split`]'s divisor by `per_cell`, as a multiply and a shift.
-    divide: Divide,
-}
-
-impl Fine {
-    fn new(width: f64, per_cell: i64) -> Self {
-        Self {
-            width,
-            per_cell,
-            half_box: Vec::new(),
-            divide: Divide::new(per_cell),
-        }
-    }
-
-    /// The cell a fine cell lies in.
-    #[inline]
-    fn cell_of(&self, c: [i64; 3]) -> [i64; 3] {
-        let d = &self.divide;
-        [d.split(c[0]).0, d.split(c[1]).0, d.split(c[2]).0]
-    }
-
-    /// The cell a fine cell lies in, and the fine cell's index within it (x, then y, then z).
-    #[inline]
-    fn split(&self, c: [i64; 3]) -> ([i64; 3], u32) {
-        let d = &self.divide;
-        let ((x, lx), (y, ly), (z, lz)) = (d.split(c[0]), d.split(c[1]), d.split(c[2]));
-        let m = self.per_cell;
-        ([x, y, z], ((lx * m + ly) * m + lz) as u32)
-    }
-}
-
-/// Floor division of a fine cell coordinate by the fine cells a cell side holds, without an
-/// integer division: every point of every batch takes three, and a 64-bit divide costs tens of
-/// cycles where a multiply costs three.
-#[derive(Clone, Copy)]
-struct Divide {
-    m: u64,
-    /// A multiple of `m` at least [`AXIS_BIAS`]: coordinates plus it are never negative.
-    bias: u64,
-    /// ⌈2^SHIFT / m⌉.
-    magic: u64,
-    /// `bias / m`.
-    below: i64,
-}
-
-impl Divide {
-    /// For `m` ≥ 1 below 2^11 (a cell's fine cells number below 2^32) and coordinates within
-    /// ±[`AXIS_BIAS`], `n = v + bias` is below 2^22. Then ⌊n·magic / 2^40⌋ is ⌊n / m⌋: magic
-    /// exceeds 2^40 / m by less than one, which adds less than n / 2^40 < 2^-18 to n / m, and
-    /// n / m's fraction is at most 1 - 1/m ≤ 1 - 2^-11. The product stays below 2^62.
-    const SHIFT: u32 = 40;
-
-    fn new(m: i64) -> Self {
-        assert!((1..1 << 11).contains(&m), "fine cells a side: {m}");
-        let m = m as u64;
-        let below = (AXIS_BIAS as u64).div_ceil(m);
-        Self {
-            m,
-            bias: below * m,
-            magic: (1u64 << Self::SHIFT).div_ceil(m),
-            below: below as i64,
-        }
-    }
-
-    /// `(v.div_euclid(m), v.rem_euclid(m))` for |v| within [`AXIS_BIAS`].
-    #[inline]
-    fn split(&self, v: i64) -> (i64, i64) {
-        debug_assert!(v.abs() <= AXIS_BIAS, "coordinate {v} outside the grid");
-        let n = (v + self.bias as i64) as u64;
-        let q = (n * self.magic) >> Self::SHIFT;
-        (q as i64 - self.below, (n - q * self.m) as i64)
-    }
-}
-
 /// Columns per cell side up to which a chunk keeps, per cell, which columns hold points: a
 /// row of columns is a word's bits.
 const ROW_BITS: i64 = 64;
@@ -203,31 +126,6 @@ struct Near {
     table: usize,
     /// Where its rows of occupied columns start (dense chunks with rows).
     rows: usize,
-}
-
-/// The y's of a row of a box's columns: all of them, or those whose bits are set.
-enum Ys {
-    Range(std::ops::RangeInclusive<i64>),
-    Bits { row: u64, first: i64 },
-}
-
-impl Iterator for Ys {
-    type Item = i64;
-
-    #[inline]
-    fn next(&mut self) -> Option<i64> {
-        match self {
-            Ys::Range(r) => r.next(),
-            Ys::Bits { row, first } => {
-                if *row == 0 {
-                    return None;
-                }
-                let y = *first + i64::from(row.trailing_zeros());
-                *row &= *row - 1;
-                Some(y)
-            }
-        }
-    }
 }
 
 /// A chunk sorted for the fine cells, as [`ProbeGrid::bucket_fine`] leaves it.
@@ -1030,6 +928,7 @@ fn runs_of(keyed: &[(u64, u32)]) -> impl Iterator<Item = (u64, u32, u32)> + '_ {
 
 #[cfg(test)]
 mod tests {
+    use super::fine::Divide;
     use super::*;
     use crate::test_points::{random_points, seeded};
     use rand::Rng;

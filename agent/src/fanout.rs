@@ -339,16 +339,12 @@ mod tests {
     use super::*;
     use crate::config::RecorderConfig;
 
-    fn tetrahedron() -> Arc<Design> {
-        let v = nalgebra::Point3::new;
-        let vertices = vec![
-            v(0.0, 0.0, 0.0),
-            v(1.0, 0.0, 0.0),
-            v(0.0, 1.0, 0.0),
-            v(0.0, 0.0, 1.0),
-        ];
-        let triangles = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
-        Arc::new(Design::from_indexed(vertices, triangles, 1.0).unwrap())
+    fn cube() -> Arc<Design> {
+        let (lo, hi) = (
+            nalgebra::Point3::origin(),
+            nalgebra::Point3::new(1.0, 1.0, 1.0),
+        );
+        Arc::new(asbuilt_core::design::shapes::cuboid(lo, hi))
     }
 
     /// The reports in the recording folder's files as they are on disk now.
@@ -393,7 +389,7 @@ mod tests {
             &config,
             JobMetadata::default(),
             (std::path::Path::new("design.stl"), Vec::new()),
-            tetrahedron(),
+            cube(),
             0.005,
         )
         .unwrap();

@@ -8,114 +8,91 @@ use crate::{
     ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
 };
 
-impl Record for AgentStatus {
-    const SCHEMA_NAME: &'static str = AgentStatus::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.AgentStatus v1, postcard: the fields of asbuilt-protocol's AgentStatus in \
-             declaration order (points/s, queues, rejects and drops by reason)";
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-    fn timestamp_ns(&self) -> u64 {
-        self.timestamp_ns
-    }
+/// A message's record: its codec record and its type name as the schema's; `stamped` when
+/// its own `timestamp_ns` is its time, `json` when Foxglove's channels repeat it.
+macro_rules! record {
+    ($ty:ty, $kind:ident, $text:expr) => {
+        impl Record for $ty {
+            const SCHEMA_NAME: &'static str = <$ty>::TYPE_NAME;
+            const SCHEMA_TEXT: &'static str = $text;
+            const FOXGLOVE_JSON: bool = record!(@json $kind);
+            fn encode(&self) -> Vec<u8> {
+                codec::encode(self)
+            }
+            fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+                codec::decode(bytes)
+            }
+            fn timestamp_ns(&self) -> u64 {
+                record!(@time $kind, self)
+            }
+        }
+    };
+    (@json json) => { true };
+    (@json $other:ident) => { false };
+    (@time stamped, $m:expr) => { $m.timestamp_ns };
+    (@time $other:ident, $m:expr) => { 0 };
 }
 
-impl Record for PoseSnapshot {
-    const SCHEMA_NAME: &'static str = PoseSnapshot::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.PoseSnapshot v2, postcard: version u16 (varint, also first), mode u8 \
+record!(
+    AgentStatus,
+    stamped,
+    "asbuilt.AgentStatus v1, postcard: the fields of asbuilt-protocol's AgentStatus in \
+             declaration order (points/s, queues, rejects and drops by reason)"
+);
+
+record!(
+    PoseSnapshot,
+    stamped,
+    "asbuilt.PoseSnapshot v2, postcard: version u16 (varint, also first), mode u8 \
              (0 flange in base, 1 fixed orientation, 2 scanner in design), attempt u8, \
              station u32, job u64, sequence u64, timestamp_ns u64, translation [f64; 3] m, \
-             rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m";
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-    fn timestamp_ns(&self) -> u64 {
-        self.timestamp_ns
-    }
-}
+             rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m"
+);
 
-impl Record for StationEvent {
-    const SCHEMA_NAME: &'static str = StationEvent::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.StationEvent v2, postcard: version u16 (varint, also first), kind u8 \
+record!(
+    StationEvent,
+    stamped,
+    "asbuilt.StationEvent v2, postcard: version u16 (varint, also first), kind u8 \
              (0 begin, 1 end), attempt u8 (1 the first try; 0 in v1), station u32, job u64, timestamp_ns u64, layer u32, \
              expected_chunks u32, expected_points u64, printed_height f64 m (NaN: not printing), \
-             name [u8; 48] with length u8";
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-    fn timestamp_ns(&self) -> u64 {
-        self.timestamp_ns
-    }
-}
+             name [u8; 48] with length u8"
+);
 
-impl Record for StationReport {
-    const SCHEMA_NAME: &'static str = StationReport::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.StationReport v2, postcard: the fields of asbuilt-protocol's \
-             StationReport in declaration order (statistics in metres, counts, histogram)";
-    const FOXGLOVE_JSON: bool = true;
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-}
+record!(
+    StationReport,
+    json,
+    "asbuilt.StationReport v2, postcard: the fields of asbuilt-protocol's \
+             StationReport in declaration order (statistics in metres, counts, histogram)"
+);
 
-impl Record for StationFindings {
-    const SCHEMA_NAME: &'static str = StationFindings::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.StationFindings v2, postcard: the fields of asbuilt-protocol's \
+record!(
+    StationFindings,
+    json,
+    "asbuilt.StationFindings v2, postcard: the fields of asbuilt-protocol's \
              StationFindings in declaration order (per-layer width, shift and top height, \
              regions out of tolerance and missing material, each with its expanded \
-             uncertainty (k = 2); metres, design frame)";
-    const FOXGLOVE_JSON: bool = true;
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-}
+             uncertainty (k = 2); metres, design frame)"
+);
 
-impl Record for LayerCorrection {
-    const SCHEMA_NAME: &'static str = LayerCorrection::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.LayerCorrection v1, postcard: the fields of asbuilt-protocol's \
+record!(
+    LayerCorrection,
+    json,
+    "asbuilt.LayerCorrection v1, postcard: the fields of asbuilt-protocol's \
              LayerCorrection in declaration order (z offset per layer for the first layers and \
              after, drift per layer, flow factor, path offset; each measured error with its \
-             sigma and samples; metres, design frame)";
-    const FOXGLOVE_JSON: bool = true;
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-}
+             sigma and samples; metres, design frame)"
+);
 
-impl Record for SurfaceFindings {
-    const SCHEMA_NAME: &'static str = SurfaceFindings::TYPE_NAME;
-    const SCHEMA_TEXT: &'static str = "asbuilt.SurfaceFindings v3, postcard: the fields of asbuilt-protocol's \
+record!(
+    SurfaceFindings,
+    json,
+    "asbuilt.SurfaceFindings v3, postcard: the fields of asbuilt-protocol's \
              SurfaceFindings in declaration order (the standards' keys, the governing gap and \
              the deepest within each table distance per face and direction with the distance \
              between its supports, dimensions and plumb, the largest abrupt offset per face and \
              direction (ACI 117), each with its limit, expanded \
-             uncertainty (k = 2) and verdict by the decision rule; metres, design frame)";
-    const FOXGLOVE_JSON: bool = true;
-    fn encode(&self) -> Vec<u8> {
-        codec::encode(self)
-    }
-    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
-        codec::decode(bytes)
-    }
-}
+             uncertainty (k = 2) and verdict by the decision rule; metres, design frame)"
+);
 
 impl ChunkRecord for ChunkHeader {
     type Point = ScanPoint;

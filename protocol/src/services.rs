@@ -140,16 +140,36 @@ pub struct QueueSizes {
     pub lent_chunks: usize,
 }
 
-/// Publishers of inputs (robot, scanner, job control) and of the agent's outputs.
-const MAX_INPUT_PUBLISHERS: usize = 4;
-/// The agent plus a recorder or monitor.
-const MAX_INPUT_SUBSCRIBERS: usize = 2;
-const MAX_OUTPUT_SUBSCRIBERS: usize = 4;
-const DEVIATION_QUEUE: usize = 8;
-const REPORT_QUEUE: usize = 64;
-const REPORT_HISTORY: usize = 16;
-const SMALL_QUEUE: usize = 64;
-const MAX_NODES: usize = 16;
+/// How many ports, nodes and queued samples the services admit (the chunk queue is the
+/// agent's `[limits]`).
+struct Admits {
+    /// Publishers of an input (robot, scanner, job control).
+    input_publishers: usize,
+    /// Subscribers of an input: the agent plus a recorder or monitor.
+    input_subscribers: usize,
+    /// Subscribers of an output.
+    output_subscribers: usize,
+    /// Deviation chunks a subscriber queues.
+    deviation_queue: usize,
+    /// Per-station results a subscriber queues, and how many the history keeps.
+    report_queue: usize,
+    report_history: usize,
+    /// Poses and station events a subscriber queues.
+    small_queue: usize,
+    /// Processes on one service.
+    nodes: usize,
+}
+
+const ADMITS: Admits = Admits {
+    input_publishers: 4,
+    input_subscribers: 2,
+    output_subscribers: 4,
+    deviation_queue: 8,
+    report_queue: 64,
+    report_history: 16,
+    small_queue: 64,
+    nodes: 16,
+};
 
 /// The latest station event and pose are kept for a subscriber that connects late: an agent
 /// started again while a station sends learns that station's Begin and pose.
@@ -202,9 +222,9 @@ impl<'a> Setup<'a> {
     pub fn inbox(&self, name: &str) -> Result<Listener<Ipc>, IpcError> {
         self.builder(name)?
             .event()
-            .max_notifiers(MAX_INPUT_PUBLISHERS * 3)
+            .max_notifiers(ADMITS.input_publishers * 3)
             .max_listeners(2)
-            .max_nodes(MAX_NODES)
+            .max_nodes(ADMITS.nodes)
             .open_or_create()
             .map_err(|e| self.incompatible(name, e))?
             .listener_builder()
@@ -217,8 +237,8 @@ impl<'a> Setup<'a> {
         self.builder(name)?
             .event()
             .max_notifiers(2)
-            .max_listeners(MAX_OUTPUT_SUBSCRIBERS * 2)
-            .max_nodes(MAX_NODES)
+            .max_listeners(ADMITS.output_subscribers * 2)
+            .max_nodes(ADMITS.nodes)
             .open_or_create()
             .map_err(|e| self.incompatible(name, e))?
             .notifier_builder()
@@ -227,26 +247,28 @@ impl<'a> Setup<'a> {
     }
 }
 
-/// The cell's end of the agent's inbox.
-pub fn cell_inbox(node: &Node<Ipc>, name: &str) -> Result<Notifier<Ipc>, IpcError> {
+type EventService = iceoryx2::service::port_factory::event::PortFactory<Ipc>;
+
+/// An event service of a running agent.
+fn open_event(node: &Node<Ipc>, name: &str) -> Result<EventService, IpcError> {
     node.service_builder(&service_name(name)?)
         .event()
         .open()
-        .map_err(|e| IpcError::iceoryx(name, e))?
-        .notifier_builder()
-        .create()
-        .map_err(|e| IpcError::iceoryx("cannot notify the agent", e))
+        .map_err(|e| IpcError::iceoryx(name, e))
+}
+
+/// The cell's end of the agent's inbox.
+pub fn cell_inbox(node: &Node<Ipc>, name: &str) -> Result<Notifier<Ipc>, IpcError> {
+    let service = open_event(node, name)?;
+    let notifier = service.notifier_builder().create();
+    notifier.map_err(|e| IpcError::iceoryx("cannot notify the agent", e))
 }
 
 /// The cell's end of the agent's outbox.
 pub fn cell_outbox(node: &Node<Ipc>, name: &str) -> Result<Listener<Ipc>, IpcError> {
-    node.service_builder(&service_name(name)?)
-        .event()
-        .open()
-        .map_err(|e| IpcError::iceoryx(name, e))?
-        .listener_builder()
-        .create()
-        .map_err(|e| IpcError::iceoryx("cannot listen on the agent outbox", e))
+    let service = open_event(node, name)?;
+    let listener = service.listener_builder().create();
+    listener.map_err(|e| IpcError::iceoryx("cannot listen on the agent outbox", e))
 }
 
 /// A kind of service: who sends, and each side's port with its settings.
@@ -306,8 +328,8 @@ impl Stream for Health {
             .builder(name)?
             .publish_subscribe::<AgentStatus>()
             .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
+            .max_subscribers(ADMITS.output_subscribers)
+            .max_nodes(ADMITS.nodes)
             .history_size(1)
             .subscriber_max_buffer_size(4)
             .enable_safe_overflow(true)
@@ -346,16 +368,16 @@ impl<T: std::fmt::Debug + ZeroCopySend + 'static> Stream for Control<T> {
         setup
             .builder(name)?
             .publish_subscribe::<T>()
-            .max_publishers(MAX_INPUT_PUBLISHERS)
-            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .subscriber_max_buffer_size(SMALL_QUEUE)
+            .max_publishers(ADMITS.input_publishers)
+            .max_subscribers(ADMITS.input_subscribers)
+            .max_nodes(ADMITS.nodes)
+            .subscriber_max_buffer_size(ADMITS.small_queue)
             .history_size(CONTROL_HISTORY)
             .enable_safe_overflow(false)
             .open_or_create()
             .map_err(|e| setup.incompatible(name, e))?
             .subscriber_builder()
-            .buffer_size(SMALL_QUEUE)
+            .buffer_size(ADMITS.small_queue)
             .create()
             .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
     }
@@ -384,9 +406,9 @@ impl Stream for ScanChunks {
             .builder(name)?
             .publish_subscribe::<[ScanPoint]>()
             .user_header::<ChunkHeader>()
-            .max_publishers(MAX_INPUT_PUBLISHERS)
-            .max_subscribers(MAX_INPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
+            .max_publishers(ADMITS.input_publishers)
+            .max_subscribers(ADMITS.input_subscribers)
+            .max_nodes(ADMITS.nodes)
             .history_size(0)
             .subscriber_max_buffer_size(q.chunk_queue)
             .subscriber_max_borrowed_samples(q.pending_chunks + q.lent_chunks + 2)
@@ -419,43 +441,77 @@ impl Stream for ScanChunks {
     }
 }
 
+/// The settings of an agent's output of one message per station: one publisher, kept for a
+/// late subscriber, never overflowing a subscriber's queue (the publisher drops instead).
+macro_rules! per_station_settings {
+    ($builder:expr) => {
+        $builder
+            .max_publishers(1)
+            .max_subscribers(ADMITS.output_subscribers)
+            .max_nodes(ADMITS.nodes)
+            .history_size(ADMITS.report_history)
+            .subscriber_max_buffer_size(ADMITS.report_queue)
+            .enable_safe_overflow(false)
+    };
+}
+
+/// An agent's publisher that drops what a full subscriber does not take and counts it in
+/// `drops`, never waiting.
+macro_rules! dropping_publisher {
+    ($publisher:expr, $drops:expr, $name:expr) => {
+        $publisher
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .set_backpressure_handler(counting_handler($drops.clone()))
+            .create()
+            .map_err(|e| IpcError::iceoryx(format!("cannot publish on {}", $name), e))
+    };
+}
+
+/// The cell's subscriber on an output service of a running agent; `$builder` says what the
+/// service carries (iceoryx2 opens sized and slice payloads through different builders).
+macro_rules! cell_subscriber {
+    ($builder:expr, $name:expr) => {
+        $builder
+            .open()
+            .map_err(|e| IpcError::iceoryx($name, e))?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {}", $name), e))
+    };
+}
+
 impl Stream for DeviationChunks {
     const FROM_CELL: bool = false;
     type AgentPort = Publisher<Ipc, [PointDeviation], DeviationHeader>;
     type CellPort = Subscriber<Ipc, [PointDeviation], DeviationHeader>;
 
     fn agent_port(setup: &Setup<'_>, name: &str) -> Result<Self::AgentPort, IpcError> {
-        setup
+        let service = setup
             .builder(name)?
             .publish_subscribe::<[PointDeviation]>()
             .user_header::<DeviationHeader>()
             .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
+            .max_subscribers(ADMITS.output_subscribers)
+            .max_nodes(ADMITS.nodes)
             .history_size(0)
-            .subscriber_max_buffer_size(DEVIATION_QUEUE)
+            .subscriber_max_buffer_size(ADMITS.deviation_queue)
             .subscriber_max_borrowed_samples(2)
             .enable_safe_overflow(false)
             .open_or_create()
-            .map_err(|e| setup.incompatible(name, e))?
+            .map_err(|e| setup.incompatible(name, e))?;
+        let publisher = service
             .publisher_builder()
             .initial_max_slice_len(setup.queues.max_points_per_chunk)
-            .allocation_strategy(AllocationStrategy::Static)
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(setup.deviation_drops.clone()))
-            .create()
-            .map_err(|e| IpcError::iceoryx("cannot publish deviations", e))
+            .allocation_strategy(AllocationStrategy::Static);
+        dropping_publisher!(publisher, setup.deviation_drops, name)
     }
 
     fn cell_port(node: &Node<Ipc>, name: &str, _: usize) -> Result<Self::CellPort, IpcError> {
-        node.service_builder(&service_name(name)?)
+        let builder = node
+            .service_builder(&service_name(name)?)
             .publish_subscribe::<[PointDeviation]>()
-            .user_header::<DeviationHeader>()
-            .open()
-            .map_err(|e| IpcError::iceoryx(name, e))?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
+            .user_header::<DeviationHeader>();
+        cell_subscriber!(builder, name)
     }
 }
 
@@ -466,32 +522,17 @@ impl<T: std::fmt::Debug + ZeroCopySend + 'static> Stream for PerStation<T> {
     type CellPort = Subscriber<Ipc, T, ()>;
 
     fn agent_port(setup: &Setup<'_>, name: &str) -> Result<Self::AgentPort, IpcError> {
-        setup
-            .builder(name)?
-            .publish_subscribe::<T>()
-            .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(REPORT_HISTORY)
-            .subscriber_max_buffer_size(REPORT_QUEUE)
-            .enable_safe_overflow(false)
+        let service = per_station_settings!(setup.builder(name)?.publish_subscribe::<T>())
             .open_or_create()
-            .map_err(|e| setup.incompatible(name, e))?
-            .publisher_builder()
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(setup.report_drops.clone()))
-            .create()
-            .map_err(|e| IpcError::iceoryx(format!("cannot publish on {name}"), e))
+            .map_err(|e| setup.incompatible(name, e))?;
+        dropping_publisher!(service.publisher_builder(), setup.report_drops, name)
     }
 
     fn cell_port(node: &Node<Ipc>, name: &str, _: usize) -> Result<Self::CellPort, IpcError> {
-        node.service_builder(&service_name(name)?)
-            .publish_subscribe::<T>()
-            .open()
-            .map_err(|e| IpcError::iceoryx(name, e))?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
+        let builder = node
+            .service_builder(&service_name(name)?)
+            .publish_subscribe::<T>();
+        cell_subscriber!(builder, name)
     }
 }
 
@@ -502,36 +543,26 @@ impl<const MAX: usize> Stream for Encoded<MAX> {
     type CellPort = Subscriber<Ipc, [u8], FindingsHeader>;
 
     fn agent_port(setup: &Setup<'_>, name: &str) -> Result<Self::AgentPort, IpcError> {
-        setup
+        let builder = setup
             .builder(name)?
             .publish_subscribe::<[u8]>()
-            .user_header::<FindingsHeader>()
-            .max_publishers(1)
-            .max_subscribers(MAX_OUTPUT_SUBSCRIBERS)
-            .max_nodes(MAX_NODES)
-            .history_size(REPORT_HISTORY)
-            .subscriber_max_buffer_size(REPORT_QUEUE)
-            .enable_safe_overflow(false)
+            .user_header::<FindingsHeader>();
+        let service = per_station_settings!(builder)
             .open_or_create()
-            .map_err(|e| setup.incompatible(name, e))?
+            .map_err(|e| setup.incompatible(name, e))?;
+        let publisher = service
             .publisher_builder()
             .initial_max_slice_len(MAX)
-            .allocation_strategy(AllocationStrategy::Static)
-            .backpressure_strategy(BackpressureStrategy::DiscardData)
-            .set_backpressure_handler(counting_handler(setup.report_drops.clone()))
-            .create()
-            .map_err(|e| IpcError::iceoryx(format!("cannot publish on {name}"), e))
+            .allocation_strategy(AllocationStrategy::Static);
+        dropping_publisher!(publisher, setup.report_drops, name)
     }
 
     fn cell_port(node: &Node<Ipc>, name: &str, _: usize) -> Result<Self::CellPort, IpcError> {
-        node.service_builder(&service_name(name)?)
+        let builder = node
+            .service_builder(&service_name(name)?)
             .publish_subscribe::<[u8]>()
-            .user_header::<FindingsHeader>()
-            .open()
-            .map_err(|e| IpcError::iceoryx(name, e))?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
+            .user_header::<FindingsHeader>();
+        cell_subscriber!(builder, name)
     }
 }
 

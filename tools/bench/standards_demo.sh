@@ -29,21 +29,24 @@ f, d = r.get("flatness") or {}, r.get("dimensions") or {}
 mm = lambda v: f"{v * 1e3:.1f}"
 print(f"### {name}: flatness {f.get('verdict')}, dimensions {d.get('verdict')}, "
       f"job {r['assessment']['verdict']}")
-print("| face | way | gap ± U mm | supports m | limit mm | verdict |")
-print("|---|---|---|---|---|---|")
-for g in f.get("gaps", []):
-    print(f"| {g['face']} | {g['direction']} | {mm(g['gap_m'])} ± {mm(g['uncertainty_m'])} | "
-          f"{g['support_distance_m']:.2f} | {mm(g['limit_m'])} | {g['verdict']} |")
-for n in f.get("not_judged", []):
-    print(f"| {n['face']} | {n['direction']} | - | - | - | not_judged ({n['reason']}) |")
-print("| dimension | off ± U mm | limit mm | verdict |")
-print("|---|---|---|---|")
-for x in d.get("dimensions", []):
-    print(f"| {x['kind']} {x['faces']} | {mm(x['measured_m'] - x['nominal_m'])} ± "
-          f"{mm(x['uncertainty_m'])} | {mm(x['limit_m'])} | {x['verdict']} |")
-for p in d.get("plumb", []):
-    print(f"| plumb face {p['face']} over {p['height_m']:.2f} m | {mm(p['gap_m'])} ± "
-          f"{mm(p['uncertainty_m'])} | {mm(p['limit_m'])} | {p['verdict']} |")
+pm = lambda v, u: f"{mm(v)} ± {mm(u)}"
+def table(head, rows):
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    for row in rows:
+        print("| " + " | ".join(str(c) for c in row) + " |")
+table(["face", "way", "gap ± U mm", "supports m", "limit mm", "verdict"],
+      [(g["face"], g["direction"], pm(g["gap_m"], g["uncertainty_m"]),
+        f"{g['support_distance_m']:.2f}", mm(g["limit_m"]), g["verdict"])
+       for g in f.get("gaps", [])]
+      + [(n["face"], n["direction"], "-", "-", "-", f"not_judged ({n['reason']})")
+         for n in f.get("not_judged", [])])
+table(["dimension", "off ± U mm", "limit mm", "verdict"],
+      [(f"{x['kind']} {x['faces']}", pm(x["measured_m"] - x["nominal_m"], x["uncertainty_m"]),
+        mm(x["limit_m"]), x["verdict"]) for x in d.get("dimensions", [])]
+      + [(f"plumb face {p['face']} over {p['height_m']:.2f} m",
+          pm(p["gap_m"], p["uncertainty_m"]), mm(p["limit_m"]), p["verdict"])
+         for p in d.get("plumb", [])])
 a = r["assessment"]
 print(f"findings held to their limits by {a['limits']['decision_rule']}: what fails or is "
       "inconclusive, per scan layer")

@@ -429,16 +429,6 @@ impl Limits {
     pub fn station_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.station_timeout_s)
     }
-
-    /// What the station lifecycle needs of these limits.
-    pub fn lifecycle(&self) -> crate::lifecycle::LifecycleLimits {
-        crate::lifecycle::LifecycleLimits {
-            max_points_per_chunk: self.max_points_per_chunk,
-            pending_chunks: self.pending_chunks,
-            open_stations: self.open_stations,
-            station_timeout: self.station_timeout(),
-        }
-    }
 }
 
 /// `[status]`: the agent's health messages and log lines.

@@ -17,9 +17,10 @@ use iceoryx2::waitset::WaitSetRunResult;
 use iceoryx2_bb_posix::signal::SignalHandler;
 
 use crate::config::AgentConfig;
+pub use crate::error::AgentError;
 use crate::fanout::Fanout;
 use crate::findings::FindingsStage;
-use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
+use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
 use crate::recorder::{Lent, Recorder};
 use crate::resume::Resumed;
 use crate::{error, info, warn};
@@ -30,32 +31,6 @@ use asbuilt_viewer::{View, Viewer, ViewerParams};
 const MAX_TICK: Duration = Duration::from_millis(250);
 /// How often the loop looks for a printed height prepared on a worker thread.
 const PREPARING_POLL: Duration = Duration::from_millis(2);
-
-/// Why the agent cannot start or keep serving.
-#[derive(Debug, thiserror::Error)]
-pub enum AgentError {
-    /// The design file named in `[design]` could not be loaded.
-    #[error(transparent)]
-    Design(#[from] asbuilt_io::IoError),
-    /// The design loaded but cannot be indexed (its extent, the maximum distance).
-    #[error("indexing the design: {0}")]
-    Index(#[from] asbuilt_core::c2m::C2mError),
-    /// The recorder's folder cannot be made or written.
-    #[error("cannot start the recorder in {dir}: {source}")]
-    Recorder {
-        /// The folder.
-        dir: std::path::PathBuf,
-        /// What the operating system said.
-        #[source]
-        source: std::io::Error,
-    },
-    /// The rerun view cannot start.
-    #[error(transparent)]
-    Viewer(#[from] asbuilt_viewer::ViewerError),
-    /// The cell's services: a node, a port or the wait set could not be made.
-    #[error(transparent)]
-    Ipc(#[from] asbuilt_protocol::ipc::IpcError),
-}
 
 /// What a run did, for the exit message.
 #[derive(Debug, Clone, Copy)]
@@ -409,8 +384,12 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
         // not on the event loop (a printed height's are found where it is prepared).
         designs.full().sharp_edges();
     }
-    let mut lifecycle: AgentLifecycle =
-        Lifecycle::new(designs, config.frames.clone(), inspect, limits.lifecycle());
+    let mut lifecycle: AgentLifecycle = Lifecycle::new(
+        designs,
+        config.frames.clone(),
+        inspect,
+        LifecycleLimits::from(limits),
+    );
     if config.findings.enabled {
         let f = &config.findings;
         info!(

@@ -12,7 +12,7 @@ use asbuilt_io::index_cache::{CacheMiss, IndexCache};
 use nalgebra::Point3;
 
 use crate::config::AgentConfig;
-use crate::daemon::AgentError;
+use crate::error::AgentError;
 use crate::{info, warn};
 
 /// The design's mesh, for a view.

@@ -15,6 +15,7 @@ pub mod attempts;
 pub mod config;
 pub mod daemon;
 pub mod design;
+mod error;
 mod fanout;
 pub mod findings;
 pub mod lifecycle;

@@ -136,6 +136,18 @@ pub struct LifecycleLimits {
     pub station_timeout: Duration,
 }
 
+impl From<&crate::config::Limits> for LifecycleLimits {
+    /// What the station lifecycle needs of the agent's `[limits]`.
+    fn from(l: &crate::config::Limits) -> Self {
+        Self {
+            max_points_per_chunk: l.max_points_per_chunk,
+            pending_chunks: l.pending_chunks,
+            open_stations: l.open_stations,
+            station_timeout: l.station_timeout(),
+        }
+    }
+}
+
 /// How long a station that said it is done, with chunks missing, stays open while the queues are
 /// empty. Its End travels on another service than its chunks, possibly from another process (the
 /// robot controller while the scanner driver still sends): chunks sent just before it must not

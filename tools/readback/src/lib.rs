@@ -592,7 +592,7 @@ impl RecordedJob {
             designs,
             self.frames.clone(),
             self.params,
-            self.limits.lifecycle(),
+            asbuilt_agent::lifecycle::LifecycleLimits::from(&self.limits),
         );
         let lifecycle = match &self.findings {
             Some(f) => lifecycle.with_findings(

@@ -127,7 +127,7 @@ fn titled(map: &str, (w, h): (f64, f64), caption: &str) -> String {
          {inner}</svg>",
         h + TITLE_PX,
         h + TITLE_PX,
-        crate::html::esc(caption)
+        crate::markup::esc(caption)
     )
 }
 

@@ -549,15 +549,15 @@ impl FlatnessSection {
              <table class=\"flatness\"><tr><th>face</th><th>straightedge</th><th>gap</th>\
              <th>gap ± U mm</th><th>supports m apart</th><th>limit mm</th><th>verdict</th>\
              <th>deepest at (m)</th></tr>{rows}</table></section>",
-            crate::html::esc(&self.standard),
+            crate::markup::esc(&self.standard),
             self.printed_height_m
                 .map_or(String::new(), |h| format!(", printed to {h:.3} m")),
-            crate::html::esc(&faces.join("; ")),
+            crate::markup::esc(&faces.join("; ")),
             self.not_judged_reason
                 .as_ref()
                 .map_or(String::new(), |r| format!(
                     "Not judged: {}",
-                    crate::html::esc(r)
+                    crate::markup::esc(r)
                 )),
             edition = DIN_18202_EDITION,
             rule = self.decision_rule,
@@ -769,7 +769,7 @@ impl DimensionsSection {
              <th>verdict</th></tr>{dims}</table><table class=\"plumb\"><tr><th>face</th>\
              <th>height m</th><th>top less foot ± U mm</th><th>limit mm</th><th>verdict</th></tr>\
              {plumb}</table></section>",
-            crate::html::esc(&self.standard),
+            crate::markup::esc(&self.standard),
             v = self.verdict,
             V = self.verdict.shout()
         )

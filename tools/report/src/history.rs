@@ -7,7 +7,7 @@ use std::fmt::Write;
 use asbuilt_core::verdict::Verdict;
 
 use crate::Assessment;
-use crate::html::{Margins, esc};
+use crate::markup::{Margins, esc};
 
 /// One line of a chart.
 struct Series {

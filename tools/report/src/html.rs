@@ -8,36 +8,10 @@ use std::fmt::Write;
 use rayon::prelude::*;
 
 use crate::maps::{MapKind, ScanLayerMaps, Side};
+use crate::markup::esc;
 use asbuilt_core::verdict::Verdict;
 
 use crate::{Assessment, Item, Report, ScanLayerVerdicts, Section};
-
-/// The room around a chart's or a map's plot for its axes, labels and legend, screen pixels.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Margins {
-    pub left: f64,
-    pub top: f64,
-    pub right: f64,
-    pub bottom: f64,
-}
-
-impl Margins {
-    pub(crate) const fn new(left: f64, top: f64, right: f64, bottom: f64) -> Self {
-        Self {
-            left,
-            top,
-            right,
-            bottom,
-        }
-    }
-}
-
-pub(crate) fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
 
 /// A bar per histogram bin, tolerance lines at ±tolerance.
 fn histogram(s: &Section, tolerance: f64) -> String {

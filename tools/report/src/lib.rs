@@ -12,6 +12,7 @@ pub mod flatness;
 mod history;
 pub mod html;
 pub mod maps;
+mod markup;
 mod sections;
 pub mod suite;
 

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 use crate::Item;
-use crate::html::Margins;
+use crate::markup::Margins;
 
 /// Pixels along the design's longest side.
 const LONGEST_SIDE_PX: f64 = 320.0;
@@ -936,7 +936,7 @@ impl ScanLayerMaps {
                     (x1 - x0).abs() + 4.0,
                     (y1 - y0).abs() + 4.0,
                     cy + 3.5,
-                    crate::html::esc(&it.text),
+                    crate::markup::esc(&it.text),
                     l = it.label,
                     k = it.kind,
                     v = it.verdict,
@@ -963,7 +963,7 @@ impl ScanLayerMaps {
                     x + 3.0,
                     x + 4.0,
                     yl + 3.0,
-                    crate::html::esc(&it.text),
+                    crate::markup::esc(&it.text),
                     l = it.label,
                     k = it.kind,
                     v = it.verdict,

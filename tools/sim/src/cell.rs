@@ -131,7 +131,7 @@ impl SimJob {
     pub fn truth_json(&self, settings: &[LayerSettings]) -> serde_json::Value {
         let t = |t: &Truth| {
             serde_json::json!({
-                "kind": t.kind,
+                "kind": t.kind.as_str(),
                 "magnitude_m": t.magnitude,
                 "position_m": [t.position.x, t.position.y, t.position.z],
                 "layers": [t.layers.0, t.layers.1],

@@ -65,8 +65,8 @@ pub enum Defect {
 /// What a defect did to a print after `printed` layers, in the terms the agent reports.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Truth {
-    /// The defect's kind as `--defect` spells it.
-    pub kind: &'static str,
+    /// The defect's kind.
+    pub kind: DefectKind,
     /// The quantity the agent should measure: width deviation, top height deviation, shift,
     /// missing length, bulge height. Signed, metres.
     pub magnitude: f64,
@@ -78,17 +78,57 @@ pub struct Truth {
     pub direction: Option<[f64; 2]>,
 }
 
-impl Defect {
+/// The kinds of defect, as `--defect` spells them (`over-extrusion`, …).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DefectKind {
+    /// Layers narrower than designed.
+    UnderExtrusion,
+    /// Layers wider than designed.
+    OverExtrusion,
+    /// Each layer a little higher (or lower) than designed, adding up.
+    HeightDrift,
+    /// Layers printed beside where they belong.
+    LateralShift,
+    /// The top sinking under its own weight.
+    Sag,
+    /// A length of a layer not printed.
+    MissingSegment,
+    /// A local swelling of the surface.
+    Bulge,
+}
+
+impl DefectKind {
     /// The kind as `--defect` spells it.
-    pub fn kind(&self) -> &'static str {
+    pub fn as_str(self) -> &'static str {
         match self {
-            Defect::Extrusion { width, .. } if *width < 0.0 => "under-extrusion",
-            Defect::Extrusion { .. } => "over-extrusion",
-            Defect::HeightDrift { .. } => "height-drift",
-            Defect::LateralShift { .. } => "lateral-shift",
-            Defect::Sag { .. } => "sag",
-            Defect::MissingSegment { .. } => "missing-segment",
-            Defect::Bulge { .. } => "bulge",
+            DefectKind::UnderExtrusion => "under-extrusion",
+            DefectKind::OverExtrusion => "over-extrusion",
+            DefectKind::HeightDrift => "height-drift",
+            DefectKind::LateralShift => "lateral-shift",
+            DefectKind::Sag => "sag",
+            DefectKind::MissingSegment => "missing-segment",
+            DefectKind::Bulge => "bulge",
+        }
+    }
+}
+
+impl std::fmt::Display for DefectKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl Defect {
+    /// The defect's kind.
+    pub fn kind(&self) -> DefectKind {
+        match self {
+            Defect::Extrusion { width, .. } if *width < 0.0 => DefectKind::UnderExtrusion,
+            Defect::Extrusion { .. } => DefectKind::OverExtrusion,
+            Defect::HeightDrift { .. } => DefectKind::HeightDrift,
+            Defect::LateralShift { .. } => DefectKind::LateralShift,
+            Defect::Sag { .. } => DefectKind::Sag,
+            Defect::MissingSegment { .. } => DefectKind::MissingSegment,
+            Defect::Bulge { .. } => DefectKind::Bulge,
         }
     }
 
@@ -455,6 +495,6 @@ mod tests {
         assert!(d.truth(&p, 10).is_none());
         let t = d.truth(&p, 23).unwrap();
         assert_eq!(t.layers, (20, 22));
-        assert_eq!(t.kind, "over-extrusion");
+        assert_eq!(t.kind, DefectKind::OverExtrusion);
     }
 }

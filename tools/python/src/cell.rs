@@ -475,7 +475,7 @@ impl SimulatedJob {
                 _ => {
                     let b = py
                         .detach(|| self.job.as_built_with(st.printed, &settings))
-                        .map_err(anyhow_err)?;
+                        .map_err(runtime)?;
                     let b = std::sync::Arc::new(b);
                     *slot = Some((st.printed, set, b.clone()));
                     b

@@ -228,7 +228,7 @@ impl Design {
 
     /// Writes the design as a binary STL in metres (for an agent's `[design]`, or any viewer).
     fn write_stl(&self, path: PathBuf) -> PyResult<()> {
-        asbuilt_sim::write_stl(&path, &self.design).map_err(convert::anyhow_err)
+        asbuilt_sim::write_stl(&path, &self.design).map_err(runtime)
     }
 
     /// The C2M index's figures for `max_distance`: cells, cell size (m), bytes.

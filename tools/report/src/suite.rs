@@ -5,7 +5,6 @@
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
 use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
 use asbuilt_core::coverage::{CoverageParams, SampleClass, ScanSpacing};
@@ -26,6 +25,64 @@ use crate::sections::{
 use nalgebra::{Point3, Vector3};
 
 use asbuilt_io::ply::{Property, Scalar, point_columns, write_table};
+
+/// What a core or file error was caused by.
+type Cause = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// Why the suite cannot run as asked; each case names the option to change.
+#[derive(Debug, thiserror::Error)]
+pub enum SuiteError {
+    /// The tolerance is not a positive length.
+    #[error("--tolerance must be a positive number of metres, got {0}")]
+    Tolerance(f64),
+    /// An option that must be positive is not.
+    #[error("{name} must be a positive number, got {value}")]
+    NotPositive {
+        /// The option.
+        name: &'static str,
+        /// What it was.
+        value: f64,
+    },
+    /// A reference cloud without a method that uses it.
+    #[error("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2")]
+    ReferenceWithoutMethod,
+    /// An option's value does not work with this design or scan.
+    #[error("{what}")]
+    Option {
+        /// The option, and what it was asked to do.
+        what: String,
+        /// Why it does not work.
+        #[source]
+        source: Cause,
+    },
+    /// The layer height does not fit the design.
+    #[error("--layer-height {0} m does not fit the design's height")]
+    LayerHeight(f64),
+    /// A file cannot be read or written.
+    #[error(transparent)]
+    File(#[from] asbuilt_io::IoError),
+    /// A computation over the clouds failed.
+    #[error(transparent)]
+    Cloud(Cause),
+    /// Two-cloud M3C2 without a valid scan point.
+    #[error("two-cloud M3C2: no valid scan point to compare with the reference")]
+    NoScanPoint,
+}
+
+impl From<asbuilt_core::cloud::CloudError> for SuiteError {
+    fn from(e: asbuilt_core::cloud::CloudError) -> Self {
+        Self::Cloud(e.into())
+    }
+}
+
+impl SuiteError {
+    fn option(what: impl Into<String>) -> impl FnOnce(Cause) -> Self {
+        let what = what.into();
+        move |source| Self::Option { what, source }
+    }
+}
+
+type Result<T, E = SuiteError> = std::result::Result<T, E>;
 
 /// A comparison `--method` can ask for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -204,10 +261,7 @@ impl SuiteOptions {
     /// The options checked and their defaults resolved.
     pub fn resolve(&self) -> Result<SuiteConfig> {
         if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
-            bail!(
-                "--tolerance must be a positive number of metres, got {}",
-                self.tolerance
-            );
+            return Err(SuiteError::Tolerance(self.tolerance));
         }
         for (name, v) in [
             ("--max-distance", self.max_distance),
@@ -222,7 +276,7 @@ impl SuiteOptions {
             if let Some(v) = v
                 && !(v > 0.0 && v.is_finite())
             {
-                bail!("{name} must be a positive number, got {v}");
+                return Err(SuiteError::NotPositive { name, value: v });
             }
         }
         let mut methods = self.methods.clone();
@@ -234,7 +288,7 @@ impl SuiteOptions {
                 .iter()
                 .any(|m| matches!(m, Method::C2c | Method::M3c2))
         {
-            bail!("--reference is for C2C and two-cloud M3C2: add --method c2c or --method m3c2");
+            return Err(SuiteError::ReferenceWithoutMethod);
         }
         let max_distance = self.max_distance.unwrap_or(10.0 * self.tolerance);
         let coverage_threshold = self
@@ -309,7 +363,7 @@ impl Suite {
             || (config.has(Method::C2c) && config.reference.is_none());
         let samples = if needs_samples {
             let s = DesignSamples::generate(design, config.spacing, config.seed)
-                .context("--spacing")?;
+                .map_err(|e| SuiteError::option("--spacing")(e.into()))?;
             eprintln!(
                 "design samples: {} at {:.1} mm spacing ({:.2} cm² each)",
                 s.len(),
@@ -350,7 +404,9 @@ impl Suite {
                 max_distance: config.reach,
                 local_plane_k,
             };
-            params.validate().context("--local-plane")?;
+            params
+                .validate()
+                .map_err(|e| SuiteError::option("--local-plane")(e.into()))?;
             Some(C2cRun {
                 reference: CloudIndex::new(points)?,
                 params,
@@ -373,9 +429,7 @@ impl Suite {
             Some(h) => {
                 let (lo, hi) = design.bounds();
                 let top = config.printed_height.unwrap_or(hi.z).min(hi.z);
-                let bands = LayerBands::new(lo.z, top, h).with_context(|| {
-                    format!("--layer-height {h} m does not fit the design's height")
-                })?;
+                let bands = LayerBands::new(lo.z, top, h).ok_or(SuiteError::LayerHeight(h))?;
                 Some(Layers {
                     c2m: bands.clone(),
                     c2c: bands,
@@ -444,7 +498,7 @@ impl Suite {
         };
         // A job run here has the workstation's memory: larger batches, fewer searches.
         Ok(ScanLayer::new(samples, sharp_edges, params)
-            .context("--method coverage/m3c2")?
+            .map_err(|e| SuiteError::option("--method coverage/m3c2")(e.into()))?
             .with_batch(asbuilt_core::scan_layer::OFFLINE_BATCH_POINTS))
     }
 
@@ -785,7 +839,7 @@ fn two_cloud(
         .as_ref()
         .expect("two-cloud runs with a reference");
     if scan.is_empty() {
-        bail!("two-cloud M3C2: no valid scan point to compare with the reference");
+        return Err(SuiteError::NoScanPoint);
     }
     // Core points: the first reference point in each cell of the sample spacing.
     let mut seen = std::collections::HashSet::new();
@@ -806,7 +860,8 @@ fn two_cloud(
         config.max_depth,
     );
     params.orientation = Vector3::z();
-    let results = classic::compare(&reference, &scan_index, &cores, &params)?;
+    let results = classic::compare(&reference, &scan_index, &cores, &params)
+        .map_err(|e| SuiteError::Cloud(e.into()))?;
     let with: Vec<f64> = results.iter().filter_map(|r| r.distance).collect();
     write_table(
         &out.join("m3c2_two_cloud.ply"),

@@ -10,7 +10,6 @@ use crate::{
     AsBuilt, Defect, LayerSettings, Part, Scan, ScannerModel, Truth, as_built_with, built_layers,
     perturb, scan, stations_around,
 };
-use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
     ChunkHeader, FixedText, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, StationEvent,
@@ -20,6 +19,41 @@ use asbuilt_protocol::{
 use nalgebra::{Isometry3, Point3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+
+/// Why a simulated job could not go on.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// The job asks for chunks without points.
+    #[error("chunks need at least one point")]
+    NoChunkPoints,
+    /// The job allows no attempt at a station.
+    #[error("a station needs at least one attempt")]
+    NoAttempts,
+    /// The part cannot be built as its defects say.
+    #[error(transparent)]
+    Part(#[from] crate::PartError),
+    /// The agent's services failed (it is gone, stuck, or was never there).
+    #[error(transparent)]
+    Ipc(#[from] asbuilt_protocol::ipc::IpcError),
+    /// The agent's outputs cannot be read.
+    #[error("cannot read the agent's outputs: {0}")]
+    Outputs(String),
+    /// Sending an attempt stopped: the agent reported it interrupted. The cell sends the
+    /// station again.
+    #[error("{0}")]
+    Cut(String),
+    /// A file cannot be written.
+    #[error("cannot write {}", path.display())]
+    Write {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What the operating system said.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+type Result<T, E = SimError> = std::result::Result<T, E>;
 
 /// A print job to simulate.
 #[derive(Debug, Clone)]
@@ -343,10 +377,10 @@ pub fn run(
     on: &mut dyn FnMut(SimEvent<'_>),
 ) -> Result<SimOutcome> {
     if job.chunk_points == 0 {
-        bail!("chunks need at least one point");
+        return Err(SimError::NoChunkPoints);
     }
     if job.max_attempts == 0 {
-        bail!("a station needs at least one attempt");
+        return Err(SimError::NoAttempts);
     }
     let plan = job.plan();
     let mut out = SimOutcome::default();
@@ -492,14 +526,10 @@ fn send_attempt(
     a.agent = out.agent.map(|(pid, _)| pid);
     a.cut = match send_station(job, a.station, a.attempt, s, ports, out, on) {
         Ok(()) => None,
-        Err(e) => match e.downcast::<Cut>() {
-            Ok(Cut(why)) => Some(why),
-            Err(e) => match e.downcast::<asbuilt_protocol::ipc::IpcError>() {
-                // The agent is gone or stuck: the next attempt goes to the one that replaces it.
-                Ok(e) => Some(format!("sending failed: {}", asbuilt_io::error_message(&e))),
-                Err(e) => return Err(e),
-            },
-        },
+        Err(SimError::Cut(why)) => Some(why),
+        // The agent is gone or stuck: the next attempt goes to the one that replaces it.
+        Err(SimError::Ipc(e)) => Some(format!("sending failed: {}", asbuilt_io::error_message(&e))),
+        Err(e) => return Err(e),
     };
     on(SimEvent::Sent {
         station: a.station,
@@ -600,11 +630,6 @@ impl SimOutcome {
     }
 }
 
-/// Sending stopped because the agent reported the attempt interrupted.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-struct Cut(String);
-
 fn send_station(
     job: &SimJob,
     st: &PlannedStation,
@@ -660,7 +685,7 @@ struct CellSink<'a> {
 }
 
 impl StationSink for CellSink<'_> {
-    type Error = anyhow::Error;
+    type Error = SimError;
     fn now_ns(&mut self, _points_sent: u64) -> u64 {
         unix_time_ns()
     }
@@ -685,7 +710,7 @@ impl StationSink for CellSink<'_> {
         // it would be dropped, so the cell stops and sends the station again.
         match self.out.report_of(self.station, self.attempt) {
             Some(r) if r.status() == Some(StationStatus::Interrupted) => {
-                Err(Cut("reported Interrupted while sending".into()).into())
+                Err(SimError::Cut("reported Interrupted while sending".into()))
             }
             _ => Ok(()),
         }
@@ -699,7 +724,7 @@ fn collect(
     out: &mut SimOutcome,
     on: &mut dyn FnMut(SimEvent<'_>),
 ) -> Result<()> {
-    let bad = |e: &dyn std::fmt::Debug| anyhow::anyhow!("cannot read the agent's outputs: {e:?}");
+    let bad = |e: &dyn std::fmt::Debug| SimError::Outputs(format!("{e:?}"));
     while let Some(r) = ports.reports.receive().map_err(|e| bad(&e))? {
         let r = *r.payload();
         // Reports are delivered at least once (an agent that resumes a job publishes its
@@ -778,9 +803,10 @@ pub fn write_stl(path: &std::path::Path, d: &asbuilt_core::Design) -> Result<()>
             vertices: [v(a), v(b), v(c)],
         }
     };
-    let mut f = std::io::BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
-    );
-    stl_io::write_stl(&mut f, d.triangles.iter().map(tri))
-        .with_context(|| format!("cannot write {}", path.display()))
+    let failed = |source| SimError::Write {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).map_err(failed)?);
+    stl_io::write_stl(&mut f, d.triangles.iter().map(tri)).map_err(failed)
 }

@@ -17,7 +17,7 @@ mod scanner;
 mod spec;
 
 pub use asbuilt::{AsBuilt, as_built, as_built_with};
-pub use cell::{PlannedStation, SimEvent, SimJob, SimOutcome, run, write_stl};
+pub use cell::{PlannedStation, SimError, SimEvent, SimJob, SimOutcome, run, write_stl};
 pub use defect_spec::DefectSpecError;
 pub use defects::{BuiltLayer, Defect, DefectKind, LayerSettings, Truth, built_layers};
 pub use part::{OUTLINE_SPACING, Part, PartError, Ring, resample, signed_area2};

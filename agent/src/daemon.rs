@@ -20,7 +20,7 @@ use crate::config::AgentConfig;
 pub use crate::error::AgentError;
 use crate::fanout::Fanout;
 use crate::findings::FindingsStage;
-use crate::lifecycle::{ChunkSource, Lifecycle, LifecycleLimits, Outputs};
+use crate::lifecycle::{ChunkSource, Input, Lifecycle, LifecycleLimits, Outputs};
 use crate::recorder::{Lent, Recorder};
 use crate::resume::Resumed;
 use crate::{error, info, warn};
@@ -534,11 +534,8 @@ fn shut_down(
     let ports = out.ports;
     info!("stop requested: closing open stations with partial reports");
     if let Some(c) = held.chunk.take() {
-        lifecycle.on_chunk(
-            AgentChunk::Live(LiveChunk::new(c, None)),
-            Instant::now(),
-            &mut out,
-        );
+        let chunk = AgentChunk::Live(LiveChunk::new(c, None));
+        lifecycle.take(Input::Chunk(chunk), Instant::now(), &mut out);
     }
     lifecycle.shutdown(&mut out);
     status.publish(ports, &lifecycle, &out, AgentState::ShuttingDown);
@@ -646,7 +643,8 @@ impl HeldControl {
                 any = true;
                 let lent = out.took_chunk(&sample);
                 let now = Instant::now();
-                lifecycle.on_chunk(AgentChunk::Live(LiveChunk::new(sample, lent)), now, out);
+                let chunk = AgentChunk::Live(LiveChunk::new(sample, lent));
+                lifecycle.take(Input::Chunk(chunk), now, out);
                 if SignalHandler::termination_requested() {
                     return Drained::Stop;
                 }
@@ -679,7 +677,7 @@ impl HeldControl {
             }
             any = true;
             out.took_event(&ev);
-            lifecycle.on_event(&ev, Instant::now(), out);
+            lifecycle.take(Input::Event(ev), Instant::now(), out);
         }
         while let Some(p) = self.pose.take().or_else(|| next(&ports.poses, "poses")) {
             if !lifecycle.has_room_for(p.job, p.station) {
@@ -688,7 +686,7 @@ impl HeldControl {
             }
             any = true;
             out.took_pose(&p, lifecycle.layer_of(p.job, p.station));
-            lifecycle.on_pose(&p, Instant::now(), out);
+            lifecycle.take(Input::Pose(p), Instant::now(), out);
         }
         any
     }

@@ -6,7 +6,7 @@ use std::time::Instant;
 use asbuilt_protocol::recording::Recorded;
 use asbuilt_protocol::{ChunkHeader, ScanPoint, StationEvent, StationEventKind, StationStatus};
 
-use crate::lifecycle::{ChunkSource, Lifecycle, Outputs};
+use crate::lifecycle::{ChunkSource, Input, Lifecycle, Outputs};
 
 /// Feeds one recorded message: station events, poses and scan chunks as the agent took them,
 /// and an `Interrupted` report where a resumed agent said a station attempt was cut off. Other
@@ -17,14 +17,14 @@ where
     C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
 {
     match m {
-        Recorded::Event(e) => lifecycle.on_event(&e, now, out),
-        Recorded::Pose(p) => lifecycle.on_pose(&p, now, out),
+        Recorded::Event(e) => lifecycle.take(Input::Event(e), now, out),
+        Recorded::Pose(p) => lifecycle.take(Input::Pose(p), now, out),
         Recorded::Chunk(h, pts) => {
             // The live agent's chunks waited while their printed height was prepared.
             if lifecycle.awaits_design(&h) {
                 lifecycle.wait_designs(now, out);
             }
-            lifecycle.on_chunk(C::from((h, pts)), now, out);
+            lifecycle.take(Input::Chunk(C::from((h, pts))), now, out);
         }
         Recorded::Report(r) if r.status() == Some(StationStatus::Interrupted) => {
             let mut begin = StationEvent::new(StationEventKind::Begin, r.job, r.station);

@@ -2,7 +2,28 @@
 
 use super::*;
 
+/// What the cell sends the agent, as the lifecycle takes it: live from the cell's services
+/// (`daemon`) or read back from a recording (`replay`). A new input of the cell is a variant
+/// here and an arm of [`Lifecycle::take`].
+pub enum Input<C> {
+    /// A station's Begin or End.
+    Event(StationEvent),
+    /// A robot pose.
+    Pose(PoseSnapshot),
+    /// A scan chunk.
+    Chunk(C),
+}
+
 impl<C: ChunkSource> Lifecycle<C> {
+    /// Takes one input of the cell at `now`.
+    pub fn take(&mut self, input: Input<C>, now: Instant, out: &mut impl Outputs) {
+        match input {
+            Input::Event(ev) => self.on_event(&ev, now, out),
+            Input::Pose(pose) => self.on_pose(&pose, now, out),
+            Input::Chunk(chunk) => self.on_chunk(chunk, now, out),
+        }
+    }
+
     /// Counts and logs a message of another version; true when it can be read.
     pub(super) fn readable<M: Message>(
         &mut self,

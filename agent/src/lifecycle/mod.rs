@@ -47,6 +47,7 @@ mod tests;
 
 use close::attempt_text;
 use heights::Preparation;
+pub use inputs::Input;
 use slots::{CLOSED_MEMORY, OpenStation, Pending};
 
 /// A received scan chunk: a header and its points, wherever they live.

@@ -46,7 +46,7 @@ pub use report::{
     StationStatus,
 };
 pub use scan::{ChunkHeader, ScanPoint, ScanPointFlags};
-pub use sending::{StationSender, StationSink};
+pub use sending::{Paced, StationSender, StationSink};
 pub use station::{StationEvent, StationEventKind};
 pub use status::{AgentState, AgentStatus, InputRejects, OutputDrops};
 pub use survey::{

@@ -104,6 +104,55 @@ impl StationSender {
     }
 }
 
+/// A sink held to a scanner's rate: after each chunk it waits until the points sent through
+/// it are due at `rate` points per second from `started`, so an agent sees them come as a
+/// scanner would send them. Without a rate it sends as fast as the sink takes them.
+#[derive(Debug)]
+pub struct Paced<S> {
+    /// Where the messages go.
+    pub inner: S,
+    rate: Option<f64>,
+    started: std::time::Instant,
+    sent: u64,
+}
+
+impl<S> Paced<S> {
+    /// `inner` at `rate` points per second, counted from `started` with `sent_before` points
+    /// already sent (a job's earlier stations).
+    pub fn new(inner: S, rate: Option<f64>, started: std::time::Instant, sent_before: u64) -> Self {
+        Self {
+            inner,
+            rate,
+            started,
+            sent: sent_before,
+        }
+    }
+}
+
+impl<S: StationSink> StationSink for Paced<S> {
+    type Error = S::Error;
+    fn now_ns(&mut self, points_sent: u64) -> u64 {
+        self.inner.now_ns(points_sent)
+    }
+    fn event(&mut self, event: &StationEvent) -> Result<(), S::Error> {
+        self.inner.event(event)
+    }
+    fn pose(&mut self, pose: &PoseSnapshot) -> Result<(), S::Error> {
+        self.inner.pose(pose)
+    }
+    fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), S::Error> {
+        self.inner.chunk(header, points)?;
+        self.sent += points.len() as u64;
+        if let Some(rate) = self.rate.filter(|r| *r > 0.0 && r.is_finite()) {
+            let due = std::time::Duration::from_secs_f64(self.sent as f64 / rate);
+            if let Some(ahead) = due.checked_sub(self.started.elapsed()) {
+                std::thread::sleep(ahead);
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -175,5 +224,26 @@ mod tests {
         let s = StationSender::start(begin, pose, &mut log).unwrap();
         s.finish(&mut log).unwrap();
         assert_eq!(log.0.len(), 3);
+    }
+
+    #[test]
+    fn a_paced_sink_sends_no_faster_than_its_rate() {
+        let started = std::time::Instant::now();
+        // 1,000 points already sent and 1,000 now at 20,000 points/s: due at 0.1 s.
+        let mut paced = Paced::new(Log::default(), Some(20_000.0), started, 1_000);
+        let h = ChunkHeader::new(1, 0, 0, 1_000);
+        paced.chunk(&h, &vec![ScanPoint::default(); 1_000]).unwrap();
+        assert!(started.elapsed() >= std::time::Duration::from_millis(100));
+        assert_eq!(paced.inner.0.len(), 1, "the chunk went through");
+        // Without a rate nothing waits: a station far ahead of any clock goes at once.
+        let mut free = Paced::new(
+            Log::default(),
+            None,
+            std::time::Instant::now(),
+            u64::MAX / 2,
+        );
+        let t = std::time::Instant::now();
+        free.chunk(&h, &[ScanPoint::default()]).unwrap();
+        assert!(t.elapsed() < std::time::Duration::from_secs(5));
     }
 }

@@ -1,7 +1,7 @@
 //! `asbuilt calibrate`: sphere targets with known centres, scanned from one or more stations,
 //! give the transform the agent needs (`t_design_base` or `t_flange_scanner`).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
@@ -10,9 +10,9 @@ use asbuilt_core::calibration::{matching, sphere};
 use asbuilt_io::scan::{DEFAULT_CHUNK, ScanFile};
 use clap::{Args, ValueEnum};
 use nalgebra::{Point3, UnitQuaternion};
-use serde::Deserialize;
 
 use asbuilt_io::stations::{self, Station};
+use asbuilt_io::targets::{self, Target};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Solve {
@@ -75,45 +75,6 @@ pub struct CalibrateArgs {
     /// Where to write the calibration, a [calibration] table for agent.toml.
     #[arg(long, short, default_value = "calibration.toml")]
     out: PathBuf,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TargetsFile {
-    target: Vec<Target>,
-}
-
-#[derive(Deserialize, Clone)]
-#[serde(deny_unknown_fields)]
-struct Target {
-    id: String,
-    position: [f64; 3],
-}
-
-fn load_targets(path: &Path, exclude: &[String]) -> Result<Vec<Target>> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read targets file {}", path.display()))?;
-    let file: TargetsFile = toml::from_str(&text).map_err(|e| {
-        anyhow::anyhow!(
-            "targets file {} is not valid: {e}\nexpected [[target]] tables with id and \
-             position = [x, y, z] in metres",
-            path.display()
-        )
-    })?;
-    for x in exclude {
-        if !file.target.iter().any(|t| &t.id == x) {
-            bail!("--exclude {x:?}: no such target in {}", path.display());
-        }
-    }
-    let targets: Vec<Target> = file
-        .target
-        .into_iter()
-        .filter(|t| !exclude.contains(&t.id))
-        .collect();
-    if targets.is_empty() {
-        bail!("{} lists no target to use", path.display());
-    }
-    Ok(targets)
 }
 
 /// One sphere seen from one station and matched to a target.
@@ -289,7 +250,7 @@ pub fn run(args: CalibrateArgs) -> Result<ExitCode> {
             r.len()
         ),
     };
-    let targets = load_targets(&args.targets, &args.exclude)?;
+    let targets = targets::load(&args.targets, &args.exclude)?;
     let stations: Vec<Station> = match &args.stations {
         Some(p) => stations::load(p)?,
         None => stations::from_files(&args.files)?,

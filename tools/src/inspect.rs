@@ -5,7 +5,6 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use asbuilt_core::coverage::ScanSpacing;
 use asbuilt_core::station::{InspectParams, StationInspector, Tally};
 use asbuilt_core::{C2mIndex, C2mParams, Design, Units};
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
@@ -15,11 +14,11 @@ use nalgebra::Point3;
 
 use asbuilt_io::DeviationsPly;
 use asbuilt_io::scan::ScanFile;
-use asbuilt_io::stations::{self, DEFAULT_POSITION_SIGMA, Station};
+use asbuilt_io::stations::{self, Station};
 use asbuilt_report::flatness::FlatnessCollector;
 use asbuilt_report::maps::MapCollector;
 use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
-use asbuilt_report::{DesignSection, Parameters, Report, Section, summary_table};
+use asbuilt_report::{DesignSection, Report, Section, summary_table};
 use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
 /// Points per processing chunk. The per-point buffers are chunks, reused for every chunk: two
@@ -290,12 +289,9 @@ struct LoadedDesign {
 
 /// What the report says of the design, kept once the index has taken the design over.
 struct DesignFacts {
-    vertices: usize,
-    triangles: usize,
-    warnings: Vec<String>,
+    section: DesignSection,
     lowest: f64,
     size: f64,
-    index: asbuilt_core::c2m::IndexStats,
 }
 
 /// The job under way: the index, the methods beside C2M, the outputs, and what the stations
@@ -331,7 +327,7 @@ impl Job {
         let suite = Suite::new(&design, plan.suite.clone())?;
         let viewer = start_viewer(args, &design)?;
         // The design's counts are all the report needs of it from here: the index takes it over.
-        let (vertices, triangles) = (design.vertices.len(), design.triangles.len());
+        let counts = (design.vertices.len(), design.triangles.len());
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
         let maps = if args.no_maps { maps.off() } else { maps };
         let flatness =
@@ -353,12 +349,15 @@ impl Job {
         Ok(Self {
             index,
             facts: DesignFacts {
-                vertices,
-                triangles,
-                warnings,
+                section: DesignSection::new(
+                    args.design.display().to_string(),
+                    args.units,
+                    counts,
+                    warnings,
+                    &ix,
+                ),
                 lowest: lo.z,
                 size: (hi - lo).norm(),
-                index: ix,
             },
             suite,
             viewer,
@@ -483,7 +482,7 @@ impl Job {
             asbuilt_report::mm(section.distances.median_abs, "-"),
             t0.elapsed().as_secs_f64()
         );
-        let extra = method_line(&section.suite);
+        let extra = section.suite.methods_line();
         if !extra.is_empty() {
             eprintln!("        {:<10} {extra}", "");
         }
@@ -536,32 +535,10 @@ impl Job {
             .flatness
             .map(FlatnessCollector::finish)
             .unwrap_or_default();
-        let ix = &self.facts.index;
         let mut report = Report {
             asbuilt_version: env!("CARGO_PKG_VERSION"),
-            design: DesignSection {
-                path: args.design.display().to_string(),
-                units: args.units.to_string(),
-                vertices: self.facts.vertices,
-                triangles: self.facts.triangles,
-                warnings: self.facts.warnings,
-                index_cell_size_m: ix.cell_size,
-                index_cells: ix.cells,
-                index_bytes: ix.bytes,
-            },
-            parameters: Parameters {
-                tolerance_m: args.tolerance,
-                max_distance_m: plan.suite.reach,
-                histogram_range_m: self.params.stats.histogram_range,
-                spacing_m: args.spacing,
-                coverage_threshold_m: plan.suite.coverage_threshold,
-                coverage_spacing: describe_spacing(plan.suite.coverage_spacing),
-                projection_diameter_m: plan.suite.projection_diameter,
-                max_depth_m: plan.suite.max_depth,
-                printed_height_m: args.printed_height,
-                layer_height_m: args.layer_height,
-                reference: args.reference.as_ref().map(|p| p.display().to_string()),
-            },
+            design: self.facts.section,
+            parameters: plan.suite.parameters(self.params.stats.histogram_range),
             methods: plan.suite.methods.iter().map(|m| m.name()).collect(),
             stations: self.sections,
             overall,
@@ -897,90 +874,26 @@ fn write_report(
     Ok(ExitCode::SUCCESS)
 }
 
+/// The stations of --scan, at the pose of --translation and --rotation-xyzw when given.
 fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Station>> {
-    let (translation, rotation_xyzw) =
-        match (args.translation.as_deref(), args.rotation_xyzw.as_deref()) {
-            (None, None) => (None, None),
-            (Some(t), Some(r)) => {
-                if t.len() != 3 {
-                    bail!(
-                        "--translation takes three numbers x,y,z (metres), got {}",
-                        t.len()
-                    );
-                }
-                if r.len() != 4 {
-                    bail!(
-                        "--rotation-xyzw takes four numbers x,y,z,w, got {}",
-                        r.len()
-                    );
-                }
-                (Some([t[0], t[1], t[2]]), Some([r[0], r[1], r[2], r[3]]))
-            }
-            _ => bail!(
-                "give both --translation x,y,z and --rotation-xyzw x,y,z,w, or neither to use the \
+    let pose = match (args.translation.as_deref(), args.rotation_xyzw.as_deref()) {
+        (None, None) => None,
+        (Some(&[x, y, z]), Some(&[i, j, k, w])) => Some(([x, y, z], [i, j, k, w])),
+        (Some(t), Some(r)) => bail!(
+            "--translation takes three numbers x,y,z (metres) and --rotation-xyzw four x,y,z,w; \
+             got {} and {}",
+            t.len(),
+            r.len()
+        ),
+        _ => bail!(
+            "give both --translation x,y,z and --rotation-xyzw x,y,z,w, or neither to use the \
              pose the scan file holds"
-            ),
-        };
-    let file = stations::StationsFile {
-        station: vec![stations::StationEntry {
-            translation,
-            rotation_xyzw,
-            position_sigma: Some(DEFAULT_POSITION_SIGMA),
-            ..stations::StationEntry::of_file(scan)
-        }],
+        ),
     };
-    Ok(stations::resolve(
-        file,
-        std::path::Path::new("."),
-        "--scan",
-    )?)
+    Ok(stations::of_scan(scan, pose)?)
 }
 
 fn format_ratio(r: f64) -> String {
     let r = if r < 1.0 { 1.0 / r } else { r };
     format!("{r:.0}")
-}
-
-/// One line per station for the methods beside C2M, in millimetres and square centimetres.
-/// A threshold given by hand is used as it is; else it is raised to the scan's spacing, from
-/// the scanner's step when given, measured per station otherwise.
-fn describe_spacing(s: ScanSpacing) -> String {
-    match s {
-        ScanSpacing::Fixed => "fixed".into(),
-        ScanSpacing::AngularStep(a) => format!("scanner step {:.3} mrad", a * 1e3),
-        ScanSpacing::Measured => "measured per station".into(),
-    }
-}
-
-fn method_line(s: &asbuilt_report::SuiteSection) -> String {
-    let mut parts = Vec::new();
-    if let Some(c) = &s.c2c {
-        parts.push(format!(
-            "C2C median {} mm",
-            asbuilt_report::mm(c.median_abs, "-")
-        ));
-    }
-    if let Some(c) = &s.coverage {
-        parts.push(format!(
-            "coverage: {} observed, {} missing ({:.1} cm²), {} occluded, {} not scanned{}",
-            c.observed,
-            c.missing,
-            c.missing_area_m2 * 1e4,
-            c.occluded,
-            c.not_scanned,
-            c.angular_step_mrad
-                .map(|a| format!(" (gaps up to the scan spacing allowed: {a:.2} mrad step)"))
-                .unwrap_or_default()
-        ));
-    }
-    if let Some(m) = &s.m3c2 {
-        parts.push(format!(
-            "M3C2: {} of {} core points measured, {} significant",
-            m.summary.with_points, m.summary.core_points, m.summary.significant
-        ));
-    }
-    if let Some(a) = s.above_printed_height {
-        parts.push(format!("{a} points above the printed height"));
-    }
-    parts.join("; ")
 }

@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
-    StationReport, StationSender, StationSink, StationStatus, unix_time_ns,
+    FixedText, Paced, PoseMode, PoseSnapshot, StationEvent, StationEventKind, StationReport,
+    StationSender, StationStatus,
 };
 use clap::Args;
 use iceoryx2::prelude::*;
@@ -197,12 +197,7 @@ impl Job<'_> {
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
         pose.position_sigma = st.position_sigma;
-        let mut sink = Paced {
-            ports: self.ports,
-            rate: self.rate,
-            started: self.started,
-            sent_before,
-        };
+        let mut sink = Paced::new(self.ports, self.rate, self.started, sent_before);
         let mut sender = StationSender::start(begin, pose, &mut sink)?;
         file.stream(st.scan_index, self.args.chunk_points, &mut |chunk| {
             Ok(sender.chunk(chunk, &mut sink)?)
@@ -288,37 +283,4 @@ pub(crate) fn collect_reports(
     // Deviations are for other subscribers; keep this one's queue from filling.
     while let Ok(Some(_)) = ports.deviations.receive() {}
     Ok(())
-}
-
-/// The cell's ports, with chunks held to `rate` points per second over the whole job.
-struct Paced<'p> {
-    ports: &'p CellPorts,
-    rate: Option<f64>,
-    started: Instant,
-    /// Points of the stations before this one.
-    sent_before: u64,
-}
-
-impl StationSink for Paced<'_> {
-    type Error = asbuilt_protocol::ipc::IpcError;
-    fn now_ns(&mut self, _points_sent: u64) -> u64 {
-        unix_time_ns()
-    }
-    fn event(&mut self, event: &StationEvent) -> Result<(), Self::Error> {
-        self.ports.send_event(event)
-    }
-    fn pose(&mut self, pose: &PoseSnapshot) -> Result<(), Self::Error> {
-        self.ports.send_pose(pose)
-    }
-    fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), Self::Error> {
-        self.ports.send_chunk(header, points)?;
-        self.sent_before += points.len() as u64;
-        if let Some(rate) = self.rate {
-            let due = Duration::from_secs_f64(self.sent_before as f64 / rate);
-            if let Some(ahead) = due.checked_sub(self.started.elapsed()) {
-                std::thread::sleep(ahead);
-            }
-        }
-        Ok(())
-    }
 }

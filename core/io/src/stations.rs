@@ -282,6 +282,24 @@ pub fn from_files(files: &[PathBuf]) -> Result<Vec<Station>, StationsError> {
     resolve(file, Path::new("."), "scan files")
 }
 
+/// The stations of one scan file given on the command line (`--scan`): every scan in it at
+/// `pose` (translation, rotation x,y,z,w) when one is given, else at the poses the file holds;
+/// the robot's pose accuracy as their uncertainty.
+pub fn of_scan(
+    scan: &Path,
+    pose: Option<([f64; 3], [f64; 4])>,
+) -> Result<Vec<Station>, StationsError> {
+    let file = StationsFile {
+        station: vec![StationEntry {
+            translation: pose.map(|p| p.0),
+            rotation_xyzw: pose.map(|p| p.1),
+            position_sigma: Some(DEFAULT_POSITION_SIGMA),
+            ..StationEntry::of_file(scan)
+        }],
+    };
+    resolve(file, Path::new("."), "--scan")
+}
+
 /// Converts a Stanford/Scanalyze `.conf` (`bmesh FILE tx ty tz qx qy qz qw`, where
 /// `p_mesh = R(q)ᵀ · p_scan + t`) into stations. Scan paths are written relative to `out_dir`.
 pub fn from_conf(conf: &Path, out_dir: &Path) -> Result<StationsFile, IoError> {

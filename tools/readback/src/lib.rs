@@ -448,16 +448,13 @@ impl RecordedJob {
         findings.sort_by_key(|a| (a.job, a.layer));
         let mut report = Report {
             asbuilt_version: env!("CARGO_PKG_VERSION"),
-            design: DesignSection {
-                path: self.design_path,
-                units: self.units.to_string(),
-                vertices: design.vertices.len(),
-                triangles: design.triangles.len(),
-                warnings: design.report.warnings(),
-                index_cell_size_m: ix.cell_size,
-                index_cells: ix.cells,
-                index_bytes: ix.bytes,
-            },
+            design: DesignSection::new(
+                self.design_path,
+                self.units,
+                (design.vertices.len(), design.triangles.len()),
+                design.report.warnings(),
+                &ix,
+            ),
             parameters: Parameters {
                 tolerance_m: self.tolerance,
                 max_distance_m: self.max_distance,

@@ -83,6 +83,29 @@ pub struct DesignSection {
     pub index_bytes: usize,
 }
 
+impl DesignSection {
+    /// The design file as loaded (`counts`: its vertices and triangles; `warnings`: what
+    /// loading found) and indexed.
+    pub fn new(
+        path: String,
+        units: asbuilt_core::Units,
+        counts: (usize, usize),
+        warnings: Vec<String>,
+        index: &asbuilt_core::c2m::IndexStats,
+    ) -> Self {
+        Self {
+            path,
+            units: units.to_string(),
+            vertices: counts.0,
+            triangles: counts.1,
+            warnings,
+            index_cell_size_m: index.cell_size,
+            index_cells: index.cells,
+            index_bytes: index.bytes,
+        }
+    }
+}
+
 /// What the comparison was run with. Metres.
 #[derive(Debug, Serialize)]
 pub struct Parameters {
@@ -483,6 +506,40 @@ pub struct SuiteSection {
     /// printed after the height was given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub above_printed_height: Option<u64>,
+}
+
+impl SuiteSection {
+    /// One line for the methods beside C2M, in millimetres and square centimetres; empty when
+    /// only C2M ran.
+    pub fn methods_line(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(c) = &self.c2c {
+            parts.push(format!("C2C median {} mm", crate::mm(c.median_abs, "-")));
+        }
+        if let Some(c) = &self.coverage {
+            parts.push(format!(
+                "coverage: {} observed, {} missing ({:.1} cm²), {} occluded, {} not scanned{}",
+                c.observed,
+                c.missing,
+                c.missing_area_m2 * 1e4,
+                c.occluded,
+                c.not_scanned,
+                c.angular_step_mrad
+                    .map(|a| format!(" (gaps up to the scan spacing allowed: {a:.2} mrad step)"))
+                    .unwrap_or_default()
+            ));
+        }
+        if let Some(m) = &self.m3c2 {
+            parts.push(format!(
+                "M3C2: {} of {} core points measured, {} significant",
+                m.summary.with_points, m.summary.core_points, m.summary.significant
+            ));
+        }
+        if let Some(a) = self.above_printed_height {
+            parts.push(format!("{a} points above the printed height"));
+        }
+        parts.join("; ")
+    }
 }
 
 /// One method's distances in a layer band. Metres.

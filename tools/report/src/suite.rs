@@ -257,6 +257,31 @@ pub struct SuiteOptions {
     pub local_plane: Option<usize>,
 }
 
+impl SuiteConfig {
+    /// What report.json says the job was run with; `histogram_range` is C2M's statistics'.
+    pub fn parameters(&self, histogram_range: f64) -> crate::Parameters {
+        crate::Parameters {
+            tolerance_m: self.tolerance,
+            max_distance_m: self.reach,
+            histogram_range_m: histogram_range,
+            spacing_m: self.spacing,
+            coverage_threshold_m: self.coverage_threshold,
+            // A threshold given by hand is used as it is; else it is raised to the scan's
+            // spacing, from the scanner's step when given, measured per station otherwise.
+            coverage_spacing: match self.coverage_spacing {
+                ScanSpacing::Fixed => "fixed".into(),
+                ScanSpacing::AngularStep(a) => format!("scanner step {:.3} mrad", a * 1e3),
+                ScanSpacing::Measured => "measured per station".into(),
+            },
+            projection_diameter_m: self.projection_diameter,
+            max_depth_m: self.max_depth,
+            printed_height_m: self.printed_height,
+            layer_height_m: self.layer_height,
+            reference: self.reference.as_ref().map(|p| p.display().to_string()),
+        }
+    }
+}
+
 impl SuiteOptions {
     /// The options checked and their defaults resolved.
     pub fn resolve(&self) -> Result<SuiteConfig> {

@@ -12,9 +12,9 @@ use crate::{
 };
 use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, StationEvent,
-    StationEventKind, StationFindings, StationReport, StationSender, StationSink, StationStatus,
-    codec, unix_time_ns,
+    ChunkHeader, FixedText, LayerCorrection, Paced, PoseMode, PoseSnapshot, ScanPoint,
+    StationEvent, StationEventKind, StationFindings, StationReport, StationSender, StationSink,
+    StationStatus, codec, unix_time_ns,
 };
 use nalgebra::{Isometry3, Point3};
 use rand::SeedableRng;
@@ -652,34 +652,30 @@ fn send_station(
     let q = st.nominal.rotation.coords;
     pose.rotation_xyzw = [q.x, q.y, q.z, q.w];
     pose.position_sigma = job.position_sigma;
-    let mut sink = CellSink {
+    let sink = CellSink {
         ports,
         job: job.job,
         station: st.index,
         attempt,
-        chunk_points: job.chunk_points,
-        rate: job.rate,
-        started: Instant::now(),
         out,
         on,
     };
+    let mut sink = Paced::new(sink, job.rate, Instant::now(), 0);
     let mut sender = StationSender::start(begin, pose, &mut sink)?;
     for chunk in s.points.chunks(job.chunk_points) {
         sender.chunk(chunk, &mut sink)?;
     }
     sender.finish(&mut sink)?;
-    collect(job.job, ports, sink.out, sink.on)
+    collect(job.job, ports, sink.inner.out, sink.inner.on)
 }
 
-/// The cell's ports at the scanner's rate, taking the agent's answers after every chunk.
+/// The cell's ports, taking the agent's answers after every chunk (paced to the scanner's
+/// rate by [`Paced`]).
 struct CellSink<'a> {
     ports: &'a CellPorts,
     job: u64,
     station: u32,
     attempt: u8,
-    chunk_points: usize,
-    rate: Option<f64>,
-    started: Instant,
     out: &'a mut SimOutcome,
     on: &'a mut dyn FnMut(SimEvent<'_>),
 }
@@ -698,13 +694,6 @@ impl StationSink for CellSink<'_> {
     fn chunk(&mut self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<()> {
         self.ports.send_chunk(header, points)?;
         self.out.points_sent += points.len() as u64;
-        if let Some(rate) = self.rate {
-            let sent = (header.sequence + 1) as f64 * self.chunk_points as f64;
-            let due = Duration::from_secs_f64(sent / rate);
-            if let Some(ahead) = due.checked_sub(self.started.elapsed()) {
-                std::thread::sleep(ahead);
-            }
-        }
         collect(self.job, self.ports, self.out, self.on)?;
         // An agent started again reports the attempt it could not finish at once: the rest of
         // it would be dropped, so the cell stops and sends the station again.

@@ -95,6 +95,13 @@ impl Grid {
         max_surface_cells: usize,
         max_candidates: usize,
     ) -> Self {
+        // Sizes below `least` cannot hold the budget: they are stepped over without
+        // enumerating their cells, through the same sizes, so the grid is the one the loop
+        // would have built.
+        let least = smallest_fitting(mesh, max_surface_cells);
+        while h < least {
+            h *= 1.5;
+        }
         let (origin, keys) = loop {
             let origin = lo - Vector3::repeat(2.0 * h);
             let limit = 64.0 * max_surface_cells as f64;
@@ -339,6 +346,29 @@ fn emitted_estimate(mesh: &Mesh, origin: &Point3<f64>, h: f64, limit: f64) -> f6
         .sum()
 }
 
+/// A cell size below which the surface takes more than `max_surface_cells` cells for sure, so
+/// the cells need not be enumerated to know it: a triangle's longest edge `L` crosses at least
+/// `L / (√3 h)` cells (no cell holds more of a segment than its diagonal), and its area `A` at
+/// least `A / (√2 h²)` (no plane cuts a cube in more than `√2 h²`). A slack of a millionth keeps
+/// rounding on the safe side. Slivers and needles make the loop start far below it: a 12-
+/// triangle STL of denormal needles spent half a second enumerating sizes that could not fit.
+pub(super) fn smallest_fitting(mesh: &Mesh, max_surface_cells: usize) -> f64 {
+    let cells = max_surface_cells as f64;
+    let (longest, largest) = (0..mesh.len()).fold((0.0f64, 0.0f64), |(l, a), t| {
+        let tri = mesh.triangle(t);
+        let edge = tri
+            .ab
+            .norm()
+            .max(tri.ac.norm())
+            .max((tri.ac - tri.ab).norm());
+        (l.max(edge), a.max(0.5 * tri.ab.cross(&tri.ac).norm()))
+    });
+    let by_edge = longest / (3f64.sqrt() * cells);
+    let by_area = (largest / (2f64.sqrt() * cells)).sqrt();
+    let least = by_edge.max(by_area) * (1.0 - 1e-6);
+    if least.is_finite() { least } else { 0.0 }
+}
+
 /// The pieces a triangle's cells are enumerated in, each with the first and last cell of its
 /// box. A sliver's box holds far more cells than the triangle meets (a 1 m needle on a
 /// diagonal: 10^8 cells of 0.1 mm, where it meets 10^4), so a piece whose box holds more than
@@ -388,7 +418,7 @@ fn pieces(
 
 /// The keys of the cells a triangle's box and plane both reach (a superset of the cells it
 /// meets), sorted; a sliver by pieces (see [`pieces`]).
-fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64, limit: f64) -> Vec<u64> {
+pub(super) fn surface_cells(mesh: &Mesh, origin: &Point3<f64>, h: f64, limit: f64) -> Vec<u64> {
     let mut surface: Vec<u64> = (0..mesh.len())
         .into_par_iter()
         .chunks(512)

@@ -138,3 +138,74 @@ fn no_hint_changes_what_the_bvh_finds() {
         }
     }
 }
+
+/// The cell sizes the grid steps over without enumerating them are sizes whose surface cells
+/// would not have fitted: just below the bound, each design's surface takes more cells than
+/// the budget, so skipping them leaves the grid the loop would have built.
+#[test]
+fn the_sizes_stepped_over_could_not_hold_the_surface() {
+    use super::bvh::Bvh;
+    use super::grid::{smallest_fitting, surface_cells};
+    use super::mesh::Mesh;
+    // Needles and specks of the kind a fuzzed STL gave (a 1 m edge beside denormal ones), a
+    // sliver fan, and ordinary designs.
+    let tiny = 5.8e-39;
+    let needles = Design::from_indexed(
+        vec![
+            Point3::origin(),
+            Point3::new(0.0, tiny, 0.0),
+            Point3::new(tiny, 0.0, 0.0),
+            Point3::new(0.125, 1.0, 0.5),
+            Point3::new(1.0, 0.5, 0.25),
+        ],
+        vec![[0, 1, 2], [0, 2, 3], [1, 2, 4], [0, 1, 3]],
+        1.0,
+    );
+    let mut fan_v = vec![Point3::origin()];
+    let mut fan_t = Vec::new();
+    for k in 0..50u32 {
+        let a = f64::from(k) * 0.01;
+        fan_v.push(Point3::new(
+            2.0 * a.cos(),
+            2.0 * a.sin(),
+            1e-3 * f64::from(k),
+        ));
+        fan_v.push(Point3::new(
+            2.0 * a.cos(),
+            2.0 * a.sin() + 1e-6,
+            1e-3 * f64::from(k),
+        ));
+        fan_t.push([0, 2 * k + 1, 2 * k + 2]);
+    }
+    let fan = Design::from_indexed(fan_v, fan_t, 1.0);
+    let designs = [
+        needles.ok(),
+        fan.ok(),
+        Some(cuboid(Point3::origin(), Point3::new(1.0, 2.0, 0.5))),
+        Some(icosphere(Point3::new(0.1, 0.2, 0.3), 0.5, 3)),
+        Some(study_wall()),
+        Some(twisted_column(0.15, 0.1, 1.2, 90.0, 40, 20)),
+    ];
+    for (n, design) in designs.into_iter().enumerate() {
+        let design = design.unwrap_or_else(|| panic!("design {n} loads"));
+        let (_, order) = Bvh::build(&design.vertices, &design.triangles);
+        let mesh = Mesh::new(
+            design.vertices.clone(),
+            &design.triangles,
+            &order,
+            NormalSource::Own,
+        );
+        for budget in [64, 4096 + mesh.len() / 2] {
+            let least = smallest_fitting(&mesh, budget);
+            assert!(least > 0.0, "design {n}");
+            let h = least * 0.999;
+            let (lo, _) = design.bounds();
+            let origin = lo - Vector3::repeat(2.0 * h);
+            let cells = surface_cells(&mesh, &origin, h, f64::INFINITY).len();
+            assert!(
+                cells > budget,
+                "design {n}: {cells} surface cells of {h} m fit a budget of {budget}"
+            );
+        }
+    }
+}

@@ -221,10 +221,15 @@ fn serve(
         more = drained == Drained::More;
         let now = Instant::now();
         lifecycle.on_tick(now, out);
-        out.publish_recorded_reports(false);
+        out.publish_durable(false);
         if now >= status.next {
             status.dead_nodes += cleanup_dead_nodes(node);
-            status.publish(ports, lifecycle, out, AgentState::Serving);
+            let state = if out.held_by_disk() {
+                AgentState::HeldByDisk
+            } else {
+                AgentState::Serving
+            };
+            status.publish(ports, lifecycle, out, state);
         }
     }
     held
@@ -358,7 +363,7 @@ fn finish_resume(
     // The reports' service keeps a short history; the latest are the ones a cell may lack.
     let skip = r.recorded.len().saturating_sub(REPUBLISHED);
     for report in &r.recorded[skip..] {
-        out.publish_report(report);
+        out.publish(&crate::fanout::Outgoing::Report(*report));
     }
     let unfinished = std::mem::take(&mut r.unfinished);
     if unfinished.is_empty() {
@@ -548,7 +553,7 @@ fn shut_down(
         r.finish();
         // Everything is on disk now.
         out.recorder = None;
-        out.publish_recorded_reports(true);
+        out.publish_durable(true);
         use std::sync::atomic::Ordering::Relaxed;
         info!(
             "recorder: {} file(s), {} scan chunks recorded, {} left out (queue or disk), {} \
@@ -791,6 +796,12 @@ fn log_health(s: &AgentStatus) {
         s.output.deviation_chunks + s.output.deviation_chunks_unloaned,
         s.output.reports
     );
+    if s.state() == Some(AgentState::HeldByDisk) {
+        warn!(
+            "health: results wait for the recording's disk; the cell is held back until they \
+             are synced"
+        );
+    }
 }
 
 /// What every recording of this agent says about how it was made. The recorder adds the

@@ -1,6 +1,7 @@
 //! What goes out and what is recorded of what comes in: the agent's results to the cell's
-//! ports, the recorder and the view, in one place. A report reaches the cell only once the
-//! recorder has it on disk.
+//! ports, the recorder and the view, in one place. A result the cell or the printer acts on (a
+//! report, findings, a surface judgement, advice) reaches it only once the recorder has it
+//! synced to disk.
 
 use std::time::{Duration, Instant};
 
@@ -31,10 +32,11 @@ pub(crate) struct Fanout<'p> {
     /// statistics stay whole. Sized once for the largest accepted chunk.
     pub(crate) scratch: Vec<PointDeviation>,
     pub(crate) unloaned: u64,
-    /// Reports waiting for the recorder to have them on disk, with their flush ticket and since
-    /// when: the cell learns of a station only once a crash can no longer lose it.
-    pub(crate) unpublished: std::collections::VecDeque<(u64, Instant, StationReport)>,
-    /// The ticket of the report whose wait for the disk the log has said.
+    /// Results waiting for the recorder to have them on disk, in the order they were made,
+    /// with their commit's ticket (none until committed) and since when: the cell learns of a
+    /// result only once neither a crash nor a power cut can lose it.
+    pub(crate) unpublished: std::collections::VecDeque<Held>,
+    /// The ticket whose wait for the disk the log has said.
     pub(crate) slow_disk_said: Option<u64>,
     /// Record each scan layer's findings state after every station (`[recorder] resume`).
     pub(crate) record_states: bool,
@@ -68,6 +70,11 @@ impl<'p> Fanout<'p> {
     pub(crate) fn took_event(&self, ev: &StationEvent) {
         if let Some(r) = &self.recorder {
             r.record(Recorded::Event(*ev));
+            // A Begin is made durable at once: an agent resuming after a power cut knows
+            // the attempt began, and calls it interrupted.
+            if ev.kind() == Some(asbuilt_protocol::StationEventKind::Begin) {
+                r.commit();
+            }
         }
     }
 
@@ -106,11 +113,39 @@ impl<'p> Fanout<'p> {
     }
 }
 
-/// How long a report waits for the recorder's disk before the log says the disk holds the
-/// cell back. It is never published ahead of its record: a report the cell has and the
-/// recording lacks makes a restarted agent call that attempt interrupted, while the cell kept
-/// the first report it got and never scans the station again.
+/// How long a result waits for the recorder's disk before the log and the status say the disk
+/// holds the cell back. It is never published ahead of its record: a report the cell has and
+/// the recording lacks makes a restarted agent call that attempt interrupted, while the cell
+/// kept the first report it got and never scans the station again.
 const ON_DISK_WAIT: Duration = Duration::from_secs(1);
+
+/// A result for the cell or the printer.
+pub(crate) enum Outgoing {
+    Report(StationReport),
+    Findings(Box<StationFindings>),
+    Surface(Box<asbuilt_protocol::SurfaceFindings>),
+    Correction(LayerCorrection),
+}
+
+impl Outgoing {
+    /// The station the result is of.
+    fn station(&self) -> (u64, u32) {
+        match self {
+            Outgoing::Report(r) => (r.job, r.station),
+            Outgoing::Findings(f) => (f.job, f.station),
+            Outgoing::Surface(s) => (s.job, s.station),
+            Outgoing::Correction(c) => (c.job, c.station),
+        }
+    }
+}
+
+/// A result waiting for its record to be durable.
+pub(crate) struct Held {
+    /// The recorder's commit that makes it durable; none before it is asked for.
+    ticket: Option<u64>,
+    since: Instant,
+    result: Outgoing,
+}
 
 /// One name per station in the view, the same for its pose, points and report.
 fn view_name(job: u64, station: u32) -> String {
@@ -197,48 +232,30 @@ impl Outputs for Fanout<'_> {
     }
 
     fn findings(&mut self, f: &StationFindings) {
-        if let Some(r) = &self.recorder {
-            r.record(Recorded::Findings(Box::new(f.clone())));
-        }
         if let Some(v) = &self.viewer {
             v.show(View::Findings {
                 index: f.station,
                 findings: Box::new(f.clone()),
             });
         }
-        let bytes = asbuilt_protocol::codec::encode(f);
-        self.publish_encoded(
-            &self.ports.findings,
-            (f.job, f.station, f.layer),
-            &bytes,
-            "findings",
+        self.durable_then_said(
+            Recorded::Findings(Box::new(f.clone())),
+            Outgoing::Findings(Box::new(f.clone())),
         );
     }
 
     fn surface(&mut self, s: &asbuilt_protocol::SurfaceFindings) {
-        if let Some(r) = &self.recorder {
-            r.record(Recorded::Surface(Box::new(s.clone())));
-        }
-        let bytes = asbuilt_protocol::codec::encode(s);
-        self.publish_encoded(
-            &self.ports.surface,
-            (s.job, s.station, s.layer),
-            &bytes,
-            "surface judgement",
+        self.durable_then_said(
+            Recorded::Surface(Box::new(s.clone())),
+            Outgoing::Surface(Box::new(s.clone())),
         );
     }
 
     fn correction(&mut self, c: &LayerCorrection) {
-        if let Some(r) = &self.recorder {
-            r.record(Recorded::Correction(Box::new(*c)));
-        }
         if let Some(v) = &self.viewer {
             v.show(View::Correction(Box::new(*c)));
         }
-        match self.ports.corrections.send_copy(*c) {
-            Ok(_) => self.notify(),
-            Err(e) => warn!("advice after station {} not published: {e:?}", c.station),
-        }
+        self.durable_then_said(Recorded::Correction(Box::new(*c)), Outgoing::Correction(*c));
     }
 
     fn deviations(
@@ -275,13 +292,10 @@ impl Outputs for Fanout<'_> {
     }
 
     fn report(&mut self, report: &StationReport) {
-        if let Some(r) = &self.recorder {
-            let ticket = r.record(Recorded::Report(Box::new(*report))).unwrap_or(0);
-            self.unpublished
-                .push_back((ticket, Instant::now(), *report));
-        } else {
-            self.publish_report(report);
-        }
+        self.durable_then_said(
+            Recorded::Report(Box::new(*report)),
+            Outgoing::Report(*report),
+        );
         if let Some(v) = &self.viewer {
             self.shown.remove(&(report.job, report.station));
             v.show(View::Report {
@@ -294,34 +308,90 @@ impl Outputs for Fanout<'_> {
 }
 
 impl Fanout<'_> {
-    pub(crate) fn publish_report(&self, report: &StationReport) {
-        if let Err(e) = self.ports.reports.send_copy(*report) {
-            warn!("report of station {} not published: {e:?}", report.station);
+    /// Records `record` and holds `result` until the recorder has it on disk; without a
+    /// recorder, says it at once.
+    fn durable_then_said(&mut self, record: Recorded, result: Outgoing) {
+        match &self.recorder {
+            Some(r) => {
+                r.record(record);
+                self.unpublished.push_back(Held {
+                    ticket: None,
+                    since: Instant::now(),
+                    result,
+                });
+            }
+            None => self.publish(&result),
         }
-        self.notify();
     }
 
-    /// Publishes the reports the recorder has on disk (all of them when `all`: the recorder is
-    /// finished). One that has waited [`ON_DISK_WAIT`] is said once in the log, and waits on.
-    pub(crate) fn publish_recorded_reports(&mut self, all: bool) {
-        while let Some(&(ticket, since, report)) = self.unpublished.front() {
+    /// Tells the cell (or the printer) `result`, now.
+    pub(crate) fn publish(&self, result: &Outgoing) {
+        match result {
+            Outgoing::Report(r) => {
+                if let Err(e) = self.ports.reports.send_copy(*r) {
+                    warn!("report of station {} not published: {e:?}", r.station);
+                }
+                self.notify();
+            }
+            Outgoing::Findings(f) => self.publish_encoded(
+                &self.ports.findings,
+                (f.job, f.station, f.layer),
+                &asbuilt_protocol::codec::encode(f.as_ref()),
+                "findings",
+            ),
+            Outgoing::Surface(s) => self.publish_encoded(
+                &self.ports.surface,
+                (s.job, s.station, s.layer),
+                &asbuilt_protocol::codec::encode(s.as_ref()),
+                "surface judgement",
+            ),
+            Outgoing::Correction(c) => match self.ports.corrections.send_copy(*c) {
+                Ok(_) => self.notify(),
+                Err(e) => warn!("advice after station {} not published: {e:?}", c.station),
+            },
+        }
+    }
+
+    /// Whether a result has waited for the disk longer than [`ON_DISK_WAIT`]: the disk holds
+    /// the cell back, as the status says.
+    pub(crate) fn held_by_disk(&self) -> bool {
+        self.unpublished
+            .front()
+            .is_some_and(|h| h.since.elapsed() >= ON_DISK_WAIT)
+    }
+
+    /// Commits the results made since the last call (one sync for all of a station's) and
+    /// publishes those the recorder has on disk, in order; all of them when `all` (the
+    /// recorder is finished). One that has waited [`ON_DISK_WAIT`] is said once in the log,
+    /// and waits on.
+    pub(crate) fn publish_durable(&mut self, all: bool) {
+        if let Some(r) = &self.recorder
+            && self.unpublished.iter().any(|h| h.ticket.is_none())
+        {
+            let ticket = r.commit();
+            for h in self.unpublished.iter_mut().filter(|h| h.ticket.is_none()) {
+                h.ticket = Some(ticket);
+            }
+        }
+        while let Some(held) = self.unpublished.front() {
+            let ticket = held.ticket.unwrap_or(0);
             let on_disk = self.recorder.as_ref().is_none_or(|r| r.is_on_disk(ticket));
             if !(on_disk || all) {
-                if since.elapsed() >= ON_DISK_WAIT && self.slow_disk_said != Some(ticket) {
+                let waited = held.since.elapsed();
+                if waited >= ON_DISK_WAIT && self.slow_disk_said != Some(ticket) {
                     self.slow_disk_said = Some(ticket);
+                    let (job, station) = held.result.station();
                     warn!(
-                        "job {} station {}: its report waits for the recorder to have it on \
-                         disk ({:.1} s so far); the cell is told once it is. Check the \
-                         recording folder's disk",
-                        report.job,
-                        report.station,
-                        since.elapsed().as_secs_f64()
+                        "job {job} station {station}: its results wait for the recorder to \
+                         have them on disk ({:.1} s so far); the cell is told once they are. \
+                         Check the recording folder's disk",
+                        waited.as_secs_f64()
                     );
                 }
                 break;
             }
-            self.unpublished.pop_front();
-            self.publish_report(&report);
+            let held = self.unpublished.pop_front().expect("checked above");
+            self.publish(&held.result);
         }
     }
 }
@@ -401,7 +471,7 @@ mod tests {
         out.report(&sent);
         let start = Instant::now();
         let got = loop {
-            out.publish_recorded_reports(false);
+            out.publish_durable(false);
             if let Some(r) = cell.reports.receive().unwrap() {
                 break *r.payload();
             }
@@ -418,5 +488,132 @@ mod tests {
             cell.reports.receive().unwrap().map(|r| *r.payload()),
             Some(sent)
         );
+    }
+
+    /// A storage whose syncs fail until the gate opens: a disk that stalls.
+    struct Gated(Arc<std::sync::atomic::AtomicBool>);
+
+    struct GatedFile(std::io::Cursor<Vec<u8>>, Arc<std::sync::atomic::AtomicBool>);
+
+    impl crate::recorder::Storage for Gated {
+        fn create_new(
+            &self,
+            _: &std::path::Path,
+        ) -> std::io::Result<Box<dyn crate::recorder::StoredFile>> {
+            Ok(Box::new(GatedFile(Default::default(), self.0.clone())))
+        }
+    }
+
+    impl std::io::Write for GatedFile {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.write(buf)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            if self.1.load(std::sync::atomic::Ordering::SeqCst) {
+                Ok(())
+            } else {
+                Err(std::io::Error::other("the disk is stalled"))
+            }
+        }
+    }
+
+    impl std::io::Seek for GatedFile {
+        fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+            self.0.seek(pos)
+        }
+    }
+
+    /// Every result the cell or the printer acts on waits for the disk, in order: a report,
+    /// findings, a surface judgement and advice made while the disk fails to sync reach the
+    /// cell only once it syncs again, and the status says the disk holds the cell back.
+    #[test]
+    fn results_wait_for_a_stalled_disk_and_go_out_in_order_once_it_syncs() {
+        let names = ServiceNames::new(&format!("asbuilt-fanout-stall/{}", std::process::id()));
+        let node = NodeBuilder::new().create::<Ipc>().unwrap();
+        let queues = QueueSizes {
+            max_points_per_chunk: 16,
+            chunk_queue: 2,
+            pending_chunks: 1,
+            lent_chunks: 0,
+        };
+        let ports = AgentPorts::create(&node, &names, queues).unwrap();
+        let cell = CellPorts::try_open(&node, &names, 16).unwrap();
+        let frames = FrameChain::default();
+        let dir = tempfile::tempdir().unwrap();
+        let config = RecorderConfig {
+            dir: Some(dir.path().to_path_buf()),
+            ..Default::default()
+        };
+        let gate = Arc::new(std::sync::atomic::AtomicBool::new(true));
+        let recorder = Recorder::start_on(
+            Arc::new(Gated(gate.clone())),
+            &config,
+            JobMetadata::default(),
+            (std::path::Path::new("design.stl"), Vec::new()),
+            cube(),
+            0.005,
+        )
+        .unwrap();
+        let mut out = Fanout::new(&ports, (Some(recorder), None), &frames, 16, false);
+        // The job's file opens while the disk works; then it stalls.
+        let mut begin = StationEvent::new(asbuilt_protocol::StationEventKind::Begin, 7, 3);
+        begin.expected_chunks = 1;
+        out.took_event(&begin);
+        let wait_for = |done: &dyn Fn() -> bool| {
+            let start = Instant::now();
+            while !done() {
+                assert!(start.elapsed() < Duration::from_secs(10), "timed out");
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        };
+        let recorder = out.recorder.as_ref().unwrap();
+        let begun = recorder.commit();
+        wait_for(&|| recorder.is_on_disk(begun));
+        gate.store(false, std::sync::atomic::Ordering::SeqCst);
+
+        let mut report = StationReport::new(7, 3);
+        report.points_received = 99;
+        report.printed_height = 0.5;
+        let mut findings = StationFindings::new(7, 3);
+        findings.layer = 2;
+        let advice = LayerCorrection::neutral(7, 3, 1, 2);
+        out.report(&report);
+        out.findings(&findings);
+        out.correction(&advice);
+        std::thread::sleep(ON_DISK_WAIT + Duration::from_millis(100));
+        out.publish_durable(false);
+        assert!(
+            out.held_by_disk(),
+            "the status says the disk holds the cell back"
+        );
+        assert!(
+            cell.reports.receive().unwrap().is_none(),
+            "no report ahead of its record"
+        );
+        assert!(cell.findings.receive().unwrap().is_none());
+        assert!(cell.corrections.receive().unwrap().is_none());
+
+        gate.store(true, std::sync::atomic::Ordering::SeqCst);
+        let start = Instant::now();
+        while !out.unpublished.is_empty() {
+            assert!(start.elapsed() < Duration::from_secs(10), "never published");
+            std::thread::sleep(Duration::from_millis(2));
+            out.publish_durable(false);
+        }
+        assert!(!out.held_by_disk());
+        assert_eq!(
+            cell.reports.receive().unwrap().map(|r| *r.payload()),
+            Some(report)
+        );
+        let got = cell
+            .findings
+            .receive()
+            .unwrap()
+            .expect("findings published");
+        assert_eq!(got.user_header().station, 3);
+        let advised = cell.corrections.receive().unwrap().map(|c| *c.payload());
+        // Compared as bytes: the neutral advice's evidence is NaN.
+        let bytes = |c: &LayerCorrection| asbuilt_protocol::codec::encode(c);
+        assert_eq!(advised.as_ref().map(bytes), Some(bytes(&advice)));
     }
 }

@@ -6,11 +6,12 @@
 //! [`lent`]): the writer reads its points in shared memory. When the bytes waiting exceed
 //! `recorder.queue_mb`, or the disk's free space falls below `recorder.min_free_mb`, scan and
 //! deviation chunks are left out (counted and logged); station events, poses, reports and
-//! status are always kept. Each station report ends an MCAP chunk and flushes it, so a crash
-//! loses at most the station in progress.
+//! status are always kept. What the cell or the printer acts on is committed once a station's
+//! results are all queued ([`Recorder::commit`]): the writer ends the MCAP chunk and syncs the
+//! file ([`storage`]), and the agent tells the cell only then, so neither a crash nor a power
+//! cut loses what the cell was told.
 
-use std::fs::File;
-use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
@@ -29,11 +30,16 @@ use crate::config::RecorderConfig;
 use crate::{info, warn};
 
 mod lent;
+mod storage;
 pub use lent::{LENT_CHUNKS, Lent};
 use lent::{LentPoints, Returns, Shelf};
+pub use storage::{Disk, Storage, StoredFile};
 
 /// Messages waiting for the writer; a chunk counts once, however many points it holds.
 const QUEUE: usize = 16_384;
+
+/// How often a sync that failed is tried again.
+const RETRY_SYNC: std::time::Duration = std::time::Duration::from_millis(200);
 
 enum Item {
     Message(u64, Recorded),
@@ -58,7 +64,7 @@ pub struct RecorderCounters {
     pub chunks_decimated: AtomicU64,
     /// Recording files opened (one more at every rotation).
     pub files: AtomicU64,
-    /// Flushes done (or failed) by the writer: what was queued before the n-th is on disk.
+    /// Commits done by the writer: what was kept before the n-th is synced to disk.
     pub flushes: AtomicU64,
 }
 
@@ -79,6 +85,8 @@ pub struct Recorder {
     disk_low: Arc<std::sync::atomic::AtomicBool>,
     /// Flushes asked for so far.
     flushes_asked: AtomicU64,
+    /// Whether a kept message was queued since the last commit.
+    uncommitted: std::cell::Cell<bool>,
     /// Lent scan chunks' samples waiting for the writer.
     shelf: std::rc::Rc<std::cell::RefCell<Shelf<ChunkSample>>>,
     /// What was recorded and what was left out.
@@ -91,6 +99,18 @@ impl Recorder {
     /// channels, `mesh` (the design as the agent read it) is shown and `tolerance` sets the
     /// points' colour scale.
     pub fn start(
+        cfg: &RecorderConfig,
+        meta: JobMetadata,
+        design: (&Path, Vec<u8>),
+        mesh: Arc<Design>,
+        tolerance: f64,
+    ) -> std::io::Result<Self> {
+        Self::start_on(Arc::new(Disk), cfg, meta, design, mesh, tolerance)
+    }
+
+    /// [`Recorder::start`] writing through `storage` instead of the disk.
+    pub fn start_on(
+        storage: Arc<dyn Storage>,
         cfg: &RecorderConfig,
         mut meta: JobMetadata,
         (design, design_bytes): (&Path, Vec<u8>),
@@ -111,6 +131,7 @@ impl Recorder {
         let disk_low = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let returns = Arc::new(Returns::default());
         let writer = Writer {
+            storage,
             dir,
             max_bytes: (cfg.max_file_mb * 1e6) as u64,
             compression: cfg.compression,
@@ -124,6 +145,9 @@ impl Recorder {
             file: None,
             returns: returns.clone(),
             since_check: 0,
+            owed: 0,
+            unwritten: Vec::new(),
+            sync_failing: false,
             foxglove: cfg.foxglove.then_some(Foxglove {
                 tolerance,
                 mesh,
@@ -146,6 +170,7 @@ impl Recorder {
             foxglove: cfg.foxglove.then_some(cfg.foxglove_every.max(1) as usize),
             disk_low,
             flushes_asked: AtomicU64::new(0),
+            uncommitted: std::cell::Cell::new(false),
             shelf: Shelf::new(returns),
             counters,
         })
@@ -172,44 +197,58 @@ impl Recorder {
     /// Records a message of the cell or of the agent (chunks have [`Recorder::chunk`] and
     /// [`Recorder::deviations`]). What the cell or the printer acts on (a report, findings, a
     /// surface judgement, advice: the table's per-station results) and a station's Begin are
-    /// never left out and are flushed, so that a crash keeps them and an agent resuming knows
-    /// of them; their ticket comes back, for [`Recorder::is_on_disk`]: the message and
-    /// everything before it are in the file once that flush is done. Reports wait for queue
-    /// room (only a stalled writer could make them wait). Other messages are left out, and
-    /// said, when the queue is full.
-    pub fn record(&self, m: Recorded) -> Option<u64> {
-        let begins = matches!(&m, Recorded::Event(e)
-            if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin));
-        if m.channel().is_per_station() || begins {
-            Some(self.flushed(m))
+    /// kept: they wait for queue room (only a stalled writer could make them wait) and are
+    /// made durable by the next [`Recorder::commit`]. Other messages are left out, and said,
+    /// when the queue is full.
+    pub fn record(&self, m: Recorded) {
+        if kept(&m) {
+            self.keep(Item::Message(unix_time_ns(), m), 256);
         } else {
             self.small(m);
-            None
         }
     }
 
-    /// Attaches a scan layer's findings state after a station, flushed like a report: an agent
+    /// Attaches a scan layer's findings state after a station, kept like a report: an agent
     /// resuming the job goes on from the latest instead of replaying the layer's points.
     pub fn scan_layer_state(&self, record: ScanLayerStateRecord) {
-        let Some(tx) = &self.tx else { return };
         let bytes = record.state.len();
+        self.keep(Item::State(unix_time_ns(), Box::new(record)), bytes);
+    }
+
+    /// Queues an item that is never left out, weighed as the writer will unweigh it.
+    fn keep(&self, item: Item, bytes: usize) {
+        let Some(tx) = &self.tx else { return };
         self.queued.fetch_add(bytes, Relaxed);
-        if tx
-            .send(Item::State(unix_time_ns(), Box::new(record)))
-            .is_err()
-        {
+        if tx.send(item).is_err() {
             self.queued.fetch_sub(bytes, Relaxed);
             return;
         }
-        if tx.send(Item::Flush).is_ok() {
-            self.flushes_asked.fetch_add(1, Relaxed);
+        self.uncommitted.set(true);
+    }
+
+    /// Asks the writer to make everything kept so far durable (one sync for all of it: a
+    /// station's report, findings, surface judgement, advice and state go together), and
+    /// returns the ticket [`Recorder::is_on_disk`] takes. Without anything new since the last
+    /// commit, that commit's ticket.
+    pub fn commit(&self) -> u64 {
+        let asked = self.flushes_asked.load(Relaxed);
+        if !self.uncommitted.replace(false) {
+            return asked;
+        }
+        match &self.tx {
+            Some(tx) if tx.send(Item::Flush).is_ok() => {
+                self.flushes_asked.fetch_add(1, Relaxed);
+                asked + 1
+            }
+            // A writer that is gone holds nothing back (`is_on_disk` says so).
+            _ => asked,
         }
     }
 
-    /// Whether the flush of `ticket` is done: what was queued before it survives a crash of the
-    /// agent (it is in the operating system's hands). True too once the writer is gone.
+    /// Whether the commit of `ticket` is done: what was kept before it survives a crash of the
+    /// agent and a power cut (the disk has it). True too once the writer is gone.
     pub fn is_on_disk(&self, ticket: u64) -> bool {
-        // Asked while reports wait for the disk, after a station's last chunk: the moment to
+        // Asked while results wait for the disk, after a station's last chunk: the moment to
         // return the samples the writer is done with, which the next lend would otherwise do.
         self.shelf.borrow_mut().release();
         self.counters
@@ -217,20 +256,6 @@ impl Recorder {
             .load(std::sync::atomic::Ordering::Acquire)
             >= ticket
             || self.thread.as_ref().is_none_or(|t| t.is_finished())
-    }
-
-    /// A result that is never left out, followed by a flush so a crash keeps it.
-    fn flushed(&self, msg: Recorded) -> u64 {
-        let Some(tx) = &self.tx else { return 0 };
-        // Weighed as the writer will unweigh it: every small message counts 256 bytes.
-        self.queued.fetch_add(256, Relaxed);
-        if tx.send(Item::Message(unix_time_ns(), msg)).is_err() {
-            self.queued.fetch_sub(256, Relaxed);
-        }
-        if tx.send(Item::Flush).is_err() {
-            return 0;
-        }
-        self.flushes_asked.fetch_add(1, Relaxed) + 1
     }
 
     /// Whether a bulk chunk of `bytes` may go in now; counts it when it may not.
@@ -362,7 +387,7 @@ impl<W: Seek> Seek for Counting<W> {
     }
 }
 
-type FileWriter = RecordingWriter<Counting<BufWriter<File>>>;
+type FileWriter = RecordingWriter<Counting<Box<dyn StoredFile>>>;
 
 struct OpenFile {
     writer: FileWriter,
@@ -375,6 +400,7 @@ struct OpenFile {
 }
 
 struct Writer {
+    storage: Arc<dyn Storage>,
     dir: PathBuf,
     max_bytes: u64,
     compression: asbuilt_protocol::recording::ChunkCompression,
@@ -391,6 +417,12 @@ struct Writer {
     /// Items written since the disk's free space was last checked.
     since_check: u32,
     foxglove: Option<Foxglove>,
+    /// Commits asked for and not yet on disk (a sync failed).
+    owed: u64,
+    /// Kept messages whose write failed, written again before the next sync.
+    unwritten: Vec<Item>,
+    /// Whether the last sync failed (said once in the log).
+    sync_failing: bool,
 }
 
 /// Tells the event loop the writer reads no more lent chunks, however its thread ends.
@@ -407,6 +439,14 @@ struct Foxglove {
     tolerance: f64,
     mesh: Arc<Design>,
     every: usize,
+}
+
+/// Whether `m` is never left out and is retried until written: what the cell or the printer
+/// acts on (the table's per-station results) and a station's Begin, which a resume needs.
+fn kept(m: &Recorded) -> bool {
+    m.channel().is_per_station()
+        || matches!(m, Recorded::Event(e)
+            if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin))
 }
 
 fn job_of(m: &Recorded) -> Option<u64> {
@@ -427,7 +467,24 @@ impl Writer {
     fn run(mut self, rx: Receiver<Item>) {
         let _gone = Gone(self.returns.clone());
         self.check_disk();
-        while let Ok(item) = rx.recv() {
+        loop {
+            // A commit that failed is tried again while nothing else comes: the results it
+            // holds back wait for it, and the log has said why.
+            let item = if self.owed > 0 {
+                match rx.recv_timeout(RETRY_SYNC) {
+                    Ok(item) => item,
+                    Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                        self.settle();
+                        continue;
+                    }
+                    Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+                }
+            } else {
+                match rx.recv() {
+                    Ok(item) => item,
+                    Err(_) => break,
+                }
+            };
             match item {
                 Item::Message(t, m) => {
                     let bytes = match &m {
@@ -435,7 +492,9 @@ impl Writer {
                         Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
                         _ => 256,
                     };
-                    self.put(job_of(&m), bytes, |w| w.write(t, &m));
+                    if !self.put(job_of(&m), bytes, |w| w.write(t, &m)) && kept(&m) {
+                        self.unwritten.push(Item::Message(t, m));
+                    }
                 }
                 Item::Lent(t, h, lent) => {
                     let bytes = std::mem::size_of_val(lent.points());
@@ -452,32 +511,97 @@ impl Writer {
                     });
                 }
                 Item::State(t, record) => {
-                    if let Some(f) = &mut self.file
-                        && f.job == record.job
-                        && let Err(e) = f.writer.attach_scan_layer_state(&record, t)
-                    {
-                        warn!(
-                            "recorder: cannot attach the scan layer state to {}: {e}",
-                            f.path.display()
-                        );
-                    }
                     self.queued.fetch_sub(record.state.len(), Relaxed);
+                    if !self.attach_state(t, &record) {
+                        self.unwritten.push(Item::State(t, record));
+                    }
                 }
                 Item::Flush => {
-                    if let Some(f) = &mut self.file
-                        && let Err(e) = f.writer.flush()
-                    {
-                        warn!("recorder: cannot flush {}: {e}", f.path.display());
-                    }
-                    // Done, or failed: either way nothing waits on it any longer.
-                    self.counters
-                        .flushes
-                        .fetch_add(1, std::sync::atomic::Ordering::Release);
+                    self.owed += 1;
+                    self.settle();
                     self.check_disk();
                 }
             }
         }
         self.close();
+    }
+
+    /// Ends the MCAP chunk and syncs the file; once the disk has it, the commits owed are
+    /// done and the results they hold back may be told. A failure is said once and leaves them
+    /// owed: no result goes out ahead of its record.
+    fn settle(&mut self) {
+        self.write_again();
+        let synced = match &mut self.file {
+            _ if !self.unwritten.is_empty() => Err((
+                self.dir.clone(),
+                mcap::McapError::Io(std::io::Error::other(format!(
+                    "{} result(s) not written yet",
+                    self.unwritten.len()
+                ))),
+            )),
+            Some(f) => f.writer.flush().map_err(|e| (f.path.clone(), e)),
+            None => Ok(()),
+        };
+        match synced {
+            Ok(()) => {
+                if self.sync_failing {
+                    info!("recorder: the recording is synced to disk again");
+                    self.sync_failing = false;
+                }
+                self.counters
+                    .flushes
+                    .fetch_add(self.owed, std::sync::atomic::Ordering::Release);
+                self.owed = 0;
+            }
+            Err((path, e)) => {
+                if !self.sync_failing {
+                    warn!(
+                        "recorder: cannot sync {} to disk: {}; results are held back from the \
+                         cell until it can (trying again every {} ms)",
+                        path.display(),
+                        asbuilt_io::error_message(&e),
+                        RETRY_SYNC.as_millis()
+                    );
+                    self.sync_failing = true;
+                }
+            }
+        }
+    }
+
+    /// Writes the kept messages that could not be written before (in the order they came).
+    fn write_again(&mut self) {
+        for item in std::mem::take(&mut self.unwritten) {
+            let written = match &item {
+                // Their weight came off the queue at the first try.
+                Item::Message(t, m) => self.put(job_of(m), 0, |w| w.write(*t, m)),
+                Item::State(t, record) => self.attach_state(*t, record),
+                _ => true,
+            };
+            if !written {
+                self.unwritten.push(item);
+            }
+        }
+    }
+
+    /// Attaches a scan layer's state to the job's file; whether it is there. A state of a job
+    /// whose file is not open (the next job began) is of no use to a resume: done.
+    fn attach_state(&mut self, t: u64, record: &ScanLayerStateRecord) -> bool {
+        let Some(f) = &mut self.file else {
+            return false;
+        };
+        if f.job != record.job {
+            return true;
+        }
+        match f.writer.attach_scan_layer_state(record, t) {
+            Ok(()) => true,
+            Err(e) => {
+                warn!(
+                    "recorder: cannot attach the scan layer state to {}: {e}; trying again",
+                    f.path.display()
+                );
+                false
+            }
+        }
     }
 
     fn check_disk(&self) {
@@ -502,20 +626,21 @@ impl Writer {
     }
 
     /// Writes one queued item with `write` into the file of `job`, says so when that fails,
-    /// and takes its `bytes` off the queue's weight. Every 64 items the disk's free space is
-    /// checked again, so a filling disk stops the scan chunks before it is full.
+    /// and takes its `bytes` off the queue's weight; whether it was written. Every 64 items the
+    /// disk's free space is checked again, so a filling disk stops the scan chunks before it
+    /// is full.
     fn put(
         &mut self,
         job: Option<u64>,
         bytes: usize,
         write: impl FnOnce(&mut FileWriter) -> Result<(), mcap::McapError>,
-    ) {
+    ) -> bool {
         let written = self.file_for(job).and_then(|f| match f {
             Some(f) => write(&mut f.writer).map_err(WriteError::Message),
             None => Ok(()),
         });
-        if let Err(e) = written {
-            warn!("recorder: cannot write: {e}; this message is lost");
+        if let Err(e) = &written {
+            warn!("recorder: cannot write: {e}; a result is tried again, anything else is lost");
         }
         self.queued.fetch_sub(bytes, Relaxed);
         self.since_check += 1;
@@ -523,6 +648,7 @@ impl Writer {
             self.since_check = 0;
             self.check_disk();
         }
+        written.is_ok()
     }
 
     /// The file a message of `job` goes to: the open one, or a new one when the job changes or
@@ -557,7 +683,7 @@ impl Writer {
                 format!("job-{job}-{stamp}-part{part}.mcap")
             };
             let path = self.dir.join(name);
-            match File::create_new(&path) {
+            match self.storage.create_new(&path) {
                 Ok(f) => break (path, f),
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => stamp += 1,
                 Err(source) => return Err(WriteError::Create { path, source }),
@@ -570,7 +696,7 @@ impl Writer {
         };
         let mut writer = RecordingWriter::with_compression(
             Counting {
-                inner: BufWriter::with_capacity(1 << 20, file),
+                inner: file,
                 bytes: bytes.clone(),
             },
             self.compression,

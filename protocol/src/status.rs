@@ -12,6 +12,9 @@ pub enum AgentState {
     Serving = 0,
     /// A termination signal arrived: open stations are being closed with partial reports.
     ShuttingDown = 1,
+    /// Serving, but results have waited over a second for the recording's disk: the cell is
+    /// told of them only once they are synced, so a slow or failing disk holds it back.
+    HeldByDisk = 2,
 }
 
 /// Inputs the agent could not use, whole messages at a time, by reason. Points inside rejected
@@ -127,6 +130,7 @@ impl AgentStatus {
         match self.state {
             0 => Some(AgentState::Serving),
             1 => Some(AgentState::ShuttingDown),
+            2 => Some(AgentState::HeldByDisk),
             _ => None,
         }
     }

@@ -363,7 +363,7 @@ fn finish_resume(
     // The reports' service keeps a short history; the latest are the ones a cell may lack.
     let skip = r.recorded.len().saturating_sub(REPUBLISHED);
     for report in &r.recorded[skip..] {
-        out.publish(&crate::fanout::Outgoing::Report(*report));
+        out.publish(&crate::fanout::Outgoing::Report(Box::new(*report)));
     }
     let unfinished = std::mem::take(&mut r.unfinished);
     if unfinished.is_empty() {

@@ -121,7 +121,7 @@ const ON_DISK_WAIT: Duration = Duration::from_secs(1);
 
 /// A result for the cell or the printer.
 pub(crate) enum Outgoing {
-    Report(StationReport),
+    Report(Box<StationReport>),
     Findings(Box<StationFindings>),
     Surface(Box<asbuilt_protocol::SurfaceFindings>),
     Correction(LayerCorrection),
@@ -294,7 +294,7 @@ impl Outputs for Fanout<'_> {
     fn report(&mut self, report: &StationReport) {
         self.durable_then_said(
             Recorded::Report(Box::new(*report)),
-            Outgoing::Report(*report),
+            Outgoing::Report(Box::new(*report)),
         );
         if let Some(v) = &self.viewer {
             self.shown.remove(&(report.job, report.station));
@@ -328,7 +328,7 @@ impl Fanout<'_> {
     pub(crate) fn publish(&self, result: &Outgoing) {
         match result {
             Outgoing::Report(r) => {
-                if let Err(e) = self.ports.reports.send_copy(*r) {
+                if let Err(e) = self.ports.reports.send_copy(**r) {
                     warn!("report of station {} not published: {e:?}", r.station);
                 }
                 self.notify();

@@ -304,9 +304,20 @@ where
             None => replay_layer(&files, lifecycle, &in_layer, &mut resumed),
         }
     }
-    // Findings, or the advice that follows them, that never made it to disk are drawn again.
-    resumed.findings_due = last_report.filter(|r| {
-        let key = (r.job, r.station);
+    // Findings, or the advice that follows them, that never made it to disk for the scan
+    // layer's last closed attempt are drawn again. That attempt is the last one the replay
+    // reported when its report was never recorded either (a kill loses a file's tail), else
+    // the last recorded; what was recorded is matched per attempt, not per station: a
+    // station sent again has the findings of its earlier attempt on disk, not of this one.
+    let last_closed = resumed
+        .unrecorded
+        .iter()
+        .rev()
+        .find(|r| in_layer((r.job, r.station)) && r.status() != Some(StationStatus::Interrupted))
+        .copied()
+        .or(last_report);
+    resumed.findings_due = last_closed.filter(|r| {
+        let key = (r.job, r.station, r.attempt.max(1));
         lifecycle.has_findings()
             && (!seen.with_findings.contains(&key)
                 || (lifecycle.has_corrections() && !seen.with_advice.contains(&key)))
@@ -332,6 +343,9 @@ where
     Some(resumed)
 }
 
+/// A station's attempt: job, station, attempt (from 1).
+type AttemptKey = (u64, u32, u8);
+
 /// What a first pass over a job's files finds, without decoding a scan chunk.
 struct Survey {
     /// The scan layer (printed height's bits) of each station's Begin.
@@ -342,10 +356,13 @@ struct Survey {
     begun: BTreeMap<StationKey, asbuilt_protocol::StationEvent>,
     /// When each station's latest Begin was sent.
     begun_at: BTreeMap<StationKey, u64>,
-    /// Stations whose findings were recorded.
-    with_findings: std::collections::BTreeSet<StationKey>,
-    /// Stations whose advice was recorded.
-    with_advice: std::collections::BTreeSet<StationKey>,
+    /// Station attempts whose findings were recorded (findings follow their attempt's report
+    /// in the file: they take the attempt of the station's latest report).
+    with_findings: std::collections::BTreeSet<AttemptKey>,
+    /// Station attempts whose advice was recorded.
+    with_advice: std::collections::BTreeSet<AttemptKey>,
+    /// The attempt of each station's latest recorded report.
+    reported: BTreeMap<StationKey, u8>,
     /// The advice recorded, as far as the next advice builds on it.
     advice: asbuilt_core::corrections::Corrector,
     /// The scan layer states recorded for the latest scan layer that has one, by station
@@ -363,6 +380,7 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
         begun_at: BTreeMap::new(),
         with_findings: Default::default(),
         with_advice: Default::default(),
+        reported: BTreeMap::new(),
         advice: asbuilt_core::corrections::Corrector::new(Default::default()),
         states: Vec::new(),
     };
@@ -387,12 +405,18 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
             // A damaged record ends the file's reading; the second pass says so.
             let Ok((_, m)) = m else { break };
             match m {
-                Recorded::Report(r) => resumed.recorded.push(*r),
+                Recorded::Report(r) => {
+                    seen.reported.insert((r.job, r.station), r.attempt.max(1));
+                    resumed.recorded.push(*r);
+                }
                 Recorded::Findings(f) => {
-                    seen.with_findings.insert((f.job, f.station));
+                    let attempt = seen.reported.get(&(f.job, f.station)).copied();
+                    seen.with_findings
+                        .insert((f.job, f.station, attempt.unwrap_or(1)));
                 }
                 Recorded::Correction(c) if c.job == job => {
-                    seen.with_advice.insert((c.job, c.station));
+                    seen.with_advice
+                        .insert((c.job, c.station, c.attempt.max(1)));
                     seen.advice.restore(&c);
                 }
                 Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {

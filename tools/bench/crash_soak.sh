@@ -4,7 +4,9 @@
 # second each time, with the same configuration. It holds when the cell finishes the job naming
 # each interruption, every station ends Complete exactly once, and `asbuilt report` over the
 # job's files gives the stations and findings of the same job run without kills (the demo).
-# Also prints each restart's time from process start to serving, and what it recovered.
+# Also prints each restart's time from process start to serving, and what it recovered. It
+# fails on fewer kills than asked, a panic in any agent's log, and any warning of the report
+# that what the agents told the cell live differs from what is drawn again from the recording.
 # Not part of CI (the e2e test `crash` runs a shorter job the same way).
 #
 #   tools/bench/crash_soak.sh                 # SEED=1 KILLS=12 OUT=out/crash-soak
@@ -73,21 +75,28 @@ kill -TERM "$AGENT_PID"
 wait "$AGENT_PID" 2> /dev/null || true
 echo "kills: $k; the cell exited with $SIM_EXIT"
 grep "interruption(s)" sim.log || echo "no interruption named by the cell"
-echo "agent logs with a panic: $(grep -l "panicked" agent-*.log | wc -l)"
+PANICS=$(grep -l "panicked" agent-*.log | wc -l)
+echo "agent logs with a panic: $PANICS"
 "$ASBUILT" report recording --out report > report.log 2>&1 || {
     cat report.log
     exit 1
 }
 cd - > /dev/null
 
-python3 - "$OUT" "$SIM_EXIT" <<'PY'
+python3 - "$OUT" "$SIM_EXIT" "$k" "$KILLS" "$PANICS" <<'PY'
 import glob, json, math, re, sys
 out, sim_exit = sys.argv[1], int(sys.argv[2])
+kills, asked, panics = int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 ok = True
 def fail(msg):
     global ok
     ok = False
     print("FAIL:", msg)
+
+if kills < asked:
+    fail(f"{kills} kills of the {asked} asked: the job ended first")
+if panics:
+    fail(f"{panics} agent log(s) with a panic")
 
 sim = open(f"{out}/soak/sim.log").read()
 if sim_exit != 0:
@@ -129,6 +138,8 @@ print(f"findings: {len(soak['findings'])} scan layer(s), equal to the reference:
       f"{same(ref['findings'], soak['findings'])}")
 for w in soak["warnings"]:
     print("report warning:", w[:200])
+    if "differ" in w:
+        fail("what the agents told the cell live differs from what the recording gives again")
 starts = []
 for log in sorted(glob.glob(f"{out}/soak/agent-*.log"), key=lambda p: int(re.search(r"(\d+)\.log", p)[1])):
     text = open(log).read()

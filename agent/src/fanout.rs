@@ -78,6 +78,13 @@ impl<'p> Fanout<'p> {
         }
     }
 
+    /// What the printer applied to a layer, taken from the cell: recorded.
+    pub(crate) fn took_applied(&self, a: &asbuilt_protocol::LayerApplied) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::Applied(*a));
+        }
+    }
+
     /// A pose taken from the cell, of a station of scan layer `layer`: recorded and shown.
     pub(crate) fn took_pose(&self, p: &PoseSnapshot, layer: u32) {
         if let Some(r) = &self.recorder {

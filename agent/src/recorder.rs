@@ -458,6 +458,7 @@ fn job_of(m: &Recorded) -> Option<u64> {
         Recorded::Report(r) => Some(r.job),
         Recorded::Findings(f) => Some(f.job),
         Recorded::Correction(c) => Some(c.job),
+        Recorded::Applied(a) => Some(a.job),
         Recorded::Surface(s) => Some(s.job),
         Recorded::Status(_) => None,
     }

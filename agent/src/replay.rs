@@ -8,7 +8,8 @@ use asbuilt_protocol::{ChunkHeader, ScanPoint, StationEvent, StationEventKind, S
 
 use crate::lifecycle::{ChunkSource, Input, Lifecycle, Outputs};
 
-/// Feeds one recorded message: station events, poses and scan chunks as the agent took them,
+/// Feeds one recorded message: station events, poses, scan chunks and the printer's answers as
+/// the agent took them,
 /// and an `Interrupted` report where a resumed agent said a station attempt was cut off. Other
 /// outputs (reports, findings, deviations, status) change nothing: the lifecycle computes its
 /// own.
@@ -19,6 +20,7 @@ where
     match m {
         Recorded::Event(e) => lifecycle.take(Input::Event(e), now, out),
         Recorded::Pose(p) => lifecycle.take(Input::Pose(p), now, out),
+        Recorded::Applied(a) => lifecycle.take(Input::Applied(a), now, out),
         Recorded::Chunk(h, pts) => {
             // The live agent's chunks waited while their printed height was prepared.
             if lifecycle.awaits_design(&h) {

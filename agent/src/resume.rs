@@ -267,6 +267,9 @@ where
     for c in seen.advice.history() {
         lifecycle.restore_correction(c);
     }
+    for a in &seen.applied {
+        lifecycle.on_applied(a);
+    }
     // The current scan layer's last station that did not end interrupted: the state after it
     // is the layer's.
     let in_layer = |key: StationKey| {
@@ -365,6 +368,8 @@ struct Survey {
     reported: BTreeMap<StationKey, u8>,
     /// The advice recorded, as far as the next advice builds on it.
     advice: asbuilt_core::corrections::Corrector,
+    /// What the printer said it applied, in the order recorded.
+    applied: Vec<asbuilt_protocol::LayerApplied>,
     /// The scan layer states recorded for the latest scan layer that has one, by station
     /// attempt (a scan layer's stations are recorded one after the other, so this holds one
     /// scan layer's at most).
@@ -382,6 +387,7 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
         with_advice: Default::default(),
         reported: BTreeMap::new(),
         advice: asbuilt_core::corrections::Corrector::new(Default::default()),
+        applied: Vec::new(),
         states: Vec::new(),
     };
     for f in files {
@@ -399,6 +405,7 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
             Channel::Reports,
             Channel::Findings,
             Channel::Corrections,
+            Channel::Applied,
         ];
         let messages = recording::messages_on(&map, &wanted);
         for m in messages.into_iter().flatten() {
@@ -414,6 +421,7 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                     seen.with_findings
                         .insert((f.job, f.station, attempt.unwrap_or(1)));
                 }
+                Recorded::Applied(a) if a.job == job => seen.applied.push(a),
                 Recorded::Correction(c) if c.job == job => {
                     seen.with_advice
                         .insert((c.job, c.station, c.attempt.max(1)));

@@ -66,9 +66,12 @@ impl CorrectionFlags {
     pub const PATH_CLAMPED: u32 = 1 << 7;
     /// No shift was measured on the latest bands: the path advice was held.
     pub const PATH_UNSEEN: u32 = 1 << 8;
+    /// The printer did not say what it applied to some layers printed under the advice before
+    /// ([`crate::LayerApplied`]): they were taken as printed as designed.
+    pub const UNANSWERED: u32 = 1 << 9;
 
     /// Every flag with its name as reports spell it, in bit order.
-    pub const NAMES: [(u32, &'static str); 9] = [
+    pub const NAMES: [(u32, &'static str); 10] = [
         (Self::Z_HELD, "z_held"),
         (Self::Z_CLAMPED, "z_clamped"),
         (Self::Z_UNSEEN, "z_unseen"),
@@ -78,6 +81,7 @@ impl CorrectionFlags {
         (Self::PATH_HELD, "path_held"),
         (Self::PATH_CLAMPED, "path_clamped"),
         (Self::PATH_UNSEEN, "path_unseen"),
+        (Self::UNANSWERED, "unanswered"),
     ];
 
     /// Whether flag `bit` (one of the constants above) is set.

@@ -26,7 +26,7 @@ pub use crate::services::{
     ChunkSample, DELIVERY_DEADLINE, DeviationSample, IceoryxCause, Ipc, IpcError, QueueSizes,
 };
 pub use crate::table::{AgentPorts, CellPorts, ServiceNames};
-use crate::{ChunkHeader, PoseSnapshot, ScanPoint, StationEvent};
+use crate::{ChunkHeader, LayerApplied, PoseSnapshot, ScanPoint, StationEvent};
 use iceoryx2::prelude::*;
 
 impl CellPorts {
@@ -64,6 +64,12 @@ impl CellPorts {
     /// Sends a pose and wakes the agent.
     pub fn send_pose(&self, pose: &PoseSnapshot) -> Result<(), IpcError> {
         self.deliver("pose", || self.poses.send_copy(*pose))?;
+        self.wake_agent()
+    }
+
+    /// Sends what the printer applied to a layer and wakes the agent.
+    pub fn send_applied(&self, applied: &LayerApplied) -> Result<(), IpcError> {
+        self.deliver("applied layer", || self.applied.send_copy(*applied))?;
         self.wake_agent()
     }
 

@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+mod applied;
 pub mod codec;
 mod correction;
 mod deviation;
@@ -33,6 +34,7 @@ mod survey;
 mod table;
 mod text;
 
+pub use applied::LayerApplied;
 pub use correction::{CorrectionFlags, Evidence, LayerCorrection};
 pub use deviation::{DeviationFlags, DeviationHeader, Feature, PointDeviation};
 pub use findings::{

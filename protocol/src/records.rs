@@ -4,8 +4,8 @@
 use crate::codec;
 use crate::message::{ChunkRecord, DecodeError, Message, Record};
 use crate::{
-    AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, PointDeviation, PoseSnapshot,
-    ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
+    AgentStatus, ChunkHeader, DeviationHeader, LayerApplied, LayerCorrection, PointDeviation,
+    PoseSnapshot, ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
 };
 
 /// A message's record: its codec record and its type name as the schema's; `stamped` when
@@ -81,6 +81,14 @@ record!(
              LayerCorrection in declaration order (z offset per layer for the first layers and \
              after, drift per layer, flow factor, path offset; each measured error with its \
              sigma and samples; metres, design frame)"
+);
+
+record!(
+    LayerApplied,
+    stamped,
+    "asbuilt.LayerApplied v1, postcard: the fields of asbuilt-protocol's LayerApplied in \
+             declaration order (the layer printed and the advice it followed; the z offset, flow \
+             factor and path offset the printer applied to it; metres, design frame)"
 );
 
 record!(

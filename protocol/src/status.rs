@@ -42,7 +42,8 @@ pub struct InputRejects {
     pub version_mismatch: u64,
     /// Poses that cannot be used: unknown mode, non-unit quaternion, non-finite values.
     pub poses_invalid: u64,
-    /// Events of an unknown kind, or an `End` for a station that is not open.
+    /// Events of an unknown kind, an `End` for a station that is not open, or a printer's
+    /// answer ([`crate::LayerApplied`]) whose values are not usable.
     pub events_invalid: u64,
 }
 

@@ -14,7 +14,7 @@
 //! `tests::a_row_is_a_message_end_to_end` adds one that way.
 
 use crate::{
-    AgentStatus, ChunkHeader, DeviationHeader, LayerCorrection, MAX_FINDINGS_BYTES,
+    AgentStatus, ChunkHeader, DeviationHeader, LayerApplied, LayerCorrection, MAX_FINDINGS_BYTES,
     MAX_SURVEY_BYTES, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationFindings,
     StationReport, SurfaceFindings,
 };
@@ -294,6 +294,9 @@ messages! {
         Poses poses "robot/poses": Control<PoseSnapshot> => Pose(PoseSnapshot);
         /// `job/stations`: a station's Begin and End ([`StationEvent`]), cell to agent.
         StationEvents stations "job/stations": Control<StationEvent> => Event(StationEvent);
+        /// `printer/applied`: what the printer applied to each layer it printed
+        /// ([`LayerApplied`]), cell to agent.
+        Applied applied "printer/applied": Control<LayerApplied> => Applied(LayerApplied);
         /// `agent/reports`: station reports ([`StationReport`]), agent to cell.
         Reports reports "agent/reports": PerStation<StationReport>
             => Report(StationReport) boxed;

@@ -66,6 +66,10 @@ pub struct JobArgs {
     /// process; local defects (a missing segment, a bulge) are not corrected.
     #[arg(long)]
     pub closed_loop: bool,
+    /// With --closed-loop: the share of each advice the printer applies, 0 to 1 (the cell
+    /// decides; it tells the agent what it applied, layer by layer).
+    #[arg(long, default_value_t = 1.0, requires = "closed_loop")]
+    pub apply: f64,
 }
 
 impl JobArgs {
@@ -107,6 +111,7 @@ impl JobArgs {
             job: self.job,
             attempts: self.attempts,
             closed_loop: self.closed_loop,
+            apply: self.apply,
         })
     }
 

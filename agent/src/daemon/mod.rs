@@ -665,11 +665,17 @@ impl HeldControl {
         Drained::Empty
     }
 
-    /// Reads station events, then poses, until their queues are empty or a new station finds
-    /// no slot; whether anything was read.
+    /// Reads the printer's answers, station events, then poses, until their queues are empty or
+    /// a new station finds no slot; whether anything was read.
     fn drain_control(&mut self, lifecycle: &mut AgentLifecycle, out: &mut Fanout<'_>) -> bool {
         let ports = out.ports;
         let mut any = false;
+        // The printer's answers first: the advice after the next station builds on them.
+        while let Some(a) = next(&ports.applied, "applied layers") {
+            any = true;
+            out.took_applied(&a);
+            lifecycle.take(Input::Applied(a), Instant::now(), out);
+        }
         while let Some(ev) = self
             .event
             .take()

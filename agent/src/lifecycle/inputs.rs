@@ -1,4 +1,5 @@
-//! What each message from the cell means for its station: a Begin, an End, a pose, a chunk.
+//! What each message from the cell means for its station: a Begin, an End, a pose, a chunk;
+//! and what the printer says it applied, for the advice.
 
 use super::*;
 
@@ -12,6 +13,8 @@ pub enum Input<C> {
     Pose(PoseSnapshot),
     /// A scan chunk.
     Chunk(C),
+    /// What the printer applied to a layer it printed.
+    Applied(LayerApplied),
 }
 
 impl<C: ChunkSource> Lifecycle<C> {
@@ -21,6 +24,25 @@ impl<C: ChunkSource> Lifecycle<C> {
             Input::Event(ev) => self.on_event(&ev, now, out),
             Input::Pose(pose) => self.on_pose(&pose, now, out),
             Input::Chunk(chunk) => self.on_chunk(chunk, now, out),
+            Input::Applied(a) => self.on_applied(&a),
+        }
+    }
+
+    /// Takes what the printer applied to a layer: the next advice builds on it. Counted as a
+    /// bad input when its values are not usable; nothing to do without `[corrections]`.
+    pub fn on_applied(&mut self, a: &LayerApplied) {
+        if !self.readable::<LayerApplied>(a.version, format_args!("applied layer {}", a.layer)) {
+            return;
+        }
+        if let Some(k) = self.corrector.as_mut()
+            && !k.applied(a)
+        {
+            self.counters.input.events_invalid += 1;
+            warn!(
+                "job {} layer {}: the printer's answer is not usable (z {}, flow {}, path {:?}); \
+                 the layer is taken as printed as designed",
+                a.job, a.layer, a.z_offset, a.flow, a.path_offset
+            );
         }
     }
 

@@ -26,8 +26,8 @@ use asbuilt_core::printed::{PrintedDesign, PrintedDesigns};
 use asbuilt_core::scan_layer::ScanLayerState;
 use asbuilt_core::station::{InspectParams, StationInspector, Tally};
 use asbuilt_protocol::{
-    AgentStatus, ChunkHeader, DeviationHeader, InputRejects, LayerCorrection, Message,
-    PointDeviation, PoseSnapshot, RejectCounts, ScanPoint, StationEvent, StationEventKind,
+    AgentStatus, ChunkHeader, DeviationHeader, InputRejects, LayerApplied, LayerCorrection,
+    Message, PointDeviation, PoseSnapshot, RejectCounts, ScanPoint, StationEvent, StationEventKind,
     StationFindings, StationReport, StationStatus,
 };
 

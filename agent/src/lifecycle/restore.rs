@@ -1,5 +1,5 @@
-//! Taking a job up again after a restart: the advice given, the scan layer's state, the attempts
-//! already reported.
+//! Taking a job up again after a restart: the advice given, what the printer applied, the scan
+//! layer's state, the attempts already reported.
 
 use super::*;
 

@@ -5,7 +5,9 @@
 
 use std::time::Duration;
 
-use asbuilt_protocol::{LayerCorrection, RegionKind, StationFindings, StationStatus};
+use asbuilt_protocol::{
+    CorrectionFlags, LayerCorrection, RegionKind, StationFindings, StationStatus,
+};
 use asbuilt_sim::{self as sim, SimJob, SimOutcome};
 use asbuilt_sim::{Defect, Part, Truth};
 use asbuilt_tests::{Agent, Cell, unique_prefix};
@@ -515,6 +517,51 @@ fn closed_loop_takes_back_a_drift_and_an_over_extrusion_on_the_column_within_lim
     let open = sim::built_layers(&part, &job.defects, 32, &[]).unwrap();
     assert!((open[23].top_error_m - 0.008).abs() < 1e-9);
     assert!((open[20].width_error_m - 0.006).abs() < 1e-9);
+}
+
+/// The printer decides: applying none or half of each advice, and saying what it applied, it
+/// leaves the agent's estimate of the drift where the process is (the agent assumed its advice
+/// applied before, and a printer ignoring it drove the estimate up to 2.25 mm a layer on a
+/// 0.5 mm drift). Half applied, the advice asks for more, and the top ends within 3 mm.
+#[test]
+fn closed_loop_estimates_the_drift_from_what_the_printer_applied() {
+    let part = Part::column();
+    for apply in [0.0, 0.5] {
+        let mut job = SimJob::new(part.clone());
+        job.scan_after = vec![8, 16, 24, 32];
+        job.defects = vec![Defect::parse("height-drift:from=0,per-layer=0.6mm", &part).unwrap()];
+        job.scanner.step_deg = 0.1;
+        job.rate = None;
+        job.seed = 3;
+        job.closed_loop = true;
+        job.apply = apply;
+        let max_z = 0.002;
+        let limits = format!("max_z_per_layer = {max_z}\n");
+        let name = format!("sim_applied_{}", (apply * 10.0) as u32);
+        let (out, advice) = run_closed_loop(&name, &job, &limits);
+        for c in &advice {
+            assert!(
+                (c.drift_per_layer - 0.0006).abs() <= 0.25 * 0.0006,
+                "apply {apply}: {:.3} mm a layer estimated\n{advice:?}",
+                c.drift_per_layer * 1e3
+            );
+            assert!(!c.flags().contains(CorrectionFlags::UNANSWERED), "{c:?}");
+        }
+        for c in &out.corrections {
+            assert!(c.z_first.abs() <= max_z && c.z_then.abs() <= max_z, "{c:?}");
+        }
+        let layers = sim::built_layers(&part, &job.defects, 32, &out.settings).unwrap();
+        let top = layers[31].top_error_m;
+        if apply == 0.5 {
+            assert!(
+                top.abs() <= 0.003,
+                "half applied: the top ends {:.2} mm off",
+                top * 1e3
+            );
+        } else {
+            assert!((top - 32.0 * 0.0006).abs() < 1e-9, "nothing applied: {top}");
+        }
+    }
 }
 
 #[test]

@@ -191,6 +191,13 @@ class Cell:
     def send_station(self, station: int, points, translation, rotation_xyzw, **options) -> int:
         return self._cell.send_station(station, points, translation, rotation_xyzw, **options)
 
+    def send_applied(self, layer: int, **options) -> None:
+        """Tells the agent what the printer applied to `layer` once it is printed: `z_offset`
+        (metres), `flow` (factor), `path_offset` ((x, y) metres) and `advice_layer` (the layer
+        of the advice followed, None without). The agent's next advice builds on what was
+        applied; layers it is not told of are taken as printed as designed."""
+        self._cell.send_applied(layer, **options)
+
     def receive(self, timeout: float = 0.0) -> List[Dict[str, Any]]:
         kept, self._kept = self._kept, []
         return kept + [_public(m) for m in self._cell.receive(0.0 if kept else timeout)]

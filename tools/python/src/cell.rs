@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use asbuilt_protocol::ipc::{CellPorts, Ipc, IpcError, ServiceNames};
 use asbuilt_protocol::{
-    FixedText, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags, StationEvent,
-    StationEventKind, StationFindings, StationReport, StationSender, codec,
+    FixedText, LayerApplied, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags,
+    StationEvent, StationEventKind, StationFindings, StationReport, StationSender, codec,
 };
 use asbuilt_sim::{AsBuilt, JobSpec, LayerSettings, PartSpec, SimJob};
 use iceoryx2::prelude::*;
@@ -172,6 +172,38 @@ impl Cell {
         }
         let end = sender.finish(&mut sink).map_err(runtime)?;
         Ok(end.expected_points)
+    }
+
+    /// Tells the agent what the printer applied to `layer` once it is printed: the z offset
+    /// (metres), the flow factor and the path offset (metres, x and y), and the layer of the
+    /// advice it followed (`None`: printed without advice). The agent's next advice builds on
+    /// what was applied, not on what it advised.
+    #[pyo3(signature = (
+        layer, *, job = 1, z_offset = 0.0, flow = 1.0, path_offset = (0.0, 0.0),
+        advice_layer = None
+    ))]
+    fn send_applied(
+        &self,
+        layer: u32,
+        job: u64,
+        z_offset: f64,
+        flow: f64,
+        path_offset: (f64, f64),
+        advice_layer: Option<u32>,
+    ) -> PyResult<()> {
+        let mut a = LayerApplied::nominal(job, layer);
+        a.z_offset = z_offset;
+        a.flow = flow;
+        a.path_offset = [path_offset.0, path_offset.1];
+        a.advice_layer = advice_layer.unwrap_or(u32::MAX);
+        a.timestamp_ns = asbuilt_protocol::unix_time_ns();
+        if !a.is_valid() {
+            return Err(PyValueError::new_err(format!(
+                "z_offset, flow and path_offset must be finite and flow above 0, got {z_offset}, \
+                 {flow}, {path_offset:?}"
+            )));
+        }
+        self.ports.send_applied(&a).map_err(runtime)
     }
 
     /// The agent's reports and findings that arrived, as dicts with `kind` "report" or
@@ -361,6 +393,7 @@ impl SimulatedJob {
             job: job.unwrap_or(d.job),
             attempts: d.attempts,
             closed_loop: d.closed_loop,
+            apply: d.apply,
         };
         Ok(Self {
             job: spec
@@ -397,6 +430,24 @@ impl SimulatedJob {
                 .map_or(LayerSettings::NOMINAL, |c| LayerSettings::advised(c, j))
         }));
         Ok(to.saturating_sub(from))
+    }
+
+    /// What layer `layer` was printed with, as the printer tells the agent
+    /// (`Cell.send_applied(layer, **job.applied(layer))`): `z_offset`, `flow` and
+    /// `path_offset`. A layer not printed yet is an error.
+    fn applied<'py>(&self, py: Python<'py>, layer: u32) -> PyResult<Bound<'py, PyDict>> {
+        let settings = self.settings.lock().unwrap_or_else(|e| e.into_inner());
+        let s = settings.get(layer as usize).ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "layer {layer} is not printed yet ({} layers printed)",
+                settings.len()
+            ))
+        })?;
+        let d = PyDict::new(py);
+        d.set_item("z_offset", s.z_offset)?;
+        d.set_item("flow", s.flow)?;
+        d.set_item("path_offset", (s.path_offset[0], s.path_offset[1]))?;
+        Ok(d)
     }
 
     /// The design being printed.

@@ -174,8 +174,8 @@ def test_the_offline_suite_on_a_recordings_scans_gives_the_agents_findings(tmp_p
 
 
 def test_a_python_cell_closes_the_loop_with_the_agents_advice(tmp_path):
-    """The agent advises after each scan layer; the printer applies it and the drift it saw
-    is taken back by the next scan."""
+    """The agent advises after each scan layer; the printer applies it, says what it applied,
+    and the drift it saw is taken back by the next scan."""
     job = asbuilt.SimulatedJob(part="wall", scan_after=[8, 16, 24], stations=4, step_deg=0.15,
                                defect=["height-drift:from=8,per-layer=0.5mm"])
     job.design.write_stl(tmp_path / "design.stl")
@@ -189,6 +189,8 @@ def test_a_python_cell_closes_the_loop_with_the_agents_advice(tmp_path):
         advice = None
         for layers in (8, 16, 24):
             assert job.print_to(layers, advice) == 8
+            for j in range(layers - 8, layers):
+                cell.send_applied(j, advice_layer=advice and advice["layer"], **job.applied(j))
             stations = [st for st in job.stations() if st["printed"] == layers]
             for st in stations:
                 job.send(cell, st)
@@ -202,6 +204,8 @@ def test_a_python_cell_closes_the_loop_with_the_agents_advice(tmp_path):
             findings = [m for m in got if m["kind"] == "findings" and m["station"] == last]
             tops.append(findings[-1]["top_height_deviation"])
             assert advice["from_layer"] == layers
+            # Bit 9, unanswered: the agent knew what was applied to every layer.
+            assert advice["flags"] & (1 << 9) == 0, advice
     # Open loop the top would be 4 mm high after 16 layers and 8 mm after 24: the advice after
     # 16 takes it back.
     assert tops[1] > 0.0025, tops

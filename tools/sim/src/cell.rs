@@ -12,9 +12,9 @@ use crate::{
 };
 use asbuilt_protocol::ipc::CellPorts;
 use asbuilt_protocol::{
-    ChunkHeader, FixedText, LayerCorrection, Paced, PoseMode, PoseSnapshot, ScanPoint,
-    StationEvent, StationEventKind, StationFindings, StationReport, StationSender, StationSink,
-    StationStatus, codec, unix_time_ns,
+    ChunkHeader, FixedText, LayerApplied, LayerCorrection, Paced, PoseMode, PoseSnapshot,
+    ScanPoint, StationEvent, StationEventKind, StationFindings, StationReport, StationSender,
+    StationSink, StationStatus, codec, unix_time_ns,
 };
 use nalgebra::{Isometry3, Point3};
 use rand::SeedableRng;
@@ -97,6 +97,10 @@ pub struct SimJob {
     /// next layer it prints, as a controller would; it waits for the advice after each scan
     /// layer's last station before printing on.
     pub closed_loop: bool,
+    /// The share of each advice the closed-loop printer applies (0 to 1; 1 by default): the
+    /// cell decides. Whatever it applies, it tells the agent layer by layer
+    /// (`PREFIX/printer/applied`).
+    pub apply: f64,
 }
 
 impl SimJob {
@@ -121,6 +125,7 @@ impl SimJob {
             one_station_at_a_time: true,
             max_attempts: 5,
             closed_loop: false,
+            apply: 1.0,
         }
     }
 
@@ -405,8 +410,12 @@ pub fn run(
                 };
                 let from = settings.len() as u32;
                 settings.extend((from..st.printed).map(|j| {
-                    advice.map_or(LayerSettings::NOMINAL, |c| LayerSettings::advised(&c, j))
+                    advice.map_or(LayerSettings::NOMINAL, |c| {
+                        LayerSettings::advised(&c, j).scaled(job.apply)
+                    })
                 }));
+                let followed = advice.map_or(u32::MAX, |c| c.layer);
+                tell_applied(job, ports, &settings, from..st.printed, followed)?;
                 if from < st.printed {
                     on(SimEvent::Printing {
                         layers: (from, st.printed - 1),
@@ -459,6 +468,31 @@ pub fn run(
     out.seconds = started.elapsed().as_secs_f64();
     out.settings = settings;
     Ok(out)
+}
+
+/// Tells the agent what the printer applied to `layers`, as the settings it printed them with
+/// (`followed`: the layer of the advice they follow, `u32::MAX` for none).
+fn tell_applied(
+    job: &SimJob,
+    ports: &CellPorts,
+    settings: &[LayerSettings],
+    layers: std::ops::Range<u32>,
+    followed: u32,
+) -> Result<()> {
+    for j in layers {
+        let s = settings
+            .get(j as usize)
+            .copied()
+            .unwrap_or(LayerSettings::NOMINAL);
+        let mut a = LayerApplied::nominal(job.job, j);
+        a.advice_layer = followed;
+        a.z_offset = s.z_offset;
+        a.flow = s.flow;
+        a.path_offset = s.path_offset;
+        a.timestamp_ns = unix_time_ns();
+        ports.send_applied(&a)?;
+    }
+    Ok(())
 }
 
 /// How long the printer waits for the advice after a scan layer's last station was reported.

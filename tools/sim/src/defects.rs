@@ -248,6 +248,16 @@ impl LayerSettings {
         path_offset: [0.0; 2],
     };
 
+    /// The share `k` of these settings' departure from nominal: what a printer that applies
+    /// that much of the advice prints.
+    pub fn scaled(self, k: f64) -> Self {
+        Self {
+            z_offset: self.z_offset * k,
+            flow: 1.0 + (self.flow - 1.0) * k,
+            path_offset: [self.path_offset[0] * k, self.path_offset[1] * k],
+        }
+    }
+
     /// Layer `j` as `advice` says to print it (nominal before the layer it is for).
     pub fn advised(advice: &asbuilt_protocol::LayerCorrection, j: u32) -> Self {
         if j < advice.from_layer {

@@ -53,6 +53,8 @@ pub struct JobSpec {
     pub attempts: u8,
     /// The printer applies the agent's advice (see [`SimJob::closed_loop`]).
     pub closed_loop: bool,
+    /// The share of each advice it applies (see [`SimJob::apply`]).
+    pub apply: f64,
 }
 
 impl Default for JobSpec {
@@ -70,6 +72,7 @@ impl Default for JobSpec {
             job: 1,
             attempts: 5,
             closed_loop: false,
+            apply: 1.0,
         }
     }
 }
@@ -116,6 +119,9 @@ pub enum JobSpecError {
     /// A rate that is not a positive number of points per second.
     #[error("rate {0}: give points per second above 0")]
     Rate(f64),
+    /// A share of the advice outside 0 to 1.
+    #[error("apply {0}: give the share of each advice the printer applies, from 0 to 1")]
+    Apply(f64),
 }
 
 impl PartSpec {
@@ -187,6 +193,10 @@ impl JobSpec {
         }
         job.rate = self.rate;
         job.closed_loop = self.closed_loop;
+        if !(0.0..=1.0).contains(&self.apply) {
+            return Err(JobSpecError::Apply(self.apply));
+        }
+        job.apply = self.apply;
         Ok(job)
     }
 }

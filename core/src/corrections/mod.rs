@@ -22,13 +22,19 @@
 //!
 //! Every value is held where its evidence is inside the deadband (the measurement's noise), and
 //! clamped to its limits. A change of the top's error is a difference of two measurements, so
-//! the drift estimate moves only when it is beyond √2 deadbands. The advice assumes the cell applied the last advice from the layer it
-//! was for; a cell that did not should say so by not acting on it, and the height loop then
-//! learns the difference as drift.
+//! the drift estimate moves only when it is beyond √2 deadbands.
+//!
+//! `C`, the flow and the path offset in force are what the printer says it applied to each layer
+//! ([`LayerApplied`], kept in [`PrintedLayers`]), not what was advised: the cell decides. A layer
+//! it says nothing of is taken as printed as designed, and the advice says so
+//! ([`CorrectionFlags::UNANSWERED`]).
 
-use asbuilt_protocol::{CorrectionFlags, Evidence, LayerCorrection, StationFindings};
+use asbuilt_protocol::{CorrectionFlags, Evidence, LayerApplied, LayerCorrection, StationFindings};
 
 use crate::stats::median;
+
+mod applied;
+pub use applied::{PrintedLayers, PrintedOver};
 
 /// What a [`Corrector`] may advise, and from which evidence. Metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -127,6 +133,8 @@ pub struct Corrector {
     settled: Option<LayerCorrection>,
     /// The latest advice of the current scan layer.
     current: Option<LayerCorrection>,
+    /// What the printer says it applied, from the first layer an advice still builds on.
+    printed: PrintedLayers,
 }
 
 impl Corrector {
@@ -136,6 +144,7 @@ impl Corrector {
             limits,
             settled: None,
             current: None,
+            printed: PrintedLayers::default(),
         }
     }
 
@@ -149,14 +158,39 @@ impl Corrector {
     /// the advice of the same scan layer's earlier stations.
     pub fn advise(&mut self, f: &StationFindings, attempt: u8, sigma: f64) -> LayerCorrection {
         let base = self.base_for(f.job, f.layer);
-        let c = advise(&self.limits, base.as_ref(), f, attempt, sigma);
+        let c = advise(
+            &self.limits,
+            base.as_ref(),
+            &self.printed,
+            f,
+            attempt,
+            sigma,
+        );
         self.keep(c);
         c
     }
 
-    /// Takes up advice given before (read back from a recording), in the order it was given.
+    /// Takes what the printer says it applied to a layer; false (and nothing kept) for values
+    /// that are not usable.
+    pub fn applied(&mut self, a: &LayerApplied) -> bool {
+        self.printed.take(a)
+    }
+
+    /// Takes up advice given before (read back from a recording), in the order it was given,
+    /// clamped to today's limits (they may have been tightened since).
     pub fn restore(&mut self, c: &LayerCorrection) {
-        self.keep(*c);
+        let mut c = *c;
+        let l = &self.limits;
+        let m = l.max_z_per_layer;
+        c.z_first = c.z_first.clamp(-m, m);
+        c.z_then = c.z_then.clamp(-m, m);
+        c.flow = c.flow.clamp(l.flow.0, l.flow.1);
+        let norm = c.path_offset[0].hypot(c.path_offset[1]);
+        if norm > l.max_path_offset {
+            let k = l.max_path_offset / norm;
+            c.path_offset = [c.path_offset[0] * k, c.path_offset[1] * k];
+        }
+        self.keep(c);
     }
 
     /// The advice the next builds on, oldest first: the latest of the scan layer before the
@@ -191,6 +225,9 @@ impl Corrector {
         } else if c.layer > cur.layer {
             self.settled = Some(cur);
             self.current = Some(c);
+            // The next advice builds on this scan layer's or the one before: what was
+            // printed before the one before is of no use any more.
+            self.printed.forget_below(cur.job, cur.layer + 1);
         } else if c.layer == cur.layer {
             self.current = Some(c);
         } else if self.settled.is_some_and(|s| s.layer <= c.layer) {
@@ -205,18 +242,30 @@ impl Corrector {
 pub fn advise(
     limits: &CorrectionLimits,
     base: Option<&LayerCorrection>,
+    printed: &PrintedLayers,
     f: &StationFindings,
     attempt: u8,
     sigma: f64,
 ) -> LayerCorrection {
     let mut c = LayerCorrection::neutral(f.job, f.station, attempt, f.layer);
     let mut flags = 0;
-    flags |= advise_height(limits, base, f, sigma, &mut c);
+    let since = base.map_or(0, |b| b.layer + 1)..f.layer + 1;
+    let over = printed.over(f.job, since);
+    if base.is_some() && over.unanswered > 0 {
+        flags |= CorrectionFlags::UNANSWERED;
+    }
+    flags |= advise_height(limits, base, over.z, f, sigma, &mut c);
+    let latest = latest_bands(limits, base, f);
+    // The flow and path the latest bands were printed at.
+    let in_force = match (latest.first(), latest.last()) {
+        (Some(a), Some(b)) => printed.over(f.job, a.layer..b.layer + 1),
+        _ => over,
+    };
     let bands = Bands {
         limits,
-        base,
+        in_force,
         f,
-        latest: latest_bands(limits, base, f),
+        latest,
     };
     flags |= advise_flow(&bands, &mut c);
     flags |= advise_path(&bands, &mut c);
@@ -224,11 +273,17 @@ pub fn advise(
     c
 }
 
-/// The z schedule: the drift estimate updated by what the last one did not predict, fed
-/// forward, and the top's error spread over the next layers.
+/// The least share of the advised z offsets a printer is taken to apply: below it, asking for
+/// more would only meet the limits.
+const MIN_GAIN: f64 = 0.25;
+
+/// The z schedule: the drift estimate updated by what the last one did not predict (`applied`:
+/// the z offsets printed since the last scan), fed forward, and the top's error spread over
+/// the next layers.
 fn advise_height(
     limits: &CorrectionLimits,
     base: Option<&LayerCorrection>,
+    applied: f64,
     f: &StationFindings,
     sigma: f64,
     c: &mut LayerCorrection,
@@ -252,7 +307,6 @@ fn advise_height(
         };
         let n = printed.saturating_sub(printed_prev).max(1);
         let drift = if e_prev.is_finite() {
-            let applied = base.map_or(0.0, |b| b.z_over(printed_prev, printed));
             let innovation = e - e_prev - n as f64 * drift_prev - applied;
             if innovation.abs() > std::f64::consts::SQRT_2 * limits.deadband {
                 drift_prev + innovation / n as f64
@@ -278,7 +332,16 @@ fn advise_height(
     };
     c.drift_per_layer = drift;
     let m = limits.max_z_per_layer;
-    let (first, then) = (-drift + absorb, -drift);
+    // A printer that applied part of the z offsets advised (its own choice: it is advice) is
+    // asked for that much more, within the limits, so that what it applies takes the error
+    // back; a half-applying printer would otherwise hold the top 8 layers' drift high.
+    let advised = base.map_or(0.0, |b| b.z_over(printed_prev, printed));
+    let gain = if advised.abs() > limits.deadband {
+        (applied / advised).clamp(MIN_GAIN, 1.0)
+    } else {
+        1.0
+    };
+    let (first, then) = ((-drift + absorb) / gain, -drift / gain);
     if first.abs() > m || then.abs() > m {
         flags |= CorrectionFlags::Z_CLAMPED;
     }
@@ -313,10 +376,10 @@ fn latest_bands<'f>(
 }
 
 /// What the flow and path advice read: the findings' layer bands, the latest of them, and
-/// the advice in force.
+/// what they were printed at.
 struct Bands<'f> {
     limits: &'f CorrectionLimits,
-    base: Option<&'f LayerCorrection>,
+    in_force: PrintedOver,
     f: &'f StationFindings,
     /// See [`latest_bands`].
     latest: Vec<&'f asbuilt_protocol::LayerFinding>,
@@ -325,8 +388,8 @@ struct Bands<'f> {
 /// The flow that brings the latest bands' width, against the scan layer's median band, back
 /// to the bead's.
 fn advise_flow(b: &Bands<'_>, c: &mut LayerCorrection) -> u32 {
-    let (limits, base, f, bands) = (b.limits, b.base, b.f, &b.latest);
-    let flow_prev = base.map_or(1.0, |b| b.flow);
+    let (limits, f, bands) = (b.limits, b.f, &b.latest);
+    let flow_prev = b.in_force.flow;
     c.flow = flow_prev;
     let Some(reference) = median(f.layers.iter().filter_map(|r| r.width())) else {
         return CorrectionFlags::FLOW_UNSEEN;
@@ -375,8 +438,8 @@ fn advise_flow(b: &Bands<'_>, c: &mut LayerCorrection) -> u32 {
 /// The path offset that takes the latest bands' shift, against the scan layer's median band,
 /// back.
 fn advise_path(b: &Bands<'_>, c: &mut LayerCorrection) -> u32 {
-    let (limits, base, f, bands) = (b.limits, b.base, b.f, &b.latest);
-    let path_prev = base.map_or([0.0; 2], |b| b.path_offset);
+    let (limits, f, bands) = (b.limits, b.f, &b.latest);
+    let path_prev = b.in_force.path;
     c.path_offset = path_prev;
     let all: Vec<[f64; 2]> = f.layers.iter().filter_map(|r| r.shift_xy()).collect();
     let (Some(rx), Some(ry)) = (
@@ -433,236 +496,4 @@ fn spread(v: &[f64]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use asbuilt_protocol::LayerFinding;
-
-    const H: f64 = 0.02;
-
-    /// A printer simulated per layer: process drift, width excess and shift, with the advice
-    /// in force applied from the layer it is for.
-    struct Printer {
-        drift: Box<dyn Fn(u32) -> f64>,
-        excess: Box<dyn Fn(u32) -> f64>,
-        shift: [f64; 2],
-        shift_from: u32,
-        bead: f64,
-        /// Per printed layer: height error gained, width error, shift.
-        layers: Vec<(f64, f64, [f64; 2])>,
-    }
-
-    impl Printer {
-        fn print_to(&mut self, printed: u32, advice: Option<&LayerCorrection>) {
-            for j in self.layers.len() as u32..printed {
-                let (dz, flow, path) = advice.map_or((0.0, 1.0, [0.0; 2]), |c| {
-                    if j >= c.from_layer {
-                        (c.z_offset(j), c.flow, c.path_offset)
-                    } else {
-                        (0.0, 1.0, [0.0; 2])
-                    }
-                });
-                let width = (self.bead + (self.excess)(j)) * flow - self.bead;
-                let s = if j >= self.shift_from {
-                    self.shift
-                } else {
-                    [0.0; 2]
-                };
-                let shift = [s[0] + path[0], s[1] + path[1]];
-                self.layers.push(((self.drift)(j) + dz, width, shift));
-            }
-        }
-
-        fn findings(&self, noise: f64) -> StationFindings {
-            let printed = self.layers.len() as u32;
-            let mut f = StationFindings::new(1, printed);
-            f.layer = printed - 1;
-            f.printed_height = printed as f64 * H;
-            f.top_height_deviation = self.layers.iter().map(|l| l.0).sum::<f64>() + noise;
-            f.top_samples = 100;
-            for (j, l) in self.layers.iter().enumerate() {
-                let wobble = if j % 2 == 0 { noise } else { -noise };
-                f.layers
-                    .push(LayerFinding {
-                        layer: j as u32,
-                        z_min: j as f64 * H,
-                        z_max: (j + 1) as f64 * H,
-                        samples: 50,
-                        mean: 0.0,
-                        width_deviation: l.1 + wobble,
-                        shift: [l.2[0] + wobble, l.2[1]],
-                        width_uncertainty: 0.001,
-                        shift_uncertainty: 0.001,
-                        width_fit_uncertainty: 0.0005,
-                        width_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
-                        shift_verdict: asbuilt_protocol::SurveyVerdict::NotJudged,
-                    })
-                    .unwrap();
-            }
-            f
-        }
-    }
-
-    fn printer(
-        drift: impl Fn(u32) -> f64 + 'static,
-        excess: impl Fn(u32) -> f64 + 'static,
-    ) -> Printer {
-        Printer {
-            drift: Box::new(drift),
-            excess: Box::new(excess),
-            shift: [0.0; 2],
-            shift_from: 0,
-            bead: 0.06,
-            layers: Vec::new(),
-        }
-    }
-
-    /// Runs scans after `scans` layers, closed loop or not; the top error at each scan.
-    fn run(
-        p: &mut Printer,
-        scans: &[u32],
-        limits: CorrectionLimits,
-        closed: bool,
-        noise: f64,
-    ) -> Vec<(f64, LayerCorrection)> {
-        let mut k = Corrector::new(limits);
-        let mut out = Vec::new();
-        let mut advice: Option<LayerCorrection> = None;
-        for (i, &s) in scans.iter().enumerate() {
-            p.print_to(s, if closed { advice.as_ref() } else { None });
-            let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
-            let f = p.findings(sign * noise);
-            let c = k.advise(&f, 1, 0.001);
-            out.push((f.top_height_deviation, c));
-            advice = Some(c);
-        }
-        out
-    }
-
-    fn limits() -> CorrectionLimits {
-        CorrectionLimits {
-            bead_width: Some(0.06),
-            ..CorrectionLimits::default()
-        }
-    }
-
-    #[test]
-    fn a_drift_from_mid_interval_is_stopped_at_once_and_taken_back_when_learned() {
-        let scans = [8, 16, 24, 32, 40, 48];
-        let drift = |j: u32| if j >= 20 { 0.0006 } else { 0.0 };
-        let open = run(&mut printer(drift, |_| 0.0), &scans, limits(), false, 0.0);
-        let closed = run(&mut printer(drift, |_| 0.0), &scans, limits(), true, 0.0);
-        assert!((open[5].0 - 0.0168).abs() < 1e-12);
-        // Seen first at 24 (+2.4 mm, 4 layers in): spread over the 8 layers since the last
-        // scan, the drift is under-estimated (0.3 mm a layer), which stops the growth. At 32
-        // the drift is learned, and the error is gone by 40.
-        assert!((closed[2].0 - 0.0024).abs() < 1e-12);
-        assert!((closed[2].1.drift_per_layer - 0.0003).abs() < 1e-12);
-        assert!((closed[3].0 - 0.0024).abs() < 1e-12, "{:?}", closed[3]);
-        assert!((closed[3].1.drift_per_layer - 0.0006).abs() < 1e-12);
-        assert!(closed[4].0.abs() < 1e-12 && closed[5].0.abs() < 1e-12);
-        assert!((closed[5].1.z_then + 0.0006).abs() < 1e-12);
-    }
-
-    #[test]
-    fn an_over_extrusion_is_taken_back_by_flow_and_restored_when_it_ends() {
-        let scans = [8, 16, 24, 32, 40, 48];
-        let excess = |j: u32| if (10..=35).contains(&j) { 0.006 } else { 0.0 };
-        let mut p = printer(|_| 0.0, excess);
-        let closed = run(&mut p, &scans, limits(), true, 0.0);
-        // Seen at 16 (bands 13..15): flow 0.06 / 0.066 from layer 16 on.
-        assert!((closed[1].1.flow - 0.06 / 0.066).abs() < 1e-12);
-        let widths =
-            |a: usize, b: usize| p.layers[a..b].iter().map(|l| l.1.abs()).fold(0.0, f64::max);
-        assert!(widths(16, 36) < 1e-12, "{}", widths(16, 36));
-        // The excess ends at 35; the next scan sees bands too narrow and the flow comes back.
-        assert!((closed[4].1.flow - 1.0).abs() < 1e-12, "{:?}", closed[4].1);
-        assert!(widths(40, 48) < 1e-12);
-    }
-
-    #[test]
-    fn a_shift_is_taken_back_by_the_path() {
-        let mut p = printer(|_| 0.0, |_| 0.0);
-        p.shift = [0.004, -0.003];
-        p.shift_from = 12;
-        let closed = run(&mut p, &[8, 16, 24], limits(), true, 0.0);
-        assert_eq!(closed[0].1.path_offset, [0.0, 0.0]);
-        assert_eq!(closed[1].1.path_offset, [-0.004, 0.003]);
-        assert!(p.layers[16..].iter().all(|l| l.2[0].hypot(l.2[1]) < 1e-12));
-        assert!(closed[2].1.flags().contains(CorrectionFlags::PATH_HELD));
-    }
-
-    #[test]
-    fn noise_inside_the_deadband_advises_nothing() {
-        // Top and widths off by up to 0.9 mm, alternating: changes of 1.8 mm, inside √2 × 1.5.
-        let scans = [8, 16, 24, 32, 40, 48];
-        let closed = run(
-            &mut printer(|_| 0.0, |_| 0.0),
-            &scans,
-            limits(),
-            true,
-            0.0009,
-        );
-        for (_, c) in &closed {
-            assert!(c.is_neutral(), "{c:?}");
-            let f = c.flags();
-            assert!(f.contains(CorrectionFlags::Z_HELD) && f.contains(CorrectionFlags::FLOW_HELD));
-        }
-    }
-
-    #[test]
-    fn advice_never_leaves_its_limits() {
-        let l = CorrectionLimits {
-            max_z_per_layer: 0.0005,
-            flow: (0.95, 1.05),
-            max_path_offset: 0.002,
-            ..limits()
-        };
-        let mut p = printer(
-            |j| 0.002 * (j % 3) as f64,
-            |j| 0.03 * ((j % 5) as f64 - 2.0),
-        );
-        p.shift = [0.01, 0.01];
-        p.shift_from = 10;
-        for (_, c) in run(&mut p, &[4, 9, 13, 20, 27, 33, 40, 48], l, true, 0.001) {
-            for z in [c.z_first, c.z_then] {
-                assert!(z.abs() <= l.max_z_per_layer, "{c:?}");
-            }
-            assert!((l.flow.0..=l.flow.1).contains(&c.flow), "{c:?}");
-            assert!(c.path_offset[0].hypot(c.path_offset[1]) <= l.max_path_offset + 1e-15);
-        }
-    }
-
-    #[test]
-    fn a_restored_corrector_advises_as_the_one_that_never_stopped() {
-        let drift = |j: u32| if j >= 5 { 0.0007 } else { 0.0 };
-        let mut p = printer(drift, |j| if j > 6 { 0.004 } else { 0.0 });
-        let mut a = Corrector::new(limits());
-        let mut given = Vec::new();
-        for s in [8, 16, 24] {
-            p.print_to(s, given.last());
-            given.push(a.advise(&p.findings(0.0), 1, 0.001));
-        }
-        p.print_to(32, given.last());
-        let f = p.findings(0.0);
-        let mut b = Corrector::new(limits());
-        for c in &given {
-            b.restore(c);
-        }
-        let bytes = |c: LayerCorrection| asbuilt_protocol::codec::encode(&c);
-        assert_eq!(bytes(a.advise(&f, 1, 0.001)), bytes(b.advise(&f, 1, 0.001)));
-    }
-
-    #[test]
-    fn bad_limits_are_named() {
-        let bad = |f: fn(&mut CorrectionLimits)| {
-            let mut l = CorrectionLimits::default();
-            f(&mut l);
-            l.check().unwrap_err().to_string()
-        };
-        assert!(bad(|l| l.max_z_per_layer = 0.0).contains("max_z_per_layer"));
-        assert!(bad(|l| l.flow = (1.1, 1.2)).contains("flow range"));
-        assert!(bad(|l| l.deadband = f64::NAN).contains("deadband"));
-        assert!(bad(|l| l.absorb_layers = 0).contains("absorb_layers"));
-        assert!(CorrectionLimits::default().check().is_ok());
-    }
-}
+mod tests;

@@ -735,7 +735,7 @@ fn size_mismatch(station: &str, design_size: f64, bounds: Bounds) -> Option<Stri
             "station {station}: the design spans {design_size:.3} m but the scan spans \
              {scan_size:.3} m ({}× apart): check --units (a millimetre design declared as m is \
              1000× too big)",
-            format_ratio(ratio)
+            ratio.max(1.0 / ratio).round()
         )
     })
 }
@@ -891,9 +891,4 @@ fn single_station(args: &InspectArgs, scan: &std::path::Path) -> Result<Vec<Stat
         ),
     };
     Ok(stations::of_scan(scan, pose)?)
-}
-
-fn format_ratio(r: f64) -> String {
-    let r = if r < 1.0 { 1.0 / r } else { r };
-    format!("{r:.0}")
 }

@@ -442,35 +442,64 @@ mod tests {
         out
     }
 
+    /// Both sides' ports on services of their own, and a folder for the recording.
+    struct Rig {
+        _node: Node<Ipc>,
+        ports: AgentPorts,
+        cell: CellPorts,
+        frames: FrameChain,
+        dir: tempfile::TempDir,
+    }
+
+    impl Rig {
+        fn new(name: &str) -> Self {
+            let names = ServiceNames::new(&format!("asbuilt-fanout-{name}/{}", std::process::id()));
+            let node = NodeBuilder::new().create::<Ipc>().unwrap();
+            let queues = QueueSizes {
+                max_points_per_chunk: 16,
+                chunk_queue: 2,
+                pending_chunks: 1,
+                lent_chunks: 0,
+            };
+            let ports = AgentPorts::create(&node, &names, queues).unwrap();
+            let cell = CellPorts::try_open(&node, &names, 16).unwrap();
+            Self {
+                _node: node,
+                ports,
+                cell,
+                frames: FrameChain::default(),
+                dir: tempfile::tempdir().unwrap(),
+            }
+        }
+
+        /// A recorder into the rig's folder, on `storage` (the disk without one).
+        fn recorder(&self, storage: Option<Arc<dyn crate::recorder::Storage>>) -> Recorder {
+            let config = RecorderConfig {
+                dir: Some(self.dir.path().to_path_buf()),
+                ..Default::default()
+            };
+            let storage = storage.unwrap_or_else(|| Arc::new(crate::recorder::Disk));
+            let design = (std::path::Path::new("design.stl"), Vec::new());
+            Recorder::start_on(
+                storage,
+                &config,
+                JobMetadata::default(),
+                design,
+                cube(),
+                0.005,
+            )
+            .unwrap()
+        }
+    }
+
     /// Durable, then said: with the recorder on, the cell gets a station's report only once
     /// the recording's file holds it; without one, at once.
     #[test]
     fn a_report_reaches_the_cell_only_once_its_record_is_on_disk() {
-        let names = ServiceNames::new(&format!("asbuilt-fanout-test/{}", std::process::id()));
-        let node = NodeBuilder::new().create::<Ipc>().unwrap();
-        let queues = QueueSizes {
-            max_points_per_chunk: 16,
-            chunk_queue: 2,
-            pending_chunks: 1,
-            lent_chunks: 0,
-        };
-        let ports = AgentPorts::create(&node, &names, queues).unwrap();
-        let cell = CellPorts::try_open(&node, &names, 16).unwrap();
-        let frames = FrameChain::default();
-        let dir = tempfile::tempdir().unwrap();
-        let config = RecorderConfig {
-            dir: Some(dir.path().to_path_buf()),
-            ..Default::default()
-        };
-        let recorder = Recorder::start(
-            &config,
-            JobMetadata::default(),
-            (std::path::Path::new("design.stl"), Vec::new()),
-            cube(),
-            0.005,
-        )
-        .unwrap();
-        let mut out = Fanout::new(&ports, (Some(recorder), None), &frames, 16, false);
+        let rig = Rig::new("report");
+        let (ports, cell, frames) = (&rig.ports, &rig.cell, &rig.frames);
+        let recorder = rig.recorder(None);
+        let mut out = Fanout::new(ports, (Some(recorder), None), frames, 16, false);
 
         let mut sent = StationReport::new(7, 3);
         sent.points_received = 1234;
@@ -486,10 +515,10 @@ mod tests {
             std::thread::sleep(Duration::from_millis(1));
         };
         assert_eq!(got, sent);
-        assert_eq!(recorded_reports(dir.path()), vec![sent]);
+        assert_eq!(recorded_reports(rig.dir.path()), vec![sent]);
 
         // Without a recorder nothing waits.
-        let mut out = Fanout::new(&ports, (None, None), &frames, 16, false);
+        let mut out = Fanout::new(ports, (None, None), frames, 16, false);
         out.report(&sent);
         assert_eq!(
             cell.reports.receive().unwrap().map(|r| *r.payload()),
@@ -535,33 +564,11 @@ mod tests {
     /// cell only once it syncs again, and the status says the disk holds the cell back.
     #[test]
     fn results_wait_for_a_stalled_disk_and_go_out_in_order_once_it_syncs() {
-        let names = ServiceNames::new(&format!("asbuilt-fanout-stall/{}", std::process::id()));
-        let node = NodeBuilder::new().create::<Ipc>().unwrap();
-        let queues = QueueSizes {
-            max_points_per_chunk: 16,
-            chunk_queue: 2,
-            pending_chunks: 1,
-            lent_chunks: 0,
-        };
-        let ports = AgentPorts::create(&node, &names, queues).unwrap();
-        let cell = CellPorts::try_open(&node, &names, 16).unwrap();
-        let frames = FrameChain::default();
-        let dir = tempfile::tempdir().unwrap();
-        let config = RecorderConfig {
-            dir: Some(dir.path().to_path_buf()),
-            ..Default::default()
-        };
+        let rig = Rig::new("stall");
+        let (ports, cell, frames) = (&rig.ports, &rig.cell, &rig.frames);
         let gate = Arc::new(std::sync::atomic::AtomicBool::new(true));
-        let recorder = Recorder::start_on(
-            Arc::new(Gated(gate.clone())),
-            &config,
-            JobMetadata::default(),
-            (std::path::Path::new("design.stl"), Vec::new()),
-            cube(),
-            0.005,
-        )
-        .unwrap();
-        let mut out = Fanout::new(&ports, (Some(recorder), None), &frames, 16, false);
+        let recorder = rig.recorder(Some(Arc::new(Gated(gate.clone()))));
+        let mut out = Fanout::new(ports, (Some(recorder), None), frames, 16, false);
         // The job's file opens while the disk works; then it stalls.
         let mut begin = StationEvent::new(asbuilt_protocol::StationEventKind::Begin, 7, 3);
         begin.expected_chunks = 1;

@@ -59,9 +59,10 @@ grep -q "serving " agent-0.log || { cat agent-0.log; exit 1; }
 SIM=$!
 k=0
 while [ "$k" -lt "$KILLS" ] && kill -0 "$SIM" 2> /dev/null; do
-    # 0.5 to 4.4 s after the last start: during start-up, a station, or between stations.
-    sleep "$((RANDOM % 4)).$((RANDOM % 10))"
-    sleep 0.5
+    # 0.3 to 2.2 s after the last start: during start-up, a station, or between stations
+    # (the demo's job takes about 20 s without kills, so that ten fit in it).
+    sleep "$((RANDOM % 2)).$((RANDOM % 10))"
+    sleep 0.3
     kill -0 "$SIM" 2> /dev/null || break
     kill -9 "$AGENT_PID"
     wait "$AGENT_PID" 2> /dev/null || true
@@ -75,7 +76,7 @@ kill -TERM "$AGENT_PID"
 wait "$AGENT_PID" 2> /dev/null || true
 echo "kills: $k; the cell exited with $SIM_EXIT"
 grep "interruption(s)" sim.log || echo "no interruption named by the cell"
-PANICS=$(grep -l "panicked" agent-*.log | wc -l)
+PANICS=$( (grep -l "panicked" agent-*.log || true) | wc -l)
 echo "agent logs with a panic: $PANICS"
 "$ASBUILT" report recording --out report > report.log 2>&1 || {
     cat report.log

@@ -5,9 +5,7 @@
 #   tools/bench/crash_soaks.sh                # N=20 KILLS=10 OUT=out/crash-soaks
 set -uo pipefail
 cd "$(dirname "$0")/../.."
-N=${N:-20}
-KILLS=${KILLS:-10}
-OUT=${OUT:-out/crash-soaks}
+: "${N:=20}" "${KILLS:=10}" "${OUT:=out/crash-soaks}"
 mkdir -p "$OUT"
 if [ -z "${BIN:-}" ]; then
     cargo build --release --locked -p asbuilt-tools --bin asbuilt -p asbuilt-agent --bin asbuilt-agent || exit 1

@@ -93,6 +93,16 @@ pub(super) fn reports(cell: &CellPorts) -> Vec<StationReport> {
     out
 }
 
+/// Nothing waits any more and no input was refused.
+fn assert_all_taken(held: &HeldControl, b: &Bench) {
+    assert!(!held.waits_for_a_slot() && held.chunk.is_none());
+    assert_eq!(
+        b.lifecycle.counters.input,
+        Default::default(),
+        "nothing refused"
+    );
+}
+
 /// A cell running ahead of the agent, three stations queued before the agent reads with
 /// one station slot and room for one held chunk: each station waits in the cell's queues
 /// for the slot, and every point of every station is measured.
@@ -117,12 +127,7 @@ fn stations_queued_ahead_of_the_slots_wait_in_the_queues_and_lose_nothing() {
         seen,
         vec![(0, complete, 20), (1, complete, 20), (2, complete, 20)]
     );
-    assert!(!held.waits_for_a_slot() && held.chunk.is_none());
-    assert_eq!(
-        b.lifecycle.counters.input,
-        Default::default(),
-        "nothing refused"
-    );
+    assert_all_taken(&held, &b);
 }
 
 /// A station whose Begin comes while the only slot is held by a station that went quiet
@@ -168,12 +173,7 @@ fn a_station_without_a_slot_waits_with_its_chunks_until_the_slot_frees() {
             (1, Some(StationStatus::Complete), 30)
         ]
     );
-    assert!(!held.waits_for_a_slot() && held.chunk.is_none());
-    assert_eq!(
-        b.lifecycle.counters.input,
-        Default::default(),
-        "nothing refused"
-    );
+    assert_all_taken(&held, &b);
 }
 
 /// Chunks that come before their station's Begin and pose (the cell sends them on other

@@ -130,6 +130,7 @@ impl Recorder {
         let counters = Arc::new(RecorderCounters::default());
         let disk_low = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let returns = Arc::new(Returns::default());
+        let last_stamp = newest_stamp(&dir);
         let writer = Writer {
             storage,
             dir,
@@ -145,6 +146,7 @@ impl Recorder {
             file: None,
             returns: returns.clone(),
             since_check: 0,
+            last_stamp,
             owed: 0,
             unwritten: Vec::new(),
             sync_failing: false,
@@ -417,6 +419,8 @@ struct Writer {
     /// Items written since the disk's free space was last checked.
     since_check: u32,
     foxglove: Option<Foxglove>,
+    /// The newest stamp of the folder's job files: the next file's is later.
+    last_stamp: u64,
     /// Commits asked for and not yet on disk (a sync failed).
     owed: u64,
     /// Kept messages whose write failed, written again before the next sync.
@@ -439,6 +443,18 @@ struct Foxglove {
     tolerance: f64,
     mesh: Arc<Design>,
     every: usize,
+}
+
+/// The newest stamp among the job files of `dir` (0 without any).
+fn newest_stamp(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| crate::resume::JobFile::parse(&e.path()))
+        .map(|f| f.stamp)
+        .max()
+        .unwrap_or(0)
 }
 
 /// Whether `m` is never left out and is retried until written: what the cell or the printer
@@ -674,9 +690,10 @@ impl Writer {
     }
 
     fn open(&mut self, job: u64, part: u32) -> Result<(), WriteError> {
-        // A file is never overwritten: an agent resuming a job within the second its
-        // predecessor opened a file takes the next second, so names still sort in writing order.
-        let mut stamp = unix_time_ns() / 1_000_000_000;
+        // Names sort in writing order, whatever the clock says: a file is stamped with the
+        // second it opens at, or one past the newest of the folder (a device that booted with
+        // an old clock, two files within a second), and never overwrites one.
+        let mut stamp = (unix_time_ns() / 1_000_000_000).max(self.last_stamp + 1);
         let (path, file) = loop {
             let name = if part == 1 {
                 format!("job-{job}-{stamp}.mcap")
@@ -685,7 +702,10 @@ impl Writer {
             };
             let path = self.dir.join(name);
             match self.storage.create_new(&path) {
-                Ok(f) => break (path, f),
+                Ok(f) => {
+                    self.last_stamp = stamp;
+                    break (path, f);
+                }
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => stamp += 1,
                 Err(source) => return Err(WriteError::Create { path, source }),
             }
@@ -796,4 +816,51 @@ pub fn free_bytes(dir: &Path) -> Option<u64> {
         return None;
     }
     Some(s.f_bavail as u64 * s.f_frsize as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::resume::JobFile;
+
+    /// A folder holding a file stamped by a clock far ahead (or a device that booted with an
+    /// old clock since): the next file still sorts after it, so a resume takes up the job
+    /// written last.
+    #[test]
+    fn files_sort_in_writing_order_whatever_the_clock() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("job-9-99999999999.mcap"), b"").unwrap();
+        let config = RecorderConfig {
+            dir: Some(dir.path().to_path_buf()),
+            ..Default::default()
+        };
+        let cube = asbuilt_core::design::shapes::cuboid(
+            nalgebra::Point3::origin(),
+            nalgebra::Point3::new(1.0, 1.0, 1.0),
+        );
+        let mut r = Recorder::start(
+            &config,
+            JobMetadata::default(),
+            (Path::new("design.stl"), Vec::new()),
+            Arc::new(cube),
+            0.005,
+        )
+        .unwrap();
+        for job in [1, 2] {
+            let begin = asbuilt_protocol::StationEvent::new(
+                asbuilt_protocol::StationEventKind::Begin,
+                job,
+                0,
+            );
+            r.record(Recorded::Event(begin));
+        }
+        r.finish();
+        let mut files: Vec<JobFile> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .filter_map(|e| JobFile::parse(&e.unwrap().path()))
+            .collect();
+        files.sort();
+        let jobs: Vec<u64> = files.iter().map(|f| f.job).collect();
+        assert_eq!(jobs, vec![9, 1, 2], "{files:?}");
+    }
 }

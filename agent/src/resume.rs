@@ -35,7 +35,9 @@ use crate::{info, warn};
 /// One recording file of the agent's folder: `job-{job}-{stamp}[-part{n}].mcap`.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
 pub struct JobFile {
-    /// The Unix second the file was opened at.
+    /// The Unix second the file was opened at, or one past the newest file of the folder when
+    /// the clock says earlier (a device booted with an old clock): files sort in the order
+    /// they were written, whatever the clock.
     pub stamp: u64,
     /// 1 for the first file of a segment, then one more at each rotation.
     pub part: u32,

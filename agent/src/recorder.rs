@@ -548,19 +548,27 @@ impl Writer {
     /// owed: no result goes out ahead of its record.
     fn settle(&mut self) {
         self.write_again();
-        let synced = match &mut self.file {
-            _ if !self.unwritten.is_empty() => Err((
-                self.dir.clone(),
-                mcap::McapError::Io(std::io::Error::other(format!(
-                    "{} result(s) not written yet",
-                    self.unwritten.len()
-                ))),
-            )),
-            Some(f) => f.writer.flush().map_err(|e| (f.path.clone(), e)),
-            None => Ok(()),
+        // Why the results must wait, if they must.
+        let held = if !self.unwritten.is_empty() {
+            Some(format!(
+                "{} result(s) could not be written to {}",
+                self.unwritten.len(),
+                self.dir.display()
+            ))
+        } else {
+            match &mut self.file {
+                Some(f) => f.writer.flush().err().map(|e| {
+                    format!(
+                        "cannot sync {} to disk: {}",
+                        f.path.display(),
+                        asbuilt_io::error_message(&e)
+                    )
+                }),
+                None => None,
+            }
         };
-        match synced {
-            Ok(()) => {
+        match held {
+            None => {
                 if self.sync_failing {
                     info!("recorder: the recording is synced to disk again");
                     self.sync_failing = false;
@@ -570,13 +578,11 @@ impl Writer {
                     .fetch_add(self.owed, std::sync::atomic::Ordering::Release);
                 self.owed = 0;
             }
-            Err((path, e)) => {
+            Some(why) => {
                 if !self.sync_failing {
                     warn!(
-                        "recorder: cannot sync {} to disk: {}; results are held back from the \
-                         cell until it can (trying again every {} ms)",
-                        path.display(),
-                        asbuilt_io::error_message(&e),
+                        "recorder: {why}; results are held back from the cell until they are \
+                         on disk (trying again every {} ms)",
                         RETRY_SYNC.as_millis()
                     );
                     self.sync_failing = true;

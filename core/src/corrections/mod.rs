@@ -4,9 +4,11 @@
 //! Three loops, each closed over the scan history:
 //! - **Height.** The top's error `e` grows by the process drift `d` per layer plus whatever
 //!   z offset was printed. Between two scans `n` layers apart, `Δe = n·d + C`, where `C` is the
-//!   sum of the offsets advised for those layers. The drift estimate takes the part of `Δe` the
+//!   sum of the offsets printed for those layers. The drift estimate takes the part of `Δe` the
 //!   last estimate did not predict (`ν = Δe − n·d̂ − C`, so `d̂ += ν / n`). The advice feeds
-//!   `−d̂` forward on every layer, and spreads `−e` over the next `absorb_layers` layers.
+//!   `−d̂` forward on every layer, and spreads `−e` over the next `absorb_layers` layers. A
+//!   printer that applied only a share `g` of the z advised is asked for `1/g` times as much
+//!   (`g` at least [`MIN_GAIN`]), within the limits.
 //! - **Flow.** A band printed at flow `f` with a process excess `x` is `(b + x)·f` wide, for a
 //!   nominal bead width `b`. The width error `w` measured on the bands printed under the last
 //!   advice gives the flow that brings the width back: `f·b / (b + w)`.
@@ -185,11 +187,7 @@ impl Corrector {
         c.z_first = c.z_first.clamp(-m, m);
         c.z_then = c.z_then.clamp(-m, m);
         c.flow = c.flow.clamp(l.flow.0, l.flow.1);
-        let norm = c.path_offset[0].hypot(c.path_offset[1]);
-        if norm > l.max_path_offset {
-            let k = l.max_path_offset / norm;
-            c.path_offset = [c.path_offset[0] * k, c.path_offset[1] * k];
-        }
+        c.path_offset = clamp_path(c.path_offset, l.max_path_offset);
         self.keep(c);
     }
 
@@ -275,7 +273,7 @@ pub fn advise(
 
 /// The least share of the advised z offsets a printer is taken to apply: below it, asking for
 /// more would only meet the limits.
-const MIN_GAIN: f64 = 0.25;
+pub const MIN_GAIN: f64 = 0.25;
 
 /// The z schedule: the drift estimate updated by what the last one did not predict (`applied`:
 /// the z offsets printed since the last scan), fed forward, and the top's error spread over
@@ -475,14 +473,21 @@ fn advise_path(b: &Bands<'_>, c: &mut LayerCorrection) -> u32 {
         return CorrectionFlags::PATH_HELD;
     }
     let p = [path_prev[0] - sx, path_prev[1] - sy];
-    let norm = p[0].hypot(p[1]);
-    let m = limits.max_path_offset;
-    if norm > m {
-        c.path_offset = [p[0] * m / norm, p[1] * m / norm];
+    c.path_offset = clamp_path(p, limits.max_path_offset);
+    if c.path_offset != p {
         CorrectionFlags::PATH_CLAMPED
     } else {
-        c.path_offset = p;
         0
+    }
+}
+
+/// `p` scaled back to length `m` when it is longer.
+fn clamp_path(p: [f64; 2], m: f64) -> [f64; 2] {
+    let norm = p[0].hypot(p[1]);
+    if norm > m {
+        [p[0] * m / norm, p[1] * m / norm]
+    } else {
+        p
     }
 }
 

@@ -245,6 +245,7 @@ fn wire_messages() -> Vec<Recorded> {
         Recorded::Correction(Box::new(asbuilt_protocol::LayerCorrection::neutral(
             3, 1, 1, 0,
         ))),
+        Recorded::Applied(asbuilt_protocol::LayerApplied::nominal(3, 0)),
         Recorded::Surface(Box::new({
             let mut s = asbuilt_protocol::SurfaceFindings::new(3, 1);
             s.flatness_standard = asbuilt_protocol::FixedText::truncated("din18202:6");

@@ -82,9 +82,11 @@ impl CellPorts {
     /// Sends one chunk; `header.point_count` is the caller's to set (the agent checks it).
     pub fn send_chunk(&self, header: &ChunkHeader, points: &[ScanPoint]) -> Result<(), IpcError> {
         // An agent that started since the last event or pose gets the station's Begin and pose
-        // from their history before this chunk, not at the station's End.
+        // (and the printer's latest answers) from their history before this chunk, not at the
+        // station's End.
         use iceoryx2::port::update_connections::UpdateConnections;
         for updated in [
+            self.applied.update_connections(),
             self.stations.update_connections(),
             self.poses.update_connections(),
         ] {

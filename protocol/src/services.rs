@@ -173,7 +173,11 @@ const ADMITS: Admits = Admits {
 
 /// The latest station event and pose are kept for a subscriber that connects late: an agent
 /// started again while a station sends learns that station's Begin and pose.
-const CONTROL_HISTORY: usize = 1;
+pub const CONTROL_HISTORY: usize = 1;
+
+/// The printer's answers kept for an agent that connects late: more than the layers printed
+/// between two scans, so an agent killed while the printer answered learns them all.
+pub const ANSWER_HISTORY: usize = 64;
 
 /// How long a chunk publisher waits for a full agent queue before it reports the agent stuck.
 pub const DELIVERY_DEADLINE: std::time::Duration = std::time::Duration::from_secs(10);
@@ -298,9 +302,10 @@ pub trait Stream {
 pub struct Health;
 
 /// A small input of fixed-size messages (poses, station events): never overflowing, so the
-/// publisher is held back rather than a message lost; the latest is kept for a subscriber that
-/// connects late (an agent started again while a station sends learns its Begin and pose).
-pub struct Control<T>(PhantomData<T>);
+/// publisher is held back rather than a message lost; the latest `HISTORY` are kept for a
+/// subscriber that connects late (an agent started again while a station sends learns its
+/// Begin and pose; the printer's answers since the last scan, sent while it was down).
+pub struct Control<T, const HISTORY: usize = CONTROL_HISTORY>(PhantomData<T>);
 
 /// Scan chunks: a full agent queue holds the publisher back (never drops), and a station's
 /// chunks waiting for their pose stay borrowed.
@@ -359,7 +364,9 @@ impl Stream for Health {
     }
 }
 
-impl<T: std::fmt::Debug + ZeroCopySend + 'static> Stream for Control<T> {
+impl<T: std::fmt::Debug + ZeroCopySend + 'static, const HISTORY: usize> Stream
+    for Control<T, HISTORY>
+{
     const FROM_CELL: bool = true;
     type AgentPort = Subscriber<Ipc, T, ()>;
     type CellPort = Publisher<Ipc, T, ()>;
@@ -372,7 +379,7 @@ impl<T: std::fmt::Debug + ZeroCopySend + 'static> Stream for Control<T> {
             .max_subscribers(ADMITS.input_subscribers)
             .max_nodes(ADMITS.nodes)
             .subscriber_max_buffer_size(ADMITS.small_queue)
-            .history_size(CONTROL_HISTORY)
+            .history_size(HISTORY)
             .enable_safe_overflow(false)
             .open_or_create()
             .map_err(|e| setup.incompatible(name, e))?

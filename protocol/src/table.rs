@@ -283,7 +283,8 @@ macro_rules! messages {
 pub(crate) use messages;
 
 use crate::services::{
-    Control, DeviationChunks, Encoded, Health, PerStation, ScanChunks as ScanChunkStream,
+    ANSWER_HISTORY, Control, DeviationChunks, Encoded, Health, PerStation,
+    ScanChunks as ScanChunkStream,
 };
 
 messages! {
@@ -296,7 +297,8 @@ messages! {
         StationEvents stations "job/stations": Control<StationEvent> => Event(StationEvent);
         /// `printer/applied`: what the printer applied to each layer it printed
         /// ([`LayerApplied`]), cell to agent.
-        Applied applied "printer/applied": Control<LayerApplied> => Applied(LayerApplied);
+        Applied applied "printer/applied": Control<LayerApplied, ANSWER_HISTORY>
+            => Applied(LayerApplied);
         /// `agent/reports`: station reports ([`StationReport`]), agent to cell.
         Reports reports "agent/reports": PerStation<StationReport>
             => Report(StationReport) boxed;

@@ -676,10 +676,34 @@ impl HeldControl {
             out.took_applied(&a);
             lifecycle.take(Input::Applied(a), Instant::now(), out);
         }
+        any |= self.drain_events(lifecycle, out);
+        let mut poses = false;
+        while let Some(p) = self.pose.take().or_else(|| next(&ports.poses, "poses")) {
+            if !lifecycle.has_room_for(p.job, p.station) {
+                self.pose = Some(p);
+                break;
+            }
+            poses = true;
+            out.took_pose(&p, lifecycle.layer_of(p.job, p.station));
+            lifecycle.take(Input::Pose(p), Instant::now(), out);
+        }
+        // A Begin sent just before its pose may have reached its queue after the events were
+        // read: it is there now that the pose was. Read before the station's chunks, so that
+        // none is compared before its Begin said the station's name and printed height.
+        if poses {
+            self.drain_events(lifecycle, out);
+        }
+        any | poses
+    }
+
+    /// Reads station events until their queue is empty or a Begin finds no slot; whether
+    /// anything was read.
+    fn drain_events(&mut self, lifecycle: &mut AgentLifecycle, out: &mut Fanout<'_>) -> bool {
+        let mut any = false;
         while let Some(ev) = self
             .event
             .take()
-            .or_else(|| next(&ports.stations, "station events"))
+            .or_else(|| next(&out.ports.stations, "station events"))
         {
             let begins = ev.kind() == Some(StationEventKind::Begin);
             if begins && !lifecycle.has_room_for(ev.job, ev.station) {
@@ -689,15 +713,6 @@ impl HeldControl {
             any = true;
             out.took_event(&ev);
             lifecycle.take(Input::Event(ev), Instant::now(), out);
-        }
-        while let Some(p) = self.pose.take().or_else(|| next(&ports.poses, "poses")) {
-            if !lifecycle.has_room_for(p.job, p.station) {
-                self.pose = Some(p);
-                break;
-            }
-            any = true;
-            out.took_pose(&p, lifecycle.layer_of(p.job, p.station));
-            lifecycle.take(Input::Pose(p), Instant::now(), out);
         }
         any
     }

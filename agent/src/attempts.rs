@@ -57,6 +57,11 @@ impl ClosedStations {
         self.ring.retain(|(k, ..)| *k != key);
     }
 
+    /// Forgets every station of `job` (a new print under its number).
+    pub fn forget_job(&mut self, job: u64) {
+        self.ring.retain(|((j, _), ..)| *j != job);
+    }
+
     /// Whether `attempt` of `key` (or a later one) was reported.
     pub fn covers(&self, key: StationKey, attempt: u16) -> bool {
         self.last_attempt(key).is_some_and(|a| a >= attempt)

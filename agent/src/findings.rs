@@ -156,6 +156,11 @@ impl FindingsStage {
         &self.samples
     }
 
+    /// Forgets the scan layers of `job`: a new print under its number gathers afresh.
+    pub fn forget_job(&mut self, job: u64) {
+        self.epochs.retain(|e| e.job != job);
+    }
+
     /// A station starts sending points compared with `design`. False when it is left out.
     pub fn begin(&mut self, key: StationKey, design: &Arc<PrintedDesign>) -> bool {
         let i = match self.epochs.iter().position(|e| e.is(key.0, design)) {

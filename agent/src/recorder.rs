@@ -51,6 +51,23 @@ enum Item {
     /// A scan layer's findings state, attached to the job's file.
     State(u64, Box<ScanLayerStateRecord>),
     Flush,
+    /// The print a resume took up: its next file is the next part, not a new print's first.
+    Continue(PrintFiles),
+}
+
+/// A print's files: a job's files from a first part to the parts that follow it. The recorder
+/// starts a print's first file when a job begins, or when a Begin says that a new print began
+/// under the same job number (`StationEvent::job_started_ns`), and goes on with parts (a full
+/// file, an agent that resumed the print) otherwise; so a reader finds a print's files by
+/// their names alone (see [`crate::resume::newest_print`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PrintFiles {
+    /// The job number.
+    pub job: u64,
+    /// When the print started (0: not said).
+    pub started: u64,
+    /// The part of its newest file.
+    pub part: u32,
 }
 
 /// What the recorder left out, for the status line and the log.
@@ -150,6 +167,7 @@ impl Recorder {
             owed: 0,
             unwritten: Vec::new(),
             sync_failing: false,
+            continuing: None,
             foxglove: cfg.foxglove.then_some(Foxglove {
                 tolerance,
                 mesh,
@@ -208,6 +226,12 @@ impl Recorder {
         } else {
             self.small(m);
         }
+    }
+
+    /// Says which print a resume took up, before anything is recorded: its next file goes on
+    /// from its newest part.
+    pub fn continues(&self, print: PrintFiles) {
+        self.keep(Item::Continue(print), 0);
     }
 
     /// Attaches a scan layer's findings state after a station, kept like a report: an agent
@@ -399,6 +423,8 @@ struct OpenFile {
     path: PathBuf,
     job: u64,
     part: u32,
+    /// When the print the file records started (0: not said yet).
+    started: u64,
 }
 
 struct Writer {
@@ -427,6 +453,8 @@ struct Writer {
     unwritten: Vec<Item>,
     /// Whether the last sync failed (said once in the log).
     sync_failing: bool,
+    /// The print a resume took up, until its next file opens.
+    continuing: Option<PrintFiles>,
 }
 
 /// Tells the event loop the writer reads no more lent chunks, however its thread ends.
@@ -463,6 +491,19 @@ fn kept(m: &Recorded) -> bool {
     m.channel().is_per_station()
         || matches!(m, Recorded::Event(e)
             if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin))
+}
+
+/// The job of `m`, and when its print started when `m` is a Begin that says so.
+fn print_of(m: &Recorded) -> (Option<u64>, Option<u64>) {
+    match m {
+        Recorded::Event(e)
+            if e.kind() == Some(asbuilt_protocol::StationEventKind::Begin)
+                && e.job_started_ns != 0 =>
+        {
+            (Some(e.job), Some(e.job_started_ns))
+        }
+        m => (job_of(m), None),
+    }
 }
 
 fn job_of(m: &Recorded) -> Option<u64> {
@@ -509,13 +550,13 @@ impl Writer {
                         Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
                         _ => 256,
                     };
-                    if !self.put(job_of(&m), bytes, |w| w.write(t, &m)) && kept(&m) {
+                    if !self.put(print_of(&m), bytes, |w| w.write(t, &m)) && kept(&m) {
                         self.unwritten.push(Item::Message(t, m));
                     }
                 }
                 Item::Lent(t, h, lent) => {
                     let bytes = std::mem::size_of_val(lent.points());
-                    self.put(Some(h.job), bytes, |w| {
+                    self.put((Some(h.job), None), bytes, |w| {
                         w.write_scan_chunk(t, &h, lent.points())
                     });
                     // From here the sample may go back to the scanner.
@@ -523,7 +564,7 @@ impl Writer {
                 }
                 Item::FoxgloveCloud(t, h, points) => {
                     let bytes = std::mem::size_of_val(points.as_slice());
-                    self.put(Some(h.job), bytes, |w| {
+                    self.put((Some(h.job), None), bytes, |w| {
                         w.write_foxglove_cloud(t, &h, &points)
                     });
                 }
@@ -538,6 +579,7 @@ impl Writer {
                     self.settle();
                     self.check_disk();
                 }
+                Item::Continue(print) => self.continuing = Some(print),
             }
         }
         self.close();
@@ -596,7 +638,7 @@ impl Writer {
         for item in std::mem::take(&mut self.unwritten) {
             let written = match &item {
                 // Their weight came off the queue at the first try.
-                Item::Message(t, m) => self.put(job_of(m), 0, |w| w.write(*t, m)),
+                Item::Message(t, m) => self.put(print_of(m), 0, |w| w.write(*t, m)),
                 Item::State(t, record) => self.attach_state(*t, record),
                 _ => true,
             };
@@ -648,17 +690,18 @@ impl Writer {
         }
     }
 
-    /// Writes one queued item with `write` into the file of `job`, says so when that fails,
+    /// Writes one queued item with `write` into the file of `print` (its job, and its print's
+    /// start when it is a Begin that says so), says so when that fails,
     /// and takes its `bytes` off the queue's weight; whether it was written. Every 64 items the
     /// disk's free space is checked again, so a filling disk stops the scan chunks before it
     /// is full.
     fn put(
         &mut self,
-        job: Option<u64>,
+        print: (Option<u64>, Option<u64>),
         bytes: usize,
         write: impl FnOnce(&mut FileWriter) -> Result<(), mcap::McapError>,
     ) -> bool {
-        let written = self.file_for(job).and_then(|f| match f {
+        let written = self.file_for(print).and_then(|f| match f {
             Some(f) => write(&mut f.writer).map_err(WriteError::Message),
             None => Ok(()),
         });
@@ -674,28 +717,49 @@ impl Writer {
         written.is_ok()
     }
 
-    /// The file a message of `job` goes to: the open one, or a new one when the job changes or
-    /// the file is full. None for a message without a job before the first job (nothing to
-    /// attach it to).
-    fn file_for(&mut self, job: Option<u64>) -> Result<Option<&mut OpenFile>, WriteError> {
-        if let Some(job) = job {
-            let rotate = match &self.file {
-                None => true,
-                Some(f) => f.job != job || f.writer_bytes() - f.preamble > self.max_bytes,
-            };
-            if rotate {
-                let part = match &self.file {
-                    Some(f) if f.job == job => f.part + 1,
-                    _ => 1,
-                };
-                self.close();
-                self.open(job, part)?;
+    /// The file a message of `job` goes to: the open one, or a new one when the job changes, a
+    /// Begin says a later print `started` under its number, or the file is full. None for a
+    /// message without a job before the first job (nothing to attach it to).
+    fn file_for(
+        &mut self,
+        (job, started): (Option<u64>, Option<u64>),
+    ) -> Result<Option<&mut OpenFile>, WriteError> {
+        let Some(job) = job else {
+            return Ok(self.file.as_mut());
+        };
+        let new_print =
+            |f: &OpenFile| f.job != job || started.is_some_and(|s| f.started != 0 && s > f.started);
+        let next = match &self.file {
+            None => match self.continuing.take() {
+                // The print a resume took up goes on in its next part, unless a later print
+                // begins.
+                Some(c)
+                    if c.job == job && started.is_none_or(|s| c.started == 0 || s <= c.started) =>
+                {
+                    Some((c.part + 1, c.started))
+                }
+                _ => Some((1, 0)),
+            },
+            Some(f) if new_print(f) => Some((1, 0)),
+            Some(f) if f.writer_bytes() - f.preamble > self.max_bytes => {
+                Some((f.part + 1, f.started))
             }
+            Some(_) => None,
+        };
+        if let Some((part, print_started)) = next {
+            self.close();
+            self.open(job, part, print_started)?;
         }
-        Ok(self.file.as_mut())
+        let f = self.file.as_mut().expect("opened above");
+        if let Some(s) = started
+            && f.started == 0
+        {
+            f.started = s;
+        }
+        Ok(Some(f))
     }
 
-    fn open(&mut self, job: u64, part: u32) -> Result<(), WriteError> {
+    fn open(&mut self, job: u64, part: u32, started: u64) -> Result<(), WriteError> {
         // Names sort in writing order, whatever the clock says: a file is stamped with the
         // second it opens at, or one past the newest of the folder (a device that booted with
         // an old clock, two files within a second), and never overwrites one.
@@ -758,6 +822,7 @@ impl Writer {
             path,
             job,
             part,
+            started,
         });
         Ok(())
     }
@@ -836,22 +901,7 @@ mod tests {
     fn files_sort_in_writing_order_whatever_the_clock() {
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(dir.path().join("job-9-99999999999.mcap"), b"").unwrap();
-        let config = RecorderConfig {
-            dir: Some(dir.path().to_path_buf()),
-            ..Default::default()
-        };
-        let cube = asbuilt_core::design::shapes::cuboid(
-            nalgebra::Point3::origin(),
-            nalgebra::Point3::new(1.0, 1.0, 1.0),
-        );
-        let mut r = Recorder::start(
-            &config,
-            JobMetadata::default(),
-            (Path::new("design.stl"), Vec::new()),
-            Arc::new(cube),
-            0.005,
-        )
-        .unwrap();
+        let mut r = recorder(dir.path());
         for job in [1, 2] {
             let begin = asbuilt_protocol::StationEvent::new(
                 asbuilt_protocol::StationEventKind::Begin,
@@ -868,5 +918,84 @@ mod tests {
         files.sort();
         let jobs: Vec<u64> = files.iter().map(|f| f.job).collect();
         assert_eq!(jobs, vec![9, 1, 2], "{files:?}");
+    }
+
+    fn recorder(dir: &Path) -> Recorder {
+        let config = RecorderConfig {
+            dir: Some(dir.to_path_buf()),
+            ..Default::default()
+        };
+        let cube = asbuilt_core::design::shapes::cuboid(
+            nalgebra::Point3::origin(),
+            nalgebra::Point3::new(1.0, 1.0, 1.0),
+        );
+        Recorder::start(
+            &config,
+            JobMetadata::default(),
+            (Path::new("design.stl"), Vec::new()),
+            Arc::new(cube),
+            0.005,
+        )
+        .unwrap()
+    }
+
+    fn begin(station: u32, started: u64) -> Recorded {
+        let mut b = asbuilt_protocol::StationEvent::new(
+            asbuilt_protocol::StationEventKind::Begin,
+            1,
+            station,
+        );
+        b.job_started_ns = started;
+        Recorded::Event(b)
+    }
+
+    /// A new print under job 1 starts a first part; a resumed print and an earlier print's
+    /// Begin (a service's history) go on in the print's files; and the folder's newest print is
+    /// found from the names alone.
+    #[test]
+    fn a_print_goes_on_in_parts_and_a_new_print_under_its_number_starts_afresh() {
+        let dir = tempfile::tempdir().unwrap();
+        let files = || {
+            let mut f: Vec<JobFile> = std::fs::read_dir(dir.path())
+                .unwrap()
+                .filter_map(|e| JobFile::parse(&e.unwrap().path()))
+                .collect();
+            f.sort();
+            f
+        };
+        let mut r = recorder(dir.path());
+        r.record(begin(0, 100));
+        r.record(begin(1, 100));
+        r.record(begin(0, 200));
+        r.record(begin(1, 100));
+        r.finish();
+        let parts: Vec<u32> = files().iter().map(|f| f.part).collect();
+        assert_eq!(parts, vec![1, 1]);
+        // An agent that resumed the print of 200 goes on with its next part.
+        let mut r = recorder(dir.path());
+        r.continues(PrintFiles {
+            job: 1,
+            started: 200,
+            part: 1,
+        });
+        r.record(begin(2, 200));
+        r.finish();
+        let parts: Vec<u32> = files().iter().map(|f| f.part).collect();
+        assert_eq!(parts, vec![1, 1, 2]);
+        let all = files();
+        let newest = crate::resume::newest_print(&all, 1);
+        assert_eq!(newest, vec![&all[1], &all[2]]);
+        // Resumed, but the cell began a later print: a first part.
+        let mut r = recorder(dir.path());
+        r.continues(PrintFiles {
+            job: 1,
+            started: 200,
+            part: 2,
+        });
+        r.record(begin(0, 300));
+        r.finish();
+        let all = files();
+        assert_eq!(all.last().unwrap().part, 1);
+        assert_eq!(crate::resume::newest_print(&all, 1), vec![&all[3]]);
     }
 }

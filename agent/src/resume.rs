@@ -39,7 +39,8 @@ pub struct JobFile {
     /// the clock says earlier (a device booted with an old clock): files sort in the order
     /// they were written, whatever the clock.
     pub stamp: u64,
-    /// 1 for the first file of a segment, then one more at each rotation.
+    /// 1 for a print's first file, then one more for each file that goes on with it (a full
+    /// file, an agent that resumed the print); see [`crate::recorder::PrintFiles`].
     pub part: u32,
     /// The job it records.
     pub job: u64,
@@ -67,6 +68,15 @@ impl JobFile {
             path: path.to_path_buf(),
         })
     }
+}
+
+/// The files of the newest print of `job` among `files` (oldest first): from its last first
+/// part on. Recordings of releases before prints were told apart started a first part at every
+/// start of the agent too; naming such a job's files reads them together.
+pub fn newest_print(files: &[JobFile], job: u64) -> Vec<&JobFile> {
+    let of_job: Vec<&JobFile> = files.iter().filter(|f| f.job == job).collect();
+    let from = of_job.iter().rposition(|f| f.part == 1).unwrap_or(0);
+    of_job[from..].to_vec()
 }
 
 /// The recorder's folder at start: its job files, oldest first, and those of them whose
@@ -224,6 +234,8 @@ fn map(path: &Path) -> std::io::Result<memmap2::Mmap> {
 pub struct Resumed {
     /// The job resumed.
     pub job: u64,
+    /// Its print and newest file: the recorder goes on with the next part.
+    pub print: Option<crate::recorder::PrintFiles>,
     /// Its files, oldest first.
     pub files: usize,
     /// Every report the agents before recorded, in the order they were recorded.
@@ -259,13 +271,19 @@ where
     C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
 {
     let job = files.last()?.job;
-    let files: Vec<&JobFile> = files.iter().filter(|f| f.job == job).collect();
+    let files = newest_print(files, job);
     let mut resumed = Resumed {
         job,
         files: files.len(),
         ..Default::default()
     };
     let seen = survey(&files, job, &mut resumed);
+    resumed.print = files.last().map(|f| crate::recorder::PrintFiles {
+        job,
+        started: seen.started,
+        part: f.part,
+    });
+    lifecycle.resumes_print(job, seen.started);
     for c in seen.advice.history() {
         lifecycle.restore_correction(c);
     }
@@ -353,6 +371,8 @@ type AttemptKey = (u64, u32, u8);
 
 /// What a first pass over a job's files finds, without decoding a scan chunk.
 struct Survey {
+    /// When the print started, as its Begins say (0: they do not).
+    started: u64,
     /// The scan layer (printed height's bits) of each station's Begin.
     layer_of: BTreeMap<StationKey, u64>,
     /// The latest Begin's scan layer.
@@ -381,6 +401,7 @@ struct Survey {
 /// Reads the reports (into `resumed`), the Begins and the scan layer states of `job`'s files.
 fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
     let mut seen = Survey {
+        started: 0,
         layer_of: BTreeMap::new(),
         current: None,
         begun: BTreeMap::new(),
@@ -430,6 +451,11 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                     seen.advice.restore(&c);
                 }
                 Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
+                    if e.job_started_ns != 0 && e.job_started_ns < seen.started {
+                        // An earlier print's, from a service's history: the agent ignored it.
+                        continue;
+                    }
+                    seen.started = seen.started.max(e.job_started_ns);
                     let height = e.printed_height.to_bits();
                     let key = (e.job, e.station);
                     seen.layer_of.insert(key, height);

@@ -44,6 +44,15 @@ impl Survey {
         })
     }
 
+    /// Forgets the scan layer gathered when it is of `job`: a new print under its number starts
+    /// the faces over.
+    pub fn forget_job(&mut self, job: u64) {
+        if self.layer.is_some_and(|(j, _)| j == job) {
+            self.grid.clear();
+            self.layer = None;
+        }
+    }
+
     /// A chunk's deviations of `station` of `job` scanned at `printed_height`: a new scan
     /// layer starts the faces over.
     pub fn ingest(

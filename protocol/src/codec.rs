@@ -30,6 +30,27 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     Ok(msg)
 }
 
+/// A record of `M`, or of an older version up to `newest_older` whose layout is `Old`, read
+/// into `M`'s layout.
+pub(crate) fn decode_or_older<M: Message, Old: DeserializeOwned + Into<M>>(
+    bytes: &[u8],
+    newest_older: u16,
+) -> Result<M, DecodeError> {
+    let (version, body): (u16, _) =
+        postcard::take_from_bytes(bytes).map_err(|e| corrupt::<M>(e))?;
+    if !(1..=newest_older).contains(&version) {
+        return decode(bytes);
+    }
+    let (old, rest): (Old, _) = postcard::take_from_bytes(body).map_err(|e| corrupt::<M>(e))?;
+    if !rest.is_empty() {
+        return Err(DecodeError::TrailingBytes {
+            message: M::TYPE_NAME,
+            extra: rest.len(),
+        });
+    }
+    Ok(old.into())
+}
+
 /// The leading version of a scan chunk record whose points are byte planes
 /// ([`crate::scan_planes`]). Records led by 1 or 2 (the header's own versions) hold the points
 /// as a postcard sequence, as releases before this layout wrote them, and still read. The

@@ -73,8 +73,14 @@ impl CellPorts {
         self.wake_agent()
     }
 
-    /// Sends a station event and wakes the agent.
+    /// Sends a station event and wakes the agent. Before a Begin, what agents that died left
+    /// in the services is removed: iceoryx2 takes a dead agent's queue for a reader until
+    /// someone removes it, and a station sent into it would be lost; without it, the station
+    /// waits (up to [`DELIVERY_DEADLINE`]) for the agent that replaces the dead one.
     pub fn send_event(&self, ev: &StationEvent) -> Result<(), IpcError> {
+        if ev.kind() == Some(crate::StationEventKind::Begin) {
+            forget_dead_nodes();
+        }
         self.deliver("station event", || self.stations.send_copy(*ev))?;
         self.wake_agent()
     }
@@ -148,6 +154,18 @@ impl CellPorts {
             .map(|_| ())
             .map_err(|e| IpcError::iceoryx("waiting for the agent", e))
     }
+}
+
+/// Removes the resources of every dead iceoryx2 node (a killed agent's ports among them). What
+/// cannot be removed now (another process is at it, no permission) is left: it only means a
+/// lost station, which the agent reports and the cell sends again.
+fn forget_dead_nodes() {
+    let _ = Node::<Ipc>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state {
+            let _ = view.try_remove_stale_resources();
+        }
+        CallbackProgression::Continue
+    });
 }
 
 /// A station sent straight to a running agent, stamped with the wall clock.

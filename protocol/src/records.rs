@@ -49,14 +49,23 @@ record!(
              rotation_xyzw [f64; 4] unit quaternion scalar last, position_sigma f64 m"
 );
 
-record!(
-    StationEvent,
-    stamped,
-    "asbuilt.StationEvent v2, postcard: version u16 (varint, also first), kind u8 \
-             (0 begin, 1 end), attempt u8 (1 the first try; 0 in v1), station u32, job u64, timestamp_ns u64, layer u32, \
-             expected_chunks u32, expected_points u64, printed_height f64 m (NaN: not printing), \
-             name [u8; 48] with length u8"
-);
+impl Record for StationEvent {
+    const SCHEMA_NAME: &'static str = <StationEvent>::TYPE_NAME;
+    const SCHEMA_TEXT: &'static str = "asbuilt.StationEvent v3, postcard: version u16 (varint, \
+             also first), kind u8 (0 begin, 1 end), attempt u8 (1 the first try), station u32, \
+             job u64, job_started_ns u64 (0: not said), timestamp_ns u64, layer u32, \
+             expected_chunks u32, expected_points u64, printed_height f64 m (NaN: not \
+             printing), name [u8; 48] with length u8. Records led by 1 or 2 lack job_started_ns.";
+    fn encode(&self) -> Vec<u8> {
+        codec::encode(self)
+    }
+    fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+        codec::decode_or_older::<Self, crate::station::StationEventV2>(bytes, 2)
+    }
+    fn timestamp_ns(&self) -> u64 {
+        self.timestamp_ns
+    }
+}
 
 record!(
     StationReport,

@@ -16,7 +16,7 @@ pub enum StationEventKind {
 
 /// Job control opens and closes a station; `End` says how much should have arrived.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ZeroCopySend)]
-#[type_name("asbuilt.StationEvent.v2")]
+#[type_name("asbuilt.StationEvent.v3")]
 #[repr(C)]
 pub struct StationEvent {
     /// The message's version ([`Message::VERSION`] when written by this build).
@@ -31,6 +31,10 @@ pub struct StationEvent {
     pub station: u32,
     /// The job (one print) the station belongs to.
     pub job: u64,
+    /// When the cell started the job, nanoseconds since the Unix epoch: the same in every event
+    /// of the job, also after the cell restarts, so that with `job` it tells one print from a
+    /// later one that reuses the number. 0 when the sender does not say (versions 1 and 2).
+    pub job_started_ns: u64,
     /// When the cell sent the event, nanoseconds since the Unix epoch.
     pub timestamp_ns: u64,
     /// Index of the last printed layer when this station was scanned.
@@ -45,7 +49,7 @@ pub struct StationEvent {
     pub name: FixedText<48>,
 }
 
-crate::message::message!(StationEvent, "asbuilt.StationEvent.v2", 2, oldest 1);
+crate::message::message!(StationEvent, "asbuilt.StationEvent.v3", 3, oldest 3);
 
 impl StationEvent {
     /// The kind, or `None` for a value no known sender writes.
@@ -65,12 +69,50 @@ impl StationEvent {
             attempt: 1,
             station,
             job,
+            job_started_ns: 0,
             timestamp_ns: 0,
             layer: 0,
             expected_chunks: 0,
             expected_points: 0,
             printed_height: f64::NAN,
             name: FixedText::empty(),
+        }
+    }
+}
+
+/// A [`StationEvent`] as versions 1 and 2 wrote it, without `job_started_ns`: recordings of
+/// those releases still read.
+#[derive(Debug, Clone, Copy, Deserialize)]
+pub(crate) struct StationEventV2 {
+    _version: u16,
+    kind: u8,
+    attempt: u8,
+    station: u32,
+    job: u64,
+    timestamp_ns: u64,
+    layer: u32,
+    expected_chunks: u32,
+    expected_points: u64,
+    printed_height: f64,
+    name: FixedText<48>,
+}
+
+impl From<StationEventV2> for StationEvent {
+    fn from(e: StationEventV2) -> Self {
+        Self {
+            // Read into this version's layout: what it lacks is said as unknown.
+            version: Self::VERSION,
+            kind: e.kind,
+            attempt: e.attempt,
+            station: e.station,
+            job: e.job,
+            job_started_ns: 0,
+            timestamp_ns: e.timestamp_ns,
+            layer: e.layer,
+            expected_chunks: e.expected_chunks,
+            expected_points: e.expected_points,
+            printed_height: e.printed_height,
+            name: e.name,
         }
     }
 }

@@ -148,7 +148,7 @@ fn layouts_are_fixed_and_aligned_for_shared_memory() {
     assert_eq!(size_of::<ChunkHeader>(), 40);
     assert_eq!(size_of::<DeviationHeader>(), 48);
     // A change to any of these sizes is a layout change: bump the message version with it.
-    assert_eq!(size_of::<StationEvent>(), 104);
+    assert_eq!(size_of::<StationEvent>(), 112);
     for (size, align) in [
         (size_of::<PoseSnapshot>(), align_of::<PoseSnapshot>()),
         (size_of::<StationReport>(), align_of::<StationReport>()),
@@ -215,17 +215,42 @@ fn every_input_reject_is_named_once_and_counted_in_the_total() {
     assert_eq!(i.total(), (1 << 11) - 1);
 }
 
-/// A version 1 record (a zero where version 2 keeps the attempt) still reads: as version 1,
-/// whose attempt 0 the agent takes as the first.
+/// Records of versions 1 and 2 of a station event (without `job_started_ns`; version 1 with a
+/// zero where version 2 keeps the attempt) still read, the print's start as not said; a
+/// version 1 chunk header reads with its attempt 0, which the agent takes as the first.
 #[test]
-fn a_version_1_record_reads_with_its_attempt_zero() {
+fn version_1_and_2_records_read_with_what_they_lack_as_unknown() {
+    use asbuilt_protocol::Record;
+    for (version, attempt) in [(1u16, 0u8), (2, 3)] {
+        // The fields in the order versions 1 and 2 wrote them.
+        let mut bytes = postcard::to_allocvec(&version).unwrap();
+        let name = FixedText::<48>::new("L008-S1").unwrap();
+        let old = (
+            version, 0u8, attempt, 4u32, 3u64, 77u64, 7u32, 2u32, 10u64, 0.5f64, name,
+        );
+        bytes.extend(postcard::to_allocvec(&old).unwrap());
+        let back = <StationEvent as Record>::decode(&bytes).unwrap();
+        assert_eq!(back.version, StationEvent::VERSION);
+        assert_eq!(
+            (back.attempt, back.station, back.job, back.job_started_ns),
+            (attempt, 4, 3, 0)
+        );
+        assert_eq!(
+            (back.timestamp_ns, back.layer, back.expected_chunks),
+            (77, 7, 2)
+        );
+        assert_eq!((back.expected_points, back.printed_height), (10, 0.5));
+        assert_eq!(back.name.as_str(), "L008-S1");
+        // Cut short, or with bytes left over, it is an error.
+        assert!(<StationEvent as Record>::decode(&bytes[..bytes.len() - 3]).is_err());
+        let mut long = bytes.clone();
+        long.push(0);
+        assert!(<StationEvent as Record>::decode(&long).is_err());
+    }
     let mut ev = StationEvent::new(StationEventKind::Begin, 3, 4);
-    ev.version = 1;
-    ev.attempt = 0;
-    let mut bytes = codec::encode(&ev);
-    bytes[0] = 1;
-    let back = codec::decode::<StationEvent>(&bytes).unwrap();
-    assert_eq!((back.version, back.attempt, back.station), (1, 0, 4));
+    ev.job_started_ns = 123;
+    let back = <StationEvent as Record>::decode(&<StationEvent as Record>::encode(&ev)).unwrap();
+    assert_eq!(back.job_started_ns, 123);
     let mut h = ChunkHeader::new(3, 4, 0, 1);
     h.version = 1;
     h.attempt = 0;

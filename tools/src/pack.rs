@@ -36,6 +36,11 @@ pub struct PackArgs {
     /// Job number carried by every message.
     #[arg(long, default_value_t = 1)]
     job: u64,
+    /// When the job started, nanoseconds since the Unix epoch: with the job number it tells
+    /// this print from another that reuses the number. Default: now. Give the first run's
+    /// (its Begin events carry it) to send more of the same job.
+    #[arg(long, value_name = "NS")]
+    job_started_ns: Option<u64>,
     /// Points per scan chunk.
     #[arg(long, default_value_t = 16_384)]
     chunk_points: usize,
@@ -69,6 +74,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         bail!("--rate must be a positive number of points per second");
     }
     let stations = stations::load(&args.stations)?;
+    let job_started_ns = args.job_started_ns.unwrap_or_else(unix_time_ns);
     let design = std::fs::read(&args.design)
         .with_context(|| format!("cannot read design {}", args.design.display()))?;
     // Refuse a design the agent could not load, before writing anything.
@@ -116,6 +122,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         eprintln!("station {}: pose from {}", st.id, st.pose_source);
         let declared = scan.scans[st.scan_index].points;
         let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
+        begin.job_started_ns = job_started_ns;
         begin.name = FixedText::truncated(&st.id);
         begin.expected_points = declared.unwrap_or(0);
         begin.expected_chunks = declared.map_or(0, |p| p.div_ceil(args.chunk_points as u64)) as u32;

@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
 use asbuilt_protocol::{
     FixedText, Paced, PoseMode, PoseSnapshot, StationEvent, StationEventKind, StationReport,
-    StationSender, StationStatus,
+    StationSender, StationStatus, unix_time_ns,
 };
 use clap::Args;
 use iceoryx2::prelude::*;
@@ -33,6 +33,11 @@ pub struct PublishArgs {
     /// Job number carried by every message.
     #[arg(long, default_value_t = 1)]
     job: u64,
+    /// When the job started, nanoseconds since the Unix epoch: with the job number it tells
+    /// this print from another that reuses the number. Default: now. Give the first run's
+    /// (its Begin events carry it) to send more of the same job.
+    #[arg(long, value_name = "NS")]
+    job_started_ns: Option<u64>,
     /// Points per scan chunk.
     #[arg(long, default_value_t = 16_384)]
     chunk_points: usize,
@@ -110,6 +115,7 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         ports: &ports,
         rate,
         started,
+        job_started_ns: args.job_started_ns.unwrap_or_else(unix_time_ns),
     };
     let send = |station: u32, attempt: u8, sent_points: &mut u64| -> Result<()> {
         *sent_points += job.send(station, attempt, *sent_points)?;
@@ -175,6 +181,8 @@ struct Job<'a> {
     ports: &'a CellPorts,
     rate: Option<f64>,
     started: Instant,
+    /// The job's `StationEvent::job_started_ns`.
+    job_started_ns: u64,
 }
 
 impl Job<'_> {
@@ -189,6 +197,7 @@ impl Job<'_> {
         let declared = file.scans[st.scan_index].points;
         let chunks = declared.map_or(0, |n| n.div_ceil(self.args.chunk_points as u64));
         let mut begin = StationEvent::new(StationEventKind::Begin, self.args.job, station);
+        begin.job_started_ns = self.job_started_ns;
         begin.name = FixedText::truncated(&st.id);
         begin.expected_chunks = chunks as u32;
         begin.expected_points = declared.unwrap_or(0);

@@ -119,7 +119,12 @@ pub fn run(config: &AgentConfig) -> Result<RunSummary, AgentError> {
     let mut out = Fanout::new(
         &ports,
         (
-            start_recorder(config, design, loaded.file)?,
+            start_recorder(
+                config,
+                design,
+                loaded.file,
+                resumed.as_ref().and_then(|r| r.print),
+            )?,
             start_viewer(config, loaded.view)?,
         ),
         &config.frames,
@@ -454,10 +459,13 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
     lifecycle
 }
 
+/// Starts the recorder (when `[recorder]` names a folder), going on with the files of the print
+/// a resume took up.
 fn start_recorder(
     config: &AgentConfig,
     design: Arc<Design>,
     file: Vec<u8>,
+    resumed: Option<crate::recorder::PrintFiles>,
 ) -> Result<Option<Recorder>, AgentError> {
     Ok(match &config.recorder.dir {
         Some(dir) => {
@@ -472,6 +480,9 @@ fn start_recorder(
                 dir: dir.clone(),
                 source,
             })?;
+            if let Some(print) = resumed {
+                r.continues(print);
+            }
             info!(
                 "recording every job to {} (files up to {} MB, every {} scan chunk(s))",
                 dir.display(),

@@ -69,6 +69,9 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
         let key = (ev.job, ev.station);
         let attempt = attempt_of(ev.attempt.into());
+        if !self.take_print(ev, out) {
+            return;
+        }
         if ev.kind() == Some(StationEventKind::Begin)
             && self.closed.is_sent_anew(key, attempt, ev.timestamp_ns)
         {

@@ -40,6 +40,7 @@ use crate::{info, warn};
 mod close;
 mod heights;
 mod inputs;
+mod prints;
 mod restore;
 mod slots;
 #[cfg(test)]
@@ -191,6 +192,8 @@ pub struct Lifecycle<C> {
     open: Vec<OpenStation>,
     pending: VecDeque<Pending<C>>,
     closed: ClosedStations,
+    /// The print each recent job number names.
+    prints: prints::Prints,
     /// Counters for the status message.
     pub counters: Counters,
 }
@@ -216,6 +219,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             open: Vec::with_capacity(limits.open_stations),
             pending: VecDeque::with_capacity(limits.pending_chunks),
             closed: ClosedStations::new(CLOSED_MEMORY),
+            prints: prints::Prints::default(),
             counters: Counters::default(),
         }
     }

@@ -596,3 +596,54 @@ fn a_scan_layer_taken_up_from_its_state_goes_on_as_if_never_stopped() {
             .is_err()
     );
 }
+
+/// Station `station` of the print started at `started`, sent whole: Begin, pose, one chunk
+/// flagged last.
+fn station_of_print(lc: &mut Lifecycle<Owned>, out: &mut Collect, started: u64, station: u32) {
+    let t = Instant::now();
+    let mut begin = event(StationEventKind::Begin, station, 1);
+    begin.job_started_ns = started;
+    lc.on_event(&begin, t, out);
+    lc.on_pose(&pose(station), t, out);
+    let mut c = chunk(station, 0, 10);
+    c.0.last = 1;
+    lc.on_chunk(c, t, out);
+}
+
+#[test]
+fn a_new_print_under_a_used_job_number_is_served_afresh_and_an_older_one_is_not() {
+    let (mut lc, mut out, t) = setup();
+    station_of_print(&mut lc, &mut out, 100, 0);
+    assert_eq!(out.reports.len(), 1);
+    // The same print's station again (a service's history): already reported.
+    station_of_print(&mut lc, &mut out, 100, 0);
+    assert_eq!(out.reports.len(), 1);
+    // A station of the first print left open when its cell went away.
+    let mut begin = event(StationEventKind::Begin, 1, 2);
+    begin.job_started_ns = 100;
+    lc.on_event(&begin, t, &mut out);
+    lc.on_pose(&pose(1), t, &mut out);
+    // A new print reuses job 1: the open station of the old one is interrupted, and station 0
+    // is served again.
+    station_of_print(&mut lc, &mut out, 200, 0);
+    let got: Vec<_> = out
+        .reports
+        .iter()
+        .map(|r| (r.station, r.status()))
+        .collect();
+    assert_eq!(
+        got,
+        vec![
+            (0, Some(StationStatus::Complete)),
+            (1, Some(StationStatus::Interrupted)),
+            (0, Some(StationStatus::Complete)),
+        ]
+    );
+    // The old print's Begin from a history is ignored: it opens nothing.
+    lc.on_event(&begin, t, &mut out);
+    assert_eq!(lc.stations_open(), 0);
+    assert_eq!(out.reports.len(), 3);
+    // A sender that does not say when its job started changes nothing.
+    station_of_print(&mut lc, &mut out, 0, 0);
+    assert_eq!(out.reports.len(), 3);
+}

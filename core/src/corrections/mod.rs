@@ -197,6 +197,14 @@ impl Corrector {
         self.settled.iter().chain(self.current.iter())
     }
 
+    /// Forgets everything of `job`: a new print under its number builds on nothing of the
+    /// last one.
+    pub fn forget_job(&mut self, job: u64) {
+        self.settled = self.settled.filter(|c| c.job != job);
+        self.current = self.current.filter(|c| c.job != job);
+        self.printed.forget_below(job, u32::MAX);
+    }
+
     /// The latest advice given, if any.
     pub fn latest(&self) -> Option<&LayerCorrection> {
         self.current.as_ref()

@@ -437,3 +437,131 @@ fn memory_stays_flat_over_twenty_million_points() {
         "peak RSS grew from {hwm1} KiB to {hwm} KiB"
     );
 }
+
+/// One station of the print started at `started`: Begin, pose, one chunk, End; its report.
+fn station_of_print(cell: &Cell, started: u64, station: u32, n: usize) -> StationReport {
+    let mut ports = &cell.ports;
+    let mut b = begin(1, station, 1);
+    b.job_started_ns = started;
+    let mut sender = StationSender::start(b, pose(1, station), &mut ports).unwrap();
+    sender.chunk(&top_points(n), &mut ports).unwrap();
+    sender.finish(&mut ports).unwrap();
+    // A restarted agent publishes its reports again: the one of this station is awaited.
+    let deadline = Instant::now() + LONG;
+    while Instant::now() < deadline {
+        let got = cell.reports(1, Duration::from_millis(200));
+        if let Some(r) = got
+            .into_iter()
+            .find(|r| r.station == station && r.points_received == n as u64)
+        {
+            return r;
+        }
+    }
+    panic!("no report for station {station} of print {started}");
+}
+
+/// A cell that starts a new print under job 1 (it restarted, its counter began again) is
+/// served afresh, not told that its stations were reported already; the recording keeps each
+/// print in its own files, a killed agent resumes the newest print, and `asbuilt report` on the
+/// folder reads the newest print alone.
+#[test]
+fn a_new_print_under_a_used_job_number_is_served_afresh_and_recorded_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = box_config(dir.path(), &asbuilt_tests::recorder_section("rec"));
+    let prefix = unique_prefix("prints");
+    let mut agent = Agent::start_in(AGENT, &prefix, &config, dir);
+    let cell = Cell::open(&prefix, 1000);
+    for station in 0..2 {
+        let r = station_of_print(&cell, 1_000, station, 500);
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+    }
+    // The new print's station 0 has the old one's number and attempt: served all the same.
+    let r = station_of_print(&cell, 2_000, 0, 700);
+    assert_eq!(r.status(), Some(StationStatus::Complete), "{}", agent.log());
+    assert_eq!(r.points_received, 700);
+    // Killed and started again: the newest print is resumed (its station 0 is over, its
+    // station 1 is not), and the new print's files go on from where they were.
+    agent.kill_and_restart(Duration::from_millis(100));
+    let deadline = Instant::now() + LONG;
+    while !agent.log().contains("serving") && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let again = station_of_print(&cell, 2_000, 1, 900);
+    assert_eq!(
+        again.status(),
+        Some(StationStatus::Complete),
+        "{}",
+        agent.logs()
+    );
+    assert!(
+        agent
+            .logs()
+            .contains("a new print under the same number (started at 2000 ns"),
+        "{}",
+        agent.logs()
+    );
+    agent.signal("TERM");
+    agent.wait_exit(LONG);
+
+    let rec = agent.dir.path().join("rec");
+    let mut names: Vec<String> = std::fs::read_dir(&rec)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".mcap"))
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 3, "{names:?}\n{}", agent.logs());
+    assert!(names[2].ends_with("-part2.mcap"), "{names:?}");
+    let out = agent.dir.path().join("report");
+    let report = Command::new(ASBUILT)
+        .arg("report")
+        .arg(&rec)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(report.status.success(), "{report:?}");
+    let stderr = String::from_utf8_lossy(&report.stderr);
+    assert!(stderr.contains("holds 2 prints of job 1"), "{stderr}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let points: Vec<u64> = json["stations"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["points"].as_u64().unwrap())
+        .collect();
+    assert_eq!(points, vec![700, 900], "{json:#}");
+}
+
+/// A station the cell begins while its agent lies dead (killed, not yet replaced) waits for the
+/// agent that replaces it and arrives whole: the dead agent's queues, which iceoryx2 would
+/// still deliver to, are removed before the Begin.
+#[test]
+fn a_station_begun_while_the_agent_is_dead_reaches_its_replacement_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = box_config(dir.path(), "");
+    let prefix = unique_prefix("dead-agent");
+    let mut agent = Agent::start_in(AGENT, &prefix, &config, dir);
+    let cell = Cell::open(&prefix, 1000);
+    clean_station(&cell, 1, 0, 3, &top_points(1000));
+    assert_eq!(cell.reports(1, LONG).len(), 1, "{}", agent.log());
+    let _ = agent.child.kill();
+    let _ = agent.child.wait();
+    // The replacement starts while the cell already sends.
+    let restart = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(300));
+        agent.kill_and_restart(Duration::ZERO);
+        agent
+    });
+    clean_station(&cell, 1, 1, 3, &top_points(1000));
+    let agent = restart.join().unwrap();
+    let r = report_of(&cell.reports(1, LONG), 1, 1);
+    assert_eq!(
+        r.status(),
+        Some(StationStatus::Complete),
+        "{}",
+        agent.logs()
+    );
+    assert_eq!((r.chunks.received, r.chunks.missing), (3, 0));
+}

@@ -114,7 +114,7 @@ fn wait_serving(agent: &Agent, timeout: Duration) {
 /// The moments are tied to the job's progress, not to the clock, so that every kill falls
 /// within the job however fast the machine: at each of `kills` seeded events of the cell (a
 /// station scanned, sent or reported) the cell waits while the killer lets the agent work a
-/// random while on what it was sent, then kills and restarts it.
+/// random while on what it was sent (the cell going on meanwhile), then kills and restarts it.
 fn run_with_kills(
     job: &SimJob,
     agent: Agent,
@@ -151,6 +151,7 @@ fn run_with_kills(
         });
         // The cell's ports stay on this thread (they are not Send).
         let mut seen = 0;
+        let mut pending = false;
         let mut on = |e: sim::SimEvent<'_>| {
             if matches!(
                 e,
@@ -159,8 +160,13 @@ fn run_with_kills(
                     | sim::SimEvent::Report(_)
             ) {
                 seen += 1;
-                if at.binary_search(&seen).is_ok() && kill.send(()).is_ok() {
-                    let _ = done_killing.recv();
+                if at.binary_search(&seen).is_ok() {
+                    // One kill at a time; the cell goes on sending while the killer waits, so
+                    // that the kill lands wherever the cell is by then, inside a station too.
+                    if pending {
+                        let _ = done_killing.recv();
+                    }
+                    pending = kill.send(()).is_ok();
                 }
             }
         };

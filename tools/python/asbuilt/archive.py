@@ -88,6 +88,17 @@ def _expand(source: str) -> List[str]:
     return [source]
 
 
+def _prints(files: List[str]) -> List[List[str]]:
+    """The agent's files of one job (oldest first) split into prints, each from a first part."""
+    prints: List[List[str]] = []
+    for f in files:
+        part = _AGENT_FILE.match(os.path.basename(f)).group(3)
+        if not prints or part is None or int(part) == 1:
+            prints.append([])
+        prints[-1].append(f)
+    return prints
+
+
 def find_jobs(sources: Iterable[Any]) -> List[Job]:
     """The jobs `sources` name (paths, globs, folders, fsspec URLs). The agent recorder's files
     of one job in one folder go together, oldest first; any other file is a job of its own. A
@@ -111,11 +122,14 @@ def find_jobs(sources: Iterable[Any]) -> List[Job]:
     jobs = []
     for key, entries in groups.items():
         files = [f for _, f in sorted(entries)]
-        base = os.path.basename(files[0])
         if key[0] == "agent":
-            stamp = _AGENT_FILE.match(base).group(2)
-            jobs.append(Job(f"job-{key[2]}-{stamp}", files, key[2]))
+            # A print's files go from a first part to the parts after it; a job number used
+            # again starts a new print (the recorder begins it with a first part).
+            for print_files in _prints(files):
+                stamp = _AGENT_FILE.match(os.path.basename(print_files[0])).group(2)
+                jobs.append(Job(f"job-{key[2]}-{stamp}", print_files, key[2]))
         else:
+            base = os.path.basename(files[0])
             jobs.append(Job(base[:-5] if base.endswith(".mcap") else base, files))
     return sorted(jobs, key=lambda j: (j.files[0], j.name))
 

@@ -30,6 +30,8 @@ pub struct Cell {
     /// Dropped after the ports: the node owns their shared memory.
     _node: Node<Ipc>,
     max_points_per_chunk: usize,
+    /// When this cell was opened (ns since the Unix epoch): the jobs' start unless told.
+    opened_ns: u64,
 }
 
 fn pose_mode(text: &str) -> PyResult<PoseMode> {
@@ -112,17 +114,21 @@ impl Cell {
             ports,
             _node: node,
             max_points_per_chunk,
+            opened_ns: asbuilt_protocol::unix_time_ns(),
         })
     }
 
     /// Sends one station: Begin (with its name, layer and printed height), the pose, the points
     /// in chunks of at most `chunk_points`, End. `translation` and `rotation_xyzw` are the pose
     /// the robot reports, in the frame `pose_mode` says. `attempt` numbers a station sent
-    /// again (after an interrupted report): 1 the first time. Returns the points sent.
+    /// again (after an interrupted report): 1 the first time. `job_started_ns` is when the
+    /// job started (ns since the Unix epoch), which tells this print from another that reuses
+    /// the job number; by default when this `Cell` was opened, so a cell process that resumes
+    /// a job after a restart passes the first run's. Returns the points sent.
     #[pyo3(signature = (
         station, points, translation, rotation_xyzw, *, job = 1, name = "", layer = 0,
         printed_height = f64::NAN, position_sigma = 0.001, pose_mode = "design_scanner",
-        intensity = None, flags = None, chunk_points = None, attempt = 1
+        intensity = None, flags = None, chunk_points = None, attempt = 1, job_started_ns = None
     ))]
     #[allow(clippy::too_many_arguments)] // a station's Begin and pose, one keyword each
     fn send_station(
@@ -141,6 +147,7 @@ impl Cell {
         flags: Option<PyReadonlyArray1<'_, u16>>,
         chunk_points: Option<usize>,
         attempt: u8,
+        job_started_ns: Option<u64>,
     ) -> PyResult<u64> {
         if attempt == 0 {
             return Err(PyValueError::new_err("attempt counts from 1"));
@@ -154,6 +161,7 @@ impl Cell {
         }
         let pts = scan_points(&points, intensity.as_ref(), flags.as_ref())?;
         let mut begin = StationEvent::new(StationEventKind::Begin, job, station);
+        begin.job_started_ns = job_started_ns.unwrap_or(self.opened_ns);
         begin.name = FixedText::truncated(name);
         begin.layer = layer;
         begin.printed_height = printed_height;

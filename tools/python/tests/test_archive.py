@@ -181,13 +181,16 @@ def test_the_command_line_archives_a_glob_with_one_worker(tmp_path, fleet):
     assert bad.returncode == 2 and "wobble" in bad.stderr, bad.stderr
 
 
-def test_an_agents_files_of_one_job_go_together(tmp_path):
-    for name in ["job-1-100.mcap", "job-1-100-part2.mcap", "job-1-250.mcap", "job-2-300.mcap",
-                 "other.mcap", "notes.txt"]:
+def test_an_agents_files_of_one_print_go_together(tmp_path):
+    """A print's files run from a first part through the parts after it (a full file, an agent
+    that resumed it); job 1 used again for a later print starts at a first part again."""
+    for name in ["job-1-100.mcap", "job-1-100-part2.mcap", "job-1-250-part3.mcap",
+                 "job-1-400.mcap", "job-2-300.mcap", "other.mcap", "notes.txt"]:
         (tmp_path / name).write_bytes(b"")
     jobs = archive.find_jobs([tmp_path])
     assert [(j.name, [os.path.basename(f) for f in j.files], j.number) for j in jobs] == [
-        ("job-1-100", ["job-1-100.mcap", "job-1-100-part2.mcap", "job-1-250.mcap"], 1),
+        ("job-1-100", ["job-1-100.mcap", "job-1-100-part2.mcap", "job-1-250-part3.mcap"], 1),
+        ("job-1-400", ["job-1-400.mcap"], 1),
         ("job-2-300", ["job-2-300.mcap"], 2),
         ("other", ["other.mcap"], None),
     ]

@@ -43,8 +43,9 @@ pub fn job_files(named: &[PathBuf], job: Option<u64>) -> Result<Vec<PathBuf>> {
         };
         let job = job.unwrap_or(newest);
         let jobs: std::collections::BTreeSet<u64> = files.iter().map(|f| f.job).collect();
-        files.retain(|f| f.job == job);
-        if files.is_empty() {
+        let prints = files.iter().filter(|f| f.job == job && f.part == 1).count();
+        let print = asbuilt_agent::resume::newest_print(&files, job);
+        if print.is_empty() {
             return Err(ReadBackError::NoSuchJob {
                 dir: dir.clone(),
                 job,
@@ -55,10 +56,18 @@ pub fn job_files(named: &[PathBuf], job: Option<u64>) -> Result<Vec<PathBuf>> {
             eprintln!(
                 "{} holds jobs {jobs:?}: reading job {job} ({} file(s); --job picks another)",
                 dir.display(),
-                files.len()
+                print.len()
             );
         }
-        return Ok(files.into_iter().map(|f| f.path).collect());
+        if prints > 1 {
+            eprintln!(
+                "{} holds {prints} prints of job {job}: reading the newest, from {} (name an \
+                 earlier one's files to read it)",
+                dir.display(),
+                print[0].path.display()
+            );
+        }
+        return Ok(print.into_iter().map(|f| f.path.clone()).collect());
     }
     if let Some(dir) = named.iter().find(|p| p.is_dir()) {
         return Err(ReadBackError::FolderAmongFiles(dir.clone()));

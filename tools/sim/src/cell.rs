@@ -82,6 +82,10 @@ pub struct SimJob {
     pub seed: u64,
     /// The job number the messages carry.
     pub job: u64,
+    /// When the cell started the job, ns since the Unix epoch (`StationEvent::job_started_ns`):
+    /// the time [`SimJob::new`] ran; a cell that sends a job again after a restart sets the
+    /// first run's, so that the agent takes it as the same print.
+    pub job_started_ns: u64,
     /// Points per scan chunk sent.
     pub chunk_points: usize,
     /// Points per second, or `None` for as fast as the agent takes them.
@@ -120,6 +124,7 @@ impl SimJob {
             scanner: ScannerModel::default(),
             seed: 1,
             job: 1,
+            job_started_ns: unix_time_ns(),
             chunk_points: 16_384,
             rate: Some(1.0e6),
             one_station_at_a_time: true,
@@ -675,6 +680,7 @@ fn send_station(
 ) -> Result<()> {
     let n = s.points.len();
     let mut begin = StationEvent::new(StationEventKind::Begin, job.job, st.index);
+    begin.job_started_ns = job.job_started_ns;
     begin.name = FixedText::truncated(&st.name);
     begin.layer = st.printed - 1;
     begin.printed_height = st.printed_height;

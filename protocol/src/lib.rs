@@ -18,7 +18,7 @@ mod deviation;
 mod findings;
 pub mod foxglove;
 pub mod ipc;
-mod mcap_records;
+pub mod mcap_records;
 mod message;
 mod pose;
 pub mod recording;

@@ -14,14 +14,19 @@ use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOp
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("damaged {record} record: {what}")]
 pub struct Damaged {
+    /// The record's kind.
     pub record: &'static str,
+    /// Which length does not fit, and by how much.
     pub what: String,
 }
 
+/// Why a record cannot be read.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
+    /// The `mcap` crate refused it.
     #[error(transparent)]
     Mcap(#[from] mcap::McapError),
+    /// Its lengths do not fit.
     #[error(transparent)]
     Damaged(#[from] Damaged),
 }
@@ -29,7 +34,9 @@ pub enum RecordError {
 /// Whether chunks are opened (their records come out one by one) or passed over whole.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Chunks {
+    /// Each chunk's records come out.
     Open,
+    /// Chunks are passed over.
     Skip,
 }
 

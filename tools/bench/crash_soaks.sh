@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Many crash soaks in a row (tools/bench/crash_soak.sh): seeds 1..N, KILLS kills each, the loop
-# closed on the even seeds, and a table of what each gave. Fails when any soak fails.
+# closed on the even seeds, and a table of what each gave. Fails when any soak fails. A soak's
+# folder (its recordings, about 3.4 GB) is removed when it passes, unless KEEP=1.
 #
 #   tools/bench/crash_soaks.sh                # N=20 KILLS=10 OUT=out/crash-soaks
 set -uo pipefail
@@ -34,6 +35,9 @@ for seed in $(seq "$N"); do
     result=$([ "$rc" -eq 0 ] && echo PASS || echo "FAIL: $(grep -m1 '^FAIL' "$log" | cut -c7-90)")
     printf '| %s | %s | %s | %s | %s | %s | %s |\n' "$seed" "$loop" "$result" "${kills:-?}" \
         "${cell:-?}" "${restart:-?}" "${equal:-?}"
+    if [ "$rc" -eq 0 ] && [ "${KEEP:-0}" != 1 ]; then
+        rm -rf "$OUT/soak-$seed"
+    fi
 done
 echo "$failed of $N soak(s) failed"
 [ "$failed" -eq 0 ]

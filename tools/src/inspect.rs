@@ -38,14 +38,18 @@ pub struct InspectArgs {
     /// Units the design file is written in (m or mm). Never guessed.
     #[arg(long)]
     pub units: Units,
-    /// Stations file: [[station]] with id, scan, translation, rotation_xyzw.
-    #[arg(long, conflicts_with = "scan", required_unless_present = "scan")]
+    /// Stations file: [[station]] with id, scan, translation, rotation_xyzw. With --ros2, the
+    /// clouds of each station: [[station]] with id, from and to (seconds of the bag's clock).
+    #[arg(long, conflicts_with = "scan", required_unless_present_any = ["scan", "ros2"])]
     pub stations: Option<PathBuf>,
     /// A single scan file instead of a stations file: E57, LAS/LAZ, PTX, PLY or XYZ (metres).
     /// A file that holds poses (E57, PTX, LAS) needs no --translation/--rotation-xyzw; every
     /// scan in it becomes a station.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "ros2")]
     pub scan: Option<PathBuf>,
+    /// A ROS 2 bag as the scans.
+    #[command(flatten)]
+    pub ros2: crate::ros2_args::Ros2Args,
     /// With --scan: x,y,z of the scanner in the design frame, metres.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub translation: Option<Vec<f64>>,
@@ -148,6 +152,7 @@ impl InspectArgs {
             units,
             stations: None,
             scan: None,
+            ros2: Default::default(),
             translation: None,
             rotation_xyzw: None,
             tolerance: DEFAULT_TOLERANCE,
@@ -215,11 +220,13 @@ impl Plan {
             local_plane: args.local_plane,
         }
         .resolve()?;
+        let bag = args.ros2.stations(args.stations.as_deref())?;
         let stations = match (&args.stations, &args.scan) {
+            _ if bag.is_some() => bag.expect("checked"),
             (Some(_), Some(_)) => bail!("give --stations FILE or --scan FILE, not both"),
             (Some(path), None) => stations::load(path)?,
             (None, Some(scan)) => single_station(&args, scan)?,
-            (None, None) => bail!("give --stations FILE or --scan FILE"),
+            (None, None) => bail!("give --stations FILE, --scan FILE or --ros2 BAG"),
         };
         if args.no_maps && args.judging.png {
             bail!("--png writes the maps that --no-maps leaves out: give one of them");
@@ -374,19 +381,22 @@ impl Job {
         })
     }
 
+    /// A station whose scan cannot be read: said, counted as failed, and named in the report's
+    /// warnings, so that a reader of report.json knows what was not judged.
+    fn not_inspected(&mut self, station: &Station, why: &str, warnings: &mut Vec<String>) {
+        eprintln!("error: station {}: {why}", station.id);
+        warnings.push(format!("station {} was not inspected: {why}", station.id));
+        self.failed.push(station.id.clone());
+    }
+
     /// Inspects station `n`; a station whose scan cannot be read is counted as failed and the
     /// job goes on.
     fn station(&mut self, plan: &Plan, n: usize, station: &Station, warnings: &mut Vec<String>) {
         let t0 = Instant::now();
-        let file = match ScanFile::open(&station.scan) {
+        let file = match station.open_scan() {
             Ok(f) => f,
             Err(e) => {
-                eprintln!(
-                    "error: station {}: {}",
-                    station.id,
-                    crate::error_message(&e)
-                );
-                self.failed.push(station.id.clone());
+                self.not_inspected(station, &crate::error_message(&e), warnings);
                 return;
             }
         };
@@ -421,12 +431,7 @@ impl Job {
         let (notes, bounds) = match read {
             Ok(r) => r,
             Err(e) => {
-                eprintln!(
-                    "error: station {}: {}",
-                    station.id,
-                    crate::error_message(e.as_ref())
-                );
-                self.failed.push(station.id.clone());
+                self.not_inspected(station, &crate::error_message(e.as_ref()), warnings);
                 return;
             }
         };

@@ -14,6 +14,7 @@ pub mod publish;
 mod recover;
 mod replay;
 mod report_cmd;
+pub mod ros2_args;
 pub mod sim_cmd;
 
 use std::path::PathBuf;

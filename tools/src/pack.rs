@@ -8,7 +8,6 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use asbuilt_core::Units;
-use asbuilt_io::scan::ScanFile;
 use asbuilt_protocol::recording::{ChunkCompression, JobMetadata, Recorded, RecordingWriter};
 use asbuilt_protocol::{
     ChunkHeader, FixedText, PoseMode, PoseSnapshot, ScanPoint, StationEvent, StationEventKind,
@@ -21,9 +20,13 @@ use asbuilt_io::stations;
 
 #[derive(Args)]
 pub struct PackArgs {
-    /// Stations file: [[station]] with id, scan and a pose unless the scan file holds one.
-    #[arg(long)]
-    stations: PathBuf,
+    /// Stations file: [[station]] with id, scan and a pose unless the scan file holds one. With
+    /// --ros2, the clouds of each station: [[station]] with id, from and to (seconds).
+    #[arg(long, required_unless_present = "ros2")]
+    stations: Option<PathBuf>,
+    /// A ROS 2 bag as the scans.
+    #[command(flatten)]
+    ros2: crate::ros2_args::Ros2Args,
     /// The design the job is inspected against; attached to the recording.
     #[arg(long)]
     design: PathBuf,
@@ -73,7 +76,16 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
     if !(args.rate > 0.0 && args.rate.is_finite()) {
         bail!("--rate must be a positive number of points per second");
     }
-    let stations = stations::load(&args.stations)?;
+    let (stations, source) = match args.ros2.stations(args.stations.as_deref())? {
+        Some(s) => (s, args.ros2.ros2.clone().expect("a bag")),
+        None => {
+            let path = args
+                .stations
+                .clone()
+                .expect("clap requires --stations or --ros2");
+            (stations::load(&path)?, path)
+        }
+    };
     let job_started_ns = args.job_started_ns.unwrap_or_else(unix_time_ns);
     let design = std::fs::read(&args.design)
         .with_context(|| format!("cannot read design {}", args.design.display()))?;
@@ -100,8 +112,11 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         design_sha256: format!("{:x}", Sha256::digest(&design)),
         config: format!(
             "packed from {}\n\n{}",
-            args.stations.display(),
-            std::fs::read_to_string(&args.stations).unwrap_or_default()
+            source.display(),
+            args.stations
+                .as_ref()
+                .and_then(|p| std::fs::read_to_string(p).ok())
+                .unwrap_or_default()
         ),
         calibrations: "none: poses are the scanner in the design frame".into(),
     })?;
@@ -118,7 +133,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
     let mut sent = 0u64;
     for (n, st) in stations.iter().enumerate() {
         let station = n as u32;
-        let scan = ScanFile::open(&st.scan)?;
+        let scan = st.open_scan()?;
         eprintln!("station {}: pose from {}", st.id, st.pose_source);
         let declared = scan.scans[st.scan_index].points;
         let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);

@@ -14,7 +14,6 @@ use asbuilt_protocol::{
 use clap::Args;
 use iceoryx2::prelude::*;
 
-use asbuilt_io::scan::ScanFile;
 use asbuilt_io::stations::{self, Station};
 
 /// `asbuilt publish`'s arguments.
@@ -22,8 +21,12 @@ use asbuilt_io::stations::{self, Station};
 pub struct PublishArgs {
     /// Stations file: [[station]] with id, scan, and a pose (translation, rotation_xyzw) unless
     /// the scan file holds one.
-    #[arg(long, conflicts_with = "files", required_unless_present = "files")]
+    /// With --ros2, the clouds of each station: [[station]] with id, from and to (seconds).
+    #[arg(long, required_unless_present_any = ["files", "ros2"])]
     stations: Option<PathBuf>,
+    /// A ROS 2 bag as the scans.
+    #[command(flatten)]
+    ros2: crate::ros2_args::Ros2Args,
     /// Scan files that hold their poses (E57, PTX, LAS): every scan in them is a station, in
     /// order, with the file's pose.
     files: Vec<PathBuf>,
@@ -88,9 +91,16 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     if args.chunk_points == 0 {
         bail!("--chunk-points must be at least 1");
     }
-    let stations = match &args.stations {
-        Some(path) => stations::load(path)?,
-        None => stations::from_files(&args.files)?,
+    if !args.files.is_empty() && (args.stations.is_some() || args.ros2.ros2.is_some()) {
+        bail!("give scan files, --stations FILE or --ros2 BAG, one of them");
+    }
+    let stations = match (
+        args.ros2.stations(args.stations.as_deref())?,
+        &args.stations,
+    ) {
+        (Some(bag), _) => bag,
+        (None, Some(path)) => stations::load(path)?,
+        (None, None) => stations::from_files(&args.files)?,
     };
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
@@ -190,7 +200,7 @@ impl Job<'_> {
     /// returns the points sent.
     fn send(&self, station: u32, attempt: u8, sent_before: u64) -> Result<u64> {
         let st = &self.stations[station as usize];
-        let file = ScanFile::open(&st.scan)?;
+        let file = st.open_scan()?;
         if attempt == 1 {
             eprintln!("station {}: pose from {}", st.id, st.pose_source);
         }

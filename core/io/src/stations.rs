@@ -91,6 +91,18 @@ pub struct Station {
     pub rotation_xyzw: [f64; 4],
     /// One-sigma position uncertainty, metres.
     pub position_sigma: f64,
+    /// The ROS 2 bag `scan` names, when it is one ([`of_ros2`]).
+    pub bag: Option<std::sync::Arc<crate::scan::ros2::Ros2Bag>>,
+}
+
+impl Station {
+    /// Opens the station's scan: its file, or the bag it comes from.
+    pub fn open_scan(&self) -> Result<crate::scan::ScanFile, IoError> {
+        match &self.bag {
+            Some(bag) => Ok(crate::scan::ScanFile::of_ros2(&self.scan, bag.clone())),
+            None => crate::scan::ScanFile::open(&self.scan),
+        }
+    }
 }
 
 /// A station's position uncertainty when its entry gives none: the robot's pose accuracy.
@@ -262,6 +274,7 @@ pub fn resolve(
                 translation: t,
                 rotation_xyzw: r,
                 position_sigma: sigma,
+                bag: None,
             });
         }
     }
@@ -298,6 +311,52 @@ pub fn of_scan(
         }],
     };
     resolve(file, Path::new("."), "--scan")
+}
+
+/// The stations of a ROS 2 bag (`--ros2`): each at the pose its bag's transform tree gives its
+/// first cloud, the robot's pose accuracy as their uncertainty. A station the tree cannot place
+/// keeps its place in the list, at no pose, and fails with the tree's reason when its scan is
+/// read, so that the other stations go on.
+pub fn of_ros2(
+    path: &Path,
+    options: &crate::scan::ros2::Ros2Options,
+) -> Result<Vec<Station>, IoError> {
+    use crate::scan::ros2::Ros2Bag;
+    let bag = Ros2Bag::open(path, options).map_err(|cause| IoError::Scan {
+        path: path.to_path_buf(),
+        cause,
+    })?;
+    eprintln!("ROS 2 bag {}: {}", path.display(), bag.describe());
+    let bag = std::sync::Arc::new(bag);
+    let scans = crate::scan::ScanFile::of_ros2(path, bag.clone()).scans;
+    Ok(scans
+        .into_iter()
+        .map(|info| {
+            let (pose, source) = match info.pose {
+                Some((p, src)) => (p, src.describe().to_string()),
+                None => (
+                    nalgebra::Isometry3::identity(),
+                    format!(
+                        "nowhere ({})",
+                        bag.pose_error(info.index).unwrap_or_default()
+                    ),
+                ),
+            };
+            let v = pose.translation.vector;
+            let q = pose.rotation.quaternion().coords;
+            Station {
+                id: info.name,
+                scan: path.to_path_buf(),
+                scan_index: info.index,
+                pose_source: source,
+                t_design_scanner: pose,
+                translation: [v.x, v.y, v.z],
+                rotation_xyzw: [q.x, q.y, q.z, q.w],
+                position_sigma: DEFAULT_POSITION_SIGMA,
+                bag: Some(bag.clone()),
+            }
+        })
+        .collect())
 }
 
 /// Converts a Stanford/Scanalyze `.conf` (`bmesh FILE tx ty tz qx qy qz qw`, where

@@ -83,7 +83,8 @@ def inspect(design, units: str, *, out=None, **options: Any) -> Dict[str, Any]:
     Keywords are the command's flags, typed, with `_` for `-` (`stations=`, `scan=`,
     `translation=[x, y, z]`, `rotation_xyzw=[x, y, z, w]`, `tolerance=`, `max_distance=`,
     `method=["c2m", "coverage", "m3c2"]`, `limit=["width=4mm"]`, `layer_height=`,
-    `printed_height=`, `png=True`, ...); one left out takes the command's default. Outputs
+    `printed_height=`, `png=True`, `ros2=BAG` with `cloud_topic=` and `frame=` for a ROS 2
+    bag's clouds placed by its transform tree, ...); one left out takes the command's default. Outputs
     (deviations.ply, report.json, ...) go to `out`, a temporary folder when not given. The exit
     code (1 when out of tolerance) is the report's `assessment`; a refused value raises
     ValueError, an unknown keyword TypeError, a failure RuntimeError.

@@ -51,7 +51,8 @@ fn exit_code(code: ExitCode) -> u8 {
     projection_diameter = None, max_depth = None, normal_diameter = None,
     coverage_threshold = None, scanner_step_mrad = None, printed_height = None,
     layer_height = None, reference = None, rerun = None, rerun_url = None, rerun_points = None,
-    ascii = false, local_plane = None, no_maps = false))]
+    ascii = false, local_plane = None, no_maps = false, ros2 = None, cloud_topic = None,
+    frame = None))]
 #[allow(clippy::too_many_arguments)] // one keyword per flag, as Python calls it
 pub fn inspect(
     py: Python<'_>,
@@ -84,8 +85,14 @@ pub fn inspect(
     ascii: bool,
     local_plane: Option<usize>,
     no_maps: bool,
+    ros2: Option<PathBuf>,
+    cloud_topic: Option<String>,
+    frame: Option<String>,
 ) -> PyResult<u8> {
     let mut a = InspectArgs::new(design, parsed("units", units)?);
+    a.ros2.ros2 = ros2;
+    a.ros2.cloud_topic = cloud_topic;
+    a.ros2.frame = frame.unwrap_or(a.ros2.frame);
     a.out = out;
     (a.stations, a.scan, a.translation, a.rotation_xyzw) =
         (stations, scan, translation, rotation_xyzw);

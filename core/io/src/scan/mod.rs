@@ -13,6 +13,7 @@ mod e57;
 mod las;
 mod ply;
 mod ptx;
+pub mod ros2;
 pub mod write;
 mod xyz;
 
@@ -39,6 +40,9 @@ pub enum Format {
     Ply,
     /// Text, one point a line (`.xyz`, `.txt`, `.pts`, `.asc`, `.csv`).
     Xyz,
+    /// A ROS 2 bag (MCAP or SQLite): clouds placed by its transform tree; opened with
+    /// [`ScanFile::of_ros2`], never by extension.
+    Ros2,
 }
 
 impl Format {
@@ -76,6 +80,8 @@ pub enum PoseSource {
     PtxHeader,
     /// Coordinates already in the file's frame, read relative to a local origin.
     FileFrame,
+    /// A ROS 2 bag's transform tree at the station's first cloud's stamp.
+    Ros2Tf,
 }
 
 impl PoseSource {
@@ -85,6 +91,7 @@ impl PoseSource {
             PoseSource::E57 => "the E57 scan pose",
             PoseSource::PtxHeader => "the PTX header's transform",
             PoseSource::FileFrame => "the file's own frame (points already registered)",
+            PoseSource::Ros2Tf => "the bag's transform tree at the cloud's stamp",
         }
     }
 }
@@ -133,6 +140,8 @@ pub struct ScanFile {
     pub format: Format,
     /// The scans it holds, in file order.
     pub scans: Vec<ScanInfo>,
+    /// The bag behind a [`Format::Ros2`] file.
+    bag: Option<std::sync::Arc<ros2::Ros2Bag>>,
 }
 
 /// A reader's error, with the file it is about.
@@ -160,13 +169,27 @@ impl ScanFile {
             Format::Ptx => ptx::scans(path),
             Format::Ply => ply::scans(path),
             Format::Xyz => Ok(xyz::scans(path)),
+            Format::Ros2 => Err(ScanError::Content(
+                "a ROS 2 bag is read with its options (--ros2)".into(),
+            )),
         }
         .map_err(|e| naming(path, e))?;
         Ok(Self {
             path: path.to_path_buf(),
             format,
             scans,
+            bag: None,
         })
+    }
+
+    /// A ROS 2 bag at `path`, opened already: its stations are the scans.
+    pub fn of_ros2(path: &Path, bag: std::sync::Arc<ros2::Ros2Bag>) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            format: Format::Ros2,
+            scans: bag.scans(),
+            bag: Some(bag),
+        }
     }
 
     /// Hands scan `index`'s points to `sink` in chunks of at most `chunk` points. An error of
@@ -194,6 +217,12 @@ impl ScanFile {
             Format::Ptx => ptx::stream(&self.path, info, chunk, sink),
             Format::Ply => ply::stream(&self.path, chunk, sink),
             Format::Xyz => xyz::stream(&self.path, chunk, sink),
+            Format::Ros2 => match &self.bag {
+                Some(bag) => bag.stream(index, chunk, sink),
+                None => Err(ScanError::Content(
+                    "a ROS 2 bag opened without its reader".into(),
+                )),
+            },
         }
         .map_err(|e| naming(&self.path, e))
     }

@@ -63,6 +63,13 @@ pub fn create(path: &Path, total: u64) -> Result<Box<dyn CloudWriter>> {
             scans: 0,
             path: path.to_path_buf(),
         }),
+        // Never from an extension: nothing to write.
+        Format::Ros2 => {
+            return Err(ScanError::Content(
+                "asbuilt does not write ROS 2 bags; convert to .e57, .las, .ptx, .ply or .xyz"
+                    .into(),
+            ));
+        }
     })
 }
 

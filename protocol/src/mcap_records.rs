@@ -40,9 +40,22 @@ pub enum Chunks {
     Skip,
 }
 
+/// Where the records' bytes come from.
+enum Source<'a> {
+    /// A file's bytes in memory (or mapped).
+    Bytes(&'a [u8]),
+    /// A file read as the records come, so that memory holds one chunk at a time.
+    File(std::io::BufReader<std::fs::File>),
+}
+
 /// The records of `buf` in file order, each checked, then parsed.
 pub struct Records<'a> {
-    buf: &'a [u8],
+    src: Source<'a>,
+    /// Bytes handed to the reader so far, from the start of the file.
+    fed: u64,
+    /// Where the top-level record the last item came from starts in the file (a message of a
+    /// chunk: the chunk's).
+    top: u64,
     reader: LinearReader,
     chunks: Chunks,
     /// The records of the chunk being handed out.
@@ -69,12 +82,46 @@ impl<'a> Records<'a> {
             // Chunks come out whole and are opened here, one at a time, all or nothing.
             .with_emit_chunks(true);
         Self {
-            buf,
+            src: Source::Bytes(buf),
+            fed: 0,
+            top: 0,
             reader: LinearReader::new_with_options(options),
             chunks,
             opened: std::collections::VecDeque::new(),
             failed: false,
         }
+    }
+}
+
+impl Records<'static> {
+    /// The records of a file read as they come, from the top-level record at byte `at` (0: the
+    /// file's start and its magic); the end magic is not required.
+    pub fn from_file(mut file: std::fs::File, chunks: Chunks, at: u64) -> std::io::Result<Self> {
+        use std::io::{Seek, SeekFrom};
+        let len = file.metadata()?.len();
+        file.seek(SeekFrom::Start(at))?;
+        let options = LinearReaderOptions::default()
+            .with_record_length_limit(len as usize)
+            .with_skip_start_magic(at > 0)
+            .with_skip_end_magic(true)
+            .with_emit_chunks(true);
+        Ok(Self {
+            src: Source::File(std::io::BufReader::with_capacity(1 << 20, file)),
+            fed: at,
+            top: at,
+            reader: LinearReader::new_with_options(options),
+            chunks,
+            opened: std::collections::VecDeque::new(),
+            failed: false,
+        })
+    }
+}
+
+impl Records<'_> {
+    /// Where the top-level record of the last item starts in the file: a record read again
+    /// with [`Records::from_file`] at this offset comes first (a message of a chunk: its chunk).
+    pub fn record_offset(&self) -> u64 {
+        self.top
     }
 }
 
@@ -99,13 +146,29 @@ impl Records<'_> {
             }
             let (opcode, data) = match self.reader.next_event()? {
                 Ok(LinearReadEvent::ReadRequest(need)) => {
-                    let len = need.min(self.buf.len());
-                    self.reader.insert(len).copy_from_slice(&self.buf[..len]);
+                    // Never more than asked: the reader then holds nothing past the record it
+                    // reads, and `fed` is where that record ends.
+                    let len = match &mut self.src {
+                        Source::Bytes(buf) => {
+                            let len = need.min(buf.len());
+                            self.reader.insert(len).copy_from_slice(&buf[..len]);
+                            *buf = &buf[len..];
+                            len
+                        }
+                        Source::File(f) => match std::io::Read::read(f, self.reader.insert(need)) {
+                            Ok(n) => n,
+                            Err(e) => return Some(Err(mcap::McapError::Io(e).into())),
+                        },
+                    };
                     self.reader.notify_read(len);
-                    self.buf = &self.buf[len..];
+                    self.fed += len as u64;
                     continue;
                 }
-                Ok(LinearReadEvent::Record { data, opcode }) => (opcode, data),
+                Ok(LinearReadEvent::Record { data, opcode }) => {
+                    // An opcode, a length, the body.
+                    self.top = self.fed - 9 - data.len() as u64;
+                    (opcode, data)
+                }
                 Err(e) => return Some(Err(e.into())),
             };
             // Every record is checked once: an opened chunk by `open_chunk`, which also cuts

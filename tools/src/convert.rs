@@ -15,8 +15,11 @@ use nalgebra::Isometry3;
 #[derive(Args)]
 pub struct ConvertArgs {
     /// Scan files: E57, LAS/LAZ, PTX, PLY, XYZ/PTS/TXT.
-    #[arg(required = true)]
+    #[arg(required_unless_present = "ros2")]
     inputs: Vec<PathBuf>,
+    /// A ROS 2 bag's clouds instead, each a scan placed by the bag's transform tree.
+    #[command(flatten)]
+    ros2: crate::ros2_args::Ros2Args,
     /// The output; its extension picks the format (.e57, .ptx, .las, .laz, .ply, .txt/.xyz).
     #[arg(long, short)]
     out: PathBuf,
@@ -24,11 +27,12 @@ pub struct ConvertArgs {
 
 pub fn run(args: ConvertArgs) -> Result<ExitCode> {
     Format::from_path(&args.out)?;
-    let files: Vec<ScanFile> = args
+    let mut files: Vec<ScanFile> = args
         .inputs
         .iter()
         .map(|p| ScanFile::open(p))
         .collect::<Result<_, _>>()?;
+    files.extend(args.ros2.scan_file(None)?);
     if args.inputs.iter().any(|p| p == &args.out) {
         bail!("--out {} is also an input", args.out.display());
     }

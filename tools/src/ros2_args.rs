@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use asbuilt_io::scan::ros2::{Ros2Options, load_windows};
+use asbuilt_io::scan::ScanFile;
+use asbuilt_io::scan::ros2::{Ros2Bag, Ros2Options, load_windows};
 use asbuilt_io::stations::{self, Station};
 use clap::Args;
 
@@ -42,15 +43,33 @@ impl Ros2Args {
         let Some(bag) = &self.ros2 else {
             return Ok(None);
         };
-        let options = Ros2Options {
-            cloud_topic: self.cloud_topic.clone(),
-            frame: self.frame.clone(),
-            stations: windows.map(load_windows).transpose()?,
-        };
-        let stations = stations::of_ros2(bag, &options)?;
+        let stations = stations::of_ros2(bag, &self.options(windows)?)?;
         if stations.is_empty() {
             anyhow::bail!("{}: no station to inspect", bag.display());
         }
         Ok(Some(stations))
+    }
+
+    /// The bag as one scan file whose scans are its stations (`None` without --ros2).
+    pub fn scan_file(&self, windows: Option<&Path>) -> Result<Option<ScanFile>> {
+        let Some(path) = &self.ros2 else {
+            return Ok(None);
+        };
+        let bag = Ros2Bag::open(path, &self.options(windows)?).map_err(|cause| {
+            asbuilt_io::IoError::Scan {
+                path: path.clone(),
+                cause,
+            }
+        })?;
+        eprintln!("ROS 2 bag {}: {}", path.display(), bag.describe());
+        Ok(Some(ScanFile::of_ros2(path, std::sync::Arc::new(bag))))
+    }
+
+    fn options(&self, windows: Option<&Path>) -> Result<Ros2Options> {
+        Ok(Ros2Options {
+            cloud_topic: self.cloud_topic.clone(),
+            frame: self.frame.clone(),
+            stations: windows.map(load_windows).transpose()?,
+        })
     }
 }

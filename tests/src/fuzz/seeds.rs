@@ -76,6 +76,7 @@ pub fn write_seeds(dir: &Path, shared: &Path) -> Result<()> {
             std::fs::write(&path, recording(compression)?)?;
         }
     }
+    write_bags(&sub("ros2-mcap")?, &sub("ros2-db3")?)?;
     std::fs::write(sub("agent-toml")?.join("agent.toml"), AGENT_TOML)?;
     // The shipped example, with its design where the target puts one.
     let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("../agent/agent.example.toml");
@@ -92,6 +93,41 @@ pub fn write_seeds(dir: &Path, shared: &Path) -> Result<()> {
         })
         .collect();
     std::fs::write(dir.join("agent-toml/agent.example.toml"), text.join("\n"))?;
+    Ok(())
+}
+
+/// ROS 2 bags in both storages: a flange moved on /tf, the scanner on /tf_static, clouds of
+/// each layout (float32 and float64, both byte orders).
+fn write_bags(mcap: &Path, db3: &Path) -> Result<()> {
+    use asbuilt_io::scan::ros2::sample::{SampleCloud, SampleTransform, write_mcap, write_sqlite};
+    use nalgebra::Isometry3;
+    let mut tf = vec![SampleTransform {
+        stamp: 1.0,
+        parent: "flange".into(),
+        child: "scanner".into(),
+        pose: Isometry3::translation(0.05, 0.0, 0.1),
+        fixed: true,
+    }];
+    tf.extend((0..20).map(|k| SampleTransform {
+        stamp: 1.0 + 0.02 * k as f64,
+        parent: "world".into(),
+        child: "flange".into(),
+        pose: Isometry3::translation(0.01 * k as f64, 0.0, 1.0),
+        fixed: false,
+    }));
+    let clouds: Vec<SampleCloud> = [(false, false), (true, false), (false, true)]
+        .into_iter()
+        .enumerate()
+        .map(|(k, (float64, big_endian))| SampleCloud {
+            stamp: 1.05 + 0.1 * k as f64,
+            frame: "scanner".into(),
+            points: (0..6).map(|i| [0.1 * i as f64, 0.2, -1.0]).collect(),
+            float64,
+            big_endian,
+        })
+        .collect();
+    write_mcap(&mcap.join("bag.mcap"), "/points", &clouds, &tf)?;
+    write_sqlite(&db3.join("bag.db3"), "/points", &clouds, &tf)?;
     Ok(())
 }
 

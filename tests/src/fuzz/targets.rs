@@ -70,6 +70,18 @@ pub const TARGETS: &[Target] = &[
         run: resume,
     },
     Target {
+        name: "ros2-mcap",
+        text: false,
+        weight: 1.0,
+        run: read_bag,
+    },
+    Target {
+        name: "ros2-db3",
+        text: false,
+        weight: 1.0,
+        run: read_bag,
+    },
+    Target {
         name: "agent-toml",
         text: true,
         weight: 1.0,
@@ -130,6 +142,43 @@ fn read_scan(name: &str, bytes: &[u8], scratch: &Path) -> Outcome {
             })?;
         }
         Ok(format!("{} scans, {points} points", file.scans.len()))
+    };
+    match read() {
+        Ok(s) => Outcome::Read(s),
+        Err(e) => named(name, format!("{e:#}")),
+    }
+}
+
+/// A ROS 2 bag as `inspect --ros2` reads it: its transforms and clouds' headers, then every
+/// station's points.
+fn read_bag(name: &str, bytes: &[u8], scratch: &Path) -> Outcome {
+    use asbuilt_io::scan::ros2::{Ros2Bag, Ros2Options};
+    let path = as_file(name, bytes, scratch);
+    let read = || -> anyhow::Result<String> {
+        let bag = Ros2Bag::open(&path, &Ros2Options::default()).map_err(|cause| {
+            asbuilt_io::IoError::Scan {
+                path: path.clone(),
+                cause,
+            }
+        })?;
+        let file = ScanFile::of_ros2(&path, std::sync::Arc::new(bag));
+        let mut points = 0usize;
+        let mut failed = 0usize;
+        for i in 0..file.scans.len() {
+            match file.stream(i, 4096, &mut |c| {
+                points += c.len();
+                Ok(())
+            }) {
+                Ok(_) => {}
+                // A station that cannot be read names the bag; the others go on.
+                Err(e) if e.to_string().contains(name) => failed += 1,
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(format!(
+            "{} stations ({failed} unreadable), {points} points",
+            file.scans.len()
+        ))
     };
     match read() {
         Ok(s) => Outcome::Read(s),

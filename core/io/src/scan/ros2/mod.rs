@@ -8,7 +8,10 @@
 //! the transforms and one entry per cloud, never the points.
 
 mod msgs;
+pub mod sample;
 mod storage;
+#[cfg(test)]
+mod tests;
 mod tf;
 
 use std::path::Path;
@@ -130,11 +133,15 @@ impl Ros2Bag {
         let mut tree = TfTree::default();
         let mut clouds: std::collections::BTreeMap<String, Vec<Cloud>> = Default::default();
         let mut unreadable = Vec::new();
-        storage.each(&[], &|_| true, &mut |m| {
+        storage.each(&mut |m| {
             match m.kind {
                 POINT_CLOUD2 => match cloud_header(&m) {
                     Ok(c) => clouds.entry(m.topic.to_string()).or_default().push(c),
-                    Err(e) => unreadable.push(format!("{} message {}: {e}", m.topic, m.place.key)),
+                    Err(e) => unreadable.push(format!(
+                        "{} message logged at {:.3} s: {e}",
+                        m.topic,
+                        m.place.log_time as f64 * 1e-9
+                    )),
                 },
                 TF_MESSAGE => {
                     let fixed = m.topic.ends_with("tf_static");
@@ -142,7 +149,7 @@ impl Ros2Bag {
                 }
                 _ => {}
             }
-            Ok(true)
+            Ok(())
         })?;
         tree.finish();
         let topic = pick_topic(&clouds, options.cloud_topic.as_deref())?;
@@ -235,46 +242,37 @@ impl Ros2Bag {
                 ));
             }
         };
-        // Each cloud's pose in the station's frame; clouds that cannot be placed are said
-        // and left out.
-        let mut wanted: std::collections::BTreeMap<Place, Isometry3<f64>> = Default::default();
-        for &c in &st.clouds {
-            match &self.clouds[c].pose {
-                Ok(p) => {
-                    wanted.insert(self.clouds[c].place, first.inverse() * p);
-                }
-                Err(e) => eprintln!(
-                    "warning: station {}: the cloud at {:.3} s is left out: {e}",
-                    st.name,
-                    self.clouds[c].stamp_ns as f64 * 1e-9
-                ),
-            }
-        }
-        let files: std::collections::BTreeSet<usize> = wanted.keys().map(|p| p.file).collect();
-        let mut left = wanted.len();
+        // Each cloud in the station's frame; a cloud that cannot be placed is said and left
+        // out. Each is read where the first pass found it, nothing before it.
         let mut notes = ReadNotes::default();
         let mut out = Batcher::new(chunk, sink);
-        let topic = self.topic.as_str();
-        self.storage
-            .each(&[topic], &|f| files.contains(&f), &mut |m| {
-                let Some(t) = wanted.get(&m.place) else {
-                    return Ok(true);
-                };
-                let cloud: msgs::PointCloud2 = msgs::decode(m.data, "a PointCloud2")?;
-                let layout = cloud.layout().map_err(ScanError::Content)?;
-                for (xyz, intensity) in cloud.points(&layout) {
-                    let p = t * Point3::from(xyz);
-                    let mut sp = ScanPoint::new(p.x as f32, p.y as f32, p.z as f32);
-                    sp.intensity = intensity;
-                    if !xyz.iter().all(|v| v.is_finite()) {
-                        sp.flags = ScanPointFlags(ScanPointFlags::INVALID);
-                        notes.invalid += 1;
-                    }
-                    out.push(sp)?;
+        for &c in &st.clouds {
+            let cloud = &self.clouds[c];
+            let t = match &cloud.pose {
+                Ok(p) => first.inverse() * p,
+                Err(e) => {
+                    eprintln!(
+                        "warning: station {}: the cloud at {:.3} s is left out: {e}",
+                        st.name,
+                        cloud.stamp_ns as f64 * 1e-9
+                    );
+                    continue;
                 }
-                left -= 1;
-                Ok(left > 0)
-            })?;
+            };
+            let bytes = self.storage.read_at(cloud.place)?;
+            let msg: msgs::PointCloud2 = msgs::decode(&bytes, "a PointCloud2")?;
+            let layout = msg.layout().map_err(ScanError::Content)?;
+            for (xyz, intensity) in msg.points(&layout) {
+                let p = t * Point3::from(xyz);
+                let mut sp = ScanPoint::new(p.x as f32, p.y as f32, p.z as f32);
+                sp.intensity = intensity;
+                if !xyz.iter().all(|v| v.is_finite()) {
+                    sp.flags = ScanPointFlags(ScanPointFlags::INVALID);
+                    notes.invalid += 1;
+                }
+                out.push(sp)?;
+            }
+        }
         out.finish()?;
         Ok(notes)
     }

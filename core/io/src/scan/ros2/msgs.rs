@@ -3,15 +3,15 @@
 //! says the byte order.
 
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::scan::error::ScanError;
 
 /// `builtin_interfaces/Time`.
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 pub(super) struct Time {
-    sec: i32,
-    nanosec: u32,
+    pub(super) sec: i32,
+    pub(super) nanosec: u32,
 }
 
 impl Time {
@@ -22,14 +22,14 @@ impl Time {
 }
 
 /// `std_msgs/Header`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 pub(super) struct Header {
     pub(super) stamp: Time,
     pub(super) frame_id: String,
 }
 
 /// `sensor_msgs/PointField`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 pub(super) struct PointField {
     pub(super) name: String,
     pub(super) offset: u32,
@@ -38,7 +38,7 @@ pub(super) struct PointField {
 }
 
 /// `sensor_msgs/PointCloud2`, its data borrowed from the record.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 pub(super) struct PointCloud2<'a> {
     pub(super) header: Header,
     pub(super) height: u32,
@@ -49,36 +49,36 @@ pub(super) struct PointCloud2<'a> {
     pub(super) row_step: u32,
     #[serde(borrow)]
     pub(super) data: &'a [u8],
-    pub(super) _is_dense: bool,
+    pub(super) is_dense: bool,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
-struct Vector3 {
-    x: f64,
-    y: f64,
-    z: f64,
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
+pub(super) struct Vector3 {
+    pub(super) x: f64,
+    pub(super) y: f64,
+    pub(super) z: f64,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
-struct QuaternionMsg {
-    x: f64,
-    y: f64,
-    z: f64,
-    w: f64,
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
+pub(super) struct QuaternionMsg {
+    pub(super) x: f64,
+    pub(super) y: f64,
+    pub(super) z: f64,
+    pub(super) w: f64,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
-struct Transform {
-    translation: Vector3,
-    rotation: QuaternionMsg,
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
+pub(super) struct Transform {
+    pub(super) translation: Vector3,
+    pub(super) rotation: QuaternionMsg,
 }
 
 /// `geometry_msgs/TransformStamped`: `parent ← child` at a time.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 pub(super) struct TransformStamped {
     pub(super) header: Header,
     pub(super) child_frame_id: String,
-    transform: Transform,
+    pub(super) transform: Transform,
 }
 
 impl TransformStamped {
@@ -106,7 +106,7 @@ impl TransformStamped {
 }
 
 /// `tf2_msgs/TFMessage`.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 pub(super) struct TfMessage {
     pub(super) transforms: Vec<TransformStamped>,
 }

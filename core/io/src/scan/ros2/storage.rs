@@ -23,12 +23,15 @@ pub(super) struct Storage {
     pub(super) files: Vec<PathBuf>,
 }
 
-/// Where a message is, to find it again: its file, and its place there (SQLite: the row id;
-/// MCAP: its ordinal among the file's messages).
+/// Where a message is, to read it again without reading what comes before: its file, and its
+/// place there (SQLite: the row id; MCAP: the offset of its chunk, or of itself when it is in
+/// none, and its ordinal among that record's messages), with its log time to check it by.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub(super) struct Place {
     pub(super) file: usize,
-    pub(super) key: u64,
+    pub(super) offset: u64,
+    pub(super) index: u32,
+    pub(super) log_time: u64,
 }
 
 /// One message as the storage holds it.
@@ -105,57 +108,61 @@ impl Storage {
         }
     }
 
-    /// Hands every message of `topics` (every topic when empty), in recording order, to `f`,
-    /// which says whether to go on. Only the files `files` says yes to are read.
+    /// Hands every message, in recording order, to `f`.
     pub(super) fn each(
         &self,
-        topics: &[&str],
-        files: &dyn Fn(usize) -> bool,
-        f: &mut dyn FnMut(BagMessage<'_>) -> Result<bool, ScanError>,
+        f: &mut dyn FnMut(BagMessage<'_>) -> Result<(), ScanError>,
     ) -> Result<(), ScanError> {
         for (i, path) in self.files.iter().enumerate() {
-            if !files(i) {
-                continue;
+            match self.kind {
+                Kind::Mcap => each_mcap(i, path, f),
+                Kind::Sqlite => each_sqlite(i, path, f),
             }
-            let named = |e: ScanError| match e {
-                ScanError::Content(m) => content(format!("{}: {m}", path.display())),
-                e => e,
-            };
-            let go_on = match self.kind {
-                Kind::Mcap => each_mcap(i, path, topics, f),
-                Kind::Sqlite => each_sqlite(i, path, topics, f),
-            }
-            .map_err(named)?;
-            if !go_on {
-                break;
-            }
+            .map_err(|e| self.naming(i, e))?;
         }
         Ok(())
+    }
+
+    /// The bytes of the message at `place`.
+    pub(super) fn read_at(&self, place: Place) -> Result<Vec<u8>, ScanError> {
+        let path = &self.files[place.file];
+        match self.kind {
+            Kind::Mcap => mcap_at(path, place),
+            Kind::Sqlite => sqlite_at(path, place),
+        }
+        .map_err(|e| self.naming(place.file, e))
+    }
+
+    /// An error of file `i`, naming it when the bag has several.
+    fn naming(&self, i: usize, e: ScanError) -> ScanError {
+        match e {
+            ScanError::Content(m) if self.files.len() > 1 => {
+                content(format!("{}: {m}", self.files[i].display()))
+            }
+            e => e,
+        }
     }
 }
 
 fn each_mcap(
     file: usize,
     path: &Path,
-    topics: &[&str],
-    f: &mut dyn FnMut(BagMessage<'_>) -> Result<bool, ScanError>,
-) -> Result<bool, ScanError> {
-    let file_handle =
-        std::fs::File::open(path).map_err(|e| content(format!("cannot open: {e}")))?;
-    // SAFETY: only read; a bag being written underneath gives damaged records, which the
-    // checked reader refuses, never a wrong read of memory.
-    let map = unsafe { memmap2::Mmap::map(&file_handle) }
-        .map_err(|e| content(format!("cannot read: {e}")))?;
-    if !map.starts_with(mcap::MAGIC) {
+    f: &mut dyn FnMut(BagMessage<'_>) -> Result<(), ScanError>,
+) -> Result<(), ScanError> {
+    let opened = std::fs::File::open(path).map_err(|e| content(format!("cannot open: {e}")))?;
+    let mut magic = [0u8; 8];
+    if std::io::Read::read_exact(&mut &opened, &mut magic).is_err() || magic != *mcap::MAGIC {
         return Err(content("not an MCAP file".into()));
     }
+    // Read as it comes, a chunk at a time; a bag whose recorder was killed has no end and is
+    // read up to where it stops.
+    let mut records = Records::from_file(opened, Chunks::Open, 0)
+        .map_err(|e| content(format!("cannot read: {e}")))?;
     // Channels by id: topic, and its schema's name.
     let mut channels: std::collections::BTreeMap<u16, (String, u16)> = Default::default();
     let mut schemas: std::collections::BTreeMap<u16, String> = Default::default();
-    let mut ordinal = 0u64;
-    // A bag whose recorder was killed has no end: read up to where it stops.
-    let ends = map.ends_with(mcap::MAGIC);
-    for record in Records::new(&map, Chunks::Open, ends) {
+    let (mut top, mut index) = (u64::MAX, 0u32);
+    while let Some(record) = records.next() {
         match record.map_err(|e| content(format!("damaged: {e}")))? {
             Record::Schema { header, .. } => {
                 schemas.insert(header.id, header.name);
@@ -164,46 +171,88 @@ fn each_mcap(
                 channels.insert(c.id, (c.topic, c.schema_id));
             }
             Record::Message { header, data } => {
-                ordinal += 1;
+                if records.record_offset() != top {
+                    (top, index) = (records.record_offset(), 0);
+                }
+                index += 1;
                 let Some((topic, schema)) = channels.get(&header.channel_id) else {
                     continue;
                 };
-                if !topics.is_empty() && !topics.contains(&topic.as_str()) {
-                    continue;
-                }
-                let kind = schemas.get(schema).map_or("", String::as_str);
-                let m = BagMessage {
+                f(BagMessage {
                     place: Place {
                         file,
-                        key: ordinal - 1,
+                        offset: top,
+                        index: index - 1,
+                        log_time: header.log_time,
                     },
                     topic,
-                    kind,
+                    kind: schemas.get(schema).map_or("", String::as_str),
                     data: &data,
-                };
-                if !f(m)? {
-                    return Ok(false);
-                }
+                })?;
             }
             _ => {}
         }
     }
-    Ok(true)
+    Ok(())
+}
+
+/// The message at `place` of an MCAP file: its chunk opened, the message counted to.
+fn mcap_at(path: &Path, place: Place) -> Result<Vec<u8>, ScanError> {
+    let opened = std::fs::File::open(path).map_err(|e| content(format!("cannot open: {e}")))?;
+    let records = Records::from_file(opened, Chunks::Open, place.offset)
+        .map_err(|e| content(format!("cannot read: {e}")))?;
+    let mut index = 0;
+    for record in records {
+        if let Record::Message { header, data } =
+            record.map_err(|e| content(format!("damaged: {e}")))?
+        {
+            if index == place.index {
+                if header.log_time != place.log_time {
+                    break;
+                }
+                return Ok(data.into_owned());
+            }
+            index += 1;
+        }
+    }
+    Err(content(format!(
+        "the message logged at {} ns is no longer where the bag had it: was the bag changed \
+         while it was read?",
+        place.log_time
+    )))
+}
+
+fn sqlite_at(path: &Path, place: Place) -> Result<Vec<u8>, ScanError> {
+    let db = open_sqlite(path)?;
+    db.query_row(
+        "SELECT data FROM messages WHERE id = ?1",
+        [place.offset as i64],
+        |r| r.get::<_, Vec<u8>>(0),
+    )
+    .map_err(|e| {
+        content(format!(
+            "message {} cannot be read again ({e})",
+            place.offset
+        ))
+    })
+}
+
+fn open_sqlite(path: &Path) -> Result<rusqlite::Connection, ScanError> {
+    use rusqlite::{Connection, OpenFlags};
+    Connection::open_with_flags(
+        path,
+        OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+    )
+    .map_err(|e| content(format!("not a readable rosbag2 SQLite file ({e})")))
 }
 
 fn each_sqlite(
     file: usize,
     path: &Path,
-    topics: &[&str],
-    f: &mut dyn FnMut(BagMessage<'_>) -> Result<bool, ScanError>,
-) -> Result<bool, ScanError> {
-    use rusqlite::{Connection, OpenFlags};
+    f: &mut dyn FnMut(BagMessage<'_>) -> Result<(), ScanError>,
+) -> Result<(), ScanError> {
     let sql = |e: rusqlite::Error| content(format!("not a readable rosbag2 SQLite file ({e})"));
-    let db = Connection::open_with_flags(
-        path,
-        OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
-    )
-    .map_err(sql)?;
+    let db = open_sqlite(path)?;
     let mut kinds: std::collections::BTreeMap<i64, (String, String)> = Default::default();
     {
         let mut q = db
@@ -218,7 +267,7 @@ fn each_sqlite(
         }
     }
     let mut q = db
-        .prepare("SELECT id, topic_id, data FROM messages ORDER BY timestamp, id")
+        .prepare("SELECT id, topic_id, timestamp, data FROM messages ORDER BY timestamp, id")
         .map_err(sql)?;
     let mut rows = q.query([]).map_err(sql)?;
     while let Some(r) = rows.next().map_err(sql)? {
@@ -226,27 +275,24 @@ fn each_sqlite(
         let Some((topic, kind)) = kinds.get(&topic_id) else {
             continue;
         };
-        if !topics.is_empty() && !topics.contains(&topic.as_str()) {
-            continue;
-        }
         let id: i64 = r.get(0).map_err(sql)?;
+        let stamp: i64 = r.get(2).map_err(sql)?;
         let data = r
-            .get_ref(2)
+            .get_ref(3)
             .map_err(sql)?
             .as_blob()
             .map_err(|e| content(format!("message {id} of {topic} holds no bytes ({e})")))?;
-        let m = BagMessage {
+        f(BagMessage {
             place: Place {
                 file,
-                key: id as u64,
+                offset: id as u64,
+                index: 0,
+                log_time: stamp as u64,
             },
             topic,
             kind,
             data,
-        };
-        if !f(m)? {
-            return Ok(false);
-        }
+        })?;
     }
-    Ok(true)
+    Ok(())
 }

@@ -344,14 +344,18 @@ pub fn of_ros2(
             };
             let v = pose.translation.vector;
             let q = pose.rotation.quaternion().coords;
+            let (translation, rotation) = ([v.x, v.y, v.z], [q.x, q.y, q.z, q.w]);
             Station {
                 id: info.name,
                 scan: path.to_path_buf(),
                 scan_index: info.index,
                 pose_source: source,
-                t_design_scanner: pose,
-                translation: [v.x, v.y, v.z],
-                rotation_xyzw: [q.x, q.y, q.z, q.w],
+                // The pose as its numbers make it, as `publish` and `pack` send it: a bag
+                // inspected gives the bits of the bag packed and reported.
+                t_design_scanner: asbuilt_core::frames::isometry(translation, rotation)
+                    .unwrap_or(pose),
+                translation,
+                rotation_xyzw: rotation,
                 position_sigma: DEFAULT_POSITION_SIGMA,
                 bag: Some(bag.clone()),
             }

@@ -157,3 +157,159 @@ fn publish_streams_a_ptx_job_into_the_agent() {
         "{out}"
     );
 }
+
+/// A cell's ROS 2 bag of the box: the scanner on a moving flange, a cloud of the top from each
+/// of three stamps between /tf samples.
+fn write_box_bag(path: &std::path::Path) {
+    use asbuilt_io::scan::ros2::interpolate;
+    use asbuilt_io::scan::ros2::sample::{SampleCloud, SampleTransform, write_mcap};
+    let flange = |t: f64| {
+        Isometry3::new(
+            Vector3::new(0.5 + 1.5 * (0.2 * t).cos(), 1.5 * (0.2 * t).sin(), 1.2),
+            Vector3::new(0.0, 0.0, 0.2 * t + 3.0),
+        )
+    };
+    let mount = Isometry3::new(Vector3::new(0.05, 0.0, 0.1), Vector3::new(0.0, 0.3, 0.0));
+    let mut tf = vec![SampleTransform {
+        stamp: 0.0,
+        parent: "flange".into(),
+        child: "scanner".into(),
+        pose: mount,
+        fixed: true,
+    }];
+    tf.extend((0..=250).map(|k| SampleTransform {
+        stamp: k as f64 * 0.02,
+        parent: "world".into(),
+        child: "flange".into(),
+        pose: flange(k as f64 * 0.02),
+        fixed: false,
+    }));
+    let clouds = [0.513, 2.207, 4.391]
+        .iter()
+        .map(|&t: &f64| {
+            let k = (t / 0.02).floor();
+            let s = (t - k * 0.02) / 0.02;
+            let pose = interpolate(&flange(k * 0.02), &flange((k + 1.0) * 0.02), s) * mount;
+            let points = (0..2000)
+                .map(|i| {
+                    let p = Point3::new(
+                        0.01 + (i % 50) as f64 * 0.02,
+                        0.01 + (i / 50) as f64 * 0.012,
+                        0.401,
+                    );
+                    let q = pose.inverse() * p;
+                    [q.x, q.y, q.z]
+                })
+                .collect();
+            SampleCloud {
+                stamp: t,
+                frame: "scanner".into(),
+                points,
+                float64: false,
+                big_endian: false,
+            }
+        })
+        .collect::<Vec<_>>();
+    write_mcap(path, "/scanner/points", &clouds, &tf).unwrap();
+}
+
+/// The same bag through `inspect --ros2`, `pack --ros2` then `report`, and `publish --ros2` into
+/// a running agent: the same stations, the same statistics.
+#[test]
+fn a_ros2_bag_is_inspected_packed_and_published_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("box.stl");
+    write_box_stl(&stl, [0.0; 3], [1.0, 0.5, 0.4]);
+    let bag = dir.path().join("bag.mcap");
+    write_box_bag(&bag);
+    let run = |args: &[&std::ffi::OsStr]| {
+        let o = Command::new(ASBUILT).args(args).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{args:?}: {err}");
+        (String::from_utf8_lossy(&o.stdout).into_owned(), err)
+    };
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let (inspect_dir, report_dir) = (dir.path().join("inspect"), dir.path().join("report"));
+    let (_, err) = run(&[
+        &os("inspect"),
+        &os("--design"),
+        stl.as_os_str(),
+        &os("--units"),
+        &os("m"),
+        &os("--ros2"),
+        bag.as_os_str(),
+        &os("--out"),
+        inspect_dir.as_os_str(),
+    ]);
+    assert!(
+        err.contains("3 cloud(s) on /scanner/points (3 placed in \"world\""),
+        "{err}"
+    );
+    let packed = dir.path().join("packed.mcap");
+    run(&[
+        &os("pack"),
+        &os("--ros2"),
+        bag.as_os_str(),
+        &os("--design"),
+        stl.as_os_str(),
+        &os("--units"),
+        &os("m"),
+        &os("--out"),
+        packed.as_os_str(),
+    ]);
+    run(&[
+        &os("report"),
+        packed.as_os_str(),
+        &os("--out"),
+        report_dir.as_os_str(),
+    ]);
+    let stations = |d: &std::path::Path| {
+        let v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
+        v["stations"].as_array().unwrap().clone()
+    };
+    let (a, b) = (stations(&inspect_dir), stations(&report_dir));
+    assert_eq!(a.len(), 3);
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x["id"], y["id"]);
+        for key in [
+            "points",
+            "matched",
+            "mean",
+            "std",
+            "median_abs",
+            "p95_abs",
+            "max",
+        ] {
+            assert_eq!(x[key], y[key], "{key} of {}", x["id"]);
+        }
+        // The top is scanned 1 mm above the box, wherever the robot stood.
+        assert!(
+            (x["median_abs"].as_f64().unwrap() - 0.001).abs() < 2e-5,
+            "{x}"
+        );
+    }
+    let prefix = asbuilt_tests::unique_prefix("ros2");
+    let agent = asbuilt_tests::Agent::start(
+        env!("CARGO_BIN_EXE_e2e-asbuilt-agent"),
+        &prefix,
+        &format!(
+            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n",
+            stl.display().to_string()
+        ),
+    );
+    let o = Command::new(ASBUILT)
+        .arg("publish")
+        .arg("--ros2")
+        .arg(&bag)
+        .args(["--prefix", &prefix, "--chunk-points", "1000"])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}\nagent:\n{}", agent.log());
+    assert_eq!(
+        out.matches("Complete: 2000 points, 2000 matched").count(),
+        3,
+        "{out}"
+    );
+}

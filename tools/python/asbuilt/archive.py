@@ -35,6 +35,7 @@ import math
 import os
 import re
 import shutil
+import socket
 import sys
 import tempfile
 import time
@@ -76,6 +77,9 @@ def _expand(source: str) -> List[str]:
         return sorted(fs.unstrip_protocol(p) for p in found)
     if source.startswith("file://"):
         source = source[len("file://"):]
+    # Absolute, so that a worker started in another folder (or on another machine that mounts
+    # the same path) finds the file.
+    source = os.path.abspath(source)
     if any(c in source for c in "*?["):
         return sorted(_glob.glob(source, recursive=True))
     if os.path.isdir(source):
@@ -108,7 +112,8 @@ def find_jobs(sources: Iterable[Any]) -> List[Job]:
         source = os.fspath(source) if hasattr(source, "__fspath__") else str(source)
         found = _expand(source)
         if not found:
-            groups.setdefault(("missing", source), []).append(((0, 0), source))
+            where = source if _is_url(source) else os.path.abspath(source)
+            groups.setdefault(("missing", where), []).append(((0, 0), where))
         for f in found:
             m = _AGENT_FILE.match(os.path.basename(f))
             if m:
@@ -149,6 +154,11 @@ def _local_copies(files: Sequence[str], scratch: str) -> List[str]:
     out = []
     for i, f in enumerate(files):
         if not _is_url(f):
+            if not os.access(f, os.R_OK):
+                raise FileNotFoundError(
+                    f"{f} cannot be read on worker {socket.gethostname()} (pid {os.getpid()}): "
+                    "a worker reads the recordings itself; give paths it can reach (a shared "
+                    "folder, or a URL)")
             out.append(f)
             continue
         import fsspec

@@ -219,3 +219,54 @@ def test_a_recording_behind_an_fsspec_url_is_copied_for_its_task(fleet):
         assert strip(rows[table]) == strip(local[table])
     assert rows["jobs"][0]["file"] == "memory:///fleet/bunny.mcap"
     assert "errors" in archive.inspect_job(jobs[1])
+
+
+def test_a_scheduler_and_workers_started_elsewhere_read_relative_paths(fleet, tmp_path):
+    """The archive on a real cluster: a scheduler and a worker started as processes of their
+    own in another folder, and the recordings named relative to where the archive runs. The
+    paths go to the workers absolute, so every job is read; a path no worker can read is an
+    error row that says so."""
+    folder, files = fleet
+    elsewhere = tmp_path / "workers"
+    elsewhere.mkdir()
+    info = tmp_path / "scheduler.json"
+    python = [sys.executable, "-m"]
+    scheduler = subprocess.Popen(
+        python + ["distributed.cli.dask_scheduler", "--port", "0", "--dashboard-address", ":0",
+                  "--scheduler-file", str(info)],
+        cwd=elsewhere, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while not info.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        worker = subprocess.Popen(
+            python + ["distributed.cli.dask_worker", "--scheduler-file", str(info),
+                      "--nworkers", "1", "--nthreads", "1", "--dashboard-address", ":0"],
+            cwd=elsewhere, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        address = json.loads(info.read_text())["address"]
+        good = [os.path.relpath(f, folder) for f in files[:2]]
+        out = tmp_path / "fleet"
+        run = subprocess.run(
+            [sys.executable, "-m", "asbuilt", "archive", *good, "gone.mcap", "--out", str(out),
+             "--scheduler", address],
+            capture_output=True, text=True, timeout=600, cwd=folder)
+        assert run.returncode == 0, run.stderr
+        import pyarrow.parquet as pq
+
+        errors = pq.read_table(out / "errors").to_pylist()
+        assert [os.path.basename(e["file"]) for e in errors] == ["gone.mcap"], errors
+        assert os.path.isabs(errors[0]["file"])
+        jobs = pq.read_table(out / "jobs").to_pylist()
+        assert len(jobs) == 2, (jobs, run.stderr)
+    finally:
+        for p in (worker, scheduler):
+            if p is not None:
+                p.terminate()
+                p.wait(timeout=30)
+
+
+def test_a_path_a_worker_cannot_read_is_an_error_row_that_says_so(tmp_path):
+    row = archive.inspect_job(archive.Job("lost", [str(tmp_path / "lost.mcap")]))
+    assert list(row) == ["errors"]
+    assert "cannot be read on worker" in row["errors"][0]["error"], row

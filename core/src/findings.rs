@@ -28,6 +28,9 @@
 use nalgebra::{Matrix3, Point3, Vector3};
 use rustc_hash::FxHashMap;
 
+mod judged;
+pub use judged::{Judged, judged};
+
 use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
 use crate::m3c2::streaming::CoreResult;
@@ -141,23 +144,10 @@ pub fn find(
     p: &FindingParams,
     pose_sigma: f64,
 ) -> Findings {
-    let pose = if pose_sigma.is_finite() {
-        pose_sigma.max(0.0)
-    } else {
-        0.0
-    };
+    let pose = pose_of(pose_sigma);
     let shared = overlap(p, area_per_sample);
-    // Both were built from the same design samples: their sample indices line them up.
-    let samples = m3c2
-        .iter()
-        .map(|r| r.sample)
-        .chain(coverage.iter().map(|o| o.sample))
-        .max()
-        .map_or(0, |m| m as usize + 1);
-    // A station's pose error moves the face beyond an edge by up to about 3σ: a cylinder that
-    // near the edge takes in its points and reads a deviation that is not in the print.
-    let reach = p.radius + 3.0 * pose;
-    let usable = usable_core_points(m3c2, coverage, sharp_edges, samples, reach);
+    let samples = sample_count(m3c2, coverage);
+    let usable = usable_core_points(m3c2, coverage, sharp_edges, samples, reach(p, pose));
     let band_of = |z: f64| p.layer_height.map(|h| (z / h).floor().max(0.0) as u32);
     let mut out = Findings {
         layers: p
@@ -187,20 +177,39 @@ pub fn find(
             ));
         }
     }
-    let missing = missing_positions(m3c2, coverage, samples, p.coverage_threshold);
-    let min_missing = p
-        .min_region_samples
-        .max((p.min_missing_area_m2 / area_per_sample).ceil() as usize);
-    for group in components(&missing, link) {
-        if group.len() >= min_missing {
-            let pts: Vec<Point3<f64>> = group.iter().map(|&g| missing[g]).collect();
-            out.missing
-                .push(region(RegionKind::Missing, &pts, area_per_sample, &band_of));
-        }
+    for group in missing_areas(m3c2, coverage, samples, area_per_sample, p) {
+        let pts: Vec<Point3<f64>> = group.iter().map(|g| g.1).collect();
+        out.missing
+            .push(region(RegionKind::Missing, &pts, area_per_sample, &band_of));
     }
     out.regions.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out.missing.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out
+}
+
+/// A station's position σ as the findings take it: 0 when unknown.
+fn pose_of(pose_sigma: f64) -> f64 {
+    if pose_sigma.is_finite() {
+        pose_sigma.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// Design samples M3C2 and coverage were built from: their sample indices line them up.
+fn sample_count(m3c2: &[CoreResult], coverage: &[SampleOutcome]) -> usize {
+    m3c2.iter()
+        .map(|r| r.sample)
+        .chain(coverage.iter().map(|o| o.sample))
+        .max()
+        .map_or(0, |m| m as usize + 1)
+}
+
+/// How far from a sharp edge a core point's cylinder must stay: a station's pose error moves the
+/// face beyond an edge by up to about 3σ, and a cylinder that near the edge takes in its points
+/// and reads a deviation that is not in the print.
+fn reach(p: &FindingParams, pose: f64) -> f64 {
+    p.radius + 3.0 * pose
 }
 
 /// The core points whose distance counts: with a distance, away from the design's sharp
@@ -358,7 +367,7 @@ fn missing_positions(
     coverage: &[SampleOutcome],
     samples: usize,
     t: f64,
-) -> Vec<Point3<f64>> {
+) -> Vec<(u32, Point3<f64>)> {
     let mut m3c2_of = vec![None; samples];
     for (i, r) in m3c2.iter().enumerate() {
         m3c2_of[r.sample as usize] = Some(i);
@@ -375,7 +384,28 @@ fn missing_positions(
     coverage
         .iter()
         .filter(|o| o.class == SampleClass::Missing && !out_of_place(o))
-        .map(|o| o.position)
+        .map(|o| (o.sample, o.position))
+        .collect()
+}
+
+/// The missing areas the findings count: groups of samples where material is missing, each of
+/// at least the smallest area that counts; each sample with its number and place.
+fn missing_areas(
+    m3c2: &[CoreResult],
+    coverage: &[SampleOutcome],
+    samples: usize,
+    area_per_sample: f64,
+    p: &FindingParams,
+) -> Vec<Vec<(u32, Point3<f64>)>> {
+    let missing = missing_positions(m3c2, coverage, samples, p.coverage_threshold);
+    let min_missing = p
+        .min_region_samples
+        .max((p.min_missing_area_m2 / area_per_sample).ceil() as usize);
+    let places: Vec<Point3<f64>> = missing.iter().map(|m| m.1).collect();
+    components(&places, 4.0 * p.spacing)
+        .into_iter()
+        .filter(|group| group.len() >= min_missing)
+        .map(|group| group.iter().map(|&g| missing[g]).collect())
         .collect()
 }
 
@@ -855,5 +885,60 @@ mod tests {
         };
         assert_eq!(samples(0.0), 2 * 200 * 20);
         assert_eq!(samples(0.001), 2 * 200 * 20 - 2 * 20);
+    }
+
+    /// The maps' judgement is the findings': the samples next to an edge are not judged; of the
+    /// samples coverage calls missing, only those of an area the findings count are missing.
+    #[test]
+    fn each_sample_is_judged_as_the_findings_judge_it() {
+        let r = wall_results(|_, _| 0.0);
+        let edges = [[
+            Point3::new(0.995, -0.0867, 0.0),
+            Point3::new(0.995, -0.0867, 0.2),
+        ]];
+        // Coverage: a 10 × 10 patch missing, and single missing samples along the top.
+        let outcome = |c: &CoreResult, class| SampleOutcome {
+            sample: c.sample,
+            position: c.position,
+            normal: c.normal,
+            reverse_distance: None,
+            class,
+        };
+        let patch = |c: &CoreResult| {
+            c.normal.y > 0.0 && (-0.5..-0.405).contains(&c.position.x) && c.position.z < 0.095
+        };
+        let lone = |c: &CoreResult| c.position.z > 0.185 && c.sample % 200 == 19;
+        let coverage: Vec<SampleOutcome> = r
+            .iter()
+            .map(|c| {
+                let missing = patch(c) || lone(c);
+                outcome(
+                    c,
+                    if missing {
+                        SampleClass::Missing
+                    } else {
+                        SampleClass::Observed
+                    },
+                )
+            })
+            .collect();
+        let mut p = params();
+        p.min_region_samples = 5;
+        let f = find(&r, &coverage, &edges, 1e-4, &p, 0.0);
+        let j = judged(&r, &coverage, &edges, 1e-4, &p, 0.0);
+        let count = |k: Judged| j.iter().filter(|&&x| x == k).count() as u32;
+        assert_eq!(f.missing.len(), 1);
+        assert_eq!(count(Judged::Missing), f.missing[0].samples);
+        assert_eq!(count(Judged::Missing), 100);
+        for c in &r {
+            let want = if patch(c) {
+                Judged::Missing
+            } else if c.normal.y < 0.0 && c.position.x > 0.985 {
+                Judged::NotJudged
+            } else {
+                Judged::Measured
+            };
+            assert_eq!(j[c.sample as usize], want, "{}", c.position);
+        }
     }
 }

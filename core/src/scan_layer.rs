@@ -88,6 +88,9 @@ pub struct SampleState {
     pub significant: bool,
     /// What coverage made of it.
     pub class: SampleClass,
+    /// What the findings made of it: a map paints its deviation or missing material only
+    /// where they judged it so.
+    pub judged: crate::findings::Judged,
 }
 
 /// What one station added, per method that runs.
@@ -367,8 +370,17 @@ impl ScanLayer {
                     m3c2: None,
                     significant: false,
                     class: o.class,
+                    judged: Default::default(),
                 })
                 .collect();
+            let judged = findings::judged(
+                &results,
+                &outcomes,
+                &self.sharp_edges,
+                self.area_per_sample,
+                &self.findings,
+                sigma,
+            );
             // Both were built from the same samples: their sample indices line them up.
             let mut at = vec![usize::MAX; self.samples];
             for (i, o) in outcomes.iter().enumerate() {
@@ -380,6 +392,11 @@ impl ScanLayer {
                 if let Some(s) = at.get(r.sample as usize).and_then(|&i| states.get_mut(i)) {
                     s.m3c2 = r.distance;
                     s.significant = r.significant;
+                }
+            }
+            for (sample, &j) in judged.iter().enumerate() {
+                if let Some(s) = at.get(sample).and_then(|&i| states.get_mut(i)) {
+                    s.judged = j;
                 }
             }
             states

@@ -22,11 +22,13 @@ if [ -z "$rrd" ]; then
   rrd="$out/demo/demo.rrd"
 fi
 
-# Ports of this run's own; the server is found by its command line when the script ends
-# (`rerun` is a Python launcher whose server is a child process).
+# Ports of this run's own. `rerun` is a Python launcher whose server is a child process: it
+# starts in a process group of its own (setsid), and the script stops that group by the
+# launcher's PID when it ends, never another process that matches a pattern.
 grpc=$((20000 + $$ % 10000)); web=$((grpc + 1))
-rerun --serve-web "$rrd" --port "$grpc" --web-viewer-port "$web" >"$out/rerun.log" 2>&1 &
-trap 'pkill -f "serve-web $rrd --port $grpc" || true' EXIT
+setsid rerun --serve-web "$rrd" --port "$grpc" --web-viewer-port "$web" >"$out/rerun.log" 2>&1 &
+server=$!
+trap 'kill -- "-$server" 2>/dev/null || true; wait "$server" 2>/dev/null || true' EXIT
 sleep 5
 url="http://127.0.0.1:$web/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A$grpc%2Fproxy"
 node tools/screenshot/shoot.mjs "$url" "$out" "${WAIT:-60}" "${HISTORY_TAB:-119,40}"

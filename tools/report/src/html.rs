@@ -214,11 +214,14 @@ fn legend(tolerance: f64) -> String {
          <text x=\"120\" y=\"27\" font-size=\"10\" text-anchor=\"middle\">on design</text>\
          <text x=\"240\" y=\"27\" font-size=\"10\" text-anchor=\"end\">+{t:.1} mm excess</text>\
          <rect x=\"270\" y=\"0\" width=\"14\" height=\"14\" fill=\"rgb(0,0,255)\"/>\
-         <text x=\"288\" y=\"11\" font-size=\"10\">missing material (coverage)</text>\
+         <text x=\"288\" y=\"11\" font-size=\"10\">missing material (a finding)</text>\
          <rect x=\"430\" y=\"0\" width=\"14\" height=\"14\" fill=\"rgb(222,222,222)\" \
-         stroke=\"#888\"/><text x=\"448\" y=\"11\" font-size=\"10\">design not seen</text></svg>\
+         stroke=\"#888\"/><text x=\"448\" y=\"11\" font-size=\"10\">not judged</text>\
+         <text x=\"448\" y=\"24\" font-size=\"8\">near an edge, out of view</text></svg>\
          </p><p>Maps: the part from each side and from above, coloured by signed deviation, \
-         saturated at the tolerance; the dashed line is the printed height. Numbered call-outs \
+         saturated at the tolerance; the dashed line is the printed height. Only what the findings \
+         judged is coloured: a design sample they leave out (within reach of a sharp edge, on a \
+         face no station saw, a missing patch smaller than counts) is grey. Numbered call-outs \
          are the findings of the table above each map; a bar beside a map marks a layer band.</p>"
     )
 }

@@ -14,7 +14,7 @@ use std::fmt::Write;
 use asbuilt_core::Design;
 use asbuilt_core::cells::floor_i64;
 use asbuilt_core::colour::deviation_colour;
-use asbuilt_core::coverage::SampleClass;
+use asbuilt_core::findings::Judged;
 use asbuilt_core::scan_layer::SampleState;
 use asbuilt_core::verdict::Verdict;
 use asbuilt_protocol::{DeviationFlags, PointDeviation};
@@ -618,9 +618,11 @@ impl MapCollector {
             let Some(side) = Side::facing(n) else {
                 continue;
             };
-            let mark = match (s.class, s.m3c2) {
-                (SampleClass::Missing, _) => Mark::Missing,
-                (SampleClass::Observed, Some(d)) => Mark::Value(d),
+            // What the findings judged, nothing else: a sample they left out (near a sharp
+            // edge, never in view, a missing patch too small to count) is "not judged".
+            let mark = match (s.judged, s.m3c2) {
+                (Judged::Missing, _) => Mark::Missing,
+                (Judged::Measured, Some(d)) => Mark::Value(d),
                 _ => Mark::Unseen,
             };
             sides.mark(side, s.position.into(), mark, frame.pixel, radius);

@@ -10,6 +10,18 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 const ASBUILT: &str = env!("CARGO_BIN_EXE_e2e-asbuilt");
 
+/// An agent on the box `stl` (metres) at 5 mm tolerance, serving under `prefix`.
+fn box_agent(prefix: &str, stl: &std::path::Path) -> asbuilt_tests::Agent {
+    asbuilt_tests::Agent::start(
+        env!("CARGO_BIN_EXE_e2e-asbuilt-agent"),
+        prefix,
+        &format!(
+            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n",
+            stl.display().to_string()
+        ),
+    )
+}
+
 /// The top and front of a 1 × 0.5 × 0.4 m box as two scans taken from two poses.
 fn write_ptx_job(path: &std::path::Path) -> usize {
     let poses = [
@@ -128,14 +140,7 @@ fn publish_streams_a_ptx_job_into_the_agent() {
     write_box_stl(&stl, [0.0; 3], [1.0, 0.5, 0.4]);
     write_ptx_job(&dir.path().join("job.ptx"));
     let prefix = asbuilt_tests::unique_prefix("ptx");
-    let agent = asbuilt_tests::Agent::start(
-        env!("CARGO_BIN_EXE_e2e-asbuilt-agent"),
-        &prefix,
-        &format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n",
-            stl.display().to_string()
-        ),
-    );
+    let agent = box_agent(&prefix, &stl);
     let o = Command::new(ASBUILT)
         .arg("publish")
         .arg(dir.path().join("job.ptx"))
@@ -290,14 +295,7 @@ fn a_ros2_bag_is_inspected_packed_and_published_alike() {
         );
     }
     let prefix = asbuilt_tests::unique_prefix("ros2");
-    let agent = asbuilt_tests::Agent::start(
-        env!("CARGO_BIN_EXE_e2e-asbuilt-agent"),
-        &prefix,
-        &format!(
-            "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n",
-            stl.display().to_string()
-        ),
-    );
+    let agent = box_agent(&prefix, &stl);
     let o = Command::new(ASBUILT)
         .arg("publish")
         .arg("--ros2")

@@ -939,6 +939,17 @@ mod tests {
         .unwrap()
     }
 
+    /// A recorder of an agent that resumed job 1's print started at 200, its newest part `part`.
+    fn resumed(dir: &Path, part: u32) -> Recorder {
+        let r = recorder(dir);
+        r.continues(PrintFiles {
+            job: 1,
+            started: 200,
+            part,
+        });
+        r
+    }
+
     fn begin(station: u32, started: u64) -> Recorded {
         let mut b = asbuilt_protocol::StationEvent::new(
             asbuilt_protocol::StationEventKind::Begin,
@@ -972,12 +983,7 @@ mod tests {
         let parts: Vec<u32> = files().iter().map(|f| f.part).collect();
         assert_eq!(parts, vec![1, 1]);
         // An agent that resumed the print of 200 goes on with its next part.
-        let mut r = recorder(dir.path());
-        r.continues(PrintFiles {
-            job: 1,
-            started: 200,
-            part: 1,
-        });
+        let mut r = resumed(dir.path(), 1);
         r.record(begin(2, 200));
         r.finish();
         let parts: Vec<u32> = files().iter().map(|f| f.part).collect();
@@ -986,12 +992,7 @@ mod tests {
         let newest = crate::resume::newest_print(&all, 1);
         assert_eq!(newest, vec![&all[1], &all[2]]);
         // Resumed, but the cell began a later print: a first part.
-        let mut r = recorder(dir.path());
-        r.continues(PrintFiles {
-            job: 1,
-            started: 200,
-            part: 2,
-        });
+        let mut r = resumed(dir.path(), 2);
         r.record(begin(0, 300));
         r.finish();
         let all = files();

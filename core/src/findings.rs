@@ -29,7 +29,7 @@ use nalgebra::{Matrix3, Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 mod judged;
-pub use judged::{Judged, judged};
+pub use judged::Judged;
 
 use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
@@ -120,6 +120,8 @@ pub struct Findings {
     pub regions: Vec<Region>,
     /// Missing material, largest first.
     pub missing: Vec<Region>,
+    /// Each design sample's judgement, by sample number: what a map may paint.
+    pub judged: Vec<Judged>,
 }
 
 /// Side faces: the normal within 30° of horizontal.
@@ -177,11 +179,13 @@ pub fn find(
             ));
         }
     }
-    for group in missing_areas(m3c2, coverage, samples, area_per_sample, p) {
+    let missing = missing_areas(m3c2, coverage, samples, area_per_sample, p);
+    for group in &missing {
         let pts: Vec<Point3<f64>> = group.iter().map(|g| g.1).collect();
         out.missing
             .push(region(RegionKind::Missing, &pts, area_per_sample, &band_of));
     }
+    out.judged = judged::judgement(samples, m3c2, &usable, &missing);
     out.regions.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out.missing.sort_by_key(|r| std::cmp::Reverse(r.samples));
     out
@@ -925,7 +929,7 @@ mod tests {
         let mut p = params();
         p.min_region_samples = 5;
         let f = find(&r, &coverage, &edges, 1e-4, &p, 0.0);
-        let j = judged(&r, &coverage, &edges, 1e-4, &p, 0.0);
+        let j = &f.judged;
         let count = |k: Judged| j.iter().filter(|&&x| x == k).count() as u32;
         assert_eq!(f.missing.len(), 1);
         assert_eq!(count(Judged::Missing), f.missing[0].samples);

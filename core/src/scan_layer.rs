@@ -373,14 +373,7 @@ impl ScanLayer {
                     judged: Default::default(),
                 })
                 .collect();
-            let judged = findings::judged(
-                &results,
-                &outcomes,
-                &self.sharp_edges,
-                self.area_per_sample,
-                &self.findings,
-                sigma,
-            );
+
             // Both were built from the same samples: their sample indices line them up.
             let mut at = vec![usize::MAX; self.samples];
             for (i, o) in outcomes.iter().enumerate() {
@@ -394,7 +387,7 @@ impl ScanLayer {
                     s.significant = r.significant;
                 }
             }
-            for (sample, &j) in judged.iter().enumerate() {
+            for (sample, &j) in f.judged.iter().enumerate() {
                 if let Some(s) = at.get(sample).and_then(|&i| states.get_mut(i)) {
                     s.judged = j;
                 }

@@ -26,10 +26,64 @@ pub use crate::services::{
     ChunkSample, DELIVERY_DEADLINE, DeviationSample, IceoryxCause, Ipc, IpcError, QueueSizes,
 };
 pub use crate::table::{AgentPorts, CellPorts, ServiceNames};
-use crate::{ChunkHeader, LayerApplied, PoseSnapshot, ScanPoint, StationEvent};
+use crate::{ChunkHeader, LayerApplied, PoseSnapshot, ScanPoint, StationEvent, StationReport};
 use iceoryx2::prelude::*;
 
 impl CellPorts {
+    /// The cell's side of a running agent's services on a node of its own, waiting up to `wait`
+    /// for the agent to come up. The node must outlive the ports: it comes with them. What
+    /// publishers that died left in the services is removed first.
+    pub fn connect(
+        names: &ServiceNames,
+        max_points_per_chunk: usize,
+        wait: Duration,
+    ) -> Result<(Node<Ipc>, Self), IpcError> {
+        set_log_level_from_env_or(LogLevel::Error);
+        let node = NodeBuilder::new()
+            .create::<Ipc>()
+            .map_err(|e| IpcError::iceoryx("cannot create an iceoryx2 node", e))?;
+        node.try_cleanup_dead_nodes();
+        let ports = Self::open(&node, names, max_points_per_chunk, wait)?;
+        Ok((node, ports))
+    }
+
+    /// The reports of `job` that are news, after waiting up to `wait` for the agent to publish;
+    /// `reports` keeps each station's latest. Reports come at least once (an agent resuming its
+    /// job publishes them again); a later attempt of a station replaces an earlier one. The
+    /// reports' history can hold an older report of the same attempt (a cell before this one
+    /// sent the station): the newer stands, and one identical to a report in hand is not news.
+    /// The deviations, which are for other subscribers, are drained so their queue never fills.
+    pub fn take_reports(
+        &self,
+        job: u64,
+        reports: &mut Vec<StationReport>,
+        wait: Duration,
+    ) -> Result<Vec<StationReport>, IpcError> {
+        if !wait.is_zero() {
+            self.wait_for_output(wait)?;
+        }
+        let mut news = Vec::new();
+        while let Some(r) = self
+            .reports
+            .receive()
+            .map_err(|e| IpcError::iceoryx("cannot read reports", e))?
+        {
+            let r = *r.payload();
+            if r.job != job
+                || reports
+                    .iter()
+                    .any(|x| x.station == r.station && (x.attempt > r.attempt || *x == r))
+            {
+                continue;
+            }
+            reports.retain(|x| x.station != r.station);
+            reports.push(r);
+            news.push(r);
+        }
+        while let Ok(Some(_)) = self.deviations.receive() {}
+        Ok(news)
+    }
+
     /// Opens the services of a running agent, waiting up to `wait` for it to appear.
     /// `max_points_per_chunk` sizes this publisher's chunk samples.
     pub fn open(

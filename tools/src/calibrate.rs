@@ -7,7 +7,6 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use asbuilt_core::calibration::rigid::{self, RigidFit};
 use asbuilt_core::calibration::{matching, sphere};
-use asbuilt_io::scan::{DEFAULT_CHUNK, ScanFile};
 use clap::{Args, ValueEnum};
 use nalgebra::{Point3, UnitQuaternion};
 
@@ -98,17 +97,7 @@ fn station_pairs(
     known: &[Point3<f64>],
 ) -> Result<Vec<Pair>> {
     let mut pairs = Vec::new();
-    let file = ScanFile::open(&st.scan)?;
-    let mut pts = Vec::new();
-    file.stream(st.scan_index, DEFAULT_CHUNK, &mut |chunk| {
-        pts.extend(
-            chunk
-                .iter()
-                .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
-                .map(|p| Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64)),
-        );
-        Ok(())
-    })?;
+    let pts = st.open_scan()?.valid_points(st.scan_index)?;
     let found = sphere::detect(&pts, params);
     // Targets and spheres compare in one frame: the scanner's for the sphere centres, and
     // the targets as they are (distances do not depend on the frame).

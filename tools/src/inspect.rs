@@ -445,7 +445,7 @@ impl Job {
             eprintln!("warning: {w}");
             warnings.push(w);
         }
-        if let Some(w) = size_mismatch(&station.id, self.facts.size, bounds) {
+        if let Some(w) = station.size_mismatch(self.facts.size, bounds) {
             eprintln!("warning: {w}");
             warnings.push(w);
         }
@@ -725,24 +725,6 @@ fn progress_bar(declared: Option<u64>, name: &str) -> ProgressBar {
     };
     bar.set_message(name.to_string());
     bar
-}
-
-/// A warning when the scan and the design differ in size by more than 30×: the units are
-/// almost certainly wrong.
-fn size_mismatch(station: &str, design_size: f64, bounds: Bounds) -> Option<String> {
-    let scan_size = (bounds.1 - bounds.0).norm();
-    if !(scan_size.is_finite() && design_size > 0.0 && scan_size > 0.0) {
-        return None;
-    }
-    let ratio = design_size / scan_size;
-    (!(1.0 / 30.0..=30.0).contains(&ratio)).then(|| {
-        format!(
-            "station {station}: the design spans {design_size:.3} m but the scan spans \
-             {scan_size:.3} m ({}× apart): check --units (a millimetre design declared as m is \
-             1000× too big)",
-            ratio.max(1.0 / ratio).round()
-        )
-    })
 }
 
 fn start_viewer(args: &InspectArgs, design: &Design) -> Result<Option<Viewer>> {

@@ -8,6 +8,7 @@ mod calibrate;
 mod convert;
 mod demo;
 pub mod inspect;
+mod job_args;
 mod maps_png;
 mod pack;
 pub mod publish;

@@ -36,14 +36,9 @@ pub struct PackArgs {
     /// The recording to write.
     #[arg(long, short)]
     out: PathBuf,
-    /// Job number carried by every message.
-    #[arg(long, default_value_t = 1)]
-    job: u64,
-    /// When the job started, nanoseconds since the Unix epoch: with the job number it tells
-    /// this print from another that reuses the number. Default: now. Give the first run's
-    /// (its Begin events carry it) to send more of the same job.
-    #[arg(long, value_name = "NS")]
-    job_started_ns: Option<u64>,
+    /// The job's number and start.
+    #[command(flatten)]
+    job: crate::job_args::JobIdentity,
     /// Points per scan chunk.
     #[arg(long, default_value_t = 16_384)]
     chunk_points: usize,
@@ -86,7 +81,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
             (stations::load(&path)?, path)
         }
     };
-    let job_started_ns = args.job_started_ns.unwrap_or_else(unix_time_ns);
+    let job_started_ns = args.job.started_ns();
     let design = std::fs::read(&args.design)
         .with_context(|| format!("cannot read design {}", args.design.display()))?;
     // Refuse a design the agent could not load, before writing anything.
@@ -104,22 +99,7 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
             .with_foxglove_scans()?;
     }
     let t0 = unix_time_ns();
-    w.metadata(&JobMetadata {
-        writer: "asbuilt pack".into(),
-        asbuilt_version: env!("CARGO_PKG_VERSION").into(),
-        design_path: args.design.display().to_string(),
-        design_units: args.units.to_string(),
-        design_sha256: format!("{:x}", Sha256::digest(&design)),
-        config: format!(
-            "packed from {}\n\n{}",
-            source.display(),
-            args.stations
-                .as_ref()
-                .and_then(|p| std::fs::read_to_string(p).ok())
-                .unwrap_or_default()
-        ),
-        calibrations: "none: poses are the scanner in the design frame".into(),
-    })?;
+    w.metadata(&metadata(&args, &design, &source))?;
     let name = args
         .design
         .file_name()
@@ -136,12 +116,12 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         let scan = st.open_scan()?;
         eprintln!("station {}: pose from {}", st.id, st.pose_source);
         let declared = scan.scans[st.scan_index].points;
-        let mut begin = StationEvent::new(StationEventKind::Begin, args.job, station);
+        let mut begin = StationEvent::new(StationEventKind::Begin, args.job.number, station);
         begin.job_started_ns = job_started_ns;
         begin.name = FixedText::truncated(&st.id);
         begin.expected_points = declared.unwrap_or(0);
         begin.expected_chunks = declared.map_or(0, |p| p.div_ceil(args.chunk_points as u64)) as u32;
-        let mut pose = PoseSnapshot::new(args.job, station, PoseMode::DesignScanner);
+        let mut pose = PoseSnapshot::new(args.job.number, station, PoseMode::DesignScanner);
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
         pose.position_sigma = st.position_sigma;
@@ -169,6 +149,26 @@ pub fn run(args: PackArgs) -> Result<ExitCode> {
         args.rate
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// The recording's metadata: the design, and where the stations came from.
+fn metadata(args: &PackArgs, design: &[u8], source: &std::path::Path) -> JobMetadata {
+    JobMetadata {
+        writer: "asbuilt pack".into(),
+        asbuilt_version: env!("CARGO_PKG_VERSION").into(),
+        design_path: args.design.display().to_string(),
+        design_units: args.units.to_string(),
+        design_sha256: format!("{:x}", Sha256::digest(design)),
+        config: format!(
+            "packed from {}\n\n{}",
+            source.display(),
+            args.stations
+                .as_ref()
+                .and_then(|p| std::fs::read_to_string(p).ok())
+                .unwrap_or_default()
+        ),
+        calibrations: "none: poses are the scanner in the design frame".into(),
+    }
 }
 
 /// A recording written as a scanner at `rate` points per second would have sent the stations.

@@ -6,13 +6,12 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use asbuilt_protocol::ipc::{CellPorts, Ipc, ServiceNames};
+use asbuilt_protocol::ipc::{CellPorts, ServiceNames};
 use asbuilt_protocol::{
     FixedText, Paced, PoseMode, PoseSnapshot, StationEvent, StationEventKind, StationReport,
-    StationSender, StationStatus, unix_time_ns,
+    StationSender, StationStatus,
 };
 use clap::Args;
-use iceoryx2::prelude::*;
 
 use asbuilt_io::stations::{self, Station};
 
@@ -33,14 +32,9 @@ pub struct PublishArgs {
     /// Service prefix of the agent (its services.prefix).
     #[arg(long, default_value = "asbuilt")]
     prefix: String,
-    /// Job number carried by every message.
-    #[arg(long, default_value_t = 1)]
-    job: u64,
-    /// When the job started, nanoseconds since the Unix epoch: with the job number it tells
-    /// this print from another that reuses the number. Default: now. Give the first run's
-    /// (its Begin events carry it) to send more of the same job.
-    #[arg(long, value_name = "NS")]
-    job_started_ns: Option<u64>,
+    /// The job's number and start.
+    #[command(flatten)]
+    job: crate::job_args::JobIdentity,
     /// Points per scan chunk.
     #[arg(long, default_value_t = 16_384)]
     chunk_points: usize,
@@ -56,23 +50,6 @@ pub struct PublishArgs {
     attempts: u8,
 }
 
-/// The cell's side of a running agent's services, waiting up to `wait` for it to come up. The
-/// node must outlive the ports.
-pub fn connect(
-    names: &ServiceNames,
-    max_points_per_chunk: usize,
-    wait: Duration,
-) -> Result<(Node<Ipc>, CellPorts)> {
-    set_log_level_from_env_or(LogLevel::Error);
-    let node = NodeBuilder::new()
-        .create::<Ipc>()
-        .map_err(|e| anyhow::anyhow!("cannot create an iceoryx2 node: {e:?}"))?;
-    // A publisher that crashed earlier may still hold a slot in the agent's services.
-    node.try_cleanup_dead_nodes();
-    let ports = CellPorts::open(&node, names, max_points_per_chunk, wait)?;
-    Ok((node, ports))
-}
-
 pub(crate) fn parse_rate(s: &str) -> Result<Option<f64>> {
     if s == "max" {
         return Ok(None);
@@ -85,26 +62,32 @@ pub(crate) fn parse_rate(s: &str) -> Result<Option<f64>> {
     Ok(Some(r))
 }
 
+/// The stations of a bag, a stations file or scan files, whichever was given.
+fn stations_of(args: &PublishArgs) -> Result<Vec<Station>> {
+    if !args.files.is_empty() && (args.stations.is_some() || args.ros2.ros2.is_some()) {
+        bail!("give scan files, --stations FILE or --ros2 BAG, one of them");
+    }
+    let bag = args.ros2.stations(args.stations.as_deref())?;
+    Ok(match (bag, &args.stations) {
+        (Some(bag), _) => bag,
+        (None, Some(path)) => stations::load(path)?,
+        (None, None) => stations::from_files(&args.files)?,
+    })
+}
+
 /// Streams the stations' scans into a running agent and waits for its reports.
-pub fn run(args: PublishArgs) -> Result<ExitCode> {
+pub fn run(mut args: PublishArgs) -> Result<ExitCode> {
     let rate = parse_rate(&args.rate)?;
     if args.chunk_points == 0 {
         bail!("--chunk-points must be at least 1");
     }
-    if !args.files.is_empty() && (args.stations.is_some() || args.ros2.ros2.is_some()) {
-        bail!("give scan files, --stations FILE or --ros2 BAG, one of them");
-    }
-    let stations = match (
-        args.ros2.stations(args.stations.as_deref())?,
-        &args.stations,
-    ) {
-        (Some(bag), _) => bag,
-        (None, Some(path)) => stations::load(path)?,
-        (None, None) => stations::from_files(&args.files)?,
-    };
+    let stations = stations_of(&args)?;
+    // One start for the whole job, also for the stations sent again.
+    args.job.job_started_ns = Some(args.job.started_ns());
+    let number = args.job.number;
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let (_node, ports) = connect(&names, args.chunk_points, wait)?;
+    let (_node, ports) = CellPorts::connect(&names, args.chunk_points, wait)?;
     eprintln!(
         "publishing {} stations to {}/… ({} points per chunk, rate {})",
         stations.len(),
@@ -125,7 +108,6 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
         ports: &ports,
         rate,
         started,
-        job_started_ns: args.job_started_ns.unwrap_or_else(unix_time_ns),
     };
     let send = |station: u32, attempt: u8, sent_points: &mut u64| -> Result<()> {
         *sent_points += job.send(station, attempt, *sent_points)?;
@@ -133,7 +115,7 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
     };
     for station in 0..stations.len() as u32 {
         send(station, 1, &mut sent_points)?;
-        collect_reports(&ports, args.job, &mut reports, Duration::ZERO)?;
+        collect_reports(&ports, number, &mut reports, Duration::ZERO)?;
     }
     let expected = stations.len();
     // The attempt of each station sent last: reports of earlier ones (published again by an
@@ -174,7 +156,7 @@ pub fn run(args: PublishArgs) -> Result<ExitCode> {
             break;
         }
         let before = reports.clone();
-        collect_reports(&ports, args.job, &mut reports, Duration::from_millis(100))?;
+        collect_reports(&ports, number, &mut reports, Duration::from_millis(100))?;
         if reports != before {
             changed = Instant::now();
         }
@@ -191,8 +173,6 @@ struct Job<'a> {
     ports: &'a CellPorts,
     rate: Option<f64>,
     started: Instant,
-    /// The job's `StationEvent::job_started_ns`.
-    job_started_ns: u64,
 }
 
 impl Job<'_> {
@@ -206,13 +186,13 @@ impl Job<'_> {
         }
         let declared = file.scans[st.scan_index].points;
         let chunks = declared.map_or(0, |n| n.div_ceil(self.args.chunk_points as u64));
-        let mut begin = StationEvent::new(StationEventKind::Begin, self.args.job, station);
-        begin.job_started_ns = self.job_started_ns;
+        let mut begin = StationEvent::new(StationEventKind::Begin, self.args.job.number, station);
+        begin.job_started_ns = self.args.job.started_ns();
         begin.name = FixedText::truncated(&st.id);
         begin.expected_chunks = chunks as u32;
         begin.expected_points = declared.unwrap_or(0);
         begin.attempt = attempt;
-        let mut pose = PoseSnapshot::new(self.args.job, station, PoseMode::DesignScanner);
+        let mut pose = PoseSnapshot::new(self.args.job.number, station, PoseMode::DesignScanner);
         pose.translation = st.translation;
         pose.rotation_xyzw = st.rotation_xyzw;
         pose.position_sigma = st.position_sigma;
@@ -261,33 +241,14 @@ pub(crate) fn reports_verdict(expected: usize, reports: &[StationReport], wait: 
     ExitCode::SUCCESS
 }
 
+/// Takes the reports of `job` that are news (see `CellPorts::take_reports`) and prints them.
 pub(crate) fn collect_reports(
     ports: &CellPorts,
     job: u64,
     reports: &mut Vec<StationReport>,
     wait: Duration,
 ) -> Result<()> {
-    if !wait.is_zero() {
-        ports.wait_for_output(wait)?;
-    }
-    while let Some(r) = ports
-        .reports
-        .receive()
-        .map_err(|e| anyhow::anyhow!("cannot read reports: {e:?}"))?
-    {
-        let r = *r.payload();
-        // Reports come at least once (an agent resuming its job publishes them again); a later
-        // attempt of a station replaces an earlier one. The reports' history can hold an older
-        // report of the same attempt (a cell before this one sent the station): the newer
-        // stands, and one identical to a report in hand is not news.
-        if r.job != job
-            || reports
-                .iter()
-                .any(|x| x.station == r.station && (x.attempt > r.attempt || *x == r))
-        {
-            continue;
-        }
-        reports.retain(|x| x.station != r.station);
+    for r in ports.take_reports(job, reports, wait)? {
         println!(
             "station {:<12} {:?}: {} points, {} matched, median |d| {:.3} mm, p95 {:.3} mm",
             r.name.as_str(),
@@ -297,9 +258,6 @@ pub(crate) fn collect_reports(
             r.stats.median_abs * 1e3,
             r.stats.p95_abs * 1e3
         );
-        reports.push(r);
     }
-    // Deviations are for other subscribers; keep this one's queue from filling.
-    while let Ok(Some(_)) = ports.deviations.receive() {}
     Ok(())
 }

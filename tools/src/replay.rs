@@ -69,7 +69,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
     }
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let (_node, ports) = crate::publish::connect(&names, max_points, wait)?;
+    let (_node, ports) = asbuilt_protocol::ipc::CellPorts::connect(&names, max_points, wait)?;
     eprintln!(
         "replaying {} inputs of {} stations from {} to {}/… at speed {}",
         inputs,

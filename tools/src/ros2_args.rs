@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use asbuilt_io::scan::ScanFile;
-use asbuilt_io::scan::ros2::{Ros2Bag, Ros2Options, load_windows};
+use asbuilt_io::scan::ros2::{Ros2Options, load_windows};
 use asbuilt_io::stations::{self, Station};
 use clap::Args;
 
@@ -55,14 +55,7 @@ impl Ros2Args {
         let Some(path) = &self.ros2 else {
             return Ok(None);
         };
-        let bag = Ros2Bag::open(path, &self.options(windows)?).map_err(|cause| {
-            asbuilt_io::IoError::Scan {
-                path: path.clone(),
-                cause,
-            }
-        })?;
-        eprintln!("ROS 2 bag {}: {}", path.display(), bag.describe());
-        Ok(Some(ScanFile::of_ros2(path, std::sync::Arc::new(bag))))
+        Ok(Some(ScanFile::open_ros2(path, &self.options(windows)?)?))
     }
 
     fn options(&self, windows: Option<&Path>) -> Result<Ros2Options> {

@@ -149,7 +149,7 @@ pub fn run(args: SimArgs) -> Result<ExitCode> {
     let job = args.job.job()?;
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let (_node, ports) = crate::publish::connect(&names, job.chunk_points, wait)?;
+    let (_node, ports) = asbuilt_protocol::ipc::CellPorts::connect(&names, job.chunk_points, wait)?;
     if let Some(p) = &args.truth {
         write_truth(p, &job, &[])?;
     }

@@ -96,6 +96,29 @@ pub struct Station {
 }
 
 impl Station {
+    /// A warning when this station's scan (its corners `lo`, `hi`) and a design `design_size`
+    /// across differ in size by more than 30×: the units are almost certainly wrong.
+    pub fn size_mismatch(
+        &self,
+        design_size: f64,
+        (lo, hi): (nalgebra::Point3<f64>, nalgebra::Point3<f64>),
+    ) -> Option<String> {
+        let scan_size = (hi - lo).norm();
+        if !(scan_size.is_finite() && design_size > 0.0 && scan_size > 0.0) {
+            return None;
+        }
+        let ratio = design_size / scan_size;
+        (!(1.0 / 30.0..=30.0).contains(&ratio)).then(|| {
+            format!(
+                "station {}: the design spans {design_size:.3} m but the scan spans \
+                 {scan_size:.3} m ({}× apart): check --units (a millimetre design declared as \
+                 m is 1000× too big)",
+                self.id,
+                ratio.max(1.0 / ratio).round()
+            )
+        })
+    }
+
     /// Opens the station's scan: its file, or the bag it comes from.
     pub fn open_scan(&self) -> Result<crate::scan::ScanFile, IoError> {
         match &self.bag {
@@ -321,14 +344,9 @@ pub fn of_ros2(
     path: &Path,
     options: &crate::scan::ros2::Ros2Options,
 ) -> Result<Vec<Station>, IoError> {
-    use crate::scan::ros2::Ros2Bag;
-    let bag = Ros2Bag::open(path, options).map_err(|cause| IoError::Scan {
-        path: path.to_path_buf(),
-        cause,
-    })?;
-    eprintln!("ROS 2 bag {}: {}", path.display(), bag.describe());
-    let bag = std::sync::Arc::new(bag);
-    let scans = crate::scan::ScanFile::of_ros2(path, bag.clone()).scans;
+    let file = crate::scan::ScanFile::open_ros2(path, options)?;
+    let bag = file.bag.clone().expect("a bag's scan file");
+    let scans = file.scans;
     Ok(scans
         .into_iter()
         .map(|info| {

@@ -3,8 +3,6 @@
 
 use nalgebra::Point3;
 
-use super::{FindingParams, missing_areas, pose_of, reach, sample_count, usable_core_points};
-use crate::coverage::SampleOutcome;
 use crate::m3c2::streaming::CoreResult;
 
 /// A design sample as the findings judged it.
@@ -20,29 +18,22 @@ pub enum Judged {
     NotJudged,
 }
 
-/// Each sample's judgement, by sample number, from the same inputs as [`super::find`] and by
-/// its rules: the core points it uses, and the missing areas it counts.
-pub fn judged(
+/// Each of `samples` samples' judgement, by sample number: the core points the findings use
+/// (`usable`) and the missing areas they count.
+pub(super) fn judgement(
+    samples: usize,
     m3c2: &[CoreResult],
-    coverage: &[SampleOutcome],
-    sharp_edges: &[[Point3<f64>; 2]],
-    area_per_sample: f64,
-    p: &FindingParams,
-    pose_sigma: f64,
+    usable: &[bool],
+    missing: &[Vec<(u32, Point3<f64>)>],
 ) -> Vec<Judged> {
-    let samples = sample_count(m3c2, coverage);
-    let reach = reach(p, pose_of(pose_sigma));
-    let usable = usable_core_points(m3c2, coverage, sharp_edges, samples, reach);
     let mut out = vec![Judged::NotJudged; samples];
-    for (r, &u) in m3c2.iter().zip(&usable) {
+    for (r, &u) in m3c2.iter().zip(usable) {
         if u {
             out[r.sample as usize] = Judged::Measured;
         }
     }
-    for group in missing_areas(m3c2, coverage, samples, area_per_sample, p) {
-        for (sample, _) in group {
-            out[sample as usize] = Judged::Missing;
-        }
+    for &(sample, _) in missing.iter().flatten() {
+        out[sample as usize] = Judged::Missing;
     }
     out
 }

@@ -104,12 +104,12 @@ impl Cell {
         let names = ServiceNames::new(prefix);
         // iceoryx2's ports are not Send: they are opened on this thread, with the GIL held.
         let _ = py;
-        let (node, ports) = asbuilt_tools::publish::connect(
+        let (node, ports) = asbuilt_protocol::ipc::CellPorts::connect(
             &names,
             max_points_per_chunk,
             Duration::from_secs_f64(wait),
         )
-        .map_err(anyhow_err)?;
+        .map_err(|e| anyhow_err(e.into()))?;
         Ok(Self {
             ports,
             _node: node,

@@ -14,6 +14,7 @@ pub mod html;
 pub mod maps;
 mod markup;
 mod sections;
+mod short;
 pub mod suite;
 
 pub use assessment::{

@@ -141,7 +141,7 @@ pub struct ScanFile {
     /// The scans it holds, in file order.
     pub scans: Vec<ScanInfo>,
     /// The bag behind a [`Format::Ros2`] file.
-    bag: Option<std::sync::Arc<ros2::Ros2Bag>>,
+    pub(crate) bag: Option<std::sync::Arc<ros2::Ros2Bag>>,
 }
 
 /// A reader's error, with the file it is about.
@@ -274,6 +274,32 @@ impl ScanFile {
                 None => read?,
             }
         })
+    }
+
+    /// A ROS 2 bag read with `options` (see [`ros2`]): its stations as scans. What was found is
+    /// said on stderr.
+    pub fn open_ros2(path: &Path, options: &ros2::Ros2Options) -> Result<Self, IoError> {
+        let bag = ros2::Ros2Bag::open(path, options).map_err(|cause| naming(path, cause))?;
+        eprintln!("ROS 2 bag {}: {}", path.display(), bag.describe());
+        Ok(Self::of_ros2(path, std::sync::Arc::new(bag)))
+    }
+
+    /// The valid points of one scan in its frame at f64, in memory: for sphere targets and
+    /// reference clouds, not for scans to inspect.
+    pub fn valid_points(&self, index: usize) -> Result<Vec<nalgebra::Point3<f64>>, IoError> {
+        let mut out = Vec::new();
+        self.stream(index, DEFAULT_CHUNK, &mut |chunk| {
+            out.extend(
+                chunk
+                    .iter()
+                    .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
+                    .map(|p| {
+                        nalgebra::Point3::new(p.xyz[0] as f64, p.xyz[1] as f64, p.xyz[2] as f64)
+                    }),
+            );
+            Ok(())
+        })?;
+        Ok(out)
     }
 
     /// Every point of one scan in memory: for small files and tests.

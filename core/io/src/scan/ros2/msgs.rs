@@ -136,31 +136,23 @@ pub(super) fn decode<'a, T: Deserialize<'a>>(bytes: &'a [u8], what: &str) -> Res
         .map_err(|e| bad(format!("not a valid message ({e})")))
 }
 
-/// `sensor_msgs/PointField` data types.
-const INT8: u8 = 1;
-const UINT8: u8 = 2;
-const INT16: u8 = 3;
-const UINT16: u8 = 4;
-const INT32: u8 = 5;
-const UINT32: u8 = 6;
-const FLOAT32: u8 = 7;
-const FLOAT64: u8 = 8;
-
 /// Where a value sits in a point and how to read it.
 #[derive(Debug, Clone, Copy)]
 struct Field {
     offset: usize,
+    /// `sensor_msgs/PointField`'s data type: 1 int8, 2 uint8, 3 int16, 4 uint16, 5 int32,
+    /// 6 uint32, 7 float32, 8 float64.
     datatype: u8,
 }
 
+/// The sizes of the data types, by number.
+const SIZES: [usize; 9] = [0, 1, 1, 2, 2, 4, 4, 4, 8];
+const FLOAT32: u8 = 7;
+const FLOAT64: u8 = 8;
+
 impl Field {
     fn size(self) -> usize {
-        match self.datatype {
-            INT8 | UINT8 => 1,
-            INT16 | UINT16 => 2,
-            INT32 | UINT32 | FLOAT32 => 4,
-            _ => 8,
-        }
+        SIZES[self.datatype as usize]
     }
 
     /// The value in `point` (checked to hold it) as f64.
@@ -178,12 +170,12 @@ impl Field {
             }};
         }
         match self.datatype {
-            INT8 => b[0] as i8 as f64,
-            UINT8 => b[0] as f64,
-            INT16 => num!(i16, 2),
-            UINT16 => num!(u16, 2),
-            INT32 => num!(i32, 4),
-            UINT32 => num!(u32, 4),
+            1 => b[0] as i8 as f64,
+            2 => b[0] as f64,
+            3 => num!(i16, 2),
+            4 => num!(u16, 2),
+            5 => num!(i32, 4),
+            6 => num!(u32, 4),
             FLOAT32 => num!(f32, 4),
             _ => num!(f64, 8),
         }
@@ -206,7 +198,7 @@ impl PointCloud2<'_> {
     pub(super) fn layout(&self) -> Result<Layout, String> {
         let find = |name: &str| self.fields.iter().find(|f| f.name == name);
         let field = |f: &PointField| -> Result<Field, String> {
-            if !(INT8..=FLOAT64).contains(&f.datatype) || f.count == 0 {
+            if !(1..=FLOAT64).contains(&f.datatype) || f.count == 0 {
                 return Err(format!(
                     "field {} has datatype {} and count {}",
                     f.name, f.datatype, f.count

@@ -60,29 +60,27 @@ fn cdr<T: serde::Serialize>(m: &T) -> Vec<u8> {
 }
 
 fn cloud_record(c: &SampleCloud) -> Vec<u8> {
-    let field = |name: &str, offset: u32, datatype: u8| PointField {
-        name: name.into(),
-        offset,
-        datatype,
-        count: 1,
-    };
-    let (fields, step) = if c.float64 {
-        let f = vec![
-            field("intensity", 0, 7),
-            field("x", 8, 8),
-            field("y", 16, 8),
-            field("z", 24, 8),
-        ];
-        (f, 32)
+    // (name, offset, datatype): float64 x, y, z after an intensity, or float32 x, y, z, intensity.
+    let (layout, step): (&[(&str, u32, u8)], usize) = if c.float64 {
+        (
+            &[("intensity", 0, 7), ("x", 8, 8), ("y", 16, 8), ("z", 24, 8)],
+            32,
+        )
     } else {
-        let f = vec![
-            field("x", 0, 7),
-            field("y", 4, 7),
-            field("z", 8, 7),
-            field("intensity", 12, 7),
-        ];
-        (f, 16)
+        (
+            &[("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 7)],
+            16,
+        )
     };
+    let fields = layout
+        .iter()
+        .map(|&(name, offset, datatype)| PointField {
+            name: name.into(),
+            offset,
+            datatype,
+            count: 1,
+        })
+        .collect();
     let mut data = Vec::with_capacity(c.points.len() * step);
     for (k, p) in c.points.iter().enumerate() {
         let put32 = |d: &mut Vec<u8>, v: f32| {

@@ -32,7 +32,7 @@ use iceoryx2::prelude::*;
 impl CellPorts {
     /// The cell's side of a running agent's services on a node of its own, waiting up to `wait`
     /// for the agent to come up. The node must outlive the ports: it comes with them. What
-    /// publishers that died left in the services is removed first.
+    /// nodes that died left in the services is removed first, as before each Begin.
     pub fn connect(
         names: &ServiceNames,
         max_points_per_chunk: usize,
@@ -42,7 +42,7 @@ impl CellPorts {
         let node = NodeBuilder::new()
             .create::<Ipc>()
             .map_err(|e| IpcError::iceoryx("cannot create an iceoryx2 node", e))?;
-        node.try_cleanup_dead_nodes();
+        forget_dead_nodes();
         let ports = Self::open(&node, names, max_points_per_chunk, wait)?;
         Ok((node, ports))
     }

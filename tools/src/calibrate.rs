@@ -97,7 +97,7 @@ fn station_pairs(
     known: &[Point3<f64>],
 ) -> Result<Vec<Pair>> {
     let mut pairs = Vec::new();
-    let pts = st.open_scan()?.valid_points(st.scan_index)?;
+    let (pts, _) = st.open_scan()?.valid_points(st.scan_index)?;
     let found = sphere::detect(&pts, params);
     // Targets and spheres compare in one frame: the scanner's for the sphere centres, and
     // the targets as they are (distances do not depend on the frame).

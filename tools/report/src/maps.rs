@@ -133,7 +133,7 @@ struct Cell {
     sum: f32,
     values: u32,
     missing: u32,
-    unseen: u32,
+    not_judged: u32,
 }
 
 const EMPTY: Cell = Cell {
@@ -141,7 +141,7 @@ const EMPTY: Cell = Cell {
     sum: 0.0,
     values: 0,
     missing: 0,
-    unseen: 0,
+    not_judged: 0,
 };
 
 /// What a mark says about its spot of the surface.
@@ -149,7 +149,7 @@ const EMPTY: Cell = Cell {
 enum Mark {
     Value(f64),
     Missing,
-    Unseen,
+    NotJudged,
 }
 
 /// One side's raster.
@@ -239,7 +239,7 @@ impl Raster {
                 c.values += 1;
             }
             Mark::Missing => c.missing += 1,
-            Mark::Unseen => c.unseen += 1,
+            Mark::NotJudged => c.not_judged += 1,
         }
     }
 
@@ -317,7 +317,7 @@ impl Raster {
             c.sum += o.sum;
             c.values += o.values;
             c.missing += o.missing;
-            c.unseen += o.unseen;
+            c.not_judged += o.not_judged;
         }
     }
 
@@ -623,7 +623,7 @@ impl MapCollector {
             let mark = match (s.judged, s.m3c2) {
                 (Judged::Missing, _) => Mark::Missing,
                 (Judged::Measured, Some(d)) => Mark::Value(d),
-                _ => Mark::Unseen,
+                _ => Mark::NotJudged,
             };
             sides.mark(side, s.position.into(), mark, frame.pixel, radius);
         }
@@ -676,7 +676,7 @@ impl MapKind {
     }
 }
 
-const UNSEEN: [u8; 3] = [222, 222, 222];
+const NOT_JUDGED: [u8; 3] = [222, 222, 222];
 const OUTLINE: [u8; 3] = [70, 70, 70];
 const MISSING: [u8; 3] = [0, 0, 255];
 
@@ -717,8 +717,8 @@ impl ScanLayerMaps {
                 deviation_colour(f64::from(c.sum / c.values as f32), self.tolerance)
             } else if c.missing > 0 {
                 MISSING
-            } else if c.unseen > 0 || inside(k) {
-                UNSEEN
+            } else if c.not_judged > 0 || inside(k) {
+                NOT_JUDGED
             } else {
                 let (i, j) = (k % w, k / w);
                 let next_to_design = (i > 0 && inside(k - 1))

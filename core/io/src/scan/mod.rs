@@ -284,11 +284,14 @@ impl ScanFile {
         Ok(Self::of_ros2(path, std::sync::Arc::new(bag)))
     }
 
-    /// The valid points of one scan in its frame at f64, in memory: for sphere targets and
-    /// reference clouds, not for scans to inspect.
-    pub fn valid_points(&self, index: usize) -> Result<Vec<nalgebra::Point3<f64>>, IoError> {
+    /// The valid points of one scan in its frame at f64, in memory, and what the reader left
+    /// out: for sphere targets and reference clouds, not for scans to inspect.
+    pub fn valid_points(
+        &self,
+        index: usize,
+    ) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes), IoError> {
         let mut out = Vec::new();
-        self.stream(index, DEFAULT_CHUNK, &mut |chunk| {
+        let notes = self.stream(index, DEFAULT_CHUNK, &mut |chunk| {
             out.extend(
                 chunk
                     .iter()
@@ -299,7 +302,7 @@ impl ScanFile {
             );
             Ok(())
         })?;
-        Ok(out)
+        Ok((out, notes))
     }
 
     /// Every point of one scan in memory: for small files and tests.
@@ -321,21 +324,8 @@ pub fn read_cloud(path: &Path) -> Result<(Vec<nalgebra::Point3<f64>>, ReadNotes)
     let mut notes = ReadNotes::default();
     for info in &file.scans {
         let pose = info.pose.map(|p| p.0).unwrap_or_else(Isometry3::identity);
-        let n = file.stream(info.index, DEFAULT_CHUNK, &mut |chunk| {
-            out.extend(
-                chunk
-                    .iter()
-                    .filter(|p| !p.flags.is_invalid() && p.xyz.iter().all(|v| v.is_finite()))
-                    .map(|p| {
-                        pose * nalgebra::Point3::new(
-                            p.xyz[0] as f64,
-                            p.xyz[1] as f64,
-                            p.xyz[2] as f64,
-                        )
-                    }),
-            );
-            Ok(())
-        })?;
+        let (points, n) = file.valid_points(info.index)?;
+        out.extend(points.into_iter().map(|p| pose * p));
         notes.malformed_lines += n.malformed_lines;
         notes.invalid += n.invalid;
         if notes.first_malformed_line.is_none() {

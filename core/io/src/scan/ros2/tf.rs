@@ -135,6 +135,7 @@ impl TfTree {
         source: &str,
         stamp_ns: i64,
     ) -> Result<Isometry3<f64>, TfError> {
+        // A frame asked in itself needs no tree; any other must be in it.
         let known = |frame: &str| {
             frame == target && frame == source
                 || self.edges.contains_key(frame)

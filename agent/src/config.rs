@@ -477,6 +477,18 @@ const SECTIONS: &[&str] = &[
 ];
 
 impl AgentConfig {
+    /// What the findings are held to: the `[tolerances]` over the job's tolerance, with their
+    /// decision rule. Limits or a rule that do not parse were refused by [`AgentConfig::load`];
+    /// a configuration built otherwise falls back to the tolerance for every kind.
+    pub fn verdict_limits(&self) -> asbuilt_core::verdict::Limits {
+        let t = &self.tolerances;
+        let mut l = t.limits(self.inspect.tolerance).unwrap_or_else(|_| {
+            asbuilt_core::verdict::Limits::from_tolerance(self.inspect.tolerance)
+        });
+        l.rule = t.decision_rule().unwrap_or_default();
+        l
+    }
+
     /// Reads and checks `path`: every problem at once, or the configuration with relative paths
     /// resolved against the file's folder.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {

@@ -19,7 +19,7 @@ use asbuilt_report::flatness::FlatnessCollector;
 use asbuilt_report::maps::MapCollector;
 use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Report, Section, summary_table};
-use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
+use asbuilt_viewer::{self as viewer, BandMeans, View, Viewer, ViewerParams};
 
 /// Points per processing chunk. The per-point buffers are chunks, reused for every chunk: two
 /// of deviations (one being measured, one being written), and the scan's chunks in flight from
@@ -332,7 +332,7 @@ impl Job {
         let ply = DeviationsPly::create(&args.out.join("deviations.ply"), args.ascii)?;
         let (lo, hi) = design.bounds();
         let suite = Suite::new(&design, plan.suite.clone())?;
-        let viewer = start_viewer(args, &design)?;
+        let viewer = start_viewer(args, &plan.limits, &design)?;
         // The design's counts are all the report needs of it from here: the index takes it over.
         let counts = (design.vertices.len(), design.triangles.len());
         let maps = MapCollector::new(&design, args.tolerance, args.spacing);
@@ -517,7 +517,7 @@ impl Job {
             .into_iter()
             .collect();
         if let Some(v) = self.viewer {
-            finish_viewer(v, &totals, args);
+            finish_viewer(v, &totals, &findings, args);
         }
         let mut maps = self.maps;
         if !totals.samples.is_empty() {
@@ -727,7 +727,11 @@ fn progress_bar(declared: Option<u64>, name: &str) -> ProgressBar {
     bar
 }
 
-fn start_viewer(args: &InspectArgs, design: &Design) -> Result<Option<Viewer>> {
+fn start_viewer(
+    args: &InspectArgs,
+    limits: &asbuilt_core::verdict::Limits,
+    design: &Design,
+) -> Result<Option<Viewer>> {
     if args.rerun.is_none() && args.rerun_url.is_none() {
         return Ok(None);
     }
@@ -739,6 +743,10 @@ fn start_viewer(args: &InspectArgs, design: &Design) -> Result<Option<Viewer>> {
         queue: 4096,
         tolerance: args.tolerance,
         warn: |args| eprintln!("warning: {args}"),
+        job: asbuilt_viewer::Job::Survey {
+            layer_bands: args.layer_height.is_some(),
+        },
+        limits: Some(limits.clone()),
     })?;
     v.show(View::Design {
         vertices: design.vertices.clone(),
@@ -774,9 +782,14 @@ fn findings_message(
     )
 }
 
-/// The job-level layers of the view (missing samples, M3C2 core points, per-band means), then
-/// the view closed.
-fn finish_viewer(mut v: Viewer, totals: &asbuilt_report::SuiteTotals, args: &InspectArgs) {
+/// The job-level layers of the view (missing samples, M3C2 core points, the findings, per-band
+/// means), then the view closed.
+fn finish_viewer(
+    mut v: Viewer,
+    totals: &asbuilt_report::SuiteTotals,
+    findings: &[asbuilt_protocol::StationFindings],
+    args: &InspectArgs,
+) {
     for (path, samples) in [
         ("missing", &totals.missing_view),
         ("m3c2", &totals.m3c2_view),
@@ -790,20 +803,34 @@ fn finish_viewer(mut v: Viewer, totals: &asbuilt_report::SuiteTotals, args: &Ins
             });
         }
     }
-    for row in totals.layers.iter().flatten() {
-        for (series, stats) in [
-            ("c2m_mean_mm", &row.c2m),
-            ("c2c_mean_mm", &row.c2c),
-            ("m3c2_mean_mm", &row.m3c2),
-        ] {
-            if let Some(st) = stats {
-                v.show(View::LayerValue {
-                    series: series.into(),
-                    layer: row.layer,
-                    value: st.mean * 1e3,
-                });
-            }
-        }
+    for f in findings {
+        v.show(View::Findings {
+            index: f.station,
+            findings: Box::new(f.clone()),
+        });
+    }
+    if findings.is_empty() {
+        v.show(View::NoFindings {
+            why: "No findings: they need the design's samples in view of a station and M3C2 \
+                  (the report judges the job by all points together)."
+                .into(),
+        });
+    }
+    let mean = |s: &Option<asbuilt_report::BandStats>| s.as_ref().map(|s| s.mean);
+    let bands: Vec<BandMeans> = totals
+        .layers
+        .iter()
+        .flatten()
+        .map(|row| BandMeans {
+            layer: row.layer,
+            z: [row.z_min, row.z_max],
+            c2m: mean(&row.c2m),
+            c2c: mean(&row.c2c),
+            m3c2: mean(&row.m3c2),
+        })
+        .collect();
+    if !bands.is_empty() {
+        v.show(View::Bands(bands));
     }
     v.finish();
     if let Some(p) = &args.rerun {

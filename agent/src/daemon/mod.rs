@@ -411,14 +411,7 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
                     format!("layers of {:.1} mm", h * 1e3)
                 })
         );
-        // Checked at start: limits that do not parse were refused there.
-        let mut crew = config
-            .tolerances
-            .limits_with(config.inspect.tolerance, &[])
-            .unwrap_or_else(|_| {
-                asbuilt_core::verdict::Limits::from_tolerance(config.inspect.tolerance)
-            });
-        crew.rule = config.tolerances.decision_rule().unwrap_or_default();
+        let crew = config.verdict_limits();
         lifecycle = lifecycle.with_findings(
             FindingsStage::new(
                 f.clone(),
@@ -508,6 +501,10 @@ fn start_viewer(
                 queue: config.viewer.queue,
                 tolerance: config.inspect.tolerance,
                 warn: |args| crate::log::line(crate::log::Level::Warn, args),
+                job: asbuilt_viewer::Job::Printing {
+                    corrections: config.corrections.enabled,
+                },
+                limits: Some(config.verdict_limits()),
             })?;
             if let Some((vertices, triangles)) = design_view {
                 v.show(View::Design {

@@ -7,6 +7,7 @@ use std::path::Path;
 use std::process::Command;
 
 use asbuilt_tests::{agent_after_bunny_job, bunny_stations, shared_data};
+use asbuilt_viewer::{Job, Panel, PanelKind, panels};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::LogMsg;
 
@@ -88,6 +89,9 @@ fn inspect_writes_a_view_of_the_bunny() {
         ],
     );
     assert!(chunks > 30, "{chunks}");
+    let job = Job::Survey { layer_bands: true };
+    assert_eq!(panels_without_data(&rrd, job), Vec::<String>::new());
+    assert_eq!(time_panel_timeline(&rrd).as_deref(), Some("station"));
     verify_with_rerun(&rrd);
 }
 
@@ -215,12 +219,113 @@ fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
         let relative = b.replace("/width_mm/", "/relative_width_mm/");
         assert!(paths.contains(&relative), "{relative} missing: {paths:?}");
     }
-    assert!(paths.contains("/findings/summary"), "{paths:?}");
-    // Each scan layer's findings under their own entity, to switch on and off.
-    let layers = paths
+    let job = Job::Printing { corrections: false };
+    assert_eq!(panels_without_data(&rrd, job), Vec::<String>::new());
+    assert_eq!(time_panel_timeline(&rrd).as_deref(), Some("layer"));
+    // The part shows each scan layer's warnings and failures as markers numbered as in the
+    // report, the scan layer at the cursor's only: one entity, logged once per scan layer.
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
+    let want: Vec<(i64, Vec<String>)> = report["assessment"]["scan_layers"]
+        .as_array()
+        .unwrap()
         .iter()
-        .filter(|p| p.starts_with("/findings/scan_layer_") && p.ends_with("/regions"))
-        .count();
-    assert_eq!(layers, 2, "{paths:?}");
+        .map(|s| {
+            let labels = s["items"].as_array().unwrap().iter();
+            let labels = labels.map(|i| i["label"].as_str().unwrap().to_string());
+            (s["layer"].as_i64().unwrap(), labels.collect())
+        })
+        .collect();
+    assert_eq!(want.len(), 2, "{want:?}");
+    assert!(want.iter().all(|(_, l)| !l.is_empty()), "{want:?}");
+    assert_eq!(markers(&rrd), want);
     verify_with_rerun(&rrd);
+}
+
+/// The recording's chunks (not the blueprint's).
+fn recording_chunks(rrd: &Path) -> Vec<rerun::log::Chunk> {
+    let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
+    let mut out = Vec::new();
+    for msg in DecoderApp::decode_eager(reader).unwrap() {
+        if let LogMsg::ArrowMsg(store, arrow) = msg.unwrap()
+            && store.kind() == rerun::StoreKind::Recording
+        {
+            out.push(rerun::log::Chunk::from_arrow_msg(&arrow).unwrap());
+        }
+    }
+    out
+}
+
+/// The titles of `job`'s panels that would draw nothing when the view opens: no entity they
+/// show holds what they draw, on the timeline the view opens on (or static, where latest-at
+/// data is drawn; a time series needs it on the timeline).
+fn panels_without_data(rrd: &Path, job: Job) -> Vec<String> {
+    let chunks = recording_chunks(rrd);
+    let timeline = rerun::TimelineName::from(job.timeline());
+    let draws = |p: &Panel, c: &rerun::log::Chunk| {
+        let on_timeline = c.timelines().contains_key(&timeline);
+        let when = match p.kind {
+            PanelKind::TimeSeries => !c.is_static() && on_timeline,
+            _ => c.is_static() || on_timeline,
+        };
+        let what = p.kind.component().is_none_or(|want| {
+            c.component_descriptors()
+                .any(|d| d.component.as_str() == want)
+        });
+        c.num_rows() > 0 && when && what && p.includes(&c.entity_path().to_string())
+    };
+    panels(job)
+        .filter(|p| !chunks.iter().any(|c| draws(p, c)))
+        .map(|p| p.title.to_string())
+        .collect()
+}
+
+/// The timeline the blueprint's time panel opens on.
+fn time_panel_timeline(rrd: &Path) -> Option<String> {
+    use rerun::external::re_sdk_types::Component;
+    use rerun::external::re_sdk_types::blueprint::components as bp;
+    let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
+    let mut found = None;
+    for msg in DecoderApp::decode_eager(reader).unwrap() {
+        let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() else {
+            continue;
+        };
+        if store.kind() != rerun::StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = rerun::log::Chunk::from_arrow_msg(&arrow).unwrap();
+        for d in chunk.component_descriptors() {
+            if d.component_type == Some(bp::TimelineName::name()) {
+                for v in chunk.iter_component::<bp::TimelineName>(d.component) {
+                    found = v.first().map(|t| t.0.to_string());
+                }
+            }
+        }
+    }
+    found
+}
+
+/// The findings' marker labels at each scan layer (`layer` timeline), the last logged of each
+/// (a scan layer's findings are redrawn as each of its stations completes).
+fn markers(rrd: &Path) -> Vec<(i64, Vec<String>)> {
+    use rerun::external::re_sdk_types::components::Text;
+    let mut rows = Vec::new();
+    for c in recording_chunks(rrd) {
+        if c.entity_path().to_string() != "/findings/markers" {
+            continue;
+        }
+        let Some(layers) = c.timelines().get(&rerun::TimelineName::from("layer")) else {
+            continue;
+        };
+        let labels = c.iter_component::<Text>("Points3D:labels".into());
+        for ((layer, row), id) in layers.times_raw().iter().zip(labels).zip(c.row_ids()) {
+            rows.push((*layer, id, row.iter().map(|t| t.to_string()).collect()));
+        }
+    }
+    rows.sort_by_key(|r| (r.0, r.1));
+    let mut last = std::collections::BTreeMap::new();
+    for (layer, _, labels) in rows {
+        last.insert(layer, labels);
+    }
+    last.into_iter().collect()
 }

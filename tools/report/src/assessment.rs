@@ -344,13 +344,8 @@ pub fn assess(
     let mut layer_history = Vec::new();
     for layers in by_job.values_mut() {
         layers.sort_by_key(|f| f.layer);
-        let history = history(layers, limits);
-        let mut previous: Option<ScanLayerVerdicts> = None;
-        for f in layers.iter() {
-            let s = scan_layer(f, &history, previous.as_ref(), limits);
-            scan_layers.push(s.clone());
-            previous = Some(s);
-        }
+        let (verdicts, history) = job_verdicts(layers, limits);
+        scan_layers.extend(verdicts);
         layer_history.extend(history);
     }
     let stations: Vec<_> = stations.iter().map(|s| station(s, limits)).collect();
@@ -390,6 +385,23 @@ pub fn assess(
         stations,
         overall,
     }
+}
+
+/// One job's scan layers' verdicts, in the order of `layers` (each scan layer's latest
+/// findings, by layer), and every band's history. A scan layer's verdicts depend on it and the
+/// ones before, never after: the verdicts of the layers so far are the report's, so a live view
+/// numbers its findings as the report will.
+pub fn job_verdicts(
+    layers: &[&StationFindings],
+    limits: &Limits,
+) -> (Vec<ScanLayerVerdicts>, Vec<LayerHistory>) {
+    let history = history(layers, limits);
+    let mut out: Vec<ScanLayerVerdicts> = Vec::with_capacity(layers.len());
+    for f in layers {
+        let s = scan_layer(f, &history, out.last(), limits);
+        out.push(s);
+    }
+    (out, history)
 }
 
 /// Every band's measures across the scan layers, and its creep.
@@ -968,6 +980,29 @@ mod tests {
             a.summary
         );
         assert!(a.summary[1].contains("2 resolved"), "{:?}", a.summary);
+    }
+
+    #[test]
+    fn the_verdicts_of_the_scan_layers_so_far_are_the_reports() {
+        // Creep, a followed bulge and a resolved one: everything that looks back.
+        let mut a = scan(9, |_| 0.0);
+        a.regions.push(bulge(0.5, 0.008)).unwrap();
+        let mut b = scan(19, |b| 0.003 + if b == 1 { 0.006 } else { 0.0 });
+        b.regions.push(bulge(0.52, 0.012)).unwrap();
+        let c = scan(29, |b| if b == 1 { 0.012 } else { 0.0 });
+        let all = [a, b, c];
+        let limits = Limits::from_tolerance(T);
+        let report = assess(&all, &[], None, &limits);
+        let json = |v: &ScanLayerVerdicts| format!("{v:?}");
+        for k in 1..=all.len() {
+            let so_far: Vec<&StationFindings> = all[..k].iter().collect();
+            let (live, _) = job_verdicts(&so_far, &limits);
+            assert_eq!(live.len(), k);
+            for (l, r) in live.iter().zip(&report.scan_layers) {
+                assert_eq!(json(l), json(r), "scan layer {}", l.layer);
+            }
+        }
+        assert!(report.scan_layers[2].items.len() > 1);
     }
 
     #[test]

@@ -19,6 +19,6 @@ pub mod suite;
 
 pub use assessment::{
     Assessment, Change, Item, ItemKind, LayerHistory, LayerScan, LayerVerdict, LimitsSection,
-    ScanLayerVerdicts, StationVerdict, VerdictCounts, assess,
+    ScanLayerVerdicts, StationVerdict, VerdictCounts, assess, job_verdicts,
 };
 pub use sections::*;

@@ -1,0 +1,271 @@
+//! A scan layer's findings in the view: judged as the report judges them (the same verdicts,
+//! the same numbers), drawn as one numbered marker per warning or failure with its text in the
+//! findings table and on hover, boxes around the areas, and each band's history. Everything is
+//! logged to the same entities each scan layer, so the part shows the findings of the scan
+//! layer at the time cursor only.
+
+use asbuilt_core::verdict::{Limits, Verdict};
+use asbuilt_protocol::{RegionKind, StationFindings};
+use asbuilt_report::{Item, ScanLayerVerdicts};
+use nalgebra::Point3;
+
+use crate::paint::Painter;
+
+/// The current job's findings, each scan layer's latest: what its verdicts are judged from.
+/// As many as the job has scan layers (the design's height over the layers between scans).
+pub(crate) struct ScanLayers {
+    limits: Limits,
+    job: Option<u64>,
+    /// By scan layer.
+    layers: Vec<StationFindings>,
+}
+
+impl ScanLayers {
+    pub(crate) fn new(limits: Limits) -> Self {
+        Self {
+            limits,
+            job: None,
+            layers: Vec::new(),
+        }
+    }
+
+    /// Takes `f` (in place of an earlier one of its scan layer; a new job starts afresh) and
+    /// returns its verdicts, judged with the scan layers before it as the report judges them.
+    pub(crate) fn judge(&mut self, f: &StationFindings) -> ScanLayerVerdicts {
+        if self.job != Some(f.job) {
+            self.job = Some(f.job);
+            self.layers.clear();
+        }
+        match self.layers.binary_search_by_key(&f.layer, |l| l.layer) {
+            Ok(i) => self.layers[i] = f.clone(),
+            Err(i) => self.layers.insert(i, f.clone()),
+        }
+        let upto: Vec<&StationFindings> = self
+            .layers
+            .iter()
+            .take_while(|l| l.layer <= f.layer)
+            .collect();
+        let (mut verdicts, _) = asbuilt_report::job_verdicts(&upto, &self.limits);
+        verdicts
+            .pop()
+            .expect("the scan layer just taken is among those judged")
+    }
+}
+
+fn verdict_colour(v: Verdict) -> rerun::Color {
+    match v {
+        Verdict::Fail => rerun::Color::from_rgb(215, 25, 28),
+        Verdict::Warn => rerun::Color::from_rgb(245, 160, 0),
+        Verdict::Inconclusive => rerun::Color::from_rgb(140, 80, 200),
+        Verdict::Pass | Verdict::NotJudged => rerun::Color::from_rgb(120, 120, 120),
+    }
+}
+
+impl Painter {
+    /// A scan layer's findings: markers, areas, table and the bands' history, at the station
+    /// that completed it and its scan layer.
+    pub(crate) fn findings(
+        &mut self,
+        index: u32,
+        f: &StationFindings,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        self.at(index, f.layer);
+        let verdicts = self.scan_layers.judge(f);
+        self.markers(&verdicts)?;
+        self.areas(f)?;
+        self.rec.log(
+            "findings/table",
+            &rerun::TextDocument::new(table(f, &verdicts))
+                .with_media_type(rerun::MediaType::markdown()),
+        )?;
+        self.history(f)
+    }
+
+    /// One marker per warning or failure, numbered as in the report: an area's at its centroid,
+    /// a layer band's on the ruler at the part's corner at the band's height (side by side when
+    /// a band has several). An empty list clears the previous scan layer's.
+    fn markers(&mut self, v: &ScanLayerVerdicts) -> Result<(), rerun::RecordingStreamError> {
+        let (lo, hi) = self.bounds.unwrap_or((Point3::origin(), Point3::origin()));
+        let pad = 0.05 * (hi - lo).amax().max(0.1);
+        let ruler = [lo.x - pad, lo.y - pad];
+        let mut on_band: Vec<(u32, usize)> = Vec::new();
+        let (mut positions, mut colours, mut labels, mut texts) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for it in &v.items {
+            let p = match it.at {
+                Some(at) => self.local(&Point3::from(at)),
+                None => {
+                    let band = it.layers.map_or(u32::MAX, |l| l[0]);
+                    let k = match on_band.iter_mut().find(|(b, _)| *b == band) {
+                        Some((_, n)) => {
+                            *n += 1;
+                            *n
+                        }
+                        None => {
+                            on_band.push((band, 0));
+                            0
+                        }
+                    };
+                    let z = 0.5 * (it.z[0] + it.z[1]) - self.origin.z;
+                    let x = ruler[0] - 0.6 * pad * k as f64;
+                    [x as f32, ruler[1] as f32, z as f32]
+                }
+            };
+            positions.push(p);
+            colours.push(verdict_colour(it.verdict));
+            labels.push(it.label.clone());
+            texts.push(hover(it));
+        }
+        self.rec.log(
+            "findings/markers",
+            &rerun::Points3D::new(positions)
+                .with_colors(colours)
+                .with_radii([rerun::Radius::new_ui_points(7.0)])
+                .with_labels(labels)
+                .with_show_labels(true),
+        )?;
+        self.rec.log(
+            "findings/markers",
+            &rerun::AnyValues::default()
+                .with_component::<rerun::components::Text>("finding", texts),
+        )?;
+        let (zlo, zhi) = (lo.z as f32, hi.z as f32);
+        let [x, y] = ruler.map(|c| c as f32);
+        self.rec.log(
+            "findings/ruler",
+            &rerun::LineStrips3D::new([[[x, y, zlo], [x, y, zhi]]])
+                .with_colors([rerun::Color::from_rgb(110, 110, 110)]),
+        )
+    }
+
+    /// Out-of-tolerance regions as outlines (red excess, blue deficit), missing material as
+    /// amber patches; unlabelled, the markers carry the numbers.
+    fn areas(&mut self, f: &StationFindings) -> Result<(), rerun::RecordingStreamError> {
+        for (what, list, fill) in [
+            ("regions", &f.regions[..], rerun::FillMode::MajorWireframe),
+            ("missing", &f.missing[..], rerun::FillMode::Solid),
+        ] {
+            let (mut centres, mut halves, mut colours) = (Vec::new(), Vec::new(), Vec::new());
+            for r in list {
+                let (lo, hi) = (Point3::from(r.min), Point3::from(r.max));
+                centres.push(self.local(&nalgebra::center(&lo, &hi)));
+                let h = (hi - lo) * 0.5;
+                // A flat region still gets a visible box.
+                halves.push([h.x, h.y, h.z].map(|v| v.max(0.002) as f32));
+                colours.push(match r.kind {
+                    RegionKind::Excess => rerun::Color::from_rgb(230, 40, 40),
+                    RegionKind::Deficit => rerun::Color::from_rgb(40, 70, 230),
+                    RegionKind::Missing => rerun::Color::from_unmultiplied_rgba(255, 190, 0, 110),
+                });
+            }
+            let boxes = rerun::Boxes3D::from_centers_and_half_sizes(centres, halves)
+                .with_colors(colours)
+                .with_fill_mode(fill);
+            self.rec.log(format!("findings/areas/{what}"), &boxes)?;
+        }
+        Ok(())
+    }
+
+    /// Each band's width, relative width and shift, and the top height, one series per band
+    /// against the scan layer; and the scan layer's profile of its bands' mean M3C2 distance.
+    fn history(&mut self, f: &StationFindings) -> Result<(), rerun::RecordingStreamError> {
+        if f.top_height_deviation.is_finite() {
+            self.rec.log(
+                "history/top_mm",
+                &rerun::Scalars::new([f.top_height_deviation * 1e3]),
+            )?;
+        }
+        // The scan layer's median band width: what its stations' pose errors do to every band
+        // alike. A band's width less it is the relative width the report's creep follows.
+        let median = asbuilt_core::stats::median(f.layers.iter().filter_map(|r| r.width()));
+        for row in &f.layers {
+            let band = format!("band_{:03}", row.layer);
+            if let Some(w) = row.width() {
+                self.rec.log(
+                    format!("history/width_mm/{band}"),
+                    &rerun::Scalars::new([w * 1e3]),
+                )?;
+                if let Some(m) = median {
+                    self.rec.log(
+                        format!("history/relative_width_mm/{band}"),
+                        &rerun::Scalars::new([(w - m) * 1e3]),
+                    )?;
+                }
+            }
+            if row.shift.iter().all(|v| v.is_finite()) {
+                let shift = row.shift[0].hypot(row.shift[1]);
+                self.rec.log(
+                    format!("history/shift_mm/{band}"),
+                    &rerun::Scalars::new([shift * 1e3]),
+                )?;
+            }
+        }
+        let (bands, means): (Vec<i64>, Vec<f64>) = f
+            .layers
+            .iter()
+            .filter(|r| r.samples > 0 && r.mean.is_finite())
+            .map(|r| (i64::from(r.layer), r.mean * 1e3))
+            .unzip();
+        self.rec.log(
+            "layers/m3c2_mean_mm",
+            &rerun::BarChart::new(means.as_slice()).with_abscissa(bands.as_slice()),
+        )
+    }
+}
+
+/// What hovering a marker tells: its number, what it is, its verdict against its limit.
+fn hover(it: &Item) -> String {
+    format!(
+        "{}: {} — {} (limit {}), {} since scan layer {}",
+        it.label,
+        it.text,
+        it.verdict.as_str().to_uppercase(),
+        it.limit_text(),
+        it.change,
+        it.since
+    )
+}
+
+/// The scan layer's findings as a markdown table, numbered as the markers and the report.
+fn table(f: &StationFindings, v: &ScanLayerVerdicts) -> String {
+    let mut s = format!(
+        "# {} — {}\n\n{} station(s); top height {}; tolerance ±{:.1} mm.\n\n",
+        v.title(),
+        v.verdict.as_str().to_uppercase(),
+        f.stations,
+        if f.top_height_deviation.is_finite() {
+            format!("{:+.1} mm", f.top_height_deviation * 1e3)
+        } else {
+            "not seen".into()
+        },
+        f.tolerance * 1e3
+    );
+    if v.items.is_empty() {
+        s += "Nothing beyond the warning level.\n";
+    } else {
+        s += "| # | verdict | finding | limit | since |\n| --- | --- | --- | --- | --- |\n";
+        for it in &v.items {
+            s += &format!(
+                "| {} | {} | {} | {} | scan layer {} ({}) |\n",
+                it.label,
+                it.verdict.as_str(),
+                it.text,
+                it.limit_text(),
+                it.since,
+                it.change
+            );
+        }
+    }
+    if f.truncated > 0 {
+        s += &format!(
+            "\n{} more areas not listed (the findings keep the largest).\n",
+            f.truncated
+        );
+    }
+    if !v.resolved.is_empty() {
+        s += "\nNo longer seen since the scan layer before: ";
+        s += &v.resolved.join("; ");
+        s += ".\n";
+    }
+    s
+}

@@ -1,9 +1,10 @@
 // Opens the rerun web viewer in headless Chromium and saves what a reviewer sees: the opening
-// view (part.png), then the layer history tab (history.png).
-// Usage: node shoot.mjs URL OUT_DIR [SECONDS] [TAB_X,TAB_Y]
+// view (part.png), then the layer history tab (history.png); with REPORT, the report's page
+// too (report.png, the whole page).
+// Usage: node shoot.mjs URL OUT_DIR [SECONDS] [TAB_X,TAB_Y] [REPORT.html]
 import puppeteer from "puppeteer-core";
 
-const [url, out, seconds = "60", tab = "119,40"] = process.argv.slice(2);
+const [url, out, seconds = "60", tab = "119,40", report] = process.argv.slice(2);
 const wait = (s) => new Promise((r) => setTimeout(r, s * 1000));
 const browser = await puppeteer.launch({
   executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
@@ -32,4 +33,10 @@ await page.mouse.click(x, y);
 await wait(15);
 await page.screenshot({ path: `${out}/history.png` });
 console.log(`wrote ${out}/history.png`);
+if (report) {
+  const doc = await browser.newPage();
+  await doc.goto(`file://${report}`, { waitUntil: "load", timeout: 60_000 });
+  await doc.screenshot({ path: `${out}/report.png`, fullPage: true });
+  console.log(`wrote ${out}/report.png`);
+}
 await browser.close();

@@ -69,6 +69,16 @@ impl Painter {
         index: u32,
         f: &StationFindings,
     ) -> Result<(), rerun::RecordingStreamError> {
+        // A scan layer's findings come again as each of its stations completes: the history
+        // takes a scan layer's last, once a later one begins (or the view closes), so its
+        // series draw one value per scan layer, not each station's partial one.
+        if let Some((at, done)) = self
+            .pending_history
+            .take_if(|(_, p)| (p.job, p.layer) != (f.job, f.layer))
+        {
+            self.history(at, &done)?;
+        }
+        self.pending_history = Some((index, f.clone()));
         self.at(index, f.layer);
         let verdicts = self.scan_layers.judge(f);
         self.markers(&verdicts)?;
@@ -78,7 +88,15 @@ impl Painter {
             &rerun::TextDocument::new(table(f, &verdicts))
                 .with_media_type(rerun::MediaType::markdown()),
         )?;
-        self.history(f)
+        self.profile(f)
+    }
+
+    /// The history the last scan layer still holds back, when the view closes.
+    pub(crate) fn flush_history(&mut self) -> Result<(), rerun::RecordingStreamError> {
+        match self.pending_history.take() {
+            Some((at, f)) => self.history(at, &f),
+            None => Ok(()),
+        }
     }
 
     /// One marker per warning or failure, numbered as in the report: an area's at its centroid,
@@ -88,26 +106,27 @@ impl Painter {
         let (lo, hi) = self.bounds.unwrap_or((Point3::origin(), Point3::origin()));
         let pad = 0.05 * (hi - lo).amax().max(0.1);
         let ruler = [lo.x - pad, lo.y - pad];
-        let mut on_band: Vec<(u32, usize)> = Vec::new();
+        // Markers on the ruler closer than this in height stand side by side, not on top of
+        // each other (neighbouring bands are a layer apart).
+        let gap = 0.6 * pad;
+        let mut columns: Vec<Vec<f64>> = Vec::new();
         let (mut positions, mut colours, mut labels, mut texts) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for it in &v.items {
             let p = match it.at {
                 Some(at) => self.local(&Point3::from(at)),
                 None => {
-                    let band = it.layers.map_or(u32::MAX, |l| l[0]);
-                    let k = match on_band.iter_mut().find(|(b, _)| *b == band) {
-                        Some((_, n)) => {
-                            *n += 1;
-                            *n
-                        }
+                    let z = 0.5 * (it.z[0] + it.z[1]) - self.origin.z;
+                    let free = |c: &Vec<f64>| c.iter().all(|&o| (o - z).abs() >= gap);
+                    let k = match columns.iter().position(free) {
+                        Some(k) => k,
                         None => {
-                            on_band.push((band, 0));
-                            0
+                            columns.push(Vec::new());
+                            columns.len() - 1
                         }
                     };
-                    let z = 0.5 * (it.z[0] + it.z[1]) - self.origin.z;
-                    let x = ruler[0] - 0.6 * pad * k as f64;
+                    columns[k].push(z);
+                    let x = ruler[0] - gap * k as f64;
                     [x as f32, ruler[1] as f32, z as f32]
                 }
             };
@@ -167,8 +186,13 @@ impl Painter {
     }
 
     /// Each band's width, relative width and shift, and the top height, one series per band
-    /// against the scan layer; and the scan layer's profile of its bands' mean M3C2 distance.
-    fn history(&mut self, f: &StationFindings) -> Result<(), rerun::RecordingStreamError> {
+    /// against the scan layer (station `index` completed it).
+    fn history(
+        &mut self,
+        index: u32,
+        f: &StationFindings,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        self.at(index, f.layer);
         if f.top_height_deviation.is_finite() {
             self.rec.log(
                 "history/top_mm",
@@ -200,6 +224,11 @@ impl Painter {
                 )?;
             }
         }
+        Ok(())
+    }
+
+    /// The scan layer's profile of its bands' mean M3C2 distance, the latest at the cursor.
+    fn profile(&mut self, f: &StationFindings) -> Result<(), rerun::RecordingStreamError> {
         let (bands, means): (Vec<i64>, Vec<f64>) = f
             .layers
             .iter()

@@ -159,7 +159,7 @@ pub const PANELS: &[Panel] = &[
     Panel {
         tab: Tab::Layers,
         kind: PanelKind::TimeSeries,
-        title: "width per layer band (mm), by scan layer",
+        title: "width per layer band (mm), by scan layer (each once all its stations are in)",
         origin: "/history/width_mm",
         contents: &[],
         share: 1.0,

@@ -26,6 +26,9 @@ pub(crate) struct Painter {
     station_layer: BTreeMap<u32, u32>,
     /// The current job's findings, for their verdicts and numbers.
     pub(crate) scan_layers: ScanLayers,
+    /// The latest scan layer's findings and the station that brought them, whose history is
+    /// drawn once the scan layer is complete.
+    pub(crate) pending_history: Option<(u32, asbuilt_protocol::StationFindings)>,
 }
 
 impl Painter {
@@ -72,6 +75,7 @@ impl Painter {
             warn: settings.warn,
             station_layer: BTreeMap::new(),
             scan_layers: ScanLayers::new(limits),
+            pending_history: None,
         }
     }
 
@@ -91,6 +95,9 @@ impl Painter {
             if let Err(e) = self.paint(v) {
                 (self.warn)(format_args!("viewer: {e}"));
             }
+        }
+        if let Err(e) = self.flush_history() {
+            (self.warn)(format_args!("viewer: {e}"));
         }
         let _ = self.rec.flush_blocking();
     }

@@ -219,6 +219,24 @@ fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
         let relative = b.replace("/width_mm/", "/relative_width_mm/");
         assert!(paths.contains(&relative), "{relative} missing: {paths:?}");
     }
+    // One value per band and scan layer (its last, with all its stations), not one per
+    // station as the scan layer's findings are redrawn.
+    let mut width_rows: std::collections::BTreeMap<String, Vec<i64>> = Default::default();
+    for c in recording_chunks(&rrd) {
+        let path = c.entity_path().to_string();
+        if let (true, Some(t)) = (
+            path.starts_with("/history/width_mm/"),
+            c.timelines().get(&rerun::TimelineName::from("layer")),
+        ) {
+            width_rows.entry(path).or_default().extend(t.times_raw());
+        }
+    }
+    assert!(!width_rows.is_empty());
+    for (path, layers) in &width_rows {
+        let mut distinct = layers.clone();
+        distinct.dedup();
+        assert_eq!(&distinct, layers, "{path}: {layers:?}");
+    }
     let job = Job::Printing { corrections: false };
     assert_eq!(panels_without_data(&rrd, job), Vec::<String>::new());
     assert_eq!(time_panel_timeline(&rrd).as_deref(), Some("layer"));

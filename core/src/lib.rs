@@ -25,6 +25,7 @@ pub mod m3c2;
 mod order;
 pub mod printed;
 pub mod probes;
+pub mod profiler;
 pub mod sampling;
 pub mod scan_layer;
 mod simd;

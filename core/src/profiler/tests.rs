@@ -1,0 +1,213 @@
+//! The pose of a profile against an analytic path: a helix (a curve in plan, climbing as a
+//! print does) at 0.2 m/s, the mount turning with the path and tilted, poses at 250 Hz with
+//! jittered sampling times, profiles at 2 kHz.
+
+use std::f64::consts::FRAC_PI_2;
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+
+use super::*;
+
+/// An epoch-like origin for the robot's clock: times are large, as they are.
+const BASE_NS: i64 = 1_795_000_000_000_000_000;
+const RADIUS: f64 = 0.5;
+const SPEED: f64 = 0.2;
+const CLIMB: f64 = 0.002;
+
+/// The mount's true pose `t_ns` on the robot's clock.
+fn truth(t_ns: i64) -> Isometry3<f64> {
+    let t = (t_ns - BASE_NS) as f64 * 1e-9;
+    let a = SPEED / RADIUS * t;
+    let position = Vector3::new(RADIUS * a.cos(), RADIUS * a.sin(), 0.3 + CLIMB * t);
+    let heading = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a + FRAC_PI_2);
+    let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.3);
+    Isometry3::from_parts(Translation3::from(position), heading * tilt)
+}
+
+/// The robot's poses at 250 Hz for `seconds`, each sampled up to ±0.5 ms off its tick (and
+/// stamped with when it was).
+fn robot_poses(seconds: f64, seed: u64) -> Vec<MountPose> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let n = (seconds * 250.0) as i64;
+    (0..=n)
+        .map(|k| {
+            let t = BASE_NS + k * 4_000_000 + rng.random_range(-500_000..=500_000);
+            MountPose {
+                time_ns: t,
+                pose: truth(t),
+            }
+        })
+        .collect()
+}
+
+fn track_of(poses: &[MountPose], params: PoseTrackParams) -> PoseTrack {
+    let mut track = PoseTrack::new(params);
+    for p in poses {
+        track.push(*p).unwrap();
+    }
+    track
+}
+
+/// The profiler 60 mm behind the nozzle and 50 mm above, looking down.
+fn profiler_on_mount() -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(-0.06, 0.0, 0.05),
+        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI),
+    )
+}
+
+/// A point 0.1 m in front of the sensor: where its points are.
+const IN_VIEW: Point3<f64> = Point3::new(0.0, 0.0, 0.1);
+
+/// The largest distance, over profiles at 2 kHz within the poses, between where the track
+/// puts `probe` (sensor frame) and where it truly was; the sensor's clock runs
+/// `true_offset_ns` behind the robot's.
+fn worst_error(track: &PoseTrack, seconds: f64, true_offset_ns: i64, probe: Point3<f64>) -> f64 {
+    let mount_sensor = track.params().mount_sensor;
+    let mut worst: f64 = 0.0;
+    let profiles = (seconds * 2000.0) as i64;
+    // Away from the ends, where a profile misplaced by the offset would have no pose.
+    for j in 20..profiles - 20 {
+        let robot_t = BASE_NS + j * 500_000 + 137;
+        let sensor_ns = (robot_t - true_offset_ns) as u64;
+        let PoseAt::Ready(pose) = track.at(sensor_ns) else {
+            panic!("profile {j}: {:?}", track.at(sensor_ns));
+        };
+        let truly = truth(robot_t) * mount_sensor;
+        worst = worst.max((pose * probe - truly * probe).norm());
+    }
+    worst
+}
+
+#[test]
+fn a_profiles_pose_on_a_curved_path_is_within_five_hundredths_of_a_millimetre() {
+    let poses = robot_poses(3.0, 1);
+    let params = PoseTrackParams {
+        mount_sensor: profiler_on_mount(),
+        ..Default::default()
+    };
+    let worst = worst_error(&track_of(&poses, params), 3.0, 0, IN_VIEW);
+    assert!(worst < 0.05e-3, "{:.4} mm", worst * 1e3);
+    // Slerp and the chord: far inside, the rounding of large clock values.
+    assert!(worst < 1e-6, "{:.6} mm", worst * 1e3);
+}
+
+#[test]
+fn a_clock_offset_left_uncorrected_is_a_millimetre_along_the_path_and_corrected_is_gone() {
+    let poses = robot_poses(3.0, 2);
+    let offset = 5_000_000; // 5 ms: the sensor's clock behind the robot's.
+    // The mount itself: it moves at 0.2 m/s (and climbs 2 mm/s), so 5 ms are 1.0 mm.
+    let origin = Point3::origin();
+    let track = track_of(&poses, PoseTrackParams::default());
+    let uncorrected = worst_error(&track, 3.0, offset, origin);
+    assert!(
+        (uncorrected - 1.0e-3).abs() < 0.005e-3,
+        "{:.4} mm",
+        uncorrected * 1e3
+    );
+    let params = PoseTrackParams {
+        clock_offset_ns: offset,
+        ..Default::default()
+    };
+    let track = track_of(&poses, params);
+    for probe in [origin, IN_VIEW] {
+        let corrected = worst_error(&track, 3.0, offset, probe);
+        assert!(corrected < 1e-6, "{:.6} mm", corrected * 1e3);
+    }
+}
+
+#[test]
+fn a_profile_waits_for_the_pose_after_it_and_is_refused_across_a_gap_or_before_the_poses() {
+    let poses = robot_poses(1.0, 3);
+    let params = PoseTrackParams {
+        capacity: 100,
+        max_gap_ns: 20_000_000,
+        ..Default::default()
+    };
+    let mut track = PoseTrack::new(params);
+    // Poses 0..=100, then a 40 ms hole (10 poses lost), then 111..=200.
+    for p in poses[..=100].iter().chain(&poses[111..=200]) {
+        track.push(*p).unwrap();
+    }
+    assert_eq!(track.len(), 100, "the oldest go when it is full");
+    let at = |t: i64| track.at(t as u64);
+    // In the hole: the bracketing poses are 40 ms apart.
+    let hole = at(poses[105].time_ns);
+    let PoseAt::Refused(Refused::Gap { gap_ns }) = hole else {
+        panic!("{hole:?}");
+    };
+    assert_eq!(gap_ns, poses[111].time_ns.abs_diff(poses[100].time_ns));
+    // Before the oldest kept pose (101 of them went).
+    let old = at(poses[2].time_ns);
+    let PoseAt::Refused(why) = old else {
+        panic!("{old:?}");
+    };
+    assert!(matches!(why, Refused::BeforePoses { .. }), "{why:?}");
+    // The refusal says what to look at.
+    assert!(why.to_string().contains("clock offset"), "{why}");
+    // After the newest: it waits, and is placed once the next pose comes.
+    let later = poses[200].time_ns + 1_000_000;
+    assert_eq!(at(later), PoseAt::Wait);
+    // Exactly at a pose: that pose.
+    assert_eq!(at(poses[150].time_ns), PoseAt::Ready(poses[150].pose));
+    track.push(poses[201]).unwrap();
+    let PoseAt::Ready(p) = track.at(later as u64) else {
+        panic!("{:?}", track.at(later as u64));
+    };
+    assert!((p.translation.vector - truth(later).translation.vector).norm() < 1e-6);
+}
+
+#[test]
+fn poses_out_of_order_or_not_rigid_are_refused_and_the_track_keeps_going() {
+    let poses = robot_poses(0.1, 4);
+    let mut track = track_of(&poses[..10], PoseTrackParams::default());
+    assert!(matches!(
+        track.push(poses[5]),
+        Err(PoseRefused::NotAfter { .. })
+    ));
+    assert!(matches!(
+        track.push(poses[9]),
+        Err(PoseRefused::NotAfter { .. })
+    ));
+    let mut nan = poses[10];
+    nan.pose.translation.vector.x = f64::NAN;
+    assert!(matches!(track.push(nan), Err(PoseRefused::NotRigid { .. })));
+    track.push(poses[10]).unwrap();
+    assert_eq!(track.len(), 11);
+}
+
+#[test]
+fn a_rotation_and_its_negative_quaternion_interpolate_alike() {
+    let a = truth(BASE_NS);
+    let b = truth(BASE_NS + 4_000_000);
+    let mut flipped = b;
+    flipped.rotation = UnitQuaternion::new_unchecked(-b.rotation.into_inner());
+    for s in [0.0, 0.25, 0.5, 0.9, 1.0] {
+        let x = interpolate(&a, &b, s);
+        let y = interpolate(&a, &flipped, s);
+        assert!(x.rotation.angle_to(&y.rotation) < 1e-12, "{s}");
+    }
+    // Equal rotations (slerp's 0/0) give that rotation.
+    let same = interpolate(&a, &a, 0.3);
+    assert!(same.rotation.angle_to(&a.rotation) < 1e-12);
+}
+
+#[test]
+fn memory_stays_fixed_however_many_poses_come() {
+    let mut track = PoseTrack::new(PoseTrackParams {
+        capacity: 256,
+        ..Default::default()
+    });
+    let cap = track.poses_capacity();
+    for k in 0..100_000 {
+        track
+            .push(MountPose {
+                time_ns: BASE_NS + k * 1_000_000,
+                pose: Isometry3::identity(),
+            })
+            .unwrap();
+    }
+    assert_eq!(track.len(), 256);
+    assert_eq!(track.poses_capacity(), cap);
+}

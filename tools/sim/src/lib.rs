@@ -13,6 +13,7 @@ mod defect_spec;
 mod defects;
 pub mod lines;
 mod part;
+pub mod profiler;
 mod scanner;
 mod spec;
 

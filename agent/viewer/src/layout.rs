@@ -330,13 +330,15 @@ pub fn blueprint(job: Job) -> rerun::blueprint::Blueprint {
                 .into(),
         );
     }
-    // The side panels start folded away: the part gets the window.
+    // The side panels start folded away and the time panel to its play bar (the timeline,
+    // its cursor and the scan layer): the part gets the window.
     let folded = rerun::blueprint::components::PanelState::Collapsed;
     Blueprint::new(Tabs::new(tabs))
         .with_blueprint_panel(BlueprintPanel::new().with_state(folded))
         .with_selection_panel(SelectionPanel::new().with_state(folded))
         .with_time_panel(
             TimePanel::new()
+                .with_state(folded)
                 .with_timeline(job.timeline())
                 .with_play_state(rerun::blueprint::components::PlayState::Following),
         )

@@ -106,15 +106,34 @@ impl Painter {
         let (lo, hi) = self.bounds.unwrap_or((Point3::origin(), Point3::origin()));
         let pad = 0.05 * (hi - lo).amax().max(0.1);
         let ruler = [lo.x - pad, lo.y - pad];
-        // Markers on the ruler closer than this in height stand side by side, not on top of
-        // each other (neighbouring bands are a layer apart).
+        // Markers closer than this would hide each other's numbers: on the ruler they stand
+        // side by side (neighbouring bands are a layer apart), elsewhere one above the other.
         let gap = 0.6 * pad;
         let mut columns: Vec<Vec<f64>> = Vec::new();
         let (mut positions, mut colours, mut labels, mut texts) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for it in &v.items {
             let p = match it.at {
-                Some(at) => self.local(&Point3::from(at)),
+                // Findings at one place (a deficit where material is missing) stack upwards,
+                // so each number shows; the hover text keeps the exact place.
+                Some(at) => {
+                    let mut p = self.local(&Point3::from(at));
+                    let clear = |p: &[f32; 3], placed: &[[f32; 3]]| {
+                        placed.iter().all(|q| {
+                            let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+                            f64::from(d[0].hypot(d[1]).hypot(d[2])) >= gap
+                        })
+                    };
+                    // At most as many steps as markers (a place that is not a number never
+                    // clears).
+                    for _ in 0..positions.len() {
+                        if clear(&p, &positions) {
+                            break;
+                        }
+                        p[2] += gap as f32;
+                    }
+                    p
+                }
                 None => {
                     let z = 0.5 * (it.z[0] + it.z[1]) - self.origin.z;
                     let free = |c: &Vec<f64>| c.iter().all(|&o| (o - z).abs() >= gap);
@@ -148,12 +167,17 @@ impl Painter {
             &rerun::AnyValues::default()
                 .with_component::<rerun::components::Text>("finding", texts),
         )?;
+        // The ruler stands only where a band's finding is on it.
         let (zlo, zhi) = (lo.z as f32, hi.z as f32);
         let [x, y] = ruler.map(|c| c as f32);
+        let strips: Vec<[[f32; 3]; 2]> = if columns.is_empty() {
+            Vec::new()
+        } else {
+            vec![[[x, y, zlo], [x, y, zhi]]]
+        };
         self.rec.log(
             "findings/ruler",
-            &rerun::LineStrips3D::new([[[x, y, zlo], [x, y, zhi]]])
-                .with_colors([rerun::Color::from_rgb(110, 110, 110)]),
+            &rerun::LineStrips3D::new(strips).with_colors([rerun::Color::from_rgb(110, 110, 110)]),
         )
     }
 

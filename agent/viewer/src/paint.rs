@@ -234,7 +234,7 @@ impl Painter {
         self.rec.log("histogram", &chart)
     }
 
-    /// Design samples or core points coloured by their value; M3C2's insignificant ones faint.
+    /// Design samples or core points coloured by their value; M3C2's insignificant ones pale.
     fn samples(
         &mut self,
         path: String,
@@ -247,8 +247,14 @@ impl Painter {
             .enumerate()
             .map(|(i, &d)| {
                 let faint = significant.is_some_and(|s| !s.get(i).copied().unwrap_or(true));
-                let [r, g, b] = colour(d, self.tolerance);
-                rerun::Color::from_unmultiplied_rgba(r, g, b, if faint { 60 } else { 255 })
+                let rgb = colour(d, self.tolerance);
+                // Paled towards white, opaque: translucent points draw dark in rerun.
+                let [r, g, b] = if faint {
+                    rgb.map(|c| c + ((255 - c) as f32 * 0.7) as u8)
+                } else {
+                    rgb
+                };
+                rerun::Color::from_rgb(r, g, b)
             })
             .collect();
         let pts: Vec<[f32; 3]> = positions.iter().map(|p| self.local(p)).collect();
@@ -281,7 +287,7 @@ impl Painter {
         );
         for r in rows {
             table += &format!(
-                "| {} | {:.3}–{:.3} | {} | {} | {} |\n",
+                "| {} | {:.3} to {:.3} | {} | {} | {} |\n",
                 r.layer,
                 r.z[0],
                 r.z[1],

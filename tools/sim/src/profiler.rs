@@ -350,7 +350,8 @@ impl<'a> ProfilePass<'a> {
     pub fn poses(&self) -> Vec<MountPose> {
         let m = &self.model;
         let step = (1e9 / m.pose_rate_hz) as i64;
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x005E_ED0F_9053 ^ u64::from(self.layer));
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(self.seed ^ 0x005E_ED0F_9053 ^ u64::from(self.layer));
         let mut out = Vec::new();
         for l in &self.loops {
             let end = l.start_ns + l.duration_ns(m.speed);

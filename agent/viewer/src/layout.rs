@@ -120,118 +120,98 @@ pub const PANELS: &[Panel] = &[
         share: 3.0,
         shown: always,
     },
-    Panel {
-        tab: Tab::Part,
-        kind: PanelKind::BarChart,
-        title: "current station: deviation histogram",
-        origin: "/histogram",
-        contents: &[],
-        share: 1.0,
-        shown: always,
-    },
-    Panel {
-        tab: Tab::Part,
-        kind: PanelKind::TimeSeries,
-        title: "station statistics (mm): a dot per station",
-        origin: "/stats",
-        contents: &[],
-        share: 1.0,
-        shown: always,
-    },
-    Panel {
-        tab: Tab::Part,
-        kind: PanelKind::Text,
-        title: "findings of the scan layer at the cursor (numbers as in the report)",
-        origin: "/findings/table",
-        contents: &[],
-        share: 1.4,
-        shown: always,
-    },
-    Panel {
-        tab: Tab::Part,
-        kind: PanelKind::Text,
-        title: "colours",
-        origin: "/legend",
-        contents: &[],
-        share: 0.6,
-        shown: always,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::TimeSeries,
-        title: "width per layer band (mm), by scan layer (each once all its stations are in)",
-        origin: "/history/width_mm",
-        contents: &[],
-        share: 1.0,
-        shown: printing,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::TimeSeries,
-        title: "relative width per layer band (mm): less the scan layer's median; a rising line \
-                is creep",
-        origin: "/history/relative_width_mm",
-        contents: &[],
-        share: 1.0,
-        shown: printing,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::TimeSeries,
-        title: "shift per layer band (mm), by scan layer",
-        origin: "/history/shift_mm",
-        contents: &[],
-        share: 1.0,
-        shown: printing,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::TimeSeries,
-        title: "top height deviation (mm), by scan layer",
-        origin: "/history/top_mm",
-        contents: &[],
-        share: 1.0,
-        shown: printing,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::TimeSeries,
-        title: "corrections advised, by scan layer: z per layer (mm), flow − 1 (%), path (mm)",
-        origin: "/history/corrections",
-        contents: &[],
-        share: 1.0,
-        shown: advising,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::BarChart,
-        title: "mean M3C2 deviation per layer band (mm), of the scan layer at the cursor",
-        origin: "/layers/m3c2_mean_mm",
-        contents: &[],
-        share: 1.0,
-        shown: printing,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::BarChart,
-        title: "mean C2M distance per layer band (mm)",
-        origin: "/layers/c2m_mean_mm",
-        contents: &[],
-        share: 1.0,
-        shown: surveyed_bands,
-    },
-    Panel {
-        tab: Tab::Layers,
-        kind: PanelKind::Text,
-        title: "each layer band's means",
-        origin: "/layers/table",
-        contents: &[],
-        share: 1.5,
-        shown: surveyed_bands,
-    },
+    Panel::of(
+        Tab::Part,
+        PanelKind::BarChart,
+        "current station: deviation histogram",
+    )
+    .at("/histogram", 1.0, always),
+    Panel::of(
+        Tab::Part,
+        PanelKind::TimeSeries,
+        "station statistics (mm): a dot per station",
+    )
+    .at("/stats", 1.0, always),
+    Panel::of(
+        Tab::Part,
+        PanelKind::Text,
+        "findings of the scan layer at the cursor (numbers as in the report)",
+    )
+    .at("/findings/table", 1.4, always),
+    Panel::of(Tab::Part, PanelKind::Text, "colours").at("/legend", 0.6, always),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::TimeSeries,
+        "width per layer band (mm), by scan layer (each once all its stations are in)",
+    )
+    .at("/history/width_mm", 1.0, printing),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::TimeSeries,
+        "relative width per layer band (mm): less the scan layer's median; a rising line is creep",
+    )
+    .at("/history/relative_width_mm", 1.0, printing),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::TimeSeries,
+        "shift per layer band (mm), by scan layer",
+    )
+    .at("/history/shift_mm", 1.0, printing),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::TimeSeries,
+        "top height deviation (mm), by scan layer",
+    )
+    .at("/history/top_mm", 1.0, printing),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::TimeSeries,
+        "corrections advised, by scan layer: z per layer (mm), flow − 1 (%), path (mm)",
+    )
+    .at("/history/corrections", 1.0, advising),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::BarChart,
+        "mean M3C2 deviation per layer band (mm), of the scan layer at the cursor",
+    )
+    .at("/layers/m3c2_mean_mm", 1.0, printing),
+    Panel::of(
+        Tab::Layers,
+        PanelKind::BarChart,
+        "mean C2M distance per layer band (mm)",
+    )
+    .at("/layers/c2m_mean_mm", 1.0, surveyed_bands),
+    Panel::of(Tab::Layers, PanelKind::Text, "each layer band's means").at(
+        "/layers/table",
+        1.5,
+        surveyed_bands,
+    ),
 ];
 
 impl Panel {
+    /// A panel titled `title`, showing its origin's subtree; [`Panel::at`] places it.
+    const fn of(tab: Tab, kind: PanelKind, title: &'static str) -> Self {
+        Self {
+            tab,
+            kind,
+            title,
+            origin: "/",
+            contents: &[],
+            share: 1.0,
+            shown: always,
+        }
+    }
+
+    /// The panel at `origin`, with its `share` of the space, in the jobs `shown` says.
+    const fn at(self, origin: &'static str, share: f32, shown: fn(Job) -> bool) -> Self {
+        Self {
+            origin,
+            share,
+            shown,
+            ..self
+        }
+    }
+
     /// Whether the panel shows the entity at `path` (`/a/b`), by its queries: the last query
     /// that matches decides, as in rerun.
     pub fn includes(&self, path: &str) -> bool {

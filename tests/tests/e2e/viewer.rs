@@ -123,17 +123,9 @@ type Layout = std::collections::BTreeMap<String, (String, String, Vec<String>)>;
 fn blueprint_layout(rrd: &Path) -> (Option<String>, Layout) {
     use rerun::external::re_sdk_types::blueprint::components as bp;
     use rerun::external::re_sdk_types::{Component, components as c};
-    let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
     let mut root = None;
     let mut items = Layout::default();
-    for msg in DecoderApp::decode_eager(reader).unwrap() {
-        let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() else {
-            continue;
-        };
-        if store.kind() != rerun::StoreKind::Blueprint {
-            continue;
-        }
-        let chunk = rerun::log::Chunk::from_arrow_msg(&arrow).unwrap();
+    for chunk in chunks(rrd, rerun::StoreKind::Blueprint) {
         let path = chunk.entity_path().to_string();
         let item = items.entry(path).or_default();
         for d in chunk.component_descriptors() {
@@ -260,18 +252,22 @@ fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
     verify_with_rerun(&rrd);
 }
 
-/// The recording's chunks (not the blueprint's).
-fn recording_chunks(rrd: &Path) -> Vec<rerun::log::Chunk> {
+/// The chunks of the recording's (not the blueprint's) or the blueprint's store.
+fn chunks(rrd: &Path, kind: rerun::StoreKind) -> Vec<rerun::log::Chunk> {
     let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
     let mut out = Vec::new();
     for msg in DecoderApp::decode_eager(reader).unwrap() {
         if let LogMsg::ArrowMsg(store, arrow) = msg.unwrap()
-            && store.kind() == rerun::StoreKind::Recording
+            && store.kind() == kind
         {
             out.push(rerun::log::Chunk::from_arrow_msg(&arrow).unwrap());
         }
     }
     out
+}
+
+fn recording_chunks(rrd: &Path) -> Vec<rerun::log::Chunk> {
+    chunks(rrd, rerun::StoreKind::Recording)
 }
 
 /// The titles of `job`'s panels that would draw nothing when the view opens: no entity they
@@ -302,16 +298,8 @@ fn panels_without_data(rrd: &Path, job: Job) -> Vec<String> {
 fn time_panel_timeline(rrd: &Path) -> Option<String> {
     use rerun::external::re_sdk_types::Component;
     use rerun::external::re_sdk_types::blueprint::components as bp;
-    let reader = std::io::BufReader::new(std::fs::File::open(rrd).unwrap());
     let mut found = None;
-    for msg in DecoderApp::decode_eager(reader).unwrap() {
-        let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() else {
-            continue;
-        };
-        if store.kind() != rerun::StoreKind::Blueprint {
-            continue;
-        }
-        let chunk = rerun::log::Chunk::from_arrow_msg(&arrow).unwrap();
+    for chunk in chunks(rrd, rerun::StoreKind::Blueprint) {
         for d in chunk.component_descriptors() {
             if d.component_type == Some(bp::TimelineName::name()) {
                 for v in chunk.iter_component::<bp::TimelineName>(d.component) {

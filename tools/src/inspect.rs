@@ -19,7 +19,7 @@ use asbuilt_report::flatness::FlatnessCollector;
 use asbuilt_report::maps::MapCollector;
 use asbuilt_report::suite::{self, Methods, Suite, SuiteConfig, SuiteOptions};
 use asbuilt_report::{DesignSection, Report, Section, summary_table};
-use asbuilt_viewer::{self as viewer, BandMeans, View, Viewer, ViewerParams};
+use asbuilt_viewer::{self as viewer, View, Viewer, ViewerParams};
 
 /// Points per processing chunk. The per-point buffers are chunks, reused for every chunk: two
 /// of deviations (one being measured, one being written), and the scan's chunks in flight from
@@ -782,56 +782,14 @@ fn findings_message(
     )
 }
 
-/// The job-level layers of the view (missing samples, M3C2 core points, the findings, per-band
-/// means), then the view closed.
+/// The job-level layers of the view, then the view closed.
 fn finish_viewer(
     mut v: Viewer,
     totals: &asbuilt_report::SuiteTotals,
     findings: &[asbuilt_protocol::StationFindings],
     args: &InspectArgs,
 ) {
-    for (path, samples) in [
-        ("missing", &totals.missing_view),
-        ("m3c2", &totals.m3c2_view),
-    ] {
-        if !samples.is_empty() {
-            v.show(View::Samples {
-                path: path.into(),
-                positions: samples.iter().map(|s| s.0).collect(),
-                values: samples.iter().map(|s| s.1).collect(),
-                significant: (path == "m3c2").then(|| samples.iter().map(|s| s.2).collect()),
-            });
-        }
-    }
-    for f in findings {
-        v.show(View::Findings {
-            index: f.station,
-            findings: Box::new(f.clone()),
-        });
-    }
-    if findings.is_empty() {
-        v.show(View::NoFindings {
-            why: "No findings: they need the design's samples in view of a station and M3C2 \
-                  (the report judges the job by all points together)."
-                .into(),
-        });
-    }
-    let mean = |s: &Option<asbuilt_report::BandStats>| s.as_ref().map(|s| s.mean);
-    let bands: Vec<BandMeans> = totals
-        .layers
-        .iter()
-        .flatten()
-        .map(|row| BandMeans {
-            layer: row.layer,
-            z: [row.z_min, row.z_max],
-            c2m: mean(&row.c2m),
-            c2c: mean(&row.c2c),
-            m3c2: mean(&row.m3c2),
-        })
-        .collect();
-    if !bands.is_empty() {
-        v.show(View::Bands(bands));
-    }
+    v.show_totals(totals, findings);
     v.finish();
     if let Some(p) = &args.rerun {
         eprintln!(

@@ -32,6 +32,7 @@ use nalgebra::{Isometry3, Point3};
 mod findings;
 mod layout;
 mod paint;
+mod survey;
 
 pub use layout::{Job, PANELS, Panel, PanelKind, Tab, blueprint, panels};
 use paint::Painter;

@@ -9,10 +9,13 @@
 //! 0.8 mm on a 0.5 m curve are 0.16 µm off). A profile with no later pose yet waits; one whose
 //! bracketing poses are further apart than the allowed gap, or that would need a pose older
 //! than those kept (extrapolation), is refused with its reason. The poses kept are a fixed
-//! number: memory stays flat however long the print.
+//! number, and so are the profiles waiting ([`Placer`]): memory stays flat however long the
+//! print, and however late or dead the robot's pose stream.
 
+mod placer;
 mod track;
 
+pub use placer::{Placed, Placer, PlacerCounts};
 pub use track::{MountPose, PoseAt, PoseRefused, PoseTrack, PoseTrackParams, Refused, interpolate};
 
 #[cfg(test)]

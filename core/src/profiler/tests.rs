@@ -211,3 +211,129 @@ fn memory_stays_fixed_however_many_poses_come() {
     assert_eq!(track.len(), 256);
     assert_eq!(track.poses_capacity(), cap);
 }
+
+/// Collects what a placer does: each profile's index and its pose, or why not.
+#[derive(Default)]
+struct Out {
+    placed: Vec<(usize, Isometry3<f64>)>,
+    refused: Vec<(usize, Refused)>,
+}
+
+impl Placed<usize> for Out {
+    fn placed(&mut self, k: usize, sensor: &Isometry3<f64>) {
+        self.placed.push((k, *sensor));
+    }
+    fn refused(&mut self, k: usize, why: Refused) {
+        self.refused.push((k, why));
+    }
+}
+
+/// What arrives, in the order it arrives: the robot's poses `lag_ns` after they were taken
+/// (up to `poses_until_ns` from the start), profiles at 2 kHz when they are taken.
+fn arrivals(seconds: f64, lag_ns: i64, poses_until_ns: i64) -> Vec<(i64, Option<MountPose>)> {
+    let mut events: Vec<(i64, Option<MountPose>)> = robot_poses(seconds, 5)
+        .into_iter()
+        .filter(|p| p.time_ns - BASE_NS <= poses_until_ns)
+        .map(|p| (p.time_ns + lag_ns, Some(p)))
+        .collect();
+    let profiles = (seconds * 2000.0) as i64;
+    events.extend((10..profiles).map(|j| (BASE_NS + j * 500_000, None)));
+    events.sort_by_key(|e| e.0);
+    events
+}
+
+fn run(placer: &mut Placer<usize>, events: &[(i64, Option<MountPose>)], out: &mut Out) -> usize {
+    let (mut k, mut most_waiting) = (0, 0);
+    for (t, e) in events {
+        match e {
+            Some(pose) => placer.pose(*pose, out).unwrap(),
+            None => {
+                placer.profile(*t as u64, k, out);
+                k += 1;
+            }
+        }
+        most_waiting = most_waiting.max(placer.waiting());
+    }
+    most_waiting
+}
+
+#[test]
+fn profiles_wait_for_late_poses_and_all_are_placed_in_order() {
+    // The robot's poses arrive 10 ms late: each profile waits for the pose after it.
+    let events = arrivals(1.0, 10_000_000, i64::MAX);
+    let mut placer = Placer::new(PoseTrackParams::default(), 64);
+    let mut out = Out::default();
+    let most_waiting = run(&mut placer, &events, &mut out);
+    placer.end_pass(&mut out);
+    let profiles = events.iter().filter(|e| e.1.is_none()).count();
+    // The last few come after the last pose was taken: nothing brackets them.
+    let late = out
+        .refused
+        .iter()
+        .filter(|r| r.1 == Refused::NoLaterPose)
+        .count();
+    assert!(late <= 8, "{late}");
+    assert_eq!(
+        out.refused.len(),
+        late,
+        "{:?}",
+        &out.refused[..3.min(out.refused.len())]
+    );
+    assert_eq!(out.placed.len() + late, profiles);
+    assert!(
+        out.placed.windows(2).all(|w| w[0].0 < w[1].0),
+        "out of order"
+    );
+    // 10 ms of profiles and a pose's 4 ms wait at most: 28 profiles, within the 64 held.
+    assert!((20..=30).contains(&most_waiting), "{most_waiting}");
+    let c = placer.counts();
+    assert!(c.waited > c.placed / 2, "{c:?}");
+    for (k, pose) in &out.placed {
+        let t = BASE_NS + (*k as i64 + 10) * 500_000;
+        let err = (pose.translation.vector - truth(t).translation.vector).norm();
+        assert!(err < 0.05e-3, "profile {k}: {:.4} mm", err * 1e3);
+    }
+}
+
+#[test]
+fn when_the_poses_stop_the_wait_stays_full_and_every_profile_is_accounted_for() {
+    // The pose publisher dies half-way.
+    let events = arrivals(1.0, 0, 500_000_000);
+    let mut placer = Placer::new(PoseTrackParams::default(), 64);
+    let mut out = Out::default();
+    let most_waiting = run(&mut placer, &events, &mut out);
+    assert_eq!(most_waiting, 64, "the wait never grows past its size");
+    placer.end_pass(&mut out);
+    let profiles = events.iter().filter(|e| e.1.is_none()).count();
+    let c = *placer.counts();
+    assert_eq!(c.placed + c.refused(), profiles as u64);
+    assert_eq!(c.refused_no_later_pose, 64);
+    assert!(c.refused_wait_full > 900, "{c:?}");
+    assert_eq!(out.placed.len() as u64, c.placed);
+    assert_eq!(out.refused.len() as u64, c.refused());
+    assert_eq!(placer.waiting(), 0);
+}
+
+#[test]
+fn profiles_in_a_hole_in_the_poses_are_refused_and_the_rest_placed() {
+    let mut events = arrivals(1.0, 0, i64::MAX);
+    // 40 ms of poses lost from 0.5 s on.
+    let hole = BASE_NS + 500_000_000..BASE_NS + 540_000_000;
+    events.retain(|(_, e)| e.is_none_or(|p| !hole.contains(&p.time_ns)));
+    let mut placer = Placer::new(PoseTrackParams::default(), 64);
+    let mut out = Out::default();
+    run(&mut placer, &events, &mut out);
+    placer.end_pass(&mut out);
+    let c = *placer.counts();
+    // The profiles between the poses either side of the hole, about 48 ms of them: refused
+    // for the gap once the pose after it comes, or for a full wait before it does.
+    let lost = c.refused_gap + c.refused_wait_full;
+    assert!((80..=110).contains(&lost), "{c:?}");
+    assert!(c.refused_gap > 0 && c.refused_wait_full > 0, "{c:?}");
+    let profiles = events.iter().filter(|e| e.1.is_none()).count() as u64;
+    assert_eq!(c.placed + lost, profiles, "{c:?}");
+    // One run of profiles, in the hole.
+    let first_lost = out.refused.iter().map(|r| r.0).min().unwrap();
+    let last_lost = out.refused.iter().map(|r| r.0).max().unwrap();
+    assert_eq!((last_lost - first_lost + 1) as u64, lost);
+}

@@ -68,6 +68,11 @@ pub enum Refused {
     },
     /// Its timestamp with the clock offset is beyond the clock's range.
     BadTime,
+    /// It waited for the pose after it while the wait was full: the robot's poses stopped
+    /// coming or lag further behind than the wait holds.
+    WaitFull,
+    /// No pose after it came before its pass ended.
+    NoLaterPose,
 }
 
 impl std::fmt::Display for Refused {
@@ -86,6 +91,13 @@ impl std::fmt::Display for Refused {
                 *by_ns as f64 * 1e-6
             ),
             Refused::BadTime => f.write_str("its timestamp with the clock offset is out of range"),
+            Refused::WaitFull => f.write_str(
+                "it waited for the robot's next pose while the wait was full (are the poses \
+                 still coming?)",
+            ),
+            Refused::NoLaterPose => {
+                f.write_str("no robot pose after it came before its pass ended")
+            }
         }
     }
 }

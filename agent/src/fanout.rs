@@ -85,6 +85,24 @@ impl<'p> Fanout<'p> {
         }
     }
 
+    /// What the agents before recorded of the job being resumed, drawn again in the view (its
+    /// .rrd starts empty): each report's statistics, each scan layer's latest findings (their
+    /// markers, table and history) and the advice. The points are not drawn again.
+    pub(crate) fn redraw(&self, r: &crate::resume::Resumed) {
+        let Some(v) = &self.viewer else { return };
+        let reports = r.recorded.iter().map(|report| View::Report {
+            index: report.station,
+            name: view_name(report.job, report.station),
+            report: Box::new(*report),
+        });
+        let findings = r.findings.iter().map(|f| View::Findings {
+            index: f.station,
+            findings: Box::new(f.clone()),
+        });
+        let advice = r.corrections.iter().map(|c| View::Correction(Box::new(*c)));
+        v.show_all(reports.chain(findings).chain(advice));
+    }
+
     /// A pose taken from the cell, of a station of scan layer `layer`: recorded and shown.
     pub(crate) fn took_pose(&self, p: &PoseSnapshot, layer: u32) {
         if let Some(r) = &self.recorder {

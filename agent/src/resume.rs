@@ -259,6 +259,11 @@ pub struct Resumed {
     /// The current scan layer's last station, whose findings never made it to disk: they are
     /// drawn again from the layer's state and published.
     pub findings_due: Option<StationReport>,
+    /// Each scan layer's latest recorded findings, by scan layer: the view draws them again.
+    /// As many as the job's scan layers.
+    pub findings: Vec<asbuilt_protocol::StationFindings>,
+    /// The advice recorded, in the order recorded: the view draws it again.
+    pub corrections: Vec<asbuilt_protocol::LayerCorrection>,
 }
 
 /// Reads the newest job of `files` back into `lifecycle`: the attempts it reported are over,
@@ -443,12 +448,20 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                     let attempt = seen.reported.get(&(f.job, f.station)).copied();
                     seen.with_findings
                         .insert((f.job, f.station, attempt.unwrap_or(1)));
+                    if f.job == job {
+                        let layers = &mut resumed.findings;
+                        match layers.binary_search_by_key(&f.layer, |l| l.layer) {
+                            Ok(i) => layers[i] = *f,
+                            Err(i) => layers.insert(i, *f),
+                        }
+                    }
                 }
                 Recorded::Applied(a) if a.job == job => seen.applied.push(a),
                 Recorded::Correction(c) if c.job == job => {
                     seen.with_advice
                         .insert((c.job, c.station, c.attempt.max(1)));
                     seen.advice.restore(&c);
+                    resumed.corrections.push(*c);
                 }
                 Recorded::Event(e) if e.kind() == Some(StationEventKind::Begin) => {
                     if e.job_started_ns != 0 && e.job_started_ns < seen.started {

@@ -335,6 +335,7 @@ fn finish_resume(
     lifecycle: &mut AgentLifecycle,
     out: &mut Fanout<'_>,
 ) -> Option<std::thread::JoinHandle<()>> {
+    out.redraw(r);
     for report in &r.unrecorded {
         info!(
             "resume: job {} station {} attempt {} was closed but its report never recorded; \

@@ -258,6 +258,17 @@ impl Viewer {
         }
     }
 
+    /// Queues every one of `views`, waiting for room: for drawing again what a job holds
+    /// already (an agent resuming one), before anything waits on the agent.
+    pub fn show_all(&self, views: impl IntoIterator<Item = View>) {
+        let Some(tx) = &self.tx else { return };
+        for v in views {
+            if tx.send(v).is_err() {
+                return;
+            }
+        }
+    }
+
     /// Sends what is queued and closes the stream (the `.rrd` is complete after this).
     pub fn finish(&mut self) {
         self.tx.take();

@@ -5,8 +5,13 @@
 use std::collections::BTreeSet;
 use std::path::Path;
 use std::process::Command;
+use std::time::Duration;
 
-use asbuilt_tests::{agent_after_bunny_job, bunny_stations, shared_data};
+use asbuilt_sim::{self as sim, Defect, Part, SimJob};
+use asbuilt_tests::{
+    Agent, Cell, agent_after_bunny_job, bunny_stations, recorder_section, shared_data,
+    unique_prefix,
+};
 use asbuilt_viewer::{Job, Panel, PanelKind, panels};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::LogMsg;
@@ -113,6 +118,100 @@ fn the_agent_writes_a_view_of_a_job() {
         ],
     );
     verify_with_rerun(&rrd);
+}
+
+/// report.json of `asbuilt report` over a recording folder.
+fn report_of(recording: &Path, out: &Path) -> serde_json::Value {
+    let run = Command::new(ASBUILT)
+        .arg("report")
+        .arg(recording)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+/// Each scan layer's finding labels of report.json, by scan layer.
+fn report_labels(report: &serde_json::Value) -> Vec<(i64, Vec<String>)> {
+    report["assessment"]["scan_layers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            let labels = s["items"].as_array().unwrap().iter();
+            let labels = labels.map(|i| i["label"].as_str().unwrap().to_string());
+            (s["layer"].as_i64().unwrap(), labels.collect())
+        })
+        .collect()
+}
+
+/// An agent started again mid-job starts a new .rrd: it draws the job's findings so far again
+/// from its recording (markers numbered as the report, the history, the statistics), so the
+/// view after a crash is the view before it.
+#[test]
+fn the_view_of_a_resumed_job_draws_again_what_was_judged_before() {
+    let mut job = SimJob::new(Part::wall());
+    job.scan_after = vec![8, 16];
+    job.stations_per_scan = 2;
+    job.scanner.step_deg = 0.1;
+    job.defects = vec![
+        Defect::parse(
+            "bulge:x=-0.5,y=-0.0867,z=0.1,radius=0.08,height=12mm",
+            &job.part,
+        )
+        .unwrap(),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    sim::write_stl(&dir.path().join("design.stl"), &job.part.design).unwrap();
+    let config = format!(
+        "[design]\npath = \"design.stl\"\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+         max_distance = 0.03\n[limits]\nmax_points_per_chunk = {}\n{}\
+         [findings]\nenabled = true\nlayer_height = {}\n[viewer]\nrrd = \"job.rrd\"\n",
+        job.chunk_points,
+        recorder_section("recording"),
+        job.part.layer_height
+    );
+    let mut agent = Agent::start_in(AGENT, &unique_prefix("viewer-resume"), &config, dir);
+    let cell = Cell::open(&agent.prefix, job.chunk_points);
+    sim::run(
+        &job,
+        &cell.ports,
+        true,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}\n{}", agent.logs()));
+    let rrd = agent.dir.path().join("job.rrd");
+    // Killed as a power loss would, and started again: its view starts afresh.
+    agent.kill_and_restart(Duration::from_millis(100));
+    let start = std::time::Instant::now();
+    while !agent.log().contains("serving ") && start.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    agent.signal("TERM");
+    agent.wait_exit(Duration::from_secs(60));
+    let logs = agent.logs();
+    assert!(logs.contains("resume"), "{logs}");
+    let report = report_of(
+        &agent.dir.path().join("recording"),
+        &agent.dir.path().join("report"),
+    );
+    let want = report_labels(&report);
+    assert_eq!(want.len(), 2, "{want:?}");
+    assert!(want.iter().any(|(_, l)| !l.is_empty()), "{want:?}");
+    assert_eq!(markers(&rrd), want, "{logs}");
+    // The history and the statistics are there too, on the timeline the view opens on.
+    let job = Job::Printing { corrections: false };
+    let empty = panels_without_data(&rrd, job);
+    // Points are not drawn again: only the 3D view's points are gone, and the 3D view still has
+    // the design and the markers.
+    assert_eq!(empty, Vec::<String>::new(), "{logs}");
 }
 
 /// A blueprint's views and containers by entity path: (class or container kind, name,
@@ -236,16 +335,7 @@ fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
     // report, the scan layer at the cursor's only: one entity, logged once per scan layer.
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
-    let want: Vec<(i64, Vec<String>)> = report["assessment"]["scan_layers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| {
-            let labels = s["items"].as_array().unwrap().iter();
-            let labels = labels.map(|i| i["label"].as_str().unwrap().to_string());
-            (s["layer"].as_i64().unwrap(), labels.collect())
-        })
-        .collect();
+    let want = report_labels(&report);
     assert_eq!(want.len(), 2, "{want:?}");
     assert!(want.iter().all(|(_, l)| !l.is_empty()), "{want:?}");
     assert_eq!(markers(&rrd), want);

@@ -112,8 +112,9 @@ pub enum View {
         /// Whether each value is beyond its level of detection (M3C2).
         significant: Option<Vec<bool>>,
     },
-    /// A scan layer's findings: regions and missing material as boxes, per-layer width and
-    /// top height as series.
+    /// A scan layer's findings (again after each of its stations): judged as the report judges
+    /// them, drawn as numbered markers, boxes and a table; each band's width and shift and the
+    /// top height as series once the scan layer is complete.
     Findings {
         /// The station whose report the findings follow.
         index: u32,

@@ -13,9 +13,11 @@
 //! print, and however late or dead the robot's pose stream.
 
 mod placer;
+mod sweep;
 mod track;
 
 pub use placer::{Placed, Placer, PlacerCounts};
+pub use sweep::{Sweep, SweepParams};
 pub use track::{MountPose, PoseAt, PoseRefused, PoseTrack, PoseTrackParams, Refused, interpolate};
 
 #[cfg(test)]

@@ -337,3 +337,91 @@ fn profiles_in_a_hole_in_the_poses_are_refused_and_the_rest_placed() {
     let last_lost = out.refused.iter().map(|r| r.0).max().unwrap();
     assert_eq!((last_lost - first_lost + 1) as u64, lost);
 }
+
+/// A box 0.6 × 0.2 × 0.4 m, its −y face's top edge followed from x = −0.2 to 0.2 m by a
+/// profiler 50 mm outside and 100 mm above it, tilted to look at the edge, a profile every
+/// 0.1 mm. Returns the samples and which were swept.
+fn swept_box(max_step: f64) -> (crate::sampling::DesignSamples, Vec<bool>) {
+    let design =
+        crate::design::shapes::cuboid(Point3::new(-0.3, -0.1, 0.0), Point3::new(0.3, 0.1, 0.4));
+    let samples = crate::sampling::DesignSamples::generate(&design, 0.005, 1).unwrap();
+    let index = crate::C2mIndex::from_design(design, crate::C2mParams::within(0.05)).unwrap();
+    let mut sweep = Sweep::new(
+        &samples.points,
+        &samples.normals,
+        SweepParams {
+            max_step,
+            ..Default::default()
+        },
+    );
+    // Sensor axes: y along the path (+x), z looking down and in (towards +y), x across.
+    let tilt = 0.05_f64.atan2(0.1);
+    let (s, c) = tilt.sin_cos();
+    let axes = nalgebra::Matrix3::from_columns(&[
+        Vector3::new(0.0, c, s),
+        Vector3::x(),
+        Vector3::new(0.0, s, -c),
+    ]);
+    let rotation =
+        UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(axes));
+    for k in 0..=4000 {
+        let x = -0.2 + 1e-4 * f64::from(k);
+        let sensor = Isometry3::from_parts(Translation3::new(x, -0.15, 0.5), rotation);
+        sweep.profile(&sensor, &index);
+    }
+    sweep.end_pass();
+    let swept = sweep.swept().to_vec();
+    (samples, swept)
+}
+
+#[test]
+fn a_profiler_sweeps_the_top_and_the_outer_side_it_faces_and_nothing_else() {
+    let (samples, swept) = swept_box(0.005);
+    let mut top_reach: f64 = f64::NEG_INFINITY;
+    let mut side_depth: f64 = f64::INFINITY;
+    let mut top_inside_reach = 0;
+    for (i, p) in samples.points.iter().enumerate() {
+        let on_top = (p.z - 0.4).abs() < 1e-9;
+        let on_side = (p.y + 0.1).abs() < 1e-9;
+        let within = (-0.2 + 0.001..0.2 - 0.001).contains(&p.x);
+        if !swept[i] {
+            // Inside the footprint, analytically: the top from the edge to 0.1016 m in, the
+            // side down to 0.1836 m below the top (where its incidence reaches 80°).
+            if within && on_top && p.y < -0.1 + 0.1016 - 0.002 {
+                top_inside_reach += 1;
+            }
+            if within && on_side && p.z > 0.4 - 0.1836 + 0.002 {
+                panic!("side sample at {p} not swept");
+            }
+            continue;
+        }
+        assert!(on_top || on_side, "swept off the faces it sees: {p}");
+        assert!(
+            (-0.2 - 1e-9..=0.2 + 1e-9).contains(&p.x),
+            "beyond the path: {p}"
+        );
+        if on_top {
+            top_reach = top_reach.max(p.y + 0.1);
+        } else {
+            side_depth = side_depth.min(p.z);
+        }
+    }
+    assert_eq!(top_inside_reach, 0, "top samples within reach not swept");
+    // The footprint's far ends, within a sample's spacing.
+    assert!(
+        (top_reach - 0.1016).abs() < 0.006,
+        "top reach {top_reach:.4} m"
+    );
+    assert!(
+        (0.4 - side_depth - 0.1836).abs() < 0.006,
+        "side depth {:.4} m",
+        0.4 - side_depth
+    );
+}
+
+#[test]
+fn profiles_too_far_apart_sweep_nothing_between_them() {
+    // A profile every 0.1 mm, but a step allowed of 0.05 mm: nothing is swept.
+    let (_, swept) = swept_box(0.00005);
+    assert!(swept.iter().all(|s| !s));
+}

@@ -1,11 +1,16 @@
 //! How fast the simulated line profiler makes profiles: one pass over layer 30 of the column
 //! (about 7,900 profiles of up to 2,048 points), on one thread and on all (rayon), median of
 //! five runs. The simulated cell must outpace the agent (4.1 M points/s at 2,048 × 2 kHz).
+//! Then how fast `core::profiler::Sweep` marks what the pass's profiles swept over the column's
+//! design samples (10 mm apart): the agent must keep up with 2,000 profiles a second.
 //!
 //! `cargo bench -p asbuilt-sim --bench profiler`
 
 use std::time::Instant;
 
+use asbuilt_core::profiler::{Sweep, SweepParams};
+use asbuilt_core::sampling::DesignSamples;
+use asbuilt_core::{C2mIndex, C2mParams};
 use asbuilt_sim::profiler::{ProfilePass, ProfilerModel};
 use asbuilt_sim::{Part, as_built};
 use rayon::prelude::*;
@@ -45,4 +50,33 @@ fn main() {
             per_s * points as f64 / n as f64 * 1e-6
         );
     }
+    sweep(&pass, &part);
+}
+
+fn sweep(pass: &ProfilePass, part: &Part) {
+    let model = ProfilerModel::default();
+    let samples = DesignSamples::generate(&part.design, 0.01, 1).expect("the column samples");
+    let index = C2mIndex::from_design(part.design.clone(), C2mParams::within(0.05))
+        .expect("the column indexes");
+    let n = pass.profiles();
+    let sensors: Vec<_> = (0..n)
+        .filter_map(|k| Some(pass.mount_at(pass.profile_time_ns(k)?)? * model.mount_sensor()))
+        .collect();
+    let mut rates = Vec::new();
+    let mut swept = 0;
+    for _ in 0..5 {
+        let mut sweep = Sweep::new(&samples.points, &samples.normals, SweepParams::default());
+        let t = Instant::now();
+        for s in &sensors {
+            sweep.profile(s, &index);
+        }
+        rates.push(sensors.len() as f64 / t.elapsed().as_secs_f64());
+        swept = sweep.count();
+    }
+    println!(
+        "sweep: {} profiles over {} design samples, {swept} swept: {:.0} profiles/s (median of 5)",
+        sensors.len(),
+        samples.len(),
+        median(rates)
+    );
 }

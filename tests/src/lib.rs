@@ -413,3 +413,39 @@ pub fn assert_section_matches(section: &serde_json::Value, r: &StationReport, wh
         "{what} histogram"
     );
 }
+
+/// Sends `job` from `cell` to `agent` and collects what comes back (findings awaited when
+/// `expect_findings`); a failure shows the agent's logs.
+pub fn send_job(
+    job: &asbuilt_sim::SimJob,
+    agent: &Agent,
+    cell: &Cell,
+    expect_findings: bool,
+) -> asbuilt_sim::SimOutcome {
+    asbuilt_sim::run(
+        job,
+        &cell.ports,
+        expect_findings,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}\nagent logs:\n{}", agent.logs()))
+}
+
+/// report.json of `asbuilt report` (`asbuilt` is the command) over the recording folder
+/// `recording`, written into `out`.
+pub fn report_json(asbuilt: &str, recording: &Path, out: &Path) -> serde_json::Value {
+    let run = Command::new(asbuilt)
+        .arg("report")
+        .arg(recording)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}

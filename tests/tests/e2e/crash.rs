@@ -52,21 +52,8 @@ fn start(test: &str, job: &SimJob) -> (Agent, Cell) {
 
 /// `asbuilt report` over an agent's recording folder: report.json.
 fn report(agent: &Agent) -> Value {
-    let out = agent.dir.path().join("report");
-    let run = std::process::Command::new(ASBUILT)
-        .arg("report")
-        .arg(agent.dir.path().join("recording"))
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&run.stderr),
-        agent.logs()
-    );
-    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+    let dir = agent.dir.path();
+    asbuilt_tests::report_json(ASBUILT, &dir.join("recording"), &dir.join("report"))
 }
 
 /// Equal, numbers within 1e-6 relative.
@@ -303,14 +290,7 @@ fn a_job_through_ten_kills_of_the_agent_reports_as_if_none_happened() {
     let job = job();
     // The reference: the same job, the same seed, no kills.
     let (agent, cell) = start("crash-reference", &job);
-    let clean = sim::run(
-        &job,
-        &cell.ports,
-        true,
-        Duration::from_secs(60),
-        &mut |_| {},
-    )
-    .unwrap_or_else(|e| panic!("{e}\n{}", agent.logs()));
+    let clean = asbuilt_tests::send_job(&job, &agent, &cell, true);
     assert!(clean.retries.is_empty(), "{:?}", clean.retries);
     let reference = report(&stop(agent));
 

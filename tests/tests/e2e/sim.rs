@@ -35,14 +35,7 @@ fn start(test: &str, job: &SimJob, config: &str) -> (Agent, Cell) {
 /// Sends `job` to `agent` through `cell`, waiting up to a minute for its reports (and its
 /// findings, when `expect_findings`); a failure shows the agent's log.
 fn send(job: &SimJob, agent: &Agent, cell: &Cell, expect_findings: bool) -> SimOutcome {
-    sim::run(
-        job,
-        &cell.ports,
-        expect_findings,
-        Duration::from_secs(60),
-        &mut |_| {},
-    )
-    .unwrap_or_else(|e| panic!("{e}\nagent log:\n{}", agent.log()))
+    asbuilt_tests::send_job(job, agent, cell, expect_findings)
 }
 
 /// Runs `job` through a fresh agent with findings on; returns the findings of the last scan

@@ -120,23 +120,6 @@ fn the_agent_writes_a_view_of_a_job() {
     verify_with_rerun(&rrd);
 }
 
-/// report.json of `asbuilt report` over a recording folder.
-fn report_of(recording: &Path, out: &Path) -> serde_json::Value {
-    let run = Command::new(ASBUILT)
-        .arg("report")
-        .arg(recording)
-        .arg("--out")
-        .arg(out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
-}
-
 /// Each scan layer's finding labels of report.json, by scan layer.
 fn report_labels(report: &serde_json::Value) -> Vec<(i64, Vec<String>)> {
     report["assessment"]["scan_layers"]
@@ -179,14 +162,7 @@ fn the_view_of_a_resumed_job_draws_again_what_was_judged_before() {
     );
     let mut agent = Agent::start_in(AGENT, &unique_prefix("viewer-resume"), &config, dir);
     let cell = Cell::open(&agent.prefix, job.chunk_points);
-    sim::run(
-        &job,
-        &cell.ports,
-        true,
-        Duration::from_secs(60),
-        &mut |_| {},
-    )
-    .unwrap_or_else(|e| panic!("{e}\n{}", agent.logs()));
+    asbuilt_tests::send_job(&job, &agent, &cell, true);
     let rrd = agent.dir.path().join("job.rrd");
     // Killed as a power loss would, and started again: its view starts afresh.
     agent.kill_and_restart(Duration::from_millis(100));
@@ -198,10 +174,8 @@ fn the_view_of_a_resumed_job_draws_again_what_was_judged_before() {
     agent.wait_exit(Duration::from_secs(60));
     let logs = agent.logs();
     assert!(logs.contains("resume"), "{logs}");
-    let report = report_of(
-        &agent.dir.path().join("recording"),
-        &agent.dir.path().join("report"),
-    );
+    let dir = agent.dir.path();
+    let report = asbuilt_tests::report_json(ASBUILT, &dir.join("recording"), &dir.join("report"));
     let want = report_labels(&report);
     assert_eq!(want.len(), 2, "{want:?}");
     assert!(want.iter().any(|(_, l)| !l.is_empty()), "{want:?}");

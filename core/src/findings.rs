@@ -158,9 +158,7 @@ pub fn find(
         top: top_row(m3c2, &usable, p, (shared, pose)),
         ..Findings::default()
     };
-    // Samples are random, so a thin strip (the top of a sagging layer) needs a generous link to
-    // stay one region.
-    let link = 4.0 * p.spacing;
+    let link = link(p);
     for (kind, sign) in [(RegionKind::Excess, 1.0), (RegionKind::Deficit, -1.0)] {
         let members: Vec<usize> = (0..m3c2.len())
             .filter(|&i| {
@@ -207,6 +205,12 @@ fn sample_count(m3c2: &[CoreResult], coverage: &[SampleOutcome]) -> usize {
         .chain(coverage.iter().map(|o| o.sample))
         .max()
         .map_or(0, |m| m as usize + 1)
+}
+
+/// How near two samples must be to belong to one region: samples are random, so a thin strip
+/// (the top of a sagging layer) needs a generous link to stay one region.
+fn link(p: &FindingParams) -> f64 {
+    4.0 * p.spacing
 }
 
 /// How far from a sharp edge a core point's cylinder must stay: a station's pose error moves the
@@ -406,7 +410,7 @@ fn missing_areas(
         .min_region_samples
         .max((p.min_missing_area_m2 / area_per_sample).ceil() as usize);
     let places: Vec<Point3<f64>> = missing.iter().map(|m| m.1).collect();
-    components(&places, 4.0 * p.spacing)
+    components(&places, link(p))
         .into_iter()
         .filter(|group| group.len() >= min_missing)
         .map(|group| group.iter().map(|&g| missing[g]).collect())

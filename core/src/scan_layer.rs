@@ -373,7 +373,6 @@ impl ScanLayer {
                     judged: Default::default(),
                 })
                 .collect();
-
             // Both were built from the same samples: their sample indices line them up.
             let mut at = vec![usize::MAX; self.samples];
             for (i, o) in outcomes.iter().enumerate() {

@@ -173,54 +173,35 @@ struct Grid {
 impl Grid {
     /// Triangles reaching above `below`.
     fn new(mesh: &AsBuilt, below: f64) -> Self {
+        let corners = |t: u32| mesh.triangles[t as usize].map(|v| mesh.vertices[v as usize]);
         let near: Vec<u32> = (0..mesh.triangles.len() as u32)
-            .filter(|&t| {
-                mesh.triangles[t as usize]
-                    .iter()
-                    .any(|&v| mesh.vertices[v as usize].z >= below)
-            })
+            .filter(|&t| corners(t).iter().any(|p| p.z >= below))
             .collect();
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for &t in &near {
-            for &v in &mesh.triangles[t as usize] {
-                let p = mesh.vertices[v as usize];
-                lo = [lo[0].min(p.x), lo[1].min(p.y)];
-                hi = [hi[0].max(p.x), hi[1].max(p.y)];
-            }
-        }
-        if near.is_empty() {
+        let Some((lo, hi)) = plan_bounds(near.iter().flat_map(|&t| corners(t))) else {
             return Self {
                 lo: [0.0; 2],
                 nx: 0,
                 ny: 0,
                 cells: Vec::new(),
             };
-        }
+        };
         let nx = ((hi[0] - lo[0]) / CELL).floor() as usize + 1;
         let ny = ((hi[1] - lo[1]) / CELL).floor() as usize + 1;
-        let mut cells = vec![Vec::new(); nx * ny];
         let mut grid = Self {
             lo,
             nx,
             ny,
-            cells: Vec::new(),
+            cells: vec![Vec::new(); nx * ny],
         };
         for &t in &near {
-            let ps = mesh.triangles[t as usize].map(|v| mesh.vertices[v as usize]);
-            let (x0, y0) = grid.cell_of(ps.iter().map(|p| p.x).fold(f64::INFINITY, f64::min), {
-                ps.iter().map(|p| p.y).fold(f64::INFINITY, f64::min)
-            });
-            let (x1, y1) = grid.cell_of(
-                ps.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max),
-                ps.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max),
-            );
+            let (a, b) = plan_bounds(corners(t)).expect("a triangle has corners");
+            let ((x0, y0), (x1, y1)) = (grid.cell_of(a[0], a[1]), grid.cell_of(b[0], b[1]));
             for y in y0..=y1 {
                 for x in x0..=x1 {
-                    cells[y * nx + x].push(t);
+                    grid.cells[y * nx + x].push(t);
                 }
             }
         }
-        grid.cells = cells;
         grid
     }
 
@@ -252,6 +233,17 @@ impl Grid {
     }
 }
 
+/// The lowest and highest x and y of `points`, or `None` for none.
+fn plan_bounds(points: impl IntoIterator<Item = Point3<f64>>) -> Option<([f64; 2], [f64; 2])> {
+    points.into_iter().fold(None, |b, p| {
+        let (lo, hi) = b.unwrap_or(([p.x, p.y], [p.x, p.y]));
+        Some((
+            [lo[0].min(p.x), lo[1].min(p.y)],
+            [hi[0].max(p.x), hi[1].max(p.y)],
+        ))
+    })
+}
+
 /// A layer's pass of the profiler: the robot's poses and the profiles, both in time order.
 pub struct ProfilePass<'a> {
     /// The layer just laid, from 0.
@@ -263,6 +255,9 @@ pub struct ProfilePass<'a> {
     loops: Vec<Loop>,
     mesh: &'a AsBuilt,
     grid: Grid,
+    /// Each ray's direction in the laser's plane, (sin, cos) of its angle from the sensor's z
+    /// towards its x: the same for every profile.
+    rays: Vec<[f64; 2]>,
 }
 
 impl<'a> ProfilePass<'a> {
@@ -306,6 +301,14 @@ impl<'a> ProfilePass<'a> {
         }
         // What the fan can reach below the nozzle's height.
         let grid = Grid::new(built, z1 - model.standoff - model.max_range);
+        let half = 0.5 * model.fan_deg.to_radians();
+        let n = model.points.max(2);
+        let rays = (0..n)
+            .map(|i| {
+                let a = -half + 2.0 * half * i as f64 / (n - 1) as f64;
+                [a.sin(), a.cos()]
+            })
+            .collect();
         Ok(Self {
             layer,
             model,
@@ -314,6 +317,7 @@ impl<'a> ProfilePass<'a> {
             loops,
             mesh: built,
             grid,
+            rays,
         })
     }
 
@@ -402,22 +406,15 @@ impl<'a> ProfilePass<'a> {
             .enumerate()
             .filter(|(_, r)| r.is_finite())
             .map(|(i, &r)| {
-                let a = self.angle(i);
+                let [sin, cos] = self.rays[i];
                 let r = r + noise.sample(&mut rng);
-                [(r * a.sin()) as f32, 0.0, (r * a.cos()) as f32]
+                [(r * sin) as f32, 0.0, (r * cos) as f32]
             })
             .collect();
         Some(Profile {
             sensor_ns: (t - m.clock_offset_ns).max(0) as u64,
             points,
         })
-    }
-
-    /// Ray `i`'s angle from the sensor's z, towards its x, radians.
-    fn angle(&self, i: usize) -> f64 {
-        let m = &self.model;
-        let half = 0.5 * m.fan_deg.to_radians();
-        -half + 2.0 * half * i as f64 / (m.points.max(2) - 1) as f64
     }
 
     /// The nearest surface on each ray from `sensor` (`T_design_sensor`): infinite where none
@@ -453,8 +450,7 @@ impl<'a> ProfilePass<'a> {
                 .take(last as usize + 1)
                 .skip(first)
             {
-                let angle = self.angle(i);
-                let d = [angle.sin(), angle.cos()];
+                let d = self.rays[i];
                 let den = d[0] * e[1] - d[1] * e[0];
                 if den.abs() < 1e-15 {
                     continue;

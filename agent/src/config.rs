@@ -10,6 +10,9 @@ use asbuilt_core::frames::{FrameChain, isometry};
 use serde::Deserialize;
 use serde::de::DeserializeOwned;
 
+mod profiler;
+pub use profiler::ProfilerConfig;
+
 /// Methods this build can run in the agent. The deviation suite (C2C, coverage, M3C2) arrives
 /// with its own issue; asking for it now is a configuration error, not a silent no-op.
 pub const AVAILABLE_METHODS: &[&str] = &["c2m"];
@@ -41,6 +44,8 @@ pub struct AgentConfig {
     pub tolerances: TolerancesConfig,
     /// `[corrections]`: advice for the layers still to print.
     pub corrections: CorrectionsConfig,
+    /// `[profiler]`: a line profiler's clocks, wait and field of view.
+    pub profiler: ProfilerConfig,
     /// The file as written, for the recording's metadata.
     pub text: String,
 }
@@ -474,6 +479,7 @@ const SECTIONS: &[&str] = &[
     "findings",
     "tolerances",
     "corrections",
+    "profiler",
 ];
 
 impl AgentConfig {
@@ -539,6 +545,9 @@ impl AgentConfig {
         let corrections: CorrectionsConfig =
             section(&table, "corrections", &mut problems, true).unwrap_or_default();
         check_corrections(&corrections, &mut problems);
+        let profiler: ProfilerConfig =
+            section(&table, "profiler", &mut problems, true).unwrap_or_default();
+        profiler.check(&mut problems);
         if corrections.enabled && !(findings.enabled && findings.layer_height.is_some()) {
             problems.push(
                 "corrections.enabled: corrections are drawn from the findings' layer bands; \
@@ -593,6 +602,7 @@ impl AgentConfig {
                 findings,
                 tolerances,
                 corrections,
+                profiler,
                 text: text.to_string(),
             }),
             _ => Err(ConfigError {
@@ -639,6 +649,11 @@ pub fn recorded_findings(text: &str) -> Result<FindingsConfig, Vec<String>> {
 /// of the recording advises what the agent advised.
 pub fn recorded_corrections(text: &str) -> Result<CorrectionsConfig, Vec<String>> {
     recorded_section(text, "corrections", check_corrections)
+}
+
+/// The `[profiler]` of a recorded configuration: how its passes' profiles were placed.
+pub fn recorded_profiler(text: &str) -> Result<ProfilerConfig, Vec<String>> {
+    recorded_section(text, "profiler", ProfilerConfig::check)
 }
 
 /// The `[tolerances]` of a recorded configuration (the job's tolerance for every kind where it

@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 use asbuilt_protocol::ipc::{AgentPorts, ChunkSample, Ipc};
 use asbuilt_protocol::recording::Recorded;
 use asbuilt_protocol::{
-    AgentStatus, DeviationHeader, FindingsHeader, LayerCorrection, PointDeviation, PoseSnapshot,
-    StationEvent, StationFindings, StationReport,
+    AgentStatus, DeviationHeader, FindingsHeader, LayerCorrection, MountPose, PointDeviation,
+    PoseSnapshot, ProfileHeader, ProfilePoint, StationEvent, StationFindings, StationReport,
 };
 use asbuilt_viewer::{self as viewer, View, Viewer};
 
@@ -125,6 +125,20 @@ impl<'p> Fanout<'p> {
         self.recorder
             .as_mut()
             .and_then(|r| r.chunk(sample.user_header(), sample.payload()))
+    }
+
+    /// A line profiler's chunk, taken from the cell: recorded.
+    pub(crate) fn took_profiles(&mut self, h: &ProfileHeader, points: &[ProfilePoint]) {
+        if let Some(r) = self.recorder.as_mut() {
+            r.profiles(h, points);
+        }
+    }
+
+    /// A robot pose of the profiler's mount, taken from the cell: recorded.
+    pub(crate) fn took_mount_pose(&self, m: &MountPose) {
+        if let Some(r) = &self.recorder {
+            r.record(Recorded::MountPose(*m));
+        }
     }
 
     /// The agent's status: recorded and published (its health line is the caller's).

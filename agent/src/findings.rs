@@ -15,11 +15,13 @@
 
 use std::sync::Arc;
 
+use asbuilt_core::coverage::Viewpoint;
 use asbuilt_core::printed::PrintedDesign;
+use asbuilt_core::profiler::SweepParams;
 use asbuilt_core::sampling::DesignSamples;
 use asbuilt_core::scan_layer::{SampleState, ScanLayer, ScanLayerState, defaults};
 use asbuilt_protocol::{DeviationFlags, PointDeviation, StationFindings, StationReport};
-use nalgebra::Point3;
+use nalgebra::{Isometry3, Point3};
 
 use crate::config::FindingsConfig;
 use crate::{info, warn};
@@ -310,18 +312,26 @@ impl FindingsStage {
         }
     }
 
-    /// Closes a station scanned from `origin` and returns the findings of its scan layer so
-    /// far; `None` when the station was not part of any (left out, or never began).
+    /// A line profiler's next profile of a station that began, taken from `sensor`
+    /// (`T_design_sensor`) with the field of view `params`.
+    pub fn sweep(&mut self, key: StationKey, sensor: &Isometry3<f64>, params: SweepParams) {
+        if let Some(e) = active(&mut self.epochs, key) {
+            e.layer.sweep(sensor, params, &*e.design);
+        }
+    }
+
+    /// Closes a station that saw the design from `view` and returns the findings of its scan
+    /// layer so far; `None` when the station was not part of any (left out, or never began).
     pub fn end(
         &mut self,
         key: StationKey,
-        origin: Option<Point3<f64>>,
+        view: Option<Viewpoint>,
         report: &StationReport,
     ) -> Option<StationFindings> {
         let tolerance = self.maker.tolerance;
         let e = active(&mut self.epochs, key)?;
         e.active = None;
-        let Some(origin) = origin else {
+        let Some(view) = view else {
             // Without a pose the points never came; nothing to add.
             return None;
         };
@@ -331,7 +341,7 @@ impl FindingsStage {
             0.0
         };
         e.before_last = Some((key.1, e.layer.state()));
-        e.layer.end_station(origin, sigma, &*e.design);
+        e.layer.end_station(view, sigma, &*e.design);
         let (f, samples) = e.layer.measure(sigma, &*e.design, self.keep_samples)?;
         self.samples = samples;
         let mut m = f.to_message(

@@ -21,7 +21,10 @@ use std::thread::JoinHandle;
 use asbuilt_protocol::foxglove::cloud_points;
 use asbuilt_protocol::ipc::ChunkSample;
 use asbuilt_protocol::recording::{JobMetadata, Recorded, RecordingWriter, ScanLayerStateRecord};
-use asbuilt_protocol::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, unix_time_ns};
+use asbuilt_protocol::{
+    ChunkHeader, DeviationHeader, PointDeviation, ProfileHeader, ProfilePoint, ScanPoint,
+    unix_time_ns,
+};
 
 use asbuilt_core::Design;
 use asbuilt_core::colour::deviation_colour;
@@ -346,6 +349,22 @@ impl Recorder {
         lent
     }
 
+    /// A line profiler's chunk, copied (the lifecycle copies each profile for its wait, so
+    /// the sample is not kept lent): decimated and guarded as scan chunks are.
+    pub fn profiles(&mut self, h: &ProfileHeader, points: &[ProfilePoint]) {
+        let bytes = std::mem::size_of_val(points);
+        if !self.admit(bytes) {
+            return;
+        }
+        let m = Recorded::Profiles(*h, points.to_vec());
+        let counter = if self.send(Item::Message(unix_time_ns(), m), bytes) {
+            &self.counters.chunks_recorded
+        } else {
+            &self.counters.chunks_dropped
+        };
+        counter.fetch_add(1, Relaxed);
+    }
+
     /// Deviation chunks follow the scan chunks they come from: the same decimation and guard.
     pub fn deviations(&mut self, h: &DeviationHeader, points: &[PointDeviation]) {
         let bytes = std::mem::size_of_val(points);
@@ -510,6 +529,8 @@ fn job_of(m: &Recorded) -> Option<u64> {
     match m {
         Recorded::Pose(p) => Some(p.job),
         Recorded::Chunk(h, _) => Some(h.job),
+        Recorded::MountPose(p) => Some(p.job),
+        Recorded::Profiles(h, _) => Some(h.job),
         Recorded::Event(e) => Some(e.job),
         Recorded::Deviations(h, _) => Some(h.job),
         Recorded::Report(r) => Some(r.job),
@@ -547,6 +568,7 @@ impl Writer {
                 Item::Message(t, m) => {
                     let bytes = match &m {
                         Recorded::Chunk(_, p) => std::mem::size_of_val(p.as_slice()),
+                        Recorded::Profiles(_, p) => std::mem::size_of_val(p.as_slice()),
                         Recorded::Deviations(_, p) => std::mem::size_of_val(p.as_slice()),
                         _ => 256,
                     };

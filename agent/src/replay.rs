@@ -8,8 +8,8 @@ use asbuilt_protocol::{ChunkHeader, ScanPoint, StationEvent, StationEventKind, S
 
 use crate::lifecycle::{ChunkSource, Input, Lifecycle, Outputs};
 
-/// Feeds one recorded message: station events, poses, scan chunks and the printer's answers as
-/// the agent took them,
+/// Feeds one recorded message: station events, poses, scan chunks, a line profiler's mount
+/// poses and profiles, and the printer's answers as the agent took them,
 /// and an `Interrupted` report where a resumed agent said a station attempt was cut off. Other
 /// outputs (reports, findings, deviations, status) change nothing: the lifecycle computes its
 /// own.
@@ -21,6 +21,14 @@ where
         Recorded::Event(e) => lifecycle.take(Input::Event(e), now, out),
         Recorded::Pose(p) => lifecycle.take(Input::Pose(p), now, out),
         Recorded::Applied(a) => lifecycle.take(Input::Applied(a), now, out),
+        Recorded::MountPose(m) => lifecycle.take(Input::MountPose(m), now, out),
+        Recorded::Profiles(h, pts) => {
+            // As a chunk: the same batches whether the design was ready or not.
+            if lifecycle.pass_awaits_design(h.job, h.pass) {
+                lifecycle.wait_designs(now, out);
+            }
+            lifecycle.take(Input::Profiles(h, pts), now, out);
+        }
         Recorded::Chunk(h, pts) => {
             // The live agent's chunks waited while their printed height was prepared.
             if lifecycle.awaits_design(&h) {

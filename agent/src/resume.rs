@@ -548,14 +548,21 @@ fn replay_layer<C>(
                 Recorded::Event(e) => (e.job, e.station),
                 Recorded::Pose(p) => (p.job, p.station),
                 Recorded::Chunk(h, _) => (h.job, h.station),
+                Recorded::MountPose(m) => (m.job, m.pass),
+                Recorded::Profiles(h, _) => (h.job, h.pass),
                 Recorded::Report(r) => (r.job, r.station),
                 _ => return,
             };
             if !in_layer(key) {
                 return;
             }
-            if let Recorded::Chunk(_, p) = &m {
-                resumed.points_replayed += p.len() as u64;
+            let points = match &m {
+                Recorded::Chunk(_, p) => Some(p.len()),
+                Recorded::Profiles(_, p) => Some(p.len()),
+                _ => None,
+            };
+            if let Some(n) = points {
+                resumed.points_replayed += n as u64;
                 stations.insert(key);
             }
             crate::replay::feed(lifecycle, m, Instant::now(), &mut out);

@@ -20,10 +20,11 @@
 //! threshold a sample is held to is the larger of the fixed one and the spacing its stations
 //! scan at there ([`ScanSpacing`]): a gap is missing only where the scan around it is denser.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::c2m::Surface;
 use crate::probes::{ProbeGrid, Region, Scratch};
+use crate::profiler::{Sweep, SweepParams};
 use crate::sampling::DesignSamples;
 
 mod nearest;
@@ -160,6 +161,19 @@ pub struct CoverageState {
     pub nearest: Vec<(f64, f64, bool)>,
     /// Per closed station: its origin and angular step.
     pub stations: Vec<([f64; 3], Option<f64>)>,
+    /// Per sample, whether a line profiler's pass swept it (empty: no pass did).
+    pub swept: Vec<bool>,
+}
+
+/// Where a closing station saw the design from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Viewpoint {
+    /// A scanner at one origin (design frame): it should have seen what faces it in range
+    /// with a clear line of sight.
+    Origin(Point3<f64>),
+    /// A line profiler's pass: it should have seen what its laser's plane swept
+    /// ([`Coverage::sweep`]).
+    Swept,
 }
 
 /// Coverage over the stations closed so far, in design samples.
@@ -209,6 +223,8 @@ pub struct Coverage {
     total: Vec<Nearest>,
     scratch: Scratch,
     origins: Vec<Station>,
+    /// What line profilers' passes swept, once one has run.
+    sweep: Option<Sweep>,
 }
 
 /// A closed station: where it scanned from and its angular step, when known.
@@ -240,6 +256,7 @@ impl Coverage {
             total: vec![Nearest::NONE; n],
             scratch: Scratch::default(),
             origins: Vec::new(),
+            sweep: None,
         })
     }
 
@@ -288,15 +305,29 @@ impl Coverage {
                 .iter()
                 .map(|s| (s.origin.coords.into(), s.step))
                 .collect(),
+            swept: self
+                .sweep
+                .as_ref()
+                .map_or(Vec::new(), |w| w.swept().to_vec()),
         }
     }
 
     /// Goes on from a [`Self::state`] of the same samples; false (and nothing changed) when it
     /// holds another number of samples.
     pub fn restore(&mut self, s: &CoverageState) -> bool {
-        if s.nearest.len() != self.total.len() {
+        let n = self.total.len();
+        if s.nearest.len() != n || !(s.swept.is_empty() || s.swept.len() == n) {
             return false;
         }
+        self.sweep = (!s.swept.is_empty()).then(|| {
+            let mut w = Sweep::new(
+                self.grid.points(),
+                self.grid.normals(),
+                SweepParams::default(),
+            );
+            w.set_swept(&s.swept);
+            w
+        });
         for (t, &(d2, along, buried)) in self.total.iter_mut().zip(&s.nearest) {
             *t = Nearest { d2, along, buried };
         }
@@ -338,18 +369,38 @@ impl Coverage {
         );
     }
 
-    /// Closes the station scanned from `origin` (design frame): classifies every sample by this
-    /// station alone, then adds what it saw to the job.
-    pub fn end_station(&mut self, origin: Point3<f64>, design: &dyn Surface) -> CoverageSummary {
-        let station = Station {
-            origin,
-            step: self.angular_step(origin),
+    /// A line profiler's next profile, taken from `sensor` (`T_design_sensor`) with the field
+    /// of view `params`: the samples its plane swept since the pass's previous profile count as seen by the pass.
+    pub fn sweep(&mut self, sensor: &Isometry3<f64>, params: SweepParams, design: &dyn Surface) {
+        let (points, normals) = (self.grid.points(), self.grid.normals());
+        let w = self
+            .sweep
+            .get_or_insert_with(|| Sweep::new(points, normals, params));
+        // A restored sweep kept its flags, not its field of view.
+        w.set_params(params);
+        w.profile(sensor, design);
+    }
+
+    /// Closes the station that saw the design from `view`: classifies every sample by this
+    /// station alone (and what earlier passes swept), then adds what it saw to the job.
+    pub fn end_station(&mut self, view: Viewpoint, design: &dyn Surface) -> CoverageSummary {
+        let station = match view {
+            Viewpoint::Origin(origin) => Some(Station {
+                origin,
+                step: self.angular_step(origin),
+            }),
+            Viewpoint::Swept => {
+                if let Some(w) = self.sweep.as_mut() {
+                    w.end_pass();
+                }
+                None
+            }
         };
-        let summary = self.classify(&self.station, std::slice::from_ref(&station), design);
+        let summary = self.classify(&self.station, station.as_slice(), design);
         for (t, s) in self.total.iter_mut().zip(&self.station) {
             t.merge(s);
         }
-        self.origins.push(station);
+        self.origins.extend(station);
         summary
     }
 
@@ -475,6 +526,10 @@ impl Coverage {
         if (nearest.along / t).powi(2) + (nearest.lateral() / across).powi(2) <= 1.0 {
             return SampleClass::Observed;
         }
+        // A profiler's plane swept it with the design clear between: it should be there.
+        if self.sweep.as_ref().is_some_and(|w| w.swept()[i]) {
+            return SampleClass::Missing;
+        }
         // Lines of sight start just off the surface, so the sample's own face never blocks.
         let margin = (0.25 * t).min(1e-3);
         let mut facing = false;
@@ -548,7 +603,7 @@ mod tests {
         }
         // Per-sample state and one chunk's scratch: nothing grows with the scan.
         assert_eq!(cov.bytes(), held);
-        let s = cov.end_station(Point3::new(0.5, 0.5, 3.0), &index);
+        let s = cov.end_station(Viewpoint::Origin(Point3::new(0.5, 0.5, 3.0)), &index);
         // The hole's centre part (more than 5 mm from any scan point) is 0.19 × 0.29 m.
         let truth = (0.2 - 0.01) * (0.3 - 0.01);
         assert!(
@@ -584,7 +639,7 @@ mod tests {
         scan.extend(plane_points(1.008, (0.504, 1.0), (0.0, 1.0), 0.004));
         cov.begin_station();
         cov.ingest(&scan);
-        cov.end_station(Point3::new(0.5, 0.5, 2.0), &index);
+        cov.end_station(Viewpoint::Origin(Point3::new(0.5, 0.5, 2.0)), &index);
         for o in cov.outcomes(&index) {
             if (o.position.z - 1.0).abs() > 1e-9 || (o.position.x - 0.5).abs() < 0.03 {
                 continue;
@@ -651,7 +706,7 @@ mod tests {
                 let mut cov = Coverage::new(&samples, params).unwrap();
                 cov.begin_station();
                 cov.ingest(&scan);
-                let s = cov.end_station(station, &index);
+                let s = cov.end_station(Viewpoint::Origin(station), &index);
                 let what = format!("{} mm lattice, {:?}", spacing * 1e3, params.spacing);
                 eprintln!(
                     "{what}: {:.4} m² missing (truth {truth}), step {:?}",
@@ -698,7 +753,7 @@ mod tests {
         let samples = DesignSamples::generate(&d, 0.05, 1).unwrap();
         let mut cov = Coverage::new(&samples, CoverageParams::with_threshold(0.005, 0.05)).unwrap();
         cov.begin_station();
-        let s = cov.end_station(Point3::new(-3.0, 0.5, 0.5), &index);
+        let s = cov.end_station(Viewpoint::Origin(Point3::new(-3.0, 0.5, 0.5)), &index);
         for (i, p) in cov.samples().iter().enumerate() {
             let missing = s.missing_samples.contains(&(i as u32));
             if (p.x - 2.0).abs() < 1e-9 {

@@ -317,21 +317,32 @@ impl ScanLayer {
         self.pending.clear();
     }
 
-    /// Closes a station scanned from `origin` with position σ `sigma` against `surface` (the
-    /// design as printed at this layer).
+    /// A line profiler's next profile of the station, taken from `sensor` (`T_design_sensor`)
+    /// with the field of view `params`, against `surface`: what its plane swept should have
+    /// been seen ([`Coverage::sweep`]).
+    pub fn sweep(
+        &mut self,
+        sensor: &nalgebra::Isometry3<f64>,
+        params: crate::profiler::SweepParams,
+        surface: &dyn Surface,
+    ) {
+        if let Some(c) = self.coverage.as_mut() {
+            c.sweep(sensor, params, surface);
+        }
+    }
+
+    /// Closes a station that saw the design from `view` with position σ `sigma` against
+    /// `surface` (the design as printed at this layer).
     pub fn end_station(
         &mut self,
-        origin: Point3<f64>,
+        view: crate::coverage::Viewpoint,
         sigma: f64,
         surface: &dyn Surface,
     ) -> StationPart {
         self.take_pending();
         self.stations += 1;
         StationPart {
-            coverage: self
-                .coverage
-                .as_mut()
-                .map(|c| c.end_station(origin, surface)),
+            coverage: self.coverage.as_mut().map(|c| c.end_station(view, surface)),
             m3c2: self.m3c2.as_mut().map(|m| m.end_station(sigma)),
         }
     }
@@ -457,7 +468,8 @@ mod tests {
                     assert!(layer.pending.len() < batch);
                     assert!(layer.pending.capacity() <= batch);
                 }
-                let part = layer.end_station(origin, 0.001, &index);
+                let part =
+                    layer.end_station(crate::coverage::Viewpoint::Origin(origin), 0.001, &index);
                 assert!(layer.pending.is_empty());
                 assert!(part.m3c2.is_some_and(|m| m.with_points > 0));
             }

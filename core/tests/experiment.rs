@@ -7,7 +7,7 @@
 
 use asbuilt_core::Design;
 use asbuilt_core::c2m::{C2mIndex, C2mParams, Cursor};
-use asbuilt_core::coverage::{Coverage, CoverageParams, SampleClass};
+use asbuilt_core::coverage::{Coverage, CoverageParams, SampleClass, Viewpoint};
 use asbuilt_core::design::shapes;
 mod icp;
 
@@ -205,10 +205,10 @@ fn the_source_study_experiment() {
     }
     // One scan covers the part; charge it to the first station and let the others add their
     // lines of sight.
-    cov.end_station(stations[0], &index);
+    cov.end_station(Viewpoint::Origin(stations[0]), &index);
     for s in &stations[1..] {
         cov.begin_station();
-        cov.end_station(*s, &index);
+        cov.end_station(Viewpoint::Origin(*s), &index);
     }
     let total = cov.total(&index);
     let outcomes = cov.outcomes(&index);

@@ -7,7 +7,10 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 pub use crate::message::{DecodeError, Message};
-use crate::{ChunkHeader, DeviationHeader, PointDeviation, ScanPoint, check_version};
+use crate::{
+    ChunkHeader, DeviationHeader, PointDeviation, ProfileHeader, ProfilePoint, ScanPoint,
+    check_version,
+};
 
 /// One record: the version, then the message.
 pub fn encode<M: Message>(msg: &M) -> Vec<u8> {
@@ -110,6 +113,19 @@ pub fn decode_deviation_chunk(
     bytes: &[u8],
 ) -> Result<(DeviationHeader, Vec<PointDeviation>), DecodeError> {
     decode_slice(bytes, |h: &DeviationHeader| h.point_count)
+}
+
+/// A profile chunk's record: the header, then its points as a postcard sequence.
+pub fn encode_profile_chunk(header: &ProfileHeader, points: &[ProfilePoint]) -> Vec<u8> {
+    encode_slice(header, points)
+}
+
+/// A profile chunk's record back into its header and points; the header's `point_count` must
+/// match the points that follow.
+pub fn decode_profile_chunk(
+    bytes: &[u8],
+) -> Result<(ProfileHeader, Vec<ProfilePoint>), DecodeError> {
+    decode_slice(bytes, |h: &ProfileHeader| h.point_count)
 }
 
 fn encode_slice<H: Message, T: Serialize>(header: &H, items: &[T]) -> Vec<u8> {

@@ -23,10 +23,14 @@
 use std::time::{Duration, Instant};
 
 pub use crate::services::{
-    ChunkSample, DELIVERY_DEADLINE, DeviationSample, IceoryxCause, Ipc, IpcError, QueueSizes,
+    ChunkSample, DELIVERY_DEADLINE, DeviationSample, IceoryxCause, Ipc, IpcError, ProfileSample,
+    QueueSizes,
 };
 pub use crate::table::{AgentPorts, CellPorts, ServiceNames};
-use crate::{ChunkHeader, LayerApplied, PoseSnapshot, ScanPoint, StationEvent, StationReport};
+use crate::{
+    ChunkHeader, LayerApplied, MountPose, PoseSnapshot, ProfileHeader, ProfilePoint, ScanPoint,
+    StationEvent, StationReport,
+};
 use iceoryx2::prelude::*;
 
 impl CellPorts {
@@ -157,6 +161,31 @@ impl CellPorts {
         self.deliver(&format!("chunk {}", header.sequence), || {
             let sample = self
                 .chunks
+                .loan_slice_uninit(points.len())
+                .map_err(IceoryxCause::from)?;
+            let mut sample = sample.write_from_slice(points);
+            *sample.user_header_mut() = *header;
+            sample.send().map_err(IceoryxCause::from)
+        })?;
+        self.wake_agent()
+    }
+
+    /// Sends a robot pose of a line profiler's mount and wakes the agent.
+    pub fn send_mount_pose(&self, pose: &MountPose) -> Result<(), IpcError> {
+        self.deliver("mount pose", || self.mount_poses.send_copy(*pose))?;
+        self.wake_agent()
+    }
+
+    /// Sends one chunk of a line profiler's profiles; the header's counts are the caller's
+    /// to set (the agent checks them).
+    pub fn send_profiles(
+        &self,
+        header: &ProfileHeader,
+        points: &[ProfilePoint],
+    ) -> Result<(), IpcError> {
+        self.deliver(&format!("profile chunk {}", header.sequence), || {
+            let sample = self
+                .profiles
                 .loan_slice_uninit(points.len())
                 .map_err(IceoryxCause::from)?;
             let mut sample = sample.write_from_slice(points);

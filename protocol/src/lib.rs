@@ -21,6 +21,7 @@ pub mod ipc;
 pub mod mcap_records;
 mod message;
 mod pose;
+mod profile;
 pub mod recording;
 mod records;
 mod report;
@@ -43,6 +44,9 @@ pub use findings::{
 };
 pub use message::{ChunkRecord, DecodeError, Message, Record, check_version};
 pub use pose::{PoseMode, PoseSnapshot};
+pub use profile::{
+    MAX_PROFILES_PER_CHUNK, MountPose, ProfileHeader, ProfilePoint, ProfileShapeError,
+};
 pub use report::{
     ChunkCounts, DeviationStats, HISTOGRAM_BINS, Histogram, RejectCounts, StationReport,
     StationStatus,

@@ -4,8 +4,9 @@
 use crate::codec;
 use crate::message::{ChunkRecord, DecodeError, Message, Record};
 use crate::{
-    AgentStatus, ChunkHeader, DeviationHeader, LayerApplied, LayerCorrection, PointDeviation,
-    PoseSnapshot, ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
+    AgentStatus, ChunkHeader, DeviationHeader, LayerApplied, LayerCorrection, MountPose,
+    PointDeviation, PoseSnapshot, ProfileHeader, ProfilePoint, ScanPoint, StationEvent,
+    StationFindings, StationReport, SurfaceFindings,
 };
 
 /// A message's record: its codec record and its type name as the schema's; `stamped` when
@@ -126,6 +127,36 @@ impl ChunkRecord for ChunkHeader {
     }
     fn decode(bytes: &[u8]) -> Result<(Self, Vec<ScanPoint>), DecodeError> {
         codec::decode_scan_chunk(bytes)
+    }
+    fn timestamp_ns(&self) -> u64 {
+        self.timestamp_ns
+    }
+}
+
+record!(
+    MountPose,
+    unstamped,
+    "asbuilt.MountPose v1, postcard: version u16 (varint, also first), _reserved [u8; 2], \
+             pass u32, job u64, sequence u64, time_ns u64 (robot clock), translation [f64; 3] \
+             m and rotation_xyzw [f64; 4] (T_base_mount, unit quaternion scalar last), \
+             mount_sensor_translation [f64; 3] m and mount_sensor_rotation_xyzw [f64; 4] \
+             (T_mount_sensor from calibration)"
+);
+
+impl ChunkRecord for ProfileHeader {
+    type Point = ProfilePoint;
+    const SCHEMA_NAME: &'static str = "asbuilt.ProfileChunk.v1";
+    const SCHEMA_TEXT: &'static str = "asbuilt.ProfileChunk v1, postcard: version u16 (varint), then ProfileHeader { \
+             version u16, attempt u16, pass u32, job u64, sequence u64, timestamp_ns u64, \
+             point_count u32, profile_count u16, last u8, _reserved u8, sensor_ns [u64; 32] \
+             (sensor clock), profile_points [u32; 32] }, then a sequence (varint length) of \
+             ProfilePoint { x f32 m along the laser line, z f32 m along the view }, profile \
+             after profile";
+    fn encode(&self, points: &[ProfilePoint]) -> Vec<u8> {
+        codec::encode_profile_chunk(self, points)
+    }
+    fn decode(bytes: &[u8]) -> Result<(Self, Vec<ProfilePoint>), DecodeError> {
+        codec::decode_profile_chunk(bytes)
     }
     fn timestamp_ns(&self) -> u64 {
         self.timestamp_ns

@@ -14,13 +14,19 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 
-use crate::{AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, PointDeviation, ScanPoint};
+use crate::{
+    AgentStatus, ChunkHeader, DeviationHeader, FindingsHeader, PointDeviation, ProfileHeader,
+    ProfilePoint, ScanPoint,
+};
 
 /// The iceoryx2 service kind: inter-process, shared memory.
 pub type Ipc = ipc::Service;
 
 /// A received scan chunk, still in shared memory.
 pub type ChunkSample = iceoryx2::sample::Sample<Ipc, [ScanPoint], ChunkHeader>;
+
+/// A received profile chunk, still in shared memory.
+pub type ProfileSample = iceoryx2::sample::Sample<Ipc, [ProfilePoint], ProfileHeader>;
 /// A received deviation chunk, still in shared memory.
 pub type DeviationSample = iceoryx2::sample::Sample<Ipc, [PointDeviation], DeviationHeader>;
 
@@ -307,9 +313,16 @@ pub struct Health;
 /// Begin and pose; the printer's answers since the last scan, sent while it was down).
 pub struct Control<T, const HISTORY: usize = CONTROL_HISTORY>(PhantomData<T>);
 
-/// Scan chunks: a full agent queue holds the publisher back (never drops), and a station's
-/// chunks waiting for their pose stay borrowed.
-pub struct ScanChunks;
+/// Chunks of an input, a header `H` and a slice of `P` (scan chunks, profile chunks): a full
+/// agent queue holds the publisher back (never drops), and a station's chunks waiting for
+/// their pose stay borrowed.
+pub struct InputChunks<H, P>(PhantomData<(H, P)>);
+
+/// Scan chunks ([`ChunkHeader`] and [`ScanPoint`]s).
+pub type ScanChunks = InputChunks<ChunkHeader, ScanPoint>;
+
+/// A line profiler's chunks ([`ProfileHeader`] and [`ProfilePoint`]s).
+pub type ProfileChunks = InputChunks<ProfileHeader, ProfilePoint>;
 
 /// Deviation chunks: what a full subscriber does not take is dropped and counted, never
 /// waited for.
@@ -402,17 +415,21 @@ impl<T: std::fmt::Debug + ZeroCopySend + 'static, const HISTORY: usize> Stream
     }
 }
 
-impl Stream for ScanChunks {
+impl<H, P> Stream for InputChunks<H, P>
+where
+    H: std::fmt::Debug + Default + ZeroCopySend + 'static,
+    P: std::fmt::Debug + Default + ZeroCopySend + 'static,
+{
     const FROM_CELL: bool = true;
-    type AgentPort = Subscriber<Ipc, [ScanPoint], ChunkHeader>;
-    type CellPort = Publisher<Ipc, [ScanPoint], ChunkHeader>;
+    type AgentPort = Subscriber<Ipc, [P], H>;
+    type CellPort = Publisher<Ipc, [P], H>;
 
     fn agent_port(setup: &Setup<'_>, name: &str) -> Result<Self::AgentPort, IpcError> {
         let q = setup.queues;
         setup
             .builder(name)?
-            .publish_subscribe::<[ScanPoint]>()
-            .user_header::<ChunkHeader>()
+            .publish_subscribe::<[P]>()
+            .user_header::<H>()
             .max_publishers(ADMITS.input_publishers)
             .max_subscribers(ADMITS.input_subscribers)
             .max_nodes(ADMITS.nodes)
@@ -425,7 +442,7 @@ impl Stream for ScanChunks {
             .subscriber_builder()
             .buffer_size(q.chunk_queue)
             .create()
-            .map_err(|e| IpcError::iceoryx("cannot subscribe to scan chunks", e))
+            .map_err(|e| IpcError::iceoryx(format!("cannot subscribe to {name}"), e))
     }
 
     fn cell_port(
@@ -434,8 +451,8 @@ impl Stream for ScanChunks {
         max_points_per_chunk: usize,
     ) -> Result<Self::CellPort, IpcError> {
         node.service_builder(&service_name(name)?)
-            .publish_subscribe::<[ScanPoint]>()
-            .user_header::<ChunkHeader>()
+            .publish_subscribe::<[P]>()
+            .user_header::<H>()
             .open()
             .map_err(|e| IpcError::iceoryx(name, e))?
             .publisher_builder()
@@ -444,7 +461,7 @@ impl Stream for ScanChunks {
             .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
             .set_backpressure_handler(deliver_or_fail)
             .create()
-            .map_err(|e| IpcError::iceoryx("cannot publish scan chunks", e))
+            .map_err(|e| IpcError::iceoryx(format!("cannot publish on {name}"), e))
     }
 }
 

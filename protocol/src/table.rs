@@ -15,8 +15,8 @@
 
 use crate::{
     AgentStatus, ChunkHeader, DeviationHeader, LayerApplied, LayerCorrection, MAX_FINDINGS_BYTES,
-    MAX_SURVEY_BYTES, PointDeviation, PoseSnapshot, ScanPoint, StationEvent, StationFindings,
-    StationReport, SurfaceFindings,
+    MAX_SURVEY_BYTES, MountPose, PointDeviation, PoseSnapshot, ProfileHeader, ProfilePoint,
+    ScanPoint, StationEvent, StationFindings, StationReport, SurfaceFindings,
 };
 
 /// The type a recorded variant holds: boxed when the row says so (large messages keep
@@ -283,7 +283,7 @@ macro_rules! messages {
 pub(crate) use messages;
 
 use crate::services::{
-    ANSWER_HISTORY, Control, DeviationChunks, Encoded, Health, PerStation,
+    ANSWER_HISTORY, Control, DeviationChunks, Encoded, Health, PerStation, ProfileChunks,
     ScanChunks as ScanChunkStream,
 };
 
@@ -293,6 +293,8 @@ messages! {
         Status status "agent/status": Health => Status(AgentStatus) boxed;
         /// `robot/poses`: robot poses ([`PoseSnapshot`]), cell to agent.
         Poses poses "robot/poses": Control<PoseSnapshot> => Pose(PoseSnapshot);
+        /// `robot/mount_poses`: a line profiler's mount poses ([`MountPose`]), cell to agent.
+        MountPoses mount_poses "robot/mount_poses": Control<MountPose> => MountPose(MountPose);
         /// `job/stations`: a station's Begin and End ([`StationEvent`]), cell to agent.
         StationEvents stations "job/stations": Control<StationEvent> => Event(StationEvent);
         /// `printer/applied`: what the printer applied to each layer it printed
@@ -319,6 +321,10 @@ messages! {
         /// `scanner/chunks`: scan chunks ([`ChunkHeader`] and points), cell to agent.
         ScanChunks chunks "scanner/chunks": ScanChunkStream
             => Chunk(ChunkHeader, [ScanPoint]);
+        /// `scanner/profiles`: a line profiler's profile chunks ([`ProfileHeader`] and
+        /// points), cell to agent.
+        Profiles profiles "scanner/profiles": ProfileChunks
+            => Profiles(ProfileHeader, [ProfilePoint]);
         /// `agent/deviations`: deviation chunks ([`DeviationHeader`] and one deviation per
         /// scan point), agent to cell.
         Deviations deviations "agent/deviations": DeviationChunks

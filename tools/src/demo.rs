@@ -168,6 +168,13 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
     } else {
         String::new()
     };
+    let profiler = job.profiler.map_or(String::new(), |m| {
+        format!(
+            "\n[profiler]\n# The simulated profiler's clock runs this far behind the robot's.\n\
+             clock_offset_ns = {}\n",
+            m.clock_offset_ns
+        )
+    });
     let url = args
         .rerun_url
         .as_ref()
@@ -187,9 +194,9 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
          [findings]\nenabled = true\nlayer_height = {h}\n\n\
          [tolerances]\n# The report's verdicts: each kind's limit (metres, m² for missing material).\n\
          width = {tol}\ntop_height = {tol}\nposition = {tol}\nsurface = {tol}\n\
-         missing_area_m2 = 0.002\ncreep = {tol}\n{corrections}",
+         missing_area_m2 = 0.002\ncreep = {tol}\n{corrections}{profiler}",
         tol = args.tolerance,
-        chunk = job.chunk_points,
+        chunk = job.chunk_capacity(),
         h = job.part.layer_height,
         min_free = MIN_FREE_MB,
     )
@@ -218,7 +225,12 @@ fn talk_to_agent(job: &SimJob, prefix: &str, agent: &mut Child, log: &Path) -> R
     let names = ServiceNames::new(prefix);
     let started = Instant::now();
     let ports = loop {
-        match CellPorts::open(&node, &names, job.chunk_points, Duration::from_millis(500)) {
+        match CellPorts::open(
+            &node,
+            &names,
+            job.chunk_capacity(),
+            Duration::from_millis(500),
+        ) {
             Ok(p) => break p,
             Err(e) => {
                 if let Some(status) = agent.try_wait()? {

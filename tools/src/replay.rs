@@ -103,8 +103,13 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
             match &m {
                 Recorded::Event(e) => ports.send_event(e)?,
                 Recorded::Pose(p) => ports.send_pose(p)?,
+                Recorded::MountPose(m) => ports.send_mount_pose(m)?,
                 Recorded::Chunk(h, p) => {
                     ports.send_chunk(h, p)?;
+                    points += p.len() as u64;
+                }
+                Recorded::Profiles(h, p) => {
+                    ports.send_profiles(h, p)?;
                     points += p.len() as u64;
                 }
                 _ => {}

@@ -48,9 +48,27 @@ pub struct JobArgs {
     /// Pose error σ, metres.
     #[arg(long, default_value_t = 0.001)]
     pub pose_sigma: f64,
-    /// Points per second the scanner sends, or `max`.
-    #[arg(long, default_value = "1000000")]
-    pub rate: String,
+    /// Points per second the scanner sends, or `max` (the default with the profiler, which
+    /// then sends as fast as the agent takes; any number sends it in real time).
+    #[arg(long)]
+    pub rate: Option<String>,
+    /// The sensor: `tls` (a terrestrial scanner carried to stations after some layers) or
+    /// `profiler` (a line profiler behind the nozzle, every layer scanned as it is laid).
+    #[arg(long, default_value = "tls")]
+    pub sensor: String,
+    /// With --sensor profiler: points per profile.
+    #[arg(long, default_value_t = 2048)]
+    pub profile_points: usize,
+    /// With --sensor profiler: profiles per second.
+    #[arg(long, default_value_t = 2000.0)]
+    pub profile_rate: f64,
+    /// With --sensor profiler: the robot's poses per second.
+    #[arg(long, default_value_t = 250.0)]
+    pub pose_rate: f64,
+    /// With --sensor profiler: the robot's clock less the profiler's, nanoseconds (the agent
+    /// must be told the same in its [profiler] clock_offset_ns).
+    #[arg(long, default_value_t = 0, allow_hyphen_values = true)]
+    pub clock_offset: i64,
     /// Angle between rays, degrees (0.036: a Z+F IMAGER at "middle" resolution).
     #[arg(long, default_value_t = 0.036)]
     pub step_deg: f64,
@@ -94,6 +112,20 @@ impl JobArgs {
                     .context("--layer-height METRES is required with a design file")?,
             },
         };
+        let profiler = match self.sensor.as_str() {
+            "tls" => None,
+            "profiler" => Some(asbuilt_sim::ProfilerSpec {
+                points: self.profile_points,
+                rate_hz: self.profile_rate,
+                pose_rate_hz: self.pose_rate,
+                clock_offset_ns: self.clock_offset,
+            }),
+            other => bail!("--sensor {other:?}: give tls or profiler"),
+        };
+        let rate = self.rate.as_deref().unwrap_or(match profiler {
+            Some(_) => "max",
+            None => "1000000",
+        });
         Ok(JobSpec {
             part,
             scan_after: self.scan_after.clone(),
@@ -106,12 +138,13 @@ impl JobArgs {
                 other => bail!("--pose-mode {other:?}: give fixed or 6dof"),
             },
             pose_sigma: self.pose_sigma,
-            rate: crate::publish::parse_rate(&self.rate)?,
+            rate: crate::publish::parse_rate(rate)?,
             step_deg: self.step_deg,
             job: self.job,
             attempts: self.attempts,
             closed_loop: self.closed_loop,
             apply: self.apply,
+            profiler,
         })
     }
 
@@ -149,7 +182,8 @@ pub fn run(args: SimArgs) -> Result<ExitCode> {
     let job = args.job.job()?;
     let names = ServiceNames::new(&args.prefix);
     let wait = Duration::from_secs_f64(args.wait);
-    let (_node, ports) = asbuilt_protocol::ipc::CellPorts::connect(&names, job.chunk_points, wait)?;
+    let (_node, ports) =
+        asbuilt_protocol::ipc::CellPorts::connect(&names, job.chunk_capacity(), wait)?;
     if let Some(p) = &args.truth {
         write_truth(p, &job, &[])?;
     }

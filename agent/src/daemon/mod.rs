@@ -400,7 +400,8 @@ fn make_lifecycle(config: &AgentConfig, designs: PrintedDesigns) -> AgentLifecyc
         config.frames.clone(),
         inspect,
         LifecycleLimits::from(limits),
-    );
+    )
+    .with_profiler(config.profiler.clone());
     if config.findings.enabled {
         let f = &config.findings;
         info!(
@@ -666,12 +667,62 @@ impl HeldControl {
                     return Drained::More;
                 }
             }
+            match self.drain_profiles(lifecycle, out, deadline) {
+                Drained::Empty => {}
+                stop_or_more => return stop_or_more,
+            }
             if !any {
                 break;
             }
         }
         lifecycle.on_idle(Instant::now(), out);
         Drained::Empty
+    }
+
+    /// Reads a line profiler's chunks, with the robot's mount poses before each (a profile
+    /// waits for the pose after it), until the queue is empty ([`Drained::Empty`]) or the
+    /// slice is over.
+    fn drain_profiles(
+        &mut self,
+        lifecycle: &mut AgentLifecycle,
+        out: &mut Fanout<'_>,
+        deadline: Instant,
+    ) -> Drained {
+        let ports = out.ports;
+        loop {
+            self.drain_mount_poses(lifecycle, out);
+            let sample = match ports.profiles.receive() {
+                Ok(Some(s)) => s,
+                Ok(None) => return Drained::Empty,
+                Err(e) => {
+                    warn!("profile chunks: {e:?}");
+                    return Drained::Empty;
+                }
+            };
+            // A pass's Begin, sent before its profiles on another service.
+            if !self.waits_for_a_slot() {
+                self.drain_events(lifecycle, out);
+            }
+            let (h, points) = (sample.user_header(), sample.payload());
+            out.took_profiles(h, points);
+            let now = Instant::now();
+            lifecycle.on_profiles(h, points, now, out);
+            drop(sample);
+            if SignalHandler::termination_requested() {
+                return Drained::Stop;
+            }
+            if now >= deadline {
+                return Drained::More;
+            }
+        }
+    }
+
+    /// Reads the robot's mount poses until their queue is empty.
+    fn drain_mount_poses(&mut self, lifecycle: &mut AgentLifecycle, out: &mut Fanout<'_>) {
+        while let Some(m) = next(&out.ports.mount_poses, "mount poses") {
+            out.took_mount_pose(&m);
+            lifecycle.on_mount_pose(&m, Instant::now(), out);
+        }
     }
 
     /// Reads the printer's answers, station events, then poses, until their queues are empty or
@@ -686,6 +737,7 @@ impl HeldControl {
             lifecycle.take(Input::Applied(a), Instant::now(), out);
         }
         any |= self.drain_events(lifecycle, out);
+        self.drain_mount_poses(lifecycle, out);
         let mut poses = false;
         while let Some(p) = self.pose.take().or_else(|| next(&ports.poses, "poses")) {
             if !lifecycle.has_room_for(p.job, p.station) {

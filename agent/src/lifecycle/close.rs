@@ -2,6 +2,7 @@
 //! advice after them and the survey; a station cut off is reported interrupted.
 
 use super::*;
+use asbuilt_core::coverage::Viewpoint;
 
 impl<C: ChunkSource> Lifecycle<C> {
     /// Findings out, then the advice they lead to.
@@ -227,17 +228,46 @@ impl<C: ChunkSource> Lifecycle<C> {
             );
             return;
         }
-        let stage = &mut self.findings;
-        let in_findings = match (s.findings, stage.as_mut()) {
+        self.counters.chunks_processed += 1;
+        self.inspect(
+            i,
+            (h.job, h.station, h.sequence, h.timestamp_ns),
+            points,
+            now,
+            out,
+        );
+    }
+
+    /// Whether station `i` is part of its scan layer's findings, decided at its first points.
+    pub(super) fn begin_findings(&mut self, i: usize) -> bool {
+        let s = &mut self.open[i];
+        match (s.findings, self.findings.as_mut()) {
             (Some(taken), _) => taken,
             (None, Some(st)) => *s.findings.insert(st.begin(s.key, &s.design)),
             (None, None) => false,
-        };
+        }
+    }
+
+    /// Compares points of station `i` (in its scanner's frame, or the design's for a pass)
+    /// and sends their deviations as chunk `(job, station, sequence, timestamp)`.
+    pub(super) fn inspect(
+        &mut self,
+        i: usize,
+        (job, station, sequence, timestamp_ns): (u64, u32, u64, u64),
+        points: &[ScanPoint],
+        now: Instant,
+        out: &mut impl Outputs,
+    ) {
+        let n = points.len();
+        let in_findings = self.begin_findings(i);
+        let s = &mut self.open[i];
+        s.last_activity = now;
+        let stage = &mut self.findings;
         let inspector = &mut s.inspector;
         let survey = &mut self.survey;
         let height = s.design.height;
         let view = asbuilt_core::flatness::StationView {
-            key: (h.job, h.station),
+            key: (job, station),
             origin: s
                 .pose
                 .filter(|_| survey.is_some())
@@ -248,13 +278,13 @@ impl<C: ChunkSource> Lifecycle<C> {
         out.deviations(n, &mut |buf| {
             let outcome = inspector.process(points, buf);
             if in_findings && let Some(st) = stage.as_mut() {
-                st.ingest((h.job, h.station), buf);
+                st.ingest((job, station), buf);
             }
             if let Some(sv) = survey.as_mut() {
-                sv.ingest(h.job, height, &view, buf);
+                sv.ingest(job, height, &view, buf);
             }
-            let mut d = DeviationHeader::new(h.job, h.station, h.sequence);
-            d.timestamp_ns = h.timestamp_ns;
+            let mut d = DeviationHeader::new(job, station, sequence);
+            d.timestamp_ns = timestamp_ns;
             d.point_count = n as u32;
             d.rejected = outcome.rejected;
             d.no_match = outcome.no_match;
@@ -262,12 +292,13 @@ impl<C: ChunkSource> Lifecycle<C> {
             d
         });
         self.counters.points_processed += n as u64;
-        self.counters.chunks_processed += 1;
     }
 
     pub(super) fn close_if_complete(&mut self, i: usize, out: &mut impl Outputs) {
         let s = &self.open[i];
-        if s.finished_sending() && s.tracker.is_complete(s.expected_chunks()) {
+        // A pass's last profiles may still wait for the pose after them.
+        let waits = s.profiled && self.profiles_wait_for(s.key);
+        if s.finished_sending() && s.tracker.is_complete(s.expected_chunks()) && !waits {
             self.close(i, None, out);
         }
     }
@@ -279,12 +310,19 @@ impl<C: ChunkSource> Lifecycle<C> {
         out: &mut impl Outputs,
     ) {
         let key = self.open[i].key;
+        if self.open[i].profiled {
+            let now = self.open[i].last_activity;
+            self.end_pass(i, now, out);
+        }
         // Held chunks of this station will never get a pose now.
         while let Some(p) = self.take_pending(key) {
             self.reject_held(p.chunk);
         }
         let s = self.open.swap_remove(i);
-        let report = station_report(&s, forced);
+        let mut report = station_report(&s, forced);
+        if s.profiled {
+            report.position_sigma = self.profiler_sigma();
+        }
         let interrupted = report.status() == Some(StationStatus::Interrupted);
         let drawn = self.draw_findings(&s, &report, interrupted, out);
         out.tally(s.inspector.tally());
@@ -340,11 +378,14 @@ impl<C: ChunkSource> Lifecycle<C> {
             stage.abandon(s.key);
             return None;
         }
-        let origin = s
-            .pose
-            .and_then(|p| self.frames.t_design_scanner(&p).ok())
-            .map(|t| nalgebra::Point3::from(t.translation.vector));
-        let drawn = stage.end(s.key, origin, report);
+        let view = if s.profiled {
+            Some(Viewpoint::Swept)
+        } else {
+            s.pose
+                .and_then(|p| self.frames.t_design_scanner(&p).ok())
+                .map(|t| Viewpoint::Origin(nalgebra::Point3::from(t.translation.vector)))
+        };
+        let drawn = stage.end(s.key, view, report);
         if drawn.is_some()
             && out.wants_scan_layer_state()
             && let Some(state) = stage.layer_state(s.key.0, &s.design)
@@ -372,7 +413,7 @@ fn station_report(s: &OpenStation, forced: Option<StationStatus>) -> StationRepo
     }
     report.position_sigma = s.pose.map(|p| p.position_sigma).unwrap_or(f64::NAN);
     let expected_points = s.expected_points();
-    let complete = s.pose.is_some()
+    let complete = (s.pose.is_some() || s.profiled)
         && s.tracker.is_complete(expected)
         && (expected_points == 0 || report.points_received == expected_points)
         && s.finished_sending();

@@ -39,9 +39,16 @@ impl<C: ChunkSource> Lifecycle<C> {
             .is_some_and(|i| self.open[i].awaiting.is_some())
     }
 
+    /// Whether a line profiler's pass waits for its printed design.
+    pub fn pass_awaits_design(&self, job: u64, pass: u32) -> bool {
+        self.find(&(job, pass))
+            .is_some_and(|i| self.open[i].awaiting.is_some())
+    }
+
     /// A station's chunks can be compared: it has its pose and its printed design.
     pub(super) fn ready(&self, i: usize) -> bool {
-        self.open[i].pose.is_some() && self.open[i].awaiting.is_none()
+        let s = &self.open[i];
+        (s.pose.is_some() || s.profiled) && s.awaiting.is_none()
     }
 
     /// Whether a printed height is being prepared: the event loop then wakes often enough to

@@ -15,6 +15,13 @@ pub enum Input<C> {
     Chunk(C),
     /// What the printer applied to a layer it printed.
     Applied(LayerApplied),
+    /// A robot pose of a line profiler's mount.
+    MountPose(asbuilt_protocol::MountPose),
+    /// A chunk of a line profiler's profiles.
+    Profiles(
+        asbuilt_protocol::ProfileHeader,
+        Vec<asbuilt_protocol::ProfilePoint>,
+    ),
 }
 
 impl<C: ChunkSource> Lifecycle<C> {
@@ -25,6 +32,8 @@ impl<C: ChunkSource> Lifecycle<C> {
             Input::Pose(pose) => self.on_pose(&pose, now, out),
             Input::Chunk(chunk) => self.on_chunk(chunk, now, out),
             Input::Applied(a) => self.on_applied(&a),
+            Input::MountPose(m) => self.on_mount_pose(&m, now, out),
+            Input::Profiles(h, p) => self.on_profiles(&h, &p, now, out),
         }
     }
 

@@ -41,6 +41,7 @@ mod close;
 mod heights;
 mod inputs;
 mod prints;
+mod profiles;
 mod restore;
 mod slots;
 #[cfg(test)]
@@ -194,6 +195,8 @@ pub struct Lifecycle<C> {
     closed: ClosedStations,
     /// The print each recent job number names.
     prints: prints::Prints,
+    /// A line profiler's poses and the profiles waiting for them.
+    profiler: profiles::Profiler,
     /// Counters for the status message.
     pub counters: Counters,
 }
@@ -220,6 +223,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             pending: VecDeque::with_capacity(limits.pending_chunks),
             closed: ClosedStations::new(CLOSED_MEMORY),
             prints: prints::Prints::default(),
+            profiler: profiles::Profiler::new(Default::default()),
             counters: Counters::default(),
         }
     }

@@ -28,6 +28,10 @@ pub(super) struct OpenStation {
     pub(super) empty: u64,
     pub(super) oversized: u64,
     pub(super) last_activity: Instant,
+    /// A line profiler's pass: profile chunks came, each placed by its own pose.
+    pub(super) profiled: bool,
+    /// The pass's placed profiles not yet compared.
+    pub(super) profiles: Option<super::profiles::PassBuffer>,
 }
 
 impl OpenStation {
@@ -117,6 +121,8 @@ impl<C: ChunkSource> Lifecycle<C> {
             empty: 0,
             oversized: 0,
             last_activity: now,
+            profiled: false,
+            profiles: None,
         });
         self.open.len() - 1
     }

@@ -91,6 +91,18 @@ impl<P> Placer<P> {
         self.waiting.len()
     }
 
+    /// Places the next profiles with the sensor at `mount_sensor` on the mount (a new
+    /// calibration); the profiles waiting, taken under the old one, are refused.
+    pub fn set_mount_sensor(&mut self, mount_sensor: Isometry3<f64>, out: &mut impl Placed<P>) {
+        self.end_pass(out);
+        self.track.set_mount_sensor(mount_sensor);
+    }
+
+    /// Whether any profile waiting now is one `is` picks.
+    pub fn any_waiting(&self, is: impl Fn(&P) -> bool) -> bool {
+        self.waiting.iter().any(|(_, p)| is(p))
+    }
+
     /// The poses it places by.
     pub fn track(&self) -> &PoseTrack {
         &self.track

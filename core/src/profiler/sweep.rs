@@ -95,6 +95,21 @@ impl Sweep {
         &self.swept
     }
 
+    /// Takes up what was swept before (`flags`, one per sample, as [`Self::swept`] gave them);
+    /// false, and nothing changed, for another number of samples.
+    pub fn set_swept(&mut self, flags: &[bool]) -> bool {
+        if flags.len() != self.swept.len() {
+            return false;
+        }
+        self.swept.copy_from_slice(flags);
+        true
+    }
+
+    /// Sweeps the next profiles with the field of view `params`.
+    pub fn set_params(&mut self, params: SweepParams) {
+        self.params = params;
+    }
+
     /// Samples swept so far.
     pub fn count(&self) -> usize {
         self.swept.iter().filter(|&&s| s).count()

@@ -152,6 +152,11 @@ impl PoseTrack {
         self.poses.capacity()
     }
 
+    /// Applies `mount_sensor` (`T_mount_sensor`) from now on.
+    pub fn set_mount_sensor(&mut self, mount_sensor: Isometry3<f64>) {
+        self.params.mount_sensor = mount_sensor;
+    }
+
     /// Poses kept now.
     pub fn len(&self) -> usize {
         self.poses.len()

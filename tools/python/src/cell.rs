@@ -360,7 +360,7 @@ impl SimulatedJob {
     #[pyo3(signature = (
         *, part = None, units = None, layer_height = None, scan_after = None, stations = None,
         defect = None, seed = None, pose_mode = "fixed", pose_sigma = None, rate = None,
-        step_deg = None, job = None
+        step_deg = None, job = None, sensor = "tls"
     ))]
     #[allow(clippy::too_many_arguments)] // Python's keywords, one per `asbuilt sim` flag
     fn new(
@@ -376,8 +376,18 @@ impl SimulatedJob {
         rate: Option<Bound<'_, PyAny>>,
         step_deg: Option<f64>,
         job: Option<u64>,
+        sensor: &str,
     ) -> PyResult<Self> {
         let d = JobSpec::default();
+        let profiler = match sensor {
+            "tls" => None,
+            "profiler" => Some(asbuilt_sim::ProfilerSpec::default()),
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "sensor {other:?}: give \"tls\" or \"profiler\""
+                )));
+            }
+        };
         let spec = JobSpec {
             part: part_spec(part.unwrap_or_else(|| "wall".into()), units, layer_height)?,
             scan_after: scan_after.unwrap_or(d.scan_after),
@@ -395,6 +405,8 @@ impl SimulatedJob {
             pose_sigma: pose_sigma.unwrap_or(d.pose_sigma),
             rate: match rate {
                 Some(r) => self::rate(&r)?,
+                // A profiler sends as fast as the agent takes, unless told a rate.
+                None if profiler.is_some() => None,
                 None => d.rate,
             },
             step_deg: step_deg.unwrap_or(d.step_deg),
@@ -402,6 +414,7 @@ impl SimulatedJob {
             attempts: d.attempts,
             closed_loop: d.closed_loop,
             apply: d.apply,
+            profiler,
         };
         Ok(Self {
             job: spec

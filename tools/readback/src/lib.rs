@@ -296,6 +296,8 @@ struct RecordedJob {
     findings: Option<asbuilt_agent::config::FindingsConfig>,
     /// The agent's `[corrections]` when it advised: the report advises again.
     corrections: Option<asbuilt_agent::config::CorrectionsConfig>,
+    /// The agent's `[profiler]`: its passes' profiles are placed again as it placed them.
+    profiler: asbuilt_agent::config::ProfilerConfig,
     /// What the verdicts hold the findings to.
     verdict_limits: asbuilt_core::verdict::Limits,
     /// The standard the faces' flatness is judged by, if any.
@@ -342,6 +344,7 @@ impl RecordedJob {
             findings,
             tolerances,
             corrections,
+            profiler,
         } = RecordedConfig::read(&meta)?;
         let tolerance = overrides.tolerance.unwrap_or(settings.tolerance);
         let max_distance = overrides
@@ -386,6 +389,7 @@ impl RecordedJob {
             limits,
             findings,
             corrections,
+            profiler,
             verdict_limits,
             flatness,
             dimensions,
@@ -529,13 +533,15 @@ struct RecordedConfig {
     tolerances: asbuilt_agent::config::TolerancesConfig,
     /// `[corrections]`, when on.
     corrections: Option<asbuilt_agent::config::CorrectionsConfig>,
+    /// `[profiler]`.
+    profiler: asbuilt_agent::config::ProfilerConfig,
 }
 
 impl RecordedConfig {
     fn read(meta: &recording::JobMetadata) -> Result<Self> {
         use asbuilt_agent::config::{
-            recorded_corrections, recorded_findings, recorded_limits, recorded_settings,
-            recorded_tolerances,
+            recorded_corrections, recorded_findings, recorded_limits, recorded_profiler,
+            recorded_settings, recorded_tolerances,
         };
         if meta.writer != "asbuilt-agent" {
             return Ok(Self::default());
@@ -551,6 +557,7 @@ impl RecordedConfig {
             findings: findings.enabled.then_some(findings),
             tolerances: recorded_tolerances(&meta.config).map_err(problems)?,
             corrections: corrections.enabled.then_some(corrections),
+            profiler: recorded_profiler(&meta.config).map_err(problems)?,
         })
     }
 }
@@ -590,7 +597,8 @@ impl RecordedJob {
             self.frames.clone(),
             self.params,
             asbuilt_agent::lifecycle::LifecycleLimits::from(&self.limits),
-        );
+        )
+        .with_profiler(self.profiler.clone());
         let lifecycle = match &self.findings {
             Some(f) => lifecycle.with_findings(
                 FindingsStage::new(

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use asbuilt_core::c2c::{self, C2cParams};
 use asbuilt_core::cloud::CloudIndex;
-use asbuilt_core::coverage::{CoverageParams, SampleClass, ScanSpacing};
+use asbuilt_core::coverage::{CoverageParams, SampleClass, ScanSpacing, Viewpoint};
 use asbuilt_core::findings::{FindingParams, Findings};
 use asbuilt_core::layers::{BandRow, LayerBands};
 use asbuilt_core::m3c2::classic::{self, ClassicParams};
@@ -605,7 +605,7 @@ impl Suite {
             c.total_no_match += c.station_no_match;
         }
         if let Some(l) = &mut self.scan_layer {
-            let part = l.end_station(origin, sigma, index);
+            let part = l.end_station(Viewpoint::Origin(origin), sigma, index);
             if let Some(summary) = part.coverage {
                 s.coverage = Some(CoverageSection::new(&summary, l.area_per_sample()));
                 self.missing_by_station.push(summary.missing_samples);

@@ -53,7 +53,7 @@ pub enum SimError {
     },
 }
 
-type Result<T, E = SimError> = std::result::Result<T, E>;
+pub(crate) type Result<T, E = SimError> = std::result::Result<T, E>;
 
 /// A print job to simulate.
 #[derive(Debug, Clone)]
@@ -105,6 +105,11 @@ pub struct SimJob {
     /// cell decides. Whatever it applies, it tells the agent layer by layer
     /// (`PREFIX/printer/applied`).
     pub apply: f64,
+    /// Scan while printing with this line profiler, every layer a pass
+    /// ([`crate::run_printing`]), instead of the scanner's stations.
+    pub profiler: Option<crate::profiler::ProfilerModel>,
+    /// Profiles a profiler's chunk carries.
+    pub profiles_per_chunk: usize,
 }
 
 impl SimJob {
@@ -131,11 +136,35 @@ impl SimJob {
             max_attempts: 5,
             closed_loop: false,
             apply: 1.0,
+            profiler: None,
+            profiles_per_chunk: asbuilt_protocol::MAX_PROFILES_PER_CHUNK,
         }
     }
 
-    /// Every station of the job, in the order the robot visits them.
+    /// The most points a chunk of the job carries: a scan chunk's, or a profiler's.
+    pub fn chunk_capacity(&self) -> usize {
+        let profiles = self
+            .profiler
+            .map_or(0, |m| m.points * self.profiles_per_chunk);
+        self.chunk_points.max(profiles)
+    }
+
+    /// Every station of the job, in the order the robot visits them (a profiler's passes, one
+    /// a layer).
     pub fn plan(&self) -> Vec<PlannedStation> {
+        if self.profiler.is_some() {
+            // Scanning while printing: every layer is a pass, numbered as the layer.
+            return (0..self.part.layers())
+                .map(|layer| PlannedStation {
+                    index: layer,
+                    name: format!("L{:03}-pass", layer + 1),
+                    printed: layer + 1,
+                    printed_height: self.part.layer_span(layer).1,
+                    nominal: Isometry3::identity(),
+                    truth: Isometry3::identity(),
+                })
+                .collect();
+        }
         let (lo, hi) = self.part.design.bounds();
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
         let mut out = Vec::new();
@@ -386,6 +415,10 @@ pub fn run(
     wait: Duration,
     on: &mut dyn FnMut(SimEvent<'_>),
 ) -> Result<SimOutcome> {
+    if let Some(model) = &job.profiler {
+        let n = job.profiles_per_chunk;
+        return crate::run_printing(job, model, n, ports, expect_findings, wait, on);
+    }
     if job.chunk_points == 0 {
         return Err(SimError::NoChunkPoints);
     }
@@ -477,7 +510,7 @@ pub fn run(
 
 /// Tells the agent what the printer applied to `layers`, as the settings it printed them with
 /// (`followed`: the layer of the advice they follow, `u32::MAX` for none).
-fn tell_applied(
+pub(crate) fn tell_applied(
     job: &SimJob,
     ports: &CellPorts,
     settings: &[LayerSettings],
@@ -747,7 +780,7 @@ impl StationSink for CellSink<'_> {
 }
 
 /// Takes whatever the agent sent back; deviations are for other subscribers.
-fn collect(
+pub(crate) fn collect(
     job: u64,
     ports: &CellPorts,
     out: &mut SimOutcome,

@@ -13,6 +13,7 @@ mod defect_spec;
 mod defects;
 pub mod lines;
 mod part;
+mod printing;
 pub mod profiler;
 mod scanner;
 mod spec;
@@ -22,5 +23,6 @@ pub use cell::{PlannedStation, SimError, SimEvent, SimJob, SimOutcome, run, writ
 pub use defect_spec::DefectSpecError;
 pub use defects::{BuiltLayer, Defect, DefectKind, LayerSettings, Truth, built_layers};
 pub use part::{OUTLINE_SPACING, Part, PartError, Ring, resample, signed_area2};
+pub use printing::run_printing;
 pub use scanner::{Scan, ScannerModel, perturb, scan, stations_around};
-pub use spec::{JobSpec, JobSpecError, PartSpec};
+pub use spec::{JobSpec, JobSpecError, PartSpec, ProfilerSpec};

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use asbuilt_core::Units;
 use asbuilt_protocol::PoseMode;
 
+use crate::profiler::ProfilerModel;
 use crate::{Defect, DefectSpecError, Part, PartError, SimJob};
 
 /// The part to print.
@@ -55,6 +56,34 @@ pub struct JobSpec {
     pub closed_loop: bool,
     /// The share of each advice it applies (see [`SimJob::apply`]).
     pub apply: f64,
+    /// Scan while printing with a line profiler behind the nozzle, every layer a pass,
+    /// instead of stopping for a terrestrial scanner's stations.
+    pub profiler: Option<ProfilerSpec>,
+}
+
+/// A line profiler as a person describes it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProfilerSpec {
+    /// Points per profile.
+    pub points: usize,
+    /// Profiles per second.
+    pub rate_hz: f64,
+    /// The robot's poses per second.
+    pub pose_rate_hz: f64,
+    /// The robot's clock less the profiler's, nanoseconds.
+    pub clock_offset_ns: i64,
+}
+
+impl Default for ProfilerSpec {
+    fn default() -> Self {
+        let m = ProfilerModel::default();
+        Self {
+            points: m.points,
+            rate_hz: m.rate_hz,
+            pose_rate_hz: m.pose_rate_hz,
+            clock_offset_ns: m.clock_offset_ns,
+        }
+    }
 }
 
 impl Default for JobSpec {
@@ -73,6 +102,7 @@ impl Default for JobSpec {
             attempts: 5,
             closed_loop: false,
             apply: 1.0,
+            profiler: None,
         }
     }
 }
@@ -119,6 +149,12 @@ pub enum JobSpecError {
     /// A rate that is not a positive number of points per second.
     #[error("rate {0}: give points per second above 0")]
     Rate(f64),
+    /// A profiler that cannot be simulated.
+    #[error(
+        "profiler: {0}; give 2 to 65,536 points a profile, 1 to 100,000 profiles a second and \
+         1 to 10,000 poses a second"
+    )]
+    Profiler(String),
     /// A share of the advice outside 0 to 1.
     #[error("apply {0}: give the share of each advice the printer applies, from 0 to 1")]
     Apply(f64),
@@ -197,7 +233,33 @@ impl JobSpec {
             return Err(JobSpecError::Apply(self.apply));
         }
         job.apply = self.apply;
+        if let Some(p) = self.profiler {
+            job.profiler = Some(p.model()?);
+        }
         Ok(job)
+    }
+}
+
+impl ProfilerSpec {
+    /// The simulated profiler, every value checked.
+    pub fn model(&self) -> Result<ProfilerModel, JobSpecError> {
+        let bad = |what: String| Err(JobSpecError::Profiler(what));
+        if !(2..=65_536).contains(&self.points) {
+            return bad(format!("{} points a profile", self.points));
+        }
+        if !(self.rate_hz >= 1.0 && self.rate_hz <= 1e5) {
+            return bad(format!("{} profiles a second", self.rate_hz));
+        }
+        if !(self.pose_rate_hz >= 1.0 && self.pose_rate_hz <= 1e4) {
+            return bad(format!("{} poses a second", self.pose_rate_hz));
+        }
+        Ok(ProfilerModel {
+            points: self.points,
+            rate_hz: self.rate_hz,
+            pose_rate_hz: self.pose_rate_hz,
+            clock_offset_ns: self.clock_offset_ns,
+            ..ProfilerModel::default()
+        })
     }
 }
 

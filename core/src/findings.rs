@@ -460,7 +460,11 @@ struct WidthFit {
     variance: [f64; 3],
 }
 
-/// `w/2, tₓ, t_y` by least squares, refitted once without residuals beyond 3 robust σ.
+/// Robust refits of a band's width and shift, at most.
+const ROBUST_REFITS: usize = 8;
+
+/// `w/2, tₓ, t_y` by least squares, refitted without residuals beyond 3 robust σ until the
+/// samples kept settle.
 fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<WidthFit> {
     let solve = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64, f64)> {
         let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
@@ -492,18 +496,33 @@ fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<WidthFit> {
             None
         }
     };
-    let first = solve(&|_| true)?;
-    let res = |i: usize| {
+    let res = |i: usize, f: (f64, f64, f64)| {
         let h = m3c2[i].normal.xy();
         let h = h / h.norm().max(f64::MIN_POSITIVE);
-        m3c2[i].distance.unwrap_or(0.0) - (first.0 + h.x * first.1 + h.y * first.2)
+        m3c2[i].distance.unwrap_or(0.0) - (f.0 + h.x * f.1 + h.y * f.2)
     };
-    let mut abs: Vec<f64> = idx.iter().map(|&i| res(i).abs()).collect();
-    abs.sort_by(f64::total_cmp);
-    let sigma = 1.4826 * abs[abs.len() / 2];
-    let cut = (3.0 * sigma).max(1e-4);
-    let keep = |i: usize| res(i).abs() <= cut;
-    let (half_width, tx, ty) = solve(&keep).unwrap_or(first);
+    // Refitted without residuals beyond 3 robust σ of the fit before, until the samples kept
+    // stay the same: a local defect (a bulge over a sixth of the band's sides) pulls the first
+    // fit by millimetres, and one cut leaves part of that pull in the shift.
+    let mut fit = solve(&|_| true)?;
+    let mut cut = f64::INFINITY;
+    let mut kept = idx.len();
+    for _ in 0..ROBUST_REFITS {
+        let mut abs: Vec<f64> = idx.iter().map(|&i| res(i, fit).abs()).collect();
+        abs.sort_by(f64::total_cmp);
+        let next_cut = (3.0 * 1.4826 * abs[abs.len() / 2]).max(1e-4);
+        let next_kept = abs.partition_point(|&r| r <= next_cut);
+        let Some(next) = solve(&|i| res(i, fit).abs() <= next_cut) else {
+            break;
+        };
+        let settled = next_kept == kept && next_cut == cut;
+        (fit, cut, kept) = (next, next_cut, next_kept);
+        if settled {
+            break;
+        }
+    }
+    let (half_width, tx, ty) = fit;
+    let keep = |i: usize| res(i, fit).abs() <= cut;
     // The fit's covariance from the kept residuals about the final fit.
     let (mut a, mut ss, mut n) = (Matrix3::<f64>::zeros(), 0.0, 0usize);
     for &i in idx.iter().filter(|&&i| keep(i)) {

@@ -60,10 +60,11 @@ pub struct ScanLayerStateRecord {
 }
 
 impl ScanLayerStateRecord {
-    /// The version this build writes and reads. 2: M3C2's cylinders in core point order (1
-    /// held them in the order of a grid that has changed since; a version 1 state is skipped,
-    /// and an agent resuming replays the scan layer's inputs instead).
-    pub const VERSION: u16 = 2;
+    /// The version this build writes and reads. 3: coverage keeps what line profilers' passes
+    /// swept. 2: M3C2's cylinders in core point order (1 held them in the order of a grid
+    /// that has changed since). A state of another version is skipped, and an agent resuming
+    /// replays the scan layer's inputs instead.
+    pub const VERSION: u16 = 3;
 }
 
 pub use crate::table::{Channel, Recorded};

@@ -56,9 +56,14 @@ pub struct JobArgs {
     /// `profiler` (a line profiler behind the nozzle, every layer scanned as it is laid).
     #[arg(long, default_value = "tls")]
     pub sensor: String,
-    /// With --sensor profiler: points per profile.
-    #[arg(long, default_value_t = 2048)]
-    pub profile_points: usize,
+    /// With --sensor profiler: points per profile (default 2048; the demo's 256 keeps it
+    /// under a minute).
+    #[arg(long)]
+    pub profile_points: Option<usize>,
+    /// With --sensor profiler: the layers printed, each scanned as it is laid (default: the
+    /// whole part; --scan-after does not apply).
+    #[arg(long)]
+    pub layers: Option<u32>,
     /// With --sensor profiler: profiles per second.
     #[arg(long, default_value_t = 2000.0)]
     pub profile_rate: f64,
@@ -115,10 +120,11 @@ impl JobArgs {
         let profiler = match self.sensor.as_str() {
             "tls" => None,
             "profiler" => Some(asbuilt_sim::ProfilerSpec {
-                points: self.profile_points,
+                points: self.profile_points.unwrap_or(2048),
                 rate_hz: self.profile_rate,
                 pose_rate_hz: self.pose_rate,
                 clock_offset_ns: self.clock_offset,
+                layers: self.layers,
             }),
             other => bail!("--sensor {other:?}: give tls or profiler"),
         };

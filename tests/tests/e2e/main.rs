@@ -9,6 +9,7 @@ mod calibrate;
 mod crash;
 mod fuzz;
 mod inspect_methods;
+mod profiler;
 mod recording;
 mod report_html;
 mod scan_files;

@@ -110,6 +110,8 @@ pub struct SimJob {
     pub profiler: Option<crate::profiler::ProfilerModel>,
     /// Profiles a profiler's chunk carries.
     pub profiles_per_chunk: usize,
+    /// With a profiler: the layers printed, each a pass (`None`: the whole part).
+    pub print_layers: Option<u32>,
 }
 
 impl SimJob {
@@ -138,6 +140,7 @@ impl SimJob {
             apply: 1.0,
             profiler: None,
             profiles_per_chunk: asbuilt_protocol::MAX_PROFILES_PER_CHUNK,
+            print_layers: None,
         }
     }
 
@@ -154,7 +157,8 @@ impl SimJob {
     pub fn plan(&self) -> Vec<PlannedStation> {
         if self.profiler.is_some() {
             // Scanning while printing: every layer is a pass, numbered as the layer.
-            return (0..self.part.layers())
+            let layers = self.print_layers.unwrap_or(u32::MAX);
+            return (0..layers.min(self.part.layers()))
                 .map(|layer| PlannedStation {
                     index: layer,
                     name: format!("L{:03}-pass", layer + 1),

@@ -72,6 +72,8 @@ pub struct ProfilerSpec {
     pub pose_rate_hz: f64,
     /// The robot's clock less the profiler's, nanoseconds.
     pub clock_offset_ns: i64,
+    /// The layers printed, each a pass (`None`: the whole part).
+    pub layers: Option<u32>,
 }
 
 impl Default for ProfilerSpec {
@@ -82,6 +84,7 @@ impl Default for ProfilerSpec {
             rate_hz: m.rate_hz,
             pose_rate_hz: m.pose_rate_hz,
             clock_offset_ns: m.clock_offset_ns,
+            layers: None,
         }
     }
 }
@@ -151,8 +154,8 @@ pub enum JobSpecError {
     Rate(f64),
     /// A profiler that cannot be simulated.
     #[error(
-        "profiler: {0}; give 2 to 65,536 points a profile, 1 to 100,000 profiles a second and \
-         1 to 10,000 poses a second"
+        "profiler: {0}; give 2 to 65,536 points a profile, 1 to 100,000 profiles a second, \
+         1 to 10,000 poses a second and layers the part has"
     )]
     Profiler(String),
     /// A share of the advice outside 0 to 1.
@@ -235,6 +238,13 @@ impl JobSpec {
         job.apply = self.apply;
         if let Some(p) = self.profiler {
             job.profiler = Some(p.model()?);
+            if p.layers.is_some_and(|n| n == 0 || n > layers) {
+                return Err(JobSpecError::Profiler(format!(
+                    "{:?} layers to print, of the {layers} the {} has",
+                    p.layers, job.part.name
+                )));
+            }
+            job.print_layers = p.layers;
         }
         Ok(job)
     }

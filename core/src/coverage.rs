@@ -627,6 +627,71 @@ mod tests {
         assert_eq!(total, s);
     }
 
+    /// A line profiler passes 0.1 m over the middle of a box's top along x, looking down, its
+    /// 60° fan 0.115 m wide there; material is missing under its path from x 0.4 to 0.6.
+    /// What it swept with no point near is missing, what it never swept is not judged, and a
+    /// resumed coverage keeps what was swept.
+    #[test]
+    fn a_profiler_pass_misses_what_it_swept_and_never_judges_what_it_did_not() {
+        let d = shapes::cuboid(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 1.0));
+        let index = C2mIndex::build(&d, C2mParams::default()).unwrap();
+        let samples = DesignSamples::generate(&d, 0.01, 1).unwrap();
+        let params = CoverageParams::with_threshold(0.005, 0.05);
+        let mut cov = Coverage::new(&samples, params).unwrap();
+        let hole = |p: &Point3<f64>| (0.4..0.6).contains(&p.x);
+        let scan: Vec<_> = plane_points(1.0, (0.0, 1.0), (0.4, 0.6), 0.002)
+            .into_iter()
+            .filter(|p| !hole(p))
+            .collect();
+        cov.begin_station();
+        cov.ingest(&scan);
+        // Sensor z (the view) down, x (the line) along world y, y (the plane's normal) along x.
+        let look = nalgebra::UnitQuaternion::from_rotation_matrix(
+            &nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::new(
+                0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0,
+            )),
+        );
+        let sweep = crate::profiler::SweepParams::default();
+        for k in 0..=1000 {
+            let at = Isometry3::from_parts(
+                nalgebra::Translation3::new(0.001 * k as f64, 0.5, 1.1),
+                look,
+            );
+            cov.sweep(&at, sweep, &index);
+        }
+        let s = cov.end_station(Viewpoint::Swept, &index);
+        let half_fan = 0.1 * 30f64.to_radians().tan();
+        for &i in &s.missing_samples {
+            let p = cov.samples()[i as usize];
+            assert!((p.z - 1.0).abs() < 1e-9 && hole(&p), "{p}");
+            assert!((p.y - 0.5).abs() <= half_fan + 0.01, "{p}");
+        }
+        // The fan's width under the hole, less the threshold's rim: 0.19 × 0.10 m.
+        let truth = 0.19 * (2.0 * half_fan - 0.01);
+        assert!(
+            (s.missing_area_m2 - truth).abs() < 0.15 * truth,
+            "{} vs {truth}",
+            s.missing_area_m2
+        );
+        // Off the fan and without points (the rest of the top, the sides, the bottom, the
+        // hole beside the fan): never judged. Observed: the scanned strip less the hole.
+        let area = |n: u64| n as f64 * cov.area_per_sample();
+        let observed = 0.2 - 0.2 * 0.2;
+        let not_judged = 6.0 - observed - truth;
+        assert!(
+            (area(s.not_scanned) - not_judged).abs() < 0.03,
+            "{}",
+            area(s.not_scanned)
+        );
+        assert_eq!(s.occluded, 0);
+        // Taken up again, it classifies the same.
+        let state = cov.state();
+        assert!(state.swept.iter().any(|&w| w));
+        let mut again = Coverage::new(&samples, params).unwrap();
+        assert!(again.restore(&state));
+        assert_eq!(again.total(&index), cov.total(&index));
+    }
+
     #[test]
     fn material_short_of_the_design_is_missing_and_material_beyond_it_is_not() {
         // Scan of the top face 8 mm too low (material missing) on one half and 8 mm too high

@@ -144,6 +144,17 @@ impl<C: ChunkSource> Lifecycle<C> {
             warn!("job {} mount pose {}: rejected: {e}", m.job, m.sequence);
         }
         self.take_left(now, out);
+        // A pass that ended waiting for this pose closes now.
+        let mut i = 0;
+        while i < self.open.len() {
+            let open = self.open.len();
+            if self.open[i].profiled {
+                self.close_if_complete(i, out);
+            }
+            if self.open.len() == open {
+                i += 1;
+            }
+        }
     }
 
     /// Takes a chunk of a pass's profiles: counted as the pass's chunk, each profile placed or

@@ -647,3 +647,161 @@ fn a_new_print_under_a_used_job_number_is_served_afresh_and_an_older_one_is_not(
     station_of_print(&mut lc, &mut out, 0, 0);
     assert_eq!(out.reports.len(), 3);
 }
+
+/// A line profiler over the cube's top: the mount 0.1 m above it, moving along +x at 0.2 m/s,
+/// looking straight down, its line across (world y); poses every 4 ms on the robot's clock,
+/// profiles of 11 points every 0.5 ms on the sensor's, 1 ms behind.
+mod profiler {
+    use super::*;
+    use crate::config::ProfilerConfig;
+    use asbuilt_protocol::{MountPose, ProfileHeader, ProfilePoint};
+
+    const T0: u64 = 1_000_000_000;
+    const OFFSET: i64 = 1_000_000;
+    const POSE_NS: u64 = 4_000_000;
+    const PROFILE_NS: u64 = 500_000;
+
+    fn x_at(robot_ns: u64) -> f64 {
+        -0.4 + 0.2 * (robot_ns - T0) as f64 * 1e-9
+    }
+
+    fn mount_pose(k: u64) -> MountPose {
+        let t = T0 + k * POSE_NS;
+        let mut m = MountPose::new(1, 5, k, t);
+        m.translation = [x_at(t), 0.0, 0.6];
+        // Sensor x (the line) along world y, y (the plane's normal) along x, z (the view) down.
+        let r = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::new(
+            0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0,
+        ));
+        let q = nalgebra::UnitQuaternion::from_rotation_matrix(&r).coords;
+        m.rotation_xyzw = [q.x, q.y, q.z, q.w];
+        m
+    }
+
+    /// Chunk `c` of 8 profiles: profile `j` is taken at robot time `T0 + j·0.5 ms`.
+    fn profiles(c: u64) -> (ProfileHeader, Vec<ProfilePoint>) {
+        let mut h = ProfileHeader::new(1, 5, c);
+        let mut pts = Vec::new();
+        for j in c * 8..(c + 1) * 8 {
+            let sensor_ns = T0 + j * PROFILE_NS - OFFSET as u64;
+            h.push(sensor_ns, 11);
+            pts.extend((0..11).map(|i| ProfilePoint {
+                x: -0.05 + 0.01 * i as f32,
+                z: 0.1,
+            }));
+        }
+        (h, pts)
+    }
+
+    fn setup() -> (Lifecycle<Owned>, Collect, Instant) {
+        let config = ProfilerConfig {
+            clock_offset_ns: OFFSET,
+            ..ProfilerConfig::default()
+        };
+        let lc =
+            Lifecycle::new(cube(), FrameChain::default(), cfg(), limits()).with_profiler(config);
+        (lc, Collect::default(), Instant::now())
+    }
+
+    /// Sends `chunks` chunks, each after the poses up to its last profile (but those in
+    /// `hole`), then the poses after the last profile, then the End.
+    fn pass(chunks: u64, hole: std::ops::Range<u64>) -> (Lifecycle<Owned>, Collect) {
+        let (mut lc, mut out, t) = setup();
+        lc.on_event(
+            &event(StationEventKind::Begin, 5, chunks as u32),
+            t,
+            &mut out,
+        );
+        let mut k = 0;
+        let mut poses_to = |lc: &mut Lifecycle<Owned>, out: &mut Collect, robot_ns: u64| {
+            while T0 + k * POSE_NS <= robot_ns {
+                if !hole.contains(&k) {
+                    lc.on_mount_pose(&mount_pose(k), t, out);
+                }
+                k += 1;
+            }
+        };
+        for c in 0..chunks {
+            poses_to(&mut lc, &mut out, T0 + (c * 8 + 7) * PROFILE_NS);
+            let (h, p) = profiles(c);
+            lc.on_profiles(&h, &p, t, &mut out);
+        }
+        poses_to(&mut lc, &mut out, T0 + chunks * 8 * PROFILE_NS + POSE_NS);
+        lc.on_event(&event(StationEventKind::End, 5, chunks as u32), t, &mut out);
+        (lc, out)
+    }
+
+    #[test]
+    fn each_profile_is_placed_by_the_pose_at_its_time() {
+        let (lc, out) = pass(20, 0..0);
+        assert_eq!(out.reports.len(), 1);
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+        assert_eq!(
+            (r.points_received, r.stats.count),
+            (20 * 8 * 11, 20 * 8 * 11)
+        );
+        assert_eq!(r.rejected.total(), 0);
+        assert_eq!(r.position_sigma, ProfilerConfig::default().position_sigma);
+        // In the order they came: point i of profile j at x(T0 + j·0.5 ms), y along the line.
+        let placed: Vec<&PointDeviation> = out.deviations.iter().flat_map(|d| &d.1).collect();
+        assert_eq!(placed.len(), 20 * 8 * 11);
+        for (n, d) in placed.iter().enumerate() {
+            let (j, i) = ((n / 11) as u64, n % 11);
+            let want = [x_at(T0 + j * PROFILE_NS), -0.05 + 0.01 * i as f64, 0.5];
+            for a in 0..3 {
+                assert!(
+                    (d.position[a] - want[a]).abs() < 1e-6,
+                    "{n}: {:?} {want:?}",
+                    d.position
+                );
+            }
+            assert!(d.distance.abs() < 1e-6);
+        }
+        let c = lc.profiler_counts();
+        assert_eq!((c.placed, c.refused()), (160, 0));
+        assert!(
+            c.waited > 0,
+            "the last profile of each chunk waits for the pose after it"
+        );
+    }
+
+    #[test]
+    fn profiles_across_a_hole_in_the_poses_are_refused_counted_and_the_pass_still_closes() {
+        // Poses 10..19 lost: 36 ms to 80 ms apart, over the 20 ms allowed.
+        let (lc, out) = pass(30, 10..20);
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+        let refused = lc.profiler_counts().refused_gap;
+        // The profiles strictly between 36 ms and 80 ms (73..=159), and those at its ends
+        // as the track brackets them.
+        assert!((87..=89).contains(&refused), "{refused}");
+        assert_eq!(r.rejected.without_pose, refused * 11);
+        assert_eq!(r.stats.count + r.rejected.without_pose, 30 * 8 * 11);
+    }
+
+    #[test]
+    fn a_pass_that_ended_waits_for_the_pose_after_its_last_profile() {
+        let (mut lc, mut out, t) = setup();
+        lc.on_event(&event(StationEventKind::Begin, 5, 1), t, &mut out);
+        lc.on_mount_pose(&mount_pose(0), t, &mut out);
+        let (h, p) = profiles(0);
+        lc.on_profiles(&h, &p, t, &mut out);
+        lc.on_event(&event(StationEventKind::End, 5, 1), t, &mut out);
+        assert!(
+            out.reports.is_empty(),
+            "profiles 1..7 wait for pose 1 (4 ms)"
+        );
+        assert_eq!(lc.profiles_waiting(), 7);
+        lc.on_mount_pose(&mount_pose(1), t, &mut out);
+        assert_eq!(lc.profiles_waiting(), 0);
+        assert_eq!(
+            out.reports.len(),
+            1,
+            "the pass closes with its last profile placed"
+        );
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+        assert_eq!((r.stats.count, r.rejected.total()), (88, 0));
+    }
+}

@@ -519,6 +519,20 @@ impl<I> AgentOrder<I> {
     }
 }
 
+impl<I> AgentOrder<I> {
+    /// A chunk (scan or profile) of `key` went by at `t`: its End is due after its last.
+    fn chunk_of(&mut self, key: (u64, u32), t: u64) {
+        let seen = self.chunks.entry(key).or_insert(0);
+        *seen += 1;
+        if let Some(&(_, e)) = self.held.get(&key)
+            && *seen >= u64::from(e.expected_chunks)
+        {
+            let (te, e) = self.held.remove(&key).expect("just seen");
+            self.due.push_back((te.max(t), Recorded::Event(e)));
+        }
+    }
+}
+
 impl<I: Iterator<Item = Result<(u64, Recorded), ReadError>>> Iterator for AgentOrder<I> {
     type Item = Result<(u64, Recorded), ReadError>;
 
@@ -549,17 +563,13 @@ impl<I: Iterator<Item = Result<(u64, Recorded), ReadError>>> Iterator for AgentO
                 {
                     self.held.insert((e.job, e.station), (t, e));
                 }
-                Recorded::Chunk(h, p) => {
-                    let key = (h.job, h.station);
-                    let seen = self.chunks.entry(key).or_insert(0);
-                    *seen += 1;
-                    if let Some(&(_, e)) = self.held.get(&key)
-                        && *seen >= u64::from(e.expected_chunks)
-                    {
-                        let (te, e) = self.held.remove(&key).expect("just seen");
-                        self.due.push_back((te.max(t), Recorded::Event(e)));
-                    }
-                    return Some(Ok((t, Recorded::Chunk(h, p))));
+                Recorded::Chunk(h, _) => {
+                    self.chunk_of((h.job, h.station), t);
+                    return Some(Ok((t, m)));
+                }
+                Recorded::Profiles(h, _) => {
+                    self.chunk_of((h.job, h.pass), t);
+                    return Some(Ok((t, m)));
                 }
                 m => return Some(Ok((t, m))),
             }

@@ -34,9 +34,12 @@ pub struct DemoArgs {
     tolerance: f64,
 }
 
-/// The demo's defects on the wall; on other parts the kinds alone, placed by default.
-fn default_defects(part: &str) -> Vec<String> {
-    if part == "wall" {
+/// The demo's defects on the wall; on other parts the kinds alone, placed by default. With a
+/// profiler, the process engineer's case: the print walks off by 5 mm, and a bulge.
+fn default_defects(part: &str, profiler: bool) -> Vec<String> {
+    if profiler {
+        vec!["lateral-shift:from=20,dx=5mm,dy=0".into(), "bulge".into()]
+    } else if part == "wall" {
         vec![
             "over-extrusion:layers=2-4,width=12mm".into(),
             "bulge:x=-0.5,y=-0.0867,z=0.25,radius=0.1,height=15mm".into(),
@@ -55,16 +58,10 @@ fn default_defects(part: &str) -> Vec<String> {
 pub fn run(mut args: DemoArgs) -> Result<ExitCode> {
     let profiler = args.job.sensor == "profiler";
     if args.job.defects.is_empty() && !args.no_defects {
-        args.job.defects = if profiler {
-            // The process engineer's case: the print walks off by 5 mm, and a bulge.
-            vec!["lateral-shift:from=20,dx=5mm,dy=0".into(), "bulge".into()]
-        } else {
-            default_defects(&args.job.part)
-        };
+        args.job.defects = default_defects(&args.job.part, profiler);
     }
     if profiler {
-        // 256 points a profile (0.4 mm apart across the layer) keep the demo within a
-        // minute; --profile-points 2048 is the sensor's full line.
+        // 256 points a profile, 0.4 mm apart, keep the demo short; 2048 is the full line.
         args.job.profile_points.get_or_insert(256);
     }
     let job = args.job.job()?;
@@ -124,32 +121,8 @@ const BYTES_A_POINT: f64 = 16.0;
 
 /// The MB the demo's recording and view take for `job`, roughly (see [`POINTS_A_STATION`]).
 fn writes_mb(job: &SimJob) -> u64 {
-    if let Some(m) = &job.profiler {
-        // Each layer's outlines at the print speed, three in four rays returning, 10 bytes a
-        // point recorded (measured: 9.2 on the column).
-        let profiles: f64 = job
-            .plan()
-            .iter()
-            .map(|p| {
-                let z = p.printed_height - 0.5 * job.part.layer_height;
-                let length: f64 = job
-                    .part
-                    .section(z)
-                    .unwrap_or_default()
-                    .iter()
-                    .map(|r| {
-                        (0..r.len())
-                            .map(|k| {
-                                let (a, b) = (r[k], r[(k + 1) % r.len()]);
-                                (b[0] - a[0]).hypot(b[1] - a[1])
-                            })
-                            .sum::<f64>()
-                    })
-                    .sum();
-                length / m.speed * m.rate_hz
-            })
-            .sum();
-        return (profiles * m.points as f64 * 0.75 * 10.0 / 1e6).ceil() as u64;
+    if let Some(points) = job.profiler_points() {
+        return (points * 10.0 / 1e6).ceil() as u64; // 10 B a point: 9.2 measured
     }
     let points = job.plan().len() as f64
         * POINTS_A_STATION
@@ -335,50 +308,8 @@ fn tail(log: &Path) -> String {
 /// Injected against found, and where to look.
 fn summary(job: &SimJob, o: &SimOutcome, out: &Path, recording: &Path) {
     eprintln!("\ninjected (truth.json) and what the agent reported, per scan layer:");
-    let by_layer = o.findings_by_layer();
-    // A profiler scans every layer: every tenth is shown here, all are in the report.
-    let shown: Vec<u32> = match job.profiler {
-        Some(_) => {
-            let n = job.plan().len() as u32;
-            (1..=n).filter(|k| k % 10 == 0 || *k == n).collect()
-        }
-        None => job.scan_after.clone(),
-    };
-    for k in shown {
-        eprintln!("  after layer {k}:");
-        for d in &job.defects {
-            if let Some(t) = d.truth(&job.part, k) {
-                eprintln!(
-                    "    injected {:<16} {:+.1} mm at ({:.2}, {:.2}, {:.2}), layers {}–{}",
-                    t.kind,
-                    t.magnitude * 1e3,
-                    t.position.x,
-                    t.position.y,
-                    t.position.z,
-                    t.layers.0,
-                    t.layers.1
-                );
-            }
-        }
-        match by_layer.iter().find(|f| f.layer + 1 == k) {
-            Some(f) => eprintln!("  {}", asbuilt_sim::lines::findings_line(f).trim_start()),
-            None => eprintln!("    no findings came back for this layer"),
-        }
-        if job.closed_loop {
-            let built = asbuilt_sim::built_layers(&job.part, &job.defects, k, &o.settings);
-            if let Ok(Some(top)) = built.map(|b| b.last().copied()) {
-                let advice = o
-                    .corrections
-                    .iter()
-                    .filter(|c| c.layer + 1 == k)
-                    .max_by_key(|c| c.station);
-                eprintln!(
-                    "    closed loop: top as built {:+.1} mm; {}",
-                    top.top_error_m * 1e3,
-                    advice.map_or("no advice came".into(), asbuilt_sim::lines::advice_text)
-                );
-            }
-        }
+    for line in asbuilt_sim::lines::truth_and_findings(job, o) {
+        eprintln!("{line}");
     }
     eprintln!(
         "\n{} in {:.0} s. Look at it:\n  rerun {}          # pip install rerun-sdk==0.36.*\n  \
@@ -409,7 +340,7 @@ mod tests {
 
     fn job(args: &[&str]) -> SimJob {
         let mut cli = Cli::parse_from(std::iter::once("demo").chain(args.iter().copied()));
-        cli.demo.job.defects = default_defects(&cli.demo.job.part);
+        cli.demo.job.defects = default_defects(&cli.demo.job.part, false);
         cli.demo.job.job().unwrap()
     }
 

@@ -155,6 +155,10 @@ fn survey(bytes: &[u8]) -> Result<Survey, recording::ReadError> {
                 stations.insert((h.job, h.station));
                 max_points = max_points.max(p.len());
             }
+            Recorded::Profiles(h, p) => {
+                stations.insert((h.job, h.pass));
+                max_points = max_points.max(p.len());
+            }
             _ => {}
         }
         inputs += m.channel().is_input() as u64;

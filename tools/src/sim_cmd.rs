@@ -6,8 +6,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
+use asbuilt_protocol::PoseMode;
 use asbuilt_protocol::ipc::{CellPorts, ServiceNames};
-use asbuilt_protocol::{PoseMode, StationStatus};
 use asbuilt_sim::lines::{findings_line, interruptions_line, printing_line, report_line};
 use asbuilt_sim::{JobSpec, PartSpec, SimEvent, SimJob, SimOutcome};
 use clap::Args;
@@ -48,20 +48,16 @@ pub struct JobArgs {
     /// Pose error σ, metres.
     #[arg(long, default_value_t = 0.001)]
     pub pose_sigma: f64,
-    /// Points per second the scanner sends, or `max` (the default with the profiler, which
-    /// then sends as fast as the agent takes; any number sends it in real time).
+    /// Points per second the scanner sends, or `max` (default 1000000; a profiler's: max).
     #[arg(long)]
     pub rate: Option<String>,
-    /// The sensor: `tls` (a terrestrial scanner carried to stations after some layers) or
-    /// `profiler` (a line profiler behind the nozzle, every layer scanned as it is laid).
+    /// `tls` (a scanner carried to stations) or `profiler` (a line profiler on the nozzle).
     #[arg(long, default_value = "tls")]
     pub sensor: String,
-    /// With --sensor profiler: points per profile (default 2048; the demo's 256 keeps it
-    /// under a minute).
+    /// With --sensor profiler: points per profile (default 2048; the demo's is 256).
     #[arg(long)]
     pub profile_points: Option<usize>,
-    /// With --sensor profiler: the layers printed, each scanned as it is laid (default: the
-    /// whole part; --scan-after does not apply).
+    /// With --sensor profiler: the layers printed, each a pass (default: all of the part).
     #[arg(long)]
     pub layers: Option<u32>,
     /// With --sensor profiler: profiles per second.
@@ -70,8 +66,7 @@ pub struct JobArgs {
     /// With --sensor profiler: the robot's poses per second.
     #[arg(long, default_value_t = 250.0)]
     pub pose_rate: f64,
-    /// With --sensor profiler: the robot's clock less the profiler's, nanoseconds (the agent
-    /// must be told the same in its [profiler] clock_offset_ns).
+    /// With --sensor profiler: the robot's clock less the profiler's, ns (the agent's too).
     #[arg(long, default_value_t = 0, allow_hyphen_values = true)]
     pub clock_offset: i64,
     /// Angle between rays, degrees (0.036: a Z+F IMAGER at "middle" resolution).
@@ -283,30 +278,13 @@ fn say(bar: &ProgressBar, line: String) {
 }
 
 fn verdict(job: &SimJob, o: &SimOutcome) -> ExitCode {
-    let expected = job.plan().len();
-    if o.reports.len() < expected {
-        eprintln!(
-            "error: {} of {expected} station(s) got no report",
-            expected - o.reports.len()
-        );
-        return ExitCode::from(1);
+    match o.unfinished(job) {
+        Some(problem) => {
+            eprintln!("error: {problem}");
+            ExitCode::from(1)
+        }
+        None => ExitCode::SUCCESS,
     }
-    let unfinished: Vec<String> = o
-        .reports
-        .iter()
-        .filter(|r| r.status() != Some(StationStatus::Complete))
-        .map(|r| format!("{} ({:?})", r.name.as_str(), r.status()))
-        .collect();
-    if !unfinished.is_empty() {
-        eprintln!(
-            "error: {} station(s) never ended complete in {} attempt(s): {}",
-            unfinished.len(),
-            job.max_attempts,
-            unfinished.join(", ")
-        );
-        return ExitCode::from(1);
-    }
-    ExitCode::SUCCESS
 }
 
 /// Writes the job's truth.json: the injected defects, what the agent should find, and the

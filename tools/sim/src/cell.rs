@@ -144,6 +144,26 @@ impl SimJob {
         }
     }
 
+    /// With a profiler, the points its passes return, roughly: each layer's outlines at the
+    /// print speed, three rays in four returning.
+    pub fn profiler_points(&self) -> Option<f64> {
+        let m = self.profiler?;
+        let length = |z: f64| -> f64 {
+            let rings = self.part.section(z).unwrap_or_default();
+            rings
+                .iter()
+                .flat_map(|r| (0..r.len()).map(move |k| (r[k], r[(k + 1) % r.len()])))
+                .map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1]))
+                .sum()
+        };
+        let profiles: f64 = self
+            .plan()
+            .iter()
+            .map(|p| length(p.printed_height - 0.5 * self.part.layer_height) / m.speed * m.rate_hz)
+            .sum();
+        Some(profiles * m.points as f64 * 0.75)
+    }
+
     /// The most points a chunk of the job carries: a scan chunk's, or a profiler's.
     pub fn chunk_capacity(&self) -> usize {
         let profiles = self
@@ -394,6 +414,30 @@ pub struct SimOutcome {
 }
 
 impl SimOutcome {
+    /// What did not end well: stations without a report, or never reported complete in the
+    /// job's attempts; `None` when every station ended complete.
+    pub fn unfinished(&self, job: &SimJob) -> Option<String> {
+        let expected = job.plan().len();
+        if self.reports.len() < expected {
+            let missing = expected - self.reports.len();
+            return Some(format!("{missing} of {expected} station(s) got no report"));
+        }
+        let unfinished: Vec<String> = self
+            .reports
+            .iter()
+            .filter(|r| r.status() != Some(StationStatus::Complete))
+            .map(|r| format!("{} ({:?})", r.name.as_str(), r.status()))
+            .collect();
+        (!unfinished.is_empty()).then(|| {
+            format!(
+                "{} station(s) never ended complete in {} attempt(s): {}",
+                unfinished.len(),
+                job.max_attempts,
+                unfinished.join(", ")
+            )
+        })
+    }
+
     /// The latest findings of each scan layer (they cover its stations so far).
     pub fn findings_by_layer(&self) -> Vec<&StationFindings> {
         let mut out: Vec<&StationFindings> = Vec::new();

@@ -3,7 +3,7 @@
 
 use asbuilt_protocol::{LayerCorrection, StationFindings, StationReport, StationStatus};
 
-use crate::{PlannedStation, SimOutcome};
+use crate::{PlannedStation, SimJob, SimOutcome};
 
 /// The station attempts that did not end complete, in one line: "2 interruption(s): L016-S4
 /// attempt 1 (reported Interrupted), …".
@@ -134,4 +134,53 @@ pub fn findings_line(f: &StationFindings) -> String {
             items.join("; ")
         }
     )
+}
+
+/// What was injected and what the agent found, scan layer by scan layer (every tenth layer of
+/// a profiler's print, whose every layer is in the report), as `demo` ends with it.
+pub fn truth_and_findings(job: &SimJob, o: &SimOutcome) -> Vec<String> {
+    let by_layer = o.findings_by_layer();
+    let shown: Vec<u32> = match job.profiler {
+        Some(_) => {
+            let n = job.plan().len() as u32;
+            (1..=n).filter(|k| k % 10 == 0 || *k == n).collect()
+        }
+        None => job.scan_after.clone(),
+    };
+    let mut lines = Vec::new();
+    for k in shown {
+        lines.push(format!("  after layer {k}:"));
+        for t in job.defects.iter().filter_map(|d| d.truth(&job.part, k)) {
+            lines.push(format!(
+                "    injected {:<16} {:+.1} mm at ({:.2}, {:.2}, {:.2}), layers {}–{}",
+                t.kind,
+                t.magnitude * 1e3,
+                t.position.x,
+                t.position.y,
+                t.position.z,
+                t.layers.0,
+                t.layers.1
+            ));
+        }
+        lines.push(match by_layer.iter().find(|f| f.layer + 1 == k) {
+            Some(f) => format!("  {}", findings_line(f).trim_start()),
+            None => "    no findings came back for this layer".into(),
+        });
+        if job.closed_loop {
+            let built = crate::built_layers(&job.part, &job.defects, k, &o.settings);
+            if let Ok(Some(top)) = built.map(|b| b.last().copied()) {
+                let advice = o
+                    .corrections
+                    .iter()
+                    .filter(|c| c.layer + 1 == k)
+                    .max_by_key(|c| c.station);
+                lines.push(format!(
+                    "    closed loop: top as built {:+.1} mm; {}",
+                    top.top_error_m * 1e3,
+                    advice.map_or("no advice came".into(), advice_text)
+                ));
+            }
+        }
+    }
+    lines
 }

@@ -57,7 +57,8 @@ for i in $(seq "$RUNS"); do
     kill -TERM "$agent"
     wait "$agent" || true
     rate=$(grep -o '[0-9.]* M points/s' "$dir/replay.log" | tail -1 | grep -o '^[0-9.]*')
-    refused=$(grep -h 'profiles since start' "$dir/agent.log" | tail -1 | grep -o '[0-9]* refused')
+    refused=$(grep -h 'profiles since start' "$dir/agent.log" | tail -1 |
+        grep -o '[0-9]* refused' | head -1)
     rates+=("$rate")
     echo "  run $i: $rate M points/s, $(awk -v r="$rate" -v p="$ppp" \
         'BEGIN {printf "%.0f", r * 1e6 / p}') profiles/s; $refused"
@@ -84,6 +85,7 @@ while kill -0 "$demo" 2> /dev/null; do
     sleep 1
 done
 wait "$demo" || { tail -20 "$OUT/memory.log" >&2; exit 1; }
-awk '{ if ($1 > 0 && ($1 % 10 == 0 || $1 == 1)) last[$1] = $2; if ($2 > peak) peak = $2 }
-    END { for (p in last) printf "  after %2d passes: %.0f MB resident\n", p, last[p] / 1024;
-          printf "  peak: %.0f MB\n", peak / 1024 }' "$OUT/rss.txt" | sort -k2 -n
+# The first sample at or after each tenth of the passes, and the peak.
+awk '{ d = int($1 / 6) * 6; if ($1 > 0 && !(d in at)) at[d] = $2; if ($2 > peak) peak = $2 }
+    END { for (p in at) printf "  %2d passes in: %.0f MB resident\n", p, at[p] / 1024;
+          printf "  peak: %.0f MB\n", peak / 1024 }' "$OUT/rss.txt" | sort -k1 -n

@@ -199,6 +199,26 @@ class Cell:
         applied; layers it is not told of are taken as printed as designed."""
         self._cell.send_applied(layer, **options)
 
+    def send_pass(self, pass_: int, **options) -> None:
+        """Opens a line profiler's pass (a station numbered `pass_`: `layer`,
+        `printed_height`, `name`), or closes it with `end=True`, `chunks` and `points` sent."""
+        self._cell.send_pass(pass_, **options)
+
+    def send_mount_pose(self, time_ns: int, translation, rotation_xyzw, **options) -> None:
+        """A robot pose of the profiler's mount at `time_ns` on the robot's clock
+        (`T_base_mount`), with the calibration `mount_sensor_translation` and
+        `mount_sensor_rotation_xyzw` (`T_mount_sensor`); `pass_`, `sequence`, `job`."""
+        self._cell.send_mount_pose(time_ns, translation, rotation_xyzw, **options)
+
+    def send_profiles(self, pass_: int, sequence: int, sensor_ns, counts, points,
+                      **options) -> None:
+        """Chunk `sequence` of a pass: up to 32 profiles taken at `sensor_ns` (the
+        profiler's clock), `counts[i]` points each, their points one after the other in
+        `points`, (N, 2) float32 metres along the line and along the view; `last=True` on the
+        pass's last chunk."""
+        self._cell.send_profiles(pass_, sequence, list(sensor_ns), list(counts), points,
+                                 **options)
+
     def receive(self, timeout: float = 0.0) -> List[Dict[str, Any]]:
         kept, self._kept = self._kept, []
         return kept + [_public(m) for m in self._cell.receive(0.0 if kept else timeout)]
@@ -252,6 +272,12 @@ class SimulatedJob(_SimulatedJob):
 
     def __new__(cls, **options: Any):
         return super().__new__(cls, **options)
+
+    def run(self, cell: "Cell", *, findings: bool = False, wait: float = 60.0) -> Dict[str, Any]:
+        """Runs the whole job through `cell` as `asbuilt sim` does (with
+        `sensor="profiler"`, every layer a pass of poses and profiles); returns the `reports`
+        and `findings` that came back, `points_sent` and `seconds`."""
+        return super().run(cell._cell, findings=findings, wait=wait)
 
     def send(self, cell: "Cell", station: Dict[str, Any]) -> int:
         """Scans `station` (an entry of `stations()`) and sends it through `cell` as the robot

@@ -8,8 +8,9 @@ use std::time::{Duration, Instant};
 
 use asbuilt_protocol::ipc::{CellPorts, Ipc, IpcError, ServiceNames};
 use asbuilt_protocol::{
-    FixedText, LayerApplied, LayerCorrection, PoseMode, PoseSnapshot, ScanPoint, ScanPointFlags,
-    StationEvent, StationEventKind, StationFindings, StationReport, StationSender, codec,
+    FixedText, LayerApplied, LayerCorrection, MountPose, PoseMode, PoseSnapshot, ProfileHeader,
+    ProfilePoint, ScanPoint, ScanPointFlags, StationEvent, StationEventKind, StationFindings,
+    StationReport, StationSender, codec,
 };
 use asbuilt_sim::{AsBuilt, JobSpec, LayerSettings, PartSpec, SimJob};
 use iceoryx2::prelude::*;
@@ -180,6 +181,121 @@ impl Cell {
         }
         let end = sender.finish(&mut sink).map_err(runtime)?;
         Ok(end.expected_points)
+    }
+
+    /// Opens (`end=False`) or closes (`end=True`) a line profiler's pass, numbered `pass_`
+    /// (a station: its layer and printed height on the Begin; on the End the profile chunks
+    /// and points it sent). Its mount poses and profiles go with `send_mount_pose` and
+    /// `send_profiles` in between.
+    #[pyo3(signature = (
+        pass_, *, end = false, job = 1, name = "", layer = 0, printed_height = f64::NAN,
+        chunks = 0, points = 0, attempt = 1, job_started_ns = None
+    ))]
+    #[allow(clippy::too_many_arguments)] // a pass's Begin or End, one keyword each
+    fn send_pass(
+        &self,
+        pass_: u32,
+        end: bool,
+        job: u64,
+        name: &str,
+        layer: u32,
+        printed_height: f64,
+        chunks: u32,
+        points: u64,
+        attempt: u8,
+        job_started_ns: Option<u64>,
+    ) -> PyResult<()> {
+        let kind = if end {
+            StationEventKind::End
+        } else {
+            StationEventKind::Begin
+        };
+        let mut ev = StationEvent::new(kind, job, pass_);
+        ev.job_started_ns = job_started_ns.unwrap_or(self.opened_ns);
+        ev.name = FixedText::truncated(name);
+        ev.layer = layer;
+        ev.printed_height = printed_height;
+        ev.expected_chunks = chunks;
+        ev.expected_points = points;
+        ev.attempt = attempt.max(1);
+        ev.timestamp_ns = asbuilt_protocol::unix_time_ns();
+        self.ports.send_event(&ev).map_err(runtime)
+    }
+
+    /// Sends a robot pose of the profiler's mount sampled at `time_ns` on the robot's clock:
+    /// `T_base_mount` and the calibrated `T_mount_sensor`, metres and unit quaternions (scalar
+    /// last).
+    #[pyo3(signature = (
+        time_ns, translation, rotation_xyzw, *, job = 1, pass_ = 0, sequence = 0,
+        mount_sensor_translation = [0.0; 3], mount_sensor_rotation_xyzw = [0.0, 0.0, 0.0, 1.0]
+    ))]
+    #[allow(clippy::too_many_arguments)] // a pose and its calibration, one keyword each
+    fn send_mount_pose(
+        &self,
+        time_ns: u64,
+        translation: [f64; 3],
+        rotation_xyzw: [f64; 4],
+        job: u64,
+        pass_: u32,
+        sequence: u64,
+        mount_sensor_translation: [f64; 3],
+        mount_sensor_rotation_xyzw: [f64; 4],
+    ) -> PyResult<()> {
+        let mut m = MountPose::new(job, pass_, sequence, time_ns);
+        m.translation = translation;
+        m.rotation_xyzw = rotation_xyzw;
+        m.mount_sensor_translation = mount_sensor_translation;
+        m.mount_sensor_rotation_xyzw = mount_sensor_rotation_xyzw;
+        self.ports.send_mount_pose(&m).map_err(runtime)
+    }
+
+    /// Sends chunk `sequence` of a pass: profiles taken at `sensor_ns` (the profiler's clock),
+    /// `counts[i]` points each, their points one after the other in `points` (N × 2: along the
+    /// line, along the view; metres, sensor frame). At most 32 profiles a chunk.
+    #[pyo3(signature = (pass_, sequence, sensor_ns, counts, points, *, job = 1, last = false, attempt = 1))]
+    #[allow(clippy::too_many_arguments)] // a chunk's header, one keyword each
+    fn send_profiles(
+        &self,
+        pass_: u32,
+        sequence: u64,
+        sensor_ns: Vec<u64>,
+        counts: Vec<u32>,
+        points: PyReadonlyArray2<'_, f32>,
+        job: u64,
+        last: bool,
+        attempt: u16,
+    ) -> PyResult<()> {
+        let mut h = ProfileHeader::new(job, pass_, sequence);
+        h.attempt = attempt.max(1);
+        h.last = u8::from(last);
+        h.timestamp_ns = asbuilt_protocol::unix_time_ns();
+        if sensor_ns.len() != counts.len() {
+            return Err(PyValueError::new_err(
+                "sensor_ns and counts need one entry a profile",
+            ));
+        }
+        for (&t, &n) in sensor_ns.iter().zip(&counts) {
+            if !h.push(t, n) {
+                return Err(PyValueError::new_err(format!(
+                    "{} profiles: a chunk holds at most {}",
+                    counts.len(),
+                    asbuilt_protocol::MAX_PROFILES_PER_CHUNK
+                )));
+            }
+        }
+        let a = points.as_array();
+        if a.ncols() != 2 {
+            return Err(PyValueError::new_err("points must be N × 2 (x, z)"));
+        }
+        let pts: Vec<ProfilePoint> = a
+            .rows()
+            .into_iter()
+            .map(|r| ProfilePoint { x: r[0], z: r[1] })
+            .collect();
+        if let Err(e) = h.profiles(pts.len()) {
+            return Err(PyValueError::new_err(e.to_string()));
+        }
+        self.ports.send_profiles(&h, &pts).map_err(runtime)
     }
 
     /// Tells the agent what the printer applied to `layer` once it is printed: the z offset
@@ -360,7 +476,8 @@ impl SimulatedJob {
     #[pyo3(signature = (
         *, part = None, units = None, layer_height = None, scan_after = None, stations = None,
         defect = None, seed = None, pose_mode = "fixed", pose_sigma = None, rate = None,
-        step_deg = None, job = None, sensor = "tls"
+        step_deg = None, job = None, sensor = "tls", profile_points = None, layers = None,
+        clock_offset_ns = 0
     ))]
     #[allow(clippy::too_many_arguments)] // Python's keywords, one per `asbuilt sim` flag
     fn new(
@@ -377,11 +494,22 @@ impl SimulatedJob {
         step_deg: Option<f64>,
         job: Option<u64>,
         sensor: &str,
+        profile_points: Option<usize>,
+        layers: Option<u32>,
+        clock_offset_ns: i64,
     ) -> PyResult<Self> {
         let d = JobSpec::default();
         let profiler = match sensor {
             "tls" => None,
-            "profiler" => Some(asbuilt_sim::ProfilerSpec::default()),
+            "profiler" => {
+                let d = asbuilt_sim::ProfilerSpec::default();
+                Some(asbuilt_sim::ProfilerSpec {
+                    points: profile_points.unwrap_or(d.points),
+                    layers,
+                    clock_offset_ns,
+                    ..d
+                })
+            }
             other => {
                 return Err(PyValueError::new_err(format!(
                     "sensor {other:?}: give \"tls\" or \"profiler\""
@@ -490,6 +618,37 @@ impl SimulatedJob {
     #[getter]
     fn job(&self) -> u64 {
         self.job.job
+    }
+
+    /// Runs the whole job through `cell` as `asbuilt sim` does (a profiler's job: every
+    /// layer a pass, its poses and profiles interleaved), waiting up to `wait` seconds for
+    /// the last reports (and findings, with `findings=True`). Returns the reports and
+    /// findings as `Cell.receive` gives them, `points_sent` and `seconds`.
+    #[pyo3(signature = (cell, *, findings = false, wait = 60.0))]
+    fn run<'py>(
+        &self,
+        py: Python<'py>,
+        cell: PyRef<'_, Cell>,
+        findings: bool,
+        wait: f64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let wait = Duration::from_secs_f64(wait.max(0.0));
+        let o = asbuilt_sim::run(&self.job, &cell.ports, findings, wait, &mut |_| {})
+            .map_err(runtime)?;
+        let out = PyDict::new(py);
+        let reports = PyList::empty(py);
+        for r in &o.reports {
+            reports.append(tagged(py, "report", r)?)?;
+        }
+        let found = PyList::empty(py);
+        for f in &o.findings {
+            found.append(tagged(py, "findings", f)?)?;
+        }
+        out.set_item("reports", reports)?;
+        out.set_item("findings", found)?;
+        out.set_item("points_sent", o.points_sent)?;
+        out.set_item("seconds", o.seconds)?;
+        Ok(out)
     }
 
     /// Every station in the order the robot visits them: `index`, `name`, `printed` (layers

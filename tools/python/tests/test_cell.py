@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import asbuilt
+from conftest import unit_cube
 
 
 def agent_config(prefix, job):
@@ -210,3 +211,79 @@ def test_a_python_cell_closes_the_loop_with_the_agents_advice(tmp_path):
     # 16 takes it back.
     assert tops[1] > 0.0025, tops
     assert abs(tops[2]) < 0.002, tops
+
+
+def test_a_python_cell_sends_a_line_profilers_pass(tmp_path):
+    """A pass over the top of a 1 m cube: the mount 0.1 m above it moving along +x at 0.2 m/s,
+    looking straight down, its line across; poses every 4 ms on the robot's clock, profiles of
+    11 points every 0.5 ms on the profiler's, 1 ms behind. Every profile is placed on the top."""
+    v, t = unit_cube()
+    asbuilt.Design.from_arrays(v - 0.5, t).write_stl(tmp_path / "design.stl")
+    prefix = f"asbuilt-pytest-profiler-{os.getpid()}"
+    config = {
+        "design": {"path": "design.stl", "units": "m"},
+        "inspect": {"tolerance": 0.005, "max_distance": 0.03},
+        "services": {"prefix": prefix},
+        "profiler": {"clock_offset_ns": 1_000_000},
+    }
+    t0, offset = 1_000_000_000, 1_000_000
+    # Sensor x (the line) along world y, y (the plane's normal) along x, z (the view) down:
+    # the rotation (x, y, z) -> (y, x, -z), as a quaternion (scalar last).
+    down = [2 ** -0.5, 2 ** -0.5, 0.0, 0.0]
+    with asbuilt.Agent(config, tmp_path) as agent:
+        agent.wait_until_serving()
+        cell = asbuilt.Cell(prefix, max_points_per_chunk=65536, wait=30.0)
+        cell.send_pass(3, layer=3)
+        pose = 0
+        line = np.stack([np.linspace(-0.05, 0.05, 11), np.full(11, 0.1)], axis=1)
+        chunks = 20
+        for c in range(chunks):
+            js = range(c * 8, (c + 1) * 8)
+            # The poses up to this chunk's last profile go first.
+            while t0 + pose * 4_000_000 <= t0 + js[-1] * 500_000:
+                t = t0 + pose * 4_000_000
+                x = -0.4 + 0.2 * (t - t0) * 1e-9
+                cell.send_mount_pose(t, [x, 0.0, 0.6], down, pass_=3, sequence=pose)
+                pose += 1
+            sensor_ns = [t0 + j * 500_000 - offset for j in js]
+            cell.send_profiles(3, c, sensor_ns, [11] * 8,
+                               np.tile(line, (8, 1)).astype(np.float32), last=c == chunks - 1)
+        t = t0 + pose * 4_000_000
+        cell.send_mount_pose(t, [-0.4 + 0.2 * (t - t0) * 1e-9, 0.0, 0.6], down, pass_=3,
+                             sequence=pose)
+        cell.send_pass(3, end=True, layer=3, chunks=chunks, points=chunks * 8 * 11)
+        got = []
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(m["kind"] == "report" for m in got):
+            got += cell.receive(timeout=1.0)
+        assert agent.alive(), agent.log()
+    reports = [m for m in got if m["kind"] == "report"]
+    assert len(reports) == 1, agent.log()
+    r = reports[0]
+    assert asbuilt.Cell.STATUS[r["status"]] == "Complete", r
+    assert r["points_received"] == r["stats"]["count"] == chunks * 8 * 11
+    assert r["stats"]["median_abs"] < 1e-6
+    with pytest.raises(ValueError, match="at most 32"):
+        cell.send_profiles(3, 99, list(range(33)), [0] * 33, np.zeros((0, 2), np.float32))
+
+
+def test_a_simulated_profiler_job_runs_through_a_python_cell(tmp_path):
+    """`SimulatedJob(sensor="profiler")`: the column's first layers, each a pass of the
+    simulated profiler (a coarse line), every profile placed and every layer judged."""
+    job = asbuilt.SimulatedJob(part="column", sensor="profiler", layers=3, profile_points=32)
+    job.design.write_stl(tmp_path / "design.stl")
+    prefix = f"asbuilt-pytest-simprofiler-{os.getpid()}"
+    config = agent_config(prefix, job)
+    config["limits"]["max_points_per_chunk"] = 65536
+    del config["recorder"]
+    with asbuilt.Agent(config, tmp_path) as agent:
+        agent.wait_until_serving()
+        cell = asbuilt.Cell(prefix, max_points_per_chunk=65536, wait=30.0)
+        out = job.run(cell, findings=True, wait=60.0)
+        assert agent.alive(), agent.log()
+    assert [r["station"] for r in out["reports"]] == [0, 1, 2], agent.log()
+    for r in out["reports"]:
+        assert asbuilt.Cell.STATUS[r["status"]] == "Complete"
+        assert r["rejected"]["without_pose"] == 0
+        assert r["stats"]["median_abs"] < 0.5e-3
+    assert len(out["findings"]) == 3

@@ -356,7 +356,7 @@ impl Recorder {
         if !self.admit(bytes) {
             return;
         }
-        let m = Recorded::Profiles(*h, points.to_vec());
+        let m = Recorded::Profiles(Box::new(*h), points.to_vec());
         let counter = if self.send(Item::Message(unix_time_ns(), m), bytes) {
             &self.counters.chunks_recorded
         } else {

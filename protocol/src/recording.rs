@@ -563,11 +563,11 @@ impl<I: Iterator<Item = Result<(u64, Recorded), ReadError>>> Iterator for AgentO
                 {
                     self.held.insert((e.job, e.station), (t, e));
                 }
-                Recorded::Chunk(h, _) => {
+                Recorded::Chunk(ref h, _) => {
                     self.chunk_of((h.job, h.station), t);
                     return Some(Ok((t, m)));
                 }
-                Recorded::Profiles(h, _) => {
+                Recorded::Profiles(ref h, _) => {
                     self.chunk_of((h.job, h.pass), t);
                     return Some(Ok((t, m)));
                 }

@@ -46,7 +46,7 @@ macro_rules! messages {
         }
         chunks {
             $( $(#[$cdoc:meta])* $cch:ident $cfield:ident $cservice:literal : $ckind:ty
-                => $cvar:ident($h:ty, [$p:ty]) ; )*
+                => $cvar:ident($h:ty, [$p:ty]) $($cboxed:ident)? ; )*
         }
     ) => {
         /// The names of a cell's services: `PREFIX/` and the service of each row, and the two
@@ -156,7 +156,7 @@ macro_rules! messages {
         #[derive(Debug, Clone, PartialEq)]
         pub enum Recorded {
             $( $(#[$doc])* $var(held!($($boxed)? $ty)), )*
-            $( $(#[$cdoc])* $cvar($h, Vec<$p>), )*
+            $( $(#[$cdoc])* $cvar(held!($($cboxed)? $h), Vec<$p>), )*
         }
 
         impl Recorded {
@@ -175,7 +175,7 @@ macro_rules! messages {
                         <$ty as $crate::Record>::decode(bytes)?)), )*
                     $( Channel::$cch => {
                         let (h, p) = <$h as $crate::ChunkRecord>::decode(bytes)?;
-                        Recorded::$cvar(h, p)
+                        Recorded::$cvar(hold!($($cboxed)? h), p)
                     } )*
                 })
             }
@@ -324,7 +324,7 @@ messages! {
         /// `scanner/profiles`: a line profiler's profile chunks ([`ProfileHeader`] and
         /// points), cell to agent.
         Profiles profiles "scanner/profiles": ProfileChunks
-            => Profiles(ProfileHeader, [ProfilePoint]);
+            => Profiles(ProfileHeader, [ProfilePoint]) boxed;
         /// `agent/deviations`: deviation chunks ([`DeviationHeader`] and one deviation per
         /// scan point), agent to cell.
         Deviations deviations "agent/deviations": DeviationChunks

@@ -19,7 +19,7 @@ pub enum Input<C> {
     MountPose(asbuilt_protocol::MountPose),
     /// A chunk of a line profiler's profiles.
     Profiles(
-        asbuilt_protocol::ProfileHeader,
+        Box<asbuilt_protocol::ProfileHeader>,
         Vec<asbuilt_protocol::ProfilePoint>,
     ),
 }

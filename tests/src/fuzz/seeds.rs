@@ -282,6 +282,23 @@ fn wire_messages() -> Vec<Recorded> {
             3, 1, 1, 0,
         ))),
         Recorded::Applied(asbuilt_protocol::LayerApplied::nominal(3, 0)),
+        // A line profiler's pass 1: two mount poses 4 ms apart, a chunk of two profiles
+        // between them.
+        Recorded::MountPose(asbuilt_protocol::MountPose::new(3, 1, 0, 1_000_000_000)),
+        Recorded::Profiles(
+            Box::new({
+                let mut h = asbuilt_protocol::ProfileHeader::new(3, 1, 0);
+                h.push(1_001_000_000, 3);
+                h.push(1_002_000_000, 3);
+                h
+            }),
+            vec![asbuilt_protocol::ProfilePoint { x: 0.01, z: 0.1 }; 6],
+        ),
+        Recorded::MountPose({
+            let mut m = asbuilt_protocol::MountPose::new(3, 1, 1, 1_004_000_000);
+            m.translation = [0.001, 0.0, 0.0];
+            m
+        }),
         Recorded::Surface(Box::new({
             let mut s = asbuilt_protocol::SurfaceFindings::new(3, 1);
             s.flatness_standard = asbuilt_protocol::FixedText::truncated("din18202:6");

@@ -235,6 +235,8 @@ fn wire(_: &str, bytes: &[u8], _: &Path) -> Outcome {
                     Recorded::Event(e) => lifecycle.on_event(&e, now, &mut out),
                     Recorded::Pose(p) => lifecycle.on_pose(&p, now, &mut out),
                     Recorded::Chunk(h, p) => lifecycle.on_chunk((h, p), now, &mut out),
+                    Recorded::MountPose(m) => lifecycle.on_mount_pose(&m, now, &mut out),
+                    Recorded::Profiles(h, p) => lifecycle.on_profiles(&h, &p, now, &mut out),
                     _ => {}
                 }
             }

@@ -491,7 +491,7 @@ pub fn run(
                     settle(job, a, ports, wait, &settings, &mut out, on)?;
                 }
                 let advice = match previous {
-                    Some(p) => wait_for_advice(job, p, ports, &mut out, on)?,
+                    Some(p) => wait_for_advice(job, p.index, ports, &mut out, on)?,
                     None => None,
                 };
                 let from = settings.len() as u32;
@@ -541,18 +541,32 @@ pub fn run(
     while let Some(a) = in_flight.pop_front() {
         settle(job, a, ports, wait, &settings, &mut out, on)?;
     }
+    out.settings = settings;
+    finish(job, ports, (expect_findings, wait), started, out, on)
+}
+
+/// Waits up to `wait` for what is still to come of the job's stations (every report; the
+/// findings when expected; closed loop, the advice after each, the last too).
+pub(crate) fn finish(
+    job: &SimJob,
+    ports: &CellPorts,
+    (expect_findings, wait): (bool, Duration),
+    started: Instant,
+    mut out: SimOutcome,
+    on: &mut dyn FnMut(SimEvent<'_>),
+) -> Result<SimOutcome> {
+    let n = job.plan().len();
     let deadline = Instant::now() + wait;
-    // Closed loop, the advice follows each station's findings: the last is awaited too.
     let done = |o: &SimOutcome| {
-        (!expect_findings || o.findings.len() >= plan.len())
-            && (!job.closed_loop || o.corrections.len() >= plan.len())
+        o.reports.len() >= n
+            && (!expect_findings || o.findings.len() >= n)
+            && (!job.closed_loop || o.corrections.len() >= n)
     };
     while !done(&out) && Instant::now() < deadline {
         ports.wait_for_output(Duration::from_millis(100))?;
         collect(job.job, ports, &mut out, on)?;
     }
     out.seconds = started.elapsed().as_secs_f64();
-    out.settings = settings;
     Ok(out)
 }
 
@@ -587,9 +601,9 @@ const ADVICE_WAIT: Duration = Duration::from_secs(5);
 /// The advice after `station` (the last of its scan layer); when none comes within
 /// [`ADVICE_WAIT`] (the agent's `[corrections]` are off, or it was lost), the latest advice
 /// the agent gave, if any.
-fn wait_for_advice(
+pub(crate) fn wait_for_advice(
     job: &SimJob,
-    station: &PlannedStation,
+    station: u32,
     ports: &CellPorts,
     out: &mut SimOutcome,
     on: &mut dyn FnMut(SimEvent<'_>),
@@ -597,7 +611,7 @@ fn wait_for_advice(
     let deadline = Instant::now() + ADVICE_WAIT;
     loop {
         collect(job.job, ports, out, on)?;
-        if let Some(c) = out.corrections.iter().find(|c| c.station == station.index) {
+        if let Some(c) = out.corrections.iter().find(|c| c.station == station) {
             return Ok(Some(*c));
         }
         if Instant::now() >= deadline {

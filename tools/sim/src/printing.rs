@@ -15,15 +15,12 @@ use asbuilt_protocol::{
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 
-use crate::cell::{Result, collect, tell_applied};
+use crate::cell::{Result, collect, finish, tell_applied, wait_for_advice};
 use crate::profiler::{Profile, ProfilePass, ProfilerModel};
 use crate::{LayerSettings, PlannedStation, SimEvent, SimJob, SimOutcome};
 
 /// The robot moves from one layer's end to the next layer's start in this long.
 const NEXT_LAYER_NS: i64 = 500_000_000;
-
-/// How long the printer waits for the advice after a pass before it prints on as it was.
-const ADVICE_WAIT: Duration = Duration::from_secs(10);
 
 /// What the profiler sends of one pass.
 #[derive(Debug, Clone, Copy, Default)]
@@ -84,41 +81,8 @@ pub fn run_printing(
         robot_ns = pass.end_ns() + NEXT_LAYER_NS;
         collect(job.job, ports, &mut out, on)?;
     }
-    let deadline = Instant::now() + wait;
-    let done = |o: &SimOutcome| {
-        o.reports.len() >= layers as usize
-            && (!expect_findings || o.findings.len() >= layers as usize)
-            && (!job.closed_loop || o.corrections.len() >= layers as usize)
-    };
-    while !done(&out) && Instant::now() < deadline {
-        ports.wait_for_output(Duration::from_millis(100))?;
-        collect(job.job, ports, &mut out, on)?;
-    }
-    out.seconds = started.elapsed().as_secs_f64();
     out.settings = settings;
-    Ok(out)
-}
-
-/// The advice after pass `layer`, or the latest before it when none comes in time.
-fn wait_for_advice(
-    job: &SimJob,
-    layer: u32,
-    ports: &CellPorts,
-    out: &mut SimOutcome,
-    on: &mut dyn FnMut(SimEvent<'_>),
-) -> Result<Option<asbuilt_protocol::LayerCorrection>> {
-    let deadline = Instant::now() + ADVICE_WAIT;
-    loop {
-        collect(job.job, ports, out, on)?;
-        if let Some(c) = out.corrections.iter().find(|c| c.station == layer) {
-            return Ok(Some(*c));
-        }
-        if Instant::now() >= deadline {
-            let latest = out.corrections.iter().max_by_key(|c| (c.layer, c.station));
-            return Ok(latest.copied());
-        }
-        ports.wait_for_output(Duration::from_millis(20))?;
-    }
+    finish(job, ports, (expect_findings, wait), started, out, on)
 }
 
 /// One pass on the wire: Begin, poses and profile chunks in time order, End.

@@ -600,6 +600,8 @@ struct HeldControl {
     event: Option<StationEvent>,
     pose: Option<PoseSnapshot>,
     chunk: Option<ChunkSample>,
+    /// A profile chunk whose pass has not begun or waits for its printed design.
+    profiles: Option<asbuilt_protocol::ipc::ProfileSample>,
 }
 
 /// How a pass over the input queues ended.
@@ -691,19 +693,28 @@ impl HeldControl {
         let ports = out.ports;
         loop {
             self.drain_mount_poses(lifecycle, out);
-            let sample = match ports.profiles.receive() {
-                Ok(Some(s)) => s,
-                Ok(None) => return Drained::Empty,
-                Err(e) => {
-                    warn!("profile chunks: {e:?}");
-                    return Drained::Empty;
-                }
+            let sample = match self.profiles.take() {
+                Some(s) => s,
+                None => match ports.profiles.receive() {
+                    Ok(Some(s)) => s,
+                    Ok(None) => return Drained::Empty,
+                    Err(e) => {
+                        warn!("profile chunks: {e:?}");
+                        return Drained::Empty;
+                    }
+                },
             };
-            // A pass's Begin, sent before its profiles on another service.
-            if !self.waits_for_a_slot() {
-                self.drain_events(lifecycle, out);
-            }
             let (h, points) = (sample.user_header(), sample.payload());
+            // A pass's Begin, sent before its profiles on another service.
+            if !lifecycle.pass_is_ready(h.job, h.pass) {
+                self.drain_control(lifecycle, out);
+            }
+            // A pass waiting for its printed design: the queue is left unread, so the cell is
+            // held back instead of the pass's points piling up.
+            if lifecycle.pass_awaits_design(h.job, h.pass) {
+                self.profiles = Some(sample);
+                return Drained::Empty;
+            }
             out.took_profiles(h, points);
             let now = Instant::now();
             lifecycle.on_profiles(h, points, now, out);

@@ -296,8 +296,8 @@ impl<C: ChunkSource> Lifecycle<C> {
 
     pub(super) fn close_if_complete(&mut self, i: usize, out: &mut impl Outputs) {
         let s = &self.open[i];
-        // A pass's last profiles may still wait for the pose after them.
-        let waits = s.profiled && self.profiles_wait_for(s.key);
+        // A pass's last profiles may still wait for the pose after them, or for its design.
+        let waits = s.profiled && (self.profiles_wait_for(s.key) || !self.ready(i));
         if s.finished_sending() && s.tracker.is_complete(s.expected_chunks()) && !waits {
             self.close(i, None, out);
         }

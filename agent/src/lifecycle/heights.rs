@@ -45,10 +45,18 @@ impl<C: ChunkSource> Lifecycle<C> {
             .is_some_and(|i| self.open[i].awaiting.is_some())
     }
 
+    /// Whether a line profiler's pass can be compared now: it began and its printed design
+    /// is ready (a pass not open yet can: its first chunk opens it).
+    pub fn pass_is_ready(&self, job: u64, pass: u32) -> bool {
+        self.find(&(job, pass)).is_none_or(|i| self.ready(i))
+    }
+
     /// A station's chunks can be compared: it has its pose and its printed design.
     pub(super) fn ready(&self, i: usize) -> bool {
         let s = &self.open[i];
-        (s.pose.is_some() || s.profiled) && s.awaiting.is_none()
+        // A pass is placed profile by profile; its Begin says its printed height.
+        let placed = s.pose.is_some() || (s.profiled && s.begin.is_some());
+        placed && s.awaiting.is_none()
     }
 
     /// Whether a printed height is being prepared: the event loop then wakes often enough to

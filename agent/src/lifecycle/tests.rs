@@ -706,12 +706,19 @@ mod profiler {
     /// Sends `chunks` chunks, each after the poses up to its last profile (but those in
     /// `hole`), then the poses after the last profile, then the End.
     fn pass(chunks: u64, hole: std::ops::Range<u64>) -> (Lifecycle<Owned>, Collect) {
+        pass_at(f64::NAN, chunks, hole)
+    }
+
+    /// [`pass`] of a print `printed_height` high.
+    fn pass_at(
+        printed_height: f64,
+        chunks: u64,
+        hole: std::ops::Range<u64>,
+    ) -> (Lifecycle<Owned>, Collect) {
         let (mut lc, mut out, t) = setup();
-        lc.on_event(
-            &event(StationEventKind::Begin, 5, chunks as u32),
-            t,
-            &mut out,
-        );
+        let mut begin = event(StationEventKind::Begin, 5, chunks as u32);
+        begin.printed_height = printed_height;
+        lc.on_event(&begin, t, &mut out);
         let mut k = 0;
         let mut poses_to = |lc: &mut Lifecycle<Owned>, out: &mut Collect, robot_ns: u64| {
             while T0 + k * POSE_NS <= robot_ns {
@@ -803,5 +810,22 @@ mod profiler {
         let r = out.reports[0];
         assert_eq!(r.status(), Some(StationStatus::Complete));
         assert_eq!((r.stats.count, r.rejected.total()), (88, 0));
+    }
+
+    #[test]
+    fn a_pass_whose_printed_design_is_not_ready_is_held_not_rejected() {
+        // The cube printed to 0.3 m: the pass ends before that design is ready; it waits for
+        // it, and none of its points is rejected meanwhile.
+        let (mut lc, mut out) = pass_at(0.3, 10, 0..0);
+        lc.wait_designs(Instant::now(), &mut out);
+        assert_eq!(
+            out.reports.len(),
+            1,
+            "the pass closes once its design is ready"
+        );
+        let r = out.reports[0];
+        assert_eq!(r.status(), Some(StationStatus::Complete));
+        assert_eq!((r.points_received, r.rejected.total()), (10 * 8 * 11, 0));
+        assert!((r.printed_height - 0.3).abs() < 1e-12);
     }
 }

@@ -254,6 +254,8 @@ pub struct Resumed {
     pub state_bytes: Option<usize>,
     /// The Begins of station attempts never reported: open when the agent before stopped.
     pub open: Vec<asbuilt_protocol::StationEvent>,
+    /// A line profiler's passes open when the agent before stopped, taken up again.
+    pub passes_taken_up: Vec<StationKey>,
     /// Files of the folder whose writer died, to recover while serving.
     pub unfinished: Vec<PathBuf>,
     /// The current scan layer's last station, whose findings never made it to disk: they are
@@ -368,6 +370,32 @@ where
             })
         })
         .collect();
+    // A line profiler's pass cannot be sent again (its layer is printed over): what was
+    // recorded of it is fed through the lifecycle again, and it goes on with what comes.
+    // A job printed with a profiler says so by its mount poses; the open pass's own may not
+    // have reached the disk.
+    let profiled = !seen.passes.is_empty();
+    let (passes, others): (Vec<_>, Vec<_>) = std::mem::take(&mut resumed.open)
+        .into_iter()
+        .partition(|_| profiled);
+    resumed.open = others;
+    for b in passes {
+        let key = (b.job, b.station);
+        let before = resumed.points_replayed;
+        replay_layer(&files, lifecycle, &|k| k == key, &mut resumed);
+        if !lifecycle.take_up_pass(key.0, key.1) {
+            resumed.open.push(b);
+            continue;
+        }
+        info!(
+            "resume: job {} pass {}: taken up from its {} recorded points; it goes on with \
+             what the cell sends",
+            key.0,
+            key.1,
+            resumed.points_replayed - before
+        );
+        resumed.passes_taken_up.push(key);
+    }
     Some(resumed)
 }
 
@@ -397,6 +425,8 @@ struct Survey {
     advice: asbuilt_core::corrections::Corrector,
     /// What the printer said it applied, in the order recorded.
     applied: Vec<asbuilt_protocol::LayerApplied>,
+    /// A line profiler's passes, as the job's mount poses name them.
+    passes: std::collections::BTreeSet<StationKey>,
     /// The scan layer states recorded for the latest scan layer that has one, by station
     /// attempt (a scan layer's stations are recorded one after the other, so this holds one
     /// scan layer's at most).
@@ -416,6 +446,7 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
         reported: BTreeMap::new(),
         advice: asbuilt_core::corrections::Corrector::new(Default::default()),
         applied: Vec::new(),
+        passes: Default::default(),
         states: Vec::new(),
     };
     for f in files {
@@ -434,6 +465,7 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
             Channel::Findings,
             Channel::Corrections,
             Channel::Applied,
+            Channel::MountPoses,
         ];
         let messages = recording::messages_on(&map, &wanted);
         for m in messages.into_iter().flatten() {
@@ -457,6 +489,9 @@ fn survey(files: &[&JobFile], job: u64, resumed: &mut Resumed) -> Survey {
                     }
                 }
                 Recorded::Applied(a) if a.job == job => seen.applied.push(a),
+                Recorded::MountPose(m) if m.job == job => {
+                    seen.passes.insert((m.job, m.pass));
+                }
                 Recorded::Correction(c) if c.job == job => {
                     seen.with_advice
                         .insert((c.job, c.station, c.attempt.max(1)));
@@ -570,7 +605,7 @@ fn replay_layer<C>(
     }
     lifecycle.wait_designs(Instant::now(), &mut out);
     resumed.stations_replayed = stations.len();
-    resumed.unrecorded = out
+    let unrecorded: Vec<StationReport> = out
         .reports
         .into_iter()
         .filter(|r| {
@@ -580,6 +615,7 @@ fn replay_layer<C>(
                 .any(|x| (x.job, x.station, x.attempt) == (r.job, r.station, r.attempt))
         })
         .collect();
+    resumed.unrecorded.extend(unrecorded);
 }
 
 /// Calls `take` with every message of a file in the order the agent took them; a file that

@@ -86,6 +86,7 @@ while kill -0 "$demo" 2> /dev/null; do
 done
 wait "$demo" || { tail -20 "$OUT/memory.log" >&2; exit 1; }
 # The first sample at or after each tenth of the passes, and the peak.
-awk '{ d = int($1 / 6) * 6; if ($1 > 0 && !(d in at)) at[d] = $2; if ($2 > peak) peak = $2 }
-    END { for (p in at) printf "  %2d passes in: %.0f MB resident\n", p, at[p] / 1024;
-          printf "  peak: %.0f MB\n", peak / 1024 }' "$OUT/rss.txt" | sort -k1 -n
+awk '{ d = int($1 / 6) * 6; if (!(d in at)) at[d] = $2 }
+    END { for (p in at) printf "  %2d passes in: %.0f MB resident\n", p, at[p] / 1024 }' \
+    "$OUT/rss.txt" | sort -n -k1
+awk '$2 > peak { peak = $2 } END { printf "  peak: %.0f MB\n", peak / 1024 }' "$OUT/rss.txt"

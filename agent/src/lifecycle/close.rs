@@ -80,12 +80,19 @@ impl<C: ChunkSource> Lifecycle<C> {
     }
 
     /// Closes every open station as interrupted (an agent resuming from its recording: the
-    /// stations it replayed that never ended were open when the agent before it stopped).
+    /// stations it replayed that never ended were open when the agent before it stopped), but
+    /// a line profiler's passes, which go on with what the cell sends.
     pub fn interrupt_open(&mut self, out: &mut impl Outputs) -> Vec<StationKey> {
         let mut keys = Vec::new();
-        while let Some(s) = self.open.first() {
-            keys.push(s.key);
-            self.close(0, Some(StationStatus::Interrupted), out);
+        let mut i = 0;
+        while i < self.open.len() {
+            // A line profiler's pass goes on: its layer cannot be scanned again.
+            if self.open[i].profiled {
+                i += 1;
+                continue;
+            }
+            keys.push(self.open[i].key);
+            self.close(i, Some(StationStatus::Interrupted), out);
         }
         keys
     }

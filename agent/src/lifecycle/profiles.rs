@@ -95,6 +95,19 @@ impl<C: ChunkSource> Lifecycle<C> {
         *self.profiler.counts()
     }
 
+    /// Takes an open station as a line profiler's pass (an agent resuming a pass whose
+    /// profiles did not reach the disk before it stopped): it goes on with what comes, and is
+    /// not reported interrupted. False when it is not open.
+    pub fn take_up_pass(&mut self, job: u64, pass: u32) -> bool {
+        match self.find(&(job, pass)) {
+            Some(i) => {
+                self.open[i].profiled = true;
+                true
+            }
+            None => false,
+        }
+    }
+
     /// A pass's position σ: the robot's pose accuracy, from `[profiler]`.
     pub(super) fn profiler_sigma(&self) -> f64 {
         self.profiler.config.position_sigma

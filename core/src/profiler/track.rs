@@ -172,7 +172,8 @@ impl PoseTrack {
         self.poses.back().map(|p| p.time_ns)
     }
 
-    /// Takes the robot's next pose; the oldest goes when the track is full.
+    /// Takes the robot's next pose (the newest again changes nothing); the oldest goes when the
+    /// track is full.
     pub fn push(&mut self, pose: MountPose) -> Result<(), PoseRefused> {
         let t = pose.time_ns;
         let q = pose.pose.rotation.coords;
@@ -185,6 +186,11 @@ impl PoseTrack {
         if let Some(last) = self.poses.back()
             && t <= last.time_ns
         {
+            // The newest pose again (a service's history, delivered to a subscriber that
+            // joined late): nothing new.
+            if *last == pose {
+                return Ok(());
+            }
             return Err(PoseRefused::NotAfter {
                 time_ns: t,
                 last_ns: last.time_ns,

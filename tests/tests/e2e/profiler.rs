@@ -119,3 +119,75 @@ fn every_layer_is_judged_as_it_is_laid_and_a_shift_is_read_from_where_it_began()
         assert_eq!(s["matched"].as_u64(), Some(r.stats.count), "{s}");
     }
 }
+
+/// The agent is killed in the middle of a pass and started again: a layer laid cannot be
+/// scanned again, so the new agent takes the pass up from its recording and goes on with
+/// what the cell sends; no pass is reported interrupted, every layer gets its findings. The
+/// profiles sent while no agent ran are lost and counted (the pass ends incomplete, those
+/// taken while no pose came refused for the gap).
+#[test]
+fn a_pass_cut_by_a_restart_is_taken_up_and_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = JobSpec {
+        part: PartSpec::Column,
+        profiler: Some(ProfilerSpec::default()),
+        ..JobSpec::default()
+    }
+    .build()
+    .unwrap();
+    let stl = dir.path().join("design.stl");
+    asbuilt_sim::write_stl(&stl, &job.part.design).unwrap();
+    let config = format!(
+        "[design]\npath = {:?}\nunits = \"m\"\n[inspect]\ntolerance = 0.005\n\
+         max_distance = 0.03\n[limits]\nmax_points_per_chunk = 65536\n[findings]\n\
+         enabled = true\nlayer_height = 0.02\n[recorder]\ndir = \"recording\"\n\
+         min_free_mb = 16\n",
+        stl.display().to_string()
+    );
+    let prefix = unique_prefix("profiler-restart");
+    let mut agent = Agent::start_in(AGENT, &prefix, &config, dir);
+    // In real time (a pass of the column's first layers takes 4 s), so the kill lands in a
+    // pass: 64 points a profile, four layers.
+    let sim = std::process::Command::new(ASBUILT)
+        .args([
+            "sim", "--prefix", &prefix, "--sensor", "profiler", "--part", "column",
+        ])
+        .args([
+            "--layers",
+            "4",
+            "--profile-points",
+            "64",
+            "--rate",
+            "1",
+            "--findings",
+        ])
+        .args(["--wait", "60"])
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while !agent.log().contains("job 1 pass 0: profiles since start") {
+        assert!(std::time::Instant::now() < deadline, "{}", agent.log());
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    // Pass 1 has begun; halfway through it, the power goes.
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    agent.kill_and_restart(std::time::Duration::from_millis(300));
+    let out = sim.wait_with_output().unwrap();
+    let said = String::from_utf8_lossy(&out.stderr);
+    let logs = agent.logs();
+    assert!(logs.contains("pass 1: taken up from its"), "{logs}");
+    for layer in 1..=4 {
+        let line = said
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("L{layer:03}-pass")))
+            .unwrap_or_else(|| panic!("no report of layer {layer}:\n{said}\n{logs}"));
+        assert!(!line.contains("Interrupted"), "{line}\n{logs}");
+        if layer != 2 {
+            assert!(line.contains("Complete"), "{line}");
+        }
+    }
+    assert!(said.contains("4 report(s), 4 findings"), "{said}");
+}

@@ -428,13 +428,19 @@ impl SimOutcome {
             .filter(|r| r.status() != Some(StationStatus::Complete))
             .map(|r| format!("{} ({:?})", r.name.as_str(), r.status()))
             .collect();
-        (!unfinished.is_empty()).then(|| {
-            format!(
+        (!unfinished.is_empty()).then(|| match job.profiler {
+            // A layer laid is printed over: its pass is never sent again.
+            Some(_) => format!(
+                "{} pass(es) did not end complete: {}",
+                unfinished.len(),
+                unfinished.join(", ")
+            ),
+            None => format!(
                 "{} station(s) never ended complete in {} attempt(s): {}",
                 unfinished.len(),
                 job.max_attempts,
                 unfinished.join(", ")
-            )
+            ),
         })
     }
 

@@ -370,19 +370,29 @@ where
             })
         })
         .collect();
-    // A line profiler's pass cannot be sent again (its layer is printed over): what was
-    // recorded of it is fed through the lifecycle again, and it goes on with what comes.
-    // A job printed with a profiler says so by its mount poses; the open pass's own may not
-    // have reached the disk.
-    let profiled = !seen.passes.is_empty();
-    let (passes, others): (Vec<_>, Vec<_>) = std::mem::take(&mut resumed.open)
-        .into_iter()
-        .partition(|_| profiled);
-    resumed.open = others;
-    for b in passes {
+    take_up_passes(&files, lifecycle, !seen.passes.is_empty(), &mut resumed);
+    Some(resumed)
+}
+
+/// A line profiler's pass cannot be sent again (its layer is printed over): each pass open
+/// when the agent before stopped (`profiled`: the job's mount poses say it is printed with a
+/// profiler; the open pass's own may not have reached the disk) is fed through the lifecycle
+/// again from what was recorded of it, and goes on with what the cell sends.
+fn take_up_passes<C>(
+    files: &[&JobFile],
+    lifecycle: &mut Lifecycle<C>,
+    profiled: bool,
+    resumed: &mut Resumed,
+) where
+    C: ChunkSource + From<(ChunkHeader, Vec<ScanPoint>)>,
+{
+    if !profiled {
+        return;
+    }
+    for b in std::mem::take(&mut resumed.open) {
         let key = (b.job, b.station);
         let before = resumed.points_replayed;
-        replay_layer(&files, lifecycle, &|k| k == key, &mut resumed);
+        replay_layer(files, lifecycle, &|k| k == key, resumed);
         if !lifecycle.take_up_pass(key.0, key.1) {
             resumed.open.push(b);
             continue;
@@ -396,7 +406,6 @@ where
         );
         resumed.passes_taken_up.push(key);
     }
-    Some(resumed)
 }
 
 /// A station's attempt: job, station, attempt (from 1).

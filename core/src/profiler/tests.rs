@@ -166,8 +166,14 @@ fn poses_out_of_order_or_not_rigid_are_refused_and_the_track_keeps_going() {
         track.push(poses[5]),
         Err(PoseRefused::NotAfter { .. })
     ));
+    // The newest pose again (a service's history) is a repeat: nothing changes. Another pose
+    // at its time is out of order.
+    track.push(poses[9]).unwrap();
+    assert_eq!(track.len(), 10);
+    let mut moved = poses[9];
+    moved.pose.translation.vector.x += 1e-3;
     assert!(matches!(
-        track.push(poses[9]),
+        track.push(moved),
         Err(PoseRefused::NotAfter { .. })
     ));
     let mut nan = poses[10];

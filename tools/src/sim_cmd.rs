@@ -204,18 +204,7 @@ pub fn run_with_progress(
     wait: Duration,
 ) -> Result<SimOutcome> {
     let plan = job.plan();
-    eprintln!(
-        "simulating the {} ({} layers of {:.0} mm): {} station(s) after layers {:?}, {} defect(s), \
-         rate {}",
-        job.part.name,
-        job.part.layers(),
-        job.part.layer_height * 1e3,
-        plan.len(),
-        job.scan_after,
-        job.defects.len(),
-        job.rate
-            .map_or("max".to_string(), |r| format!("{:.1} M points/s", r / 1e6))
-    );
+    eprintln!("{}", asbuilt_sim::lines::job_line(job));
     let bar = ProgressBar::new(plan.len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")

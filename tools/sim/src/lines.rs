@@ -184,3 +184,35 @@ pub fn truth_and_findings(job: &SimJob, o: &SimOutcome) -> Vec<String> {
     }
     lines
 }
+
+/// The job in one line, as `sim` and `demo` start with it: the part, what scans it and how
+/// fast it sends.
+pub fn job_line(job: &SimJob) -> String {
+    let plan = job.plan();
+    let rate = job.rate.map_or("max".to_string(), |r| match job.profiler {
+        Some(_) => "real time".to_string(),
+        None => format!("{:.1} M points/s", r / 1e6),
+    });
+    let scans = match &job.profiler {
+        Some(m) => format!(
+            "a line profiler on the nozzle, every layer a pass ({} passes; {} points a profile \
+             at {:.0} Hz, poses at {:.0} Hz)",
+            plan.len(),
+            m.points,
+            m.rate_hz,
+            m.pose_rate_hz
+        ),
+        None => format!(
+            "{} station(s) after layers {:?}",
+            plan.len(),
+            job.scan_after
+        ),
+    };
+    format!(
+        "simulating the {} ({} layers of {:.0} mm): {scans}, {} defect(s), rate {rate}",
+        job.part.name,
+        job.part.layers(),
+        job.part.layer_height * 1e3,
+        job.defects.len(),
+    )
+}

@@ -600,7 +600,7 @@ struct HeldControl {
     event: Option<StationEvent>,
     pose: Option<PoseSnapshot>,
     chunk: Option<ChunkSample>,
-    /// A profile chunk whose pass has not begun or waits for its printed design.
+    /// A profile chunk whose pass waits for its printed design.
     profiles: Option<asbuilt_protocol::ipc::ProfileSample>,
 }
 

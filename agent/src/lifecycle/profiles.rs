@@ -304,14 +304,11 @@ impl<C: ChunkSource> Lifecycle<C> {
             return;
         }
         b.sensors.push(*sensor);
+        // The laser's plane is the sensor's y = 0. A ray without a return (NaN) stays NaN and
+        // is counted by the inspector as not finite.
         b.points.extend(points.iter().map(|p| {
-            // The laser's plane is the sensor's y = 0.
             let d = sensor * Point3::new(p.x as f64, 0.0, p.z as f64);
-            let mut sp = ScanPoint::new(d.x as f32, d.y as f32, d.z as f32);
-            if !(p.x.is_finite() && p.z.is_finite()) {
-                sp.flags.0 |= asbuilt_protocol::ScanPointFlags::INVALID;
-            }
-            sp
+            ScanPoint::new(d.x as f32, d.y as f32, d.z as f32)
         }));
     }
 

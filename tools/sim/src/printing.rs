@@ -27,7 +27,6 @@ const NEXT_LAYER_NS: i64 = 500_000_000;
 struct Sent {
     chunks: u32,
     points: u64,
-    profiles: u64,
 }
 
 /// Sends `job` to the agent behind `ports` as a print scanned by `model` while it is laid:
@@ -144,7 +143,6 @@ fn send_pass(
         ports.send_profiles(&h, &buf)?;
         sent.chunks += 1;
         sent.points += buf.len() as u64;
-        sent.profiles += profiles.len() as u64;
     }
     send_poses_to(i64::MAX, &mut next_pose)?;
     let mut end = StationEvent::new(StationEventKind::End, job.job, station.index);

@@ -4,9 +4,10 @@
 //!
 //! Everything works on the design samples (memory grows with the design only):
 //! - **Width and shift per layer band**: on the side faces, a layer `w` wider and shifted by `t`
-//!   moves the surface along the outward normal `n` by `d = w/2 + n·t`. A least-squares fit of
-//!   `w/2, tₓ, t_y` to the M3C2 distances of the band (refitted once without outliers, so a
-//!   bulge does not bias it) gives both; one side alone cannot tell them apart and gives none.
+//!   moves the surface along the outward normal `n` by `d = w/2 + n·t`. A robust fit of
+//!   `w/2, tₓ, t_y` to the M3C2 distances of the band (started from the fit that explains most
+//!   of the band, so a bulge does not bias it; see `width`) gives both; one side alone cannot
+//!   tell them apart and gives none.
 //! - **Top height**: the mean M3C2 distance on the cap at the printed height.
 //! - **Regions**: samples with a significant |distance| above the tolerance, linked when closer
 //!   than four sample spacings; each region's extent, area and peak.
@@ -25,11 +26,13 @@
 //! face beyond) are left out of fits and regions: there the cylinder averages two faces and
 //! shows a deviation that is not in the print.
 
-use nalgebra::{Matrix3, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 mod judged;
+mod width;
 pub use judged::Judged;
+use width::fit_width;
 
 use crate::cloud::CloudIndex;
 use crate::coverage::{SampleClass, SampleOutcome};
@@ -448,110 +451,6 @@ fn region(
         mean: f64::NAN,
         layers: band_of(min.z).zip(band_of(max.z)),
     }
-}
-
-/// A band's width and shift fitted to its sides' distances.
-#[derive(Debug, Clone, Copy)]
-struct WidthFit {
-    half_width: f64,
-    shift: [f64; 2],
-    /// The variances of `w/2, tₓ, t_y` from the residuals (σ² (XᵀX)⁻¹'s diagonal), as if the
-    /// core points were independent.
-    variance: [f64; 3],
-}
-
-/// Robust refits of a band's width and shift, at most.
-const ROBUST_REFITS: usize = 8;
-
-/// `w/2, tₓ, t_y` by least squares, refitted without residuals beyond 3 robust σ until the
-/// samples kept settle.
-fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<WidthFit> {
-    let solve = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64, f64)> {
-        let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
-        let mut n = 0usize;
-        for &i in idx.iter().filter(|&&i| keep(i)) {
-            let h = m3c2[i].normal.xy();
-            let h = h / h.norm().max(f64::MIN_POSITIVE);
-            let x = Vector3::new(1.0, h.x, h.y);
-            a += x * x.transpose();
-            b += x * m3c2[i].distance.unwrap_or(0.0);
-            n += 1;
-        }
-        if n < 6 {
-            return None;
-        }
-        // A shift along a direction no side faces (along a straight wall) cannot be seen: a
-        // small ridge on the shift keeps it at zero. The width is known only when the faces
-        // seen separate it from the shift: its Schur complement stays well off zero when the
-        // normals point in opposite directions.
-        let ridge = 1e-6 * n as f64;
-        a[(1, 1)] += ridge;
-        a[(2, 2)] += ridge;
-        let att = a.fixed_view::<2, 2>(1, 1).into_owned();
-        let atw = a.fixed_view::<2, 1>(1, 0).into_owned();
-        let schur = a[(0, 0)] - (atw.transpose() * att.try_inverse()? * atw)[(0, 0)];
-        if schur / n as f64 > 0.05 {
-            a.lu().solve(&b).map(|s| (s.x, s.y, s.z))
-        } else {
-            None
-        }
-    };
-    let res = |i: usize, f: (f64, f64, f64)| {
-        let h = m3c2[i].normal.xy();
-        let h = h / h.norm().max(f64::MIN_POSITIVE);
-        m3c2[i].distance.unwrap_or(0.0) - (f.0 + h.x * f.1 + h.y * f.2)
-    };
-    // Refitted without residuals beyond 3 robust σ of the fit before, until the samples kept
-    // stay the same: a local defect (a bulge over a sixth of the band's sides) pulls the first
-    // fit by millimetres, and one cut leaves part of that pull in the shift.
-    let mut fit = solve(&|_| true)?;
-    let mut cut = f64::INFINITY;
-    let mut kept = idx.len();
-    for _ in 0..ROBUST_REFITS {
-        let mut abs: Vec<f64> = idx.iter().map(|&i| res(i, fit).abs()).collect();
-        abs.sort_by(f64::total_cmp);
-        let next_cut = (3.0 * 1.4826 * abs[abs.len() / 2]).max(1e-4);
-        let next_kept = abs.partition_point(|&r| r <= next_cut);
-        let Some(next) = solve(&|i| res(i, fit).abs() <= next_cut) else {
-            break;
-        };
-        let settled = next_kept == kept && next_cut == cut;
-        (fit, cut, kept) = (next, next_cut, next_kept);
-        if settled {
-            break;
-        }
-    }
-    let (half_width, tx, ty) = fit;
-    let keep = |i: usize| res(i, fit).abs() <= cut;
-    // The fit's covariance from the kept residuals about the final fit.
-    let (mut a, mut ss, mut n) = (Matrix3::<f64>::zeros(), 0.0, 0usize);
-    for &i in idx.iter().filter(|&&i| keep(i)) {
-        let h = m3c2[i].normal.xy();
-        let h = h / h.norm().max(f64::MIN_POSITIVE);
-        let x = Vector3::new(1.0, h.x, h.y);
-        a += x * x.transpose();
-        let r = m3c2[i].distance.unwrap_or(0.0) - (half_width + h.x * tx + h.y * ty);
-        ss += r * r;
-        n += 1;
-    }
-    // A shift no side faces is held at zero by the ridge, not measured: it varies by nothing.
-    let seen = [
-        true,
-        a[(1, 1)] > 0.05 * n as f64,
-        a[(2, 2)] > 0.05 * n as f64,
-    ];
-    let ridge = 1e-6 * n as f64;
-    a[(1, 1)] += ridge;
-    a[(2, 2)] += ridge;
-    let s2 = ss / n.saturating_sub(3).max(1) as f64;
-    let inv = a
-        .try_inverse()
-        .unwrap_or_else(|| Matrix3::from_diagonal_element(f64::NAN));
-    Some(WidthFit {
-        half_width,
-        shift: [tx, ty],
-        variance: [0, 1, 2].map(|c| if seen[c] { s2 * inv[(c, c)] } else { 0.0 }),
-    })
 }
 
 /// Samples whose cylinder sees only their own face: farther than `radius` (and a millimetre)

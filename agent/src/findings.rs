@@ -75,7 +75,16 @@ pub(crate) struct EpochMaker {
 }
 
 impl EpochMaker {
-    pub(crate) fn make(&self, job: u64, design: &Arc<PrintedDesign>) -> Option<Epoch> {
+    ///
+    /// With a `floor` (a line profiler's pass) only the samples from that height up are kept:
+    /// nothing lower is in the profiler's range, and the state stays the same size however tall
+    /// the print grows.
+    pub(crate) fn make(
+        &self,
+        job: u64,
+        design: &Arc<PrintedDesign>,
+        floor: Option<f64>,
+    ) -> Option<Epoch> {
         let started = std::time::Instant::now();
         let params = self
             .config
@@ -83,17 +92,21 @@ impl EpochMaker {
         let made =
             DesignSamples::generate(design.design(), self.config.spacing, defaults::SAMPLE_SEED)
                 .map_err(|e| e.to_string())
-                .and_then(|samples| {
+                .and_then(|mut samples| {
+                    if let Some(z) = floor {
+                        samples.retain_from(z);
+                    }
                     ScanLayer::new(&samples, design.sharp_edges().to_vec(), params)
                         .map_err(|e| e.to_string())
                 });
         match made {
             Ok(layer) => {
                 info!(
-                    "findings: scan layer at {} of job {job}: {} design samples, {:.1} MB, ready \
-                     in {:.2} s",
+                    "findings: scan layer at {} of job {job}: {} design samples{}, {:.1} MB, \
+                     ready in {:.2} s",
                     height_text(design.height),
                     layer.samples(),
+                    floor.map_or(String::new(), |z| format!(" from {z:.3} m up")),
                     layer.bytes() as f64 / 1e6,
                     started.elapsed().as_secs_f64()
                 );
@@ -164,11 +177,17 @@ impl FindingsStage {
     }
 
     /// A station starts sending points compared with `design`. False when it is left out.
-    pub fn begin(&mut self, key: StationKey, design: &Arc<PrintedDesign>) -> bool {
+    /// `floor`: a pass's, as [`EpochMaker::make`] takes it.
+    pub fn begin(
+        &mut self,
+        key: StationKey,
+        design: &Arc<PrintedDesign>,
+        floor: Option<f64>,
+    ) -> bool {
         let i = match self.epochs.iter().position(|e| e.is(key.0, design)) {
             Some(i) => i,
             // Made here only when the printed height was not prepared off the loop.
-            None => match self.maker.make(key.0, design) {
+            None => match self.maker.make(key.0, design, floor) {
                 Some(e) => self.keep(e),
                 None => return false,
             },
@@ -238,15 +257,17 @@ impl FindingsStage {
     /// Takes up a scan layer of `job` over `design` from a state its agent recorded; false
     /// when the state does not fit (another design or other settings). `last` is the station
     /// whose close that state followed and the state recorded before it (`None`: it was the
-    /// scan layer's first), so that the station sent again replaces what it added.
+    /// scan layer's first), so that the station sent again replaces what it added. `floor`: a
+    /// pass's, as [`EpochMaker::make`] takes it.
     pub fn restore(
         &mut self,
         job: u64,
         design: &Arc<PrintedDesign>,
         state: &ScanLayerState,
         last: Option<(u32, Option<&ScanLayerState>)>,
+        floor: Option<f64>,
     ) -> bool {
-        let Some(mut epoch) = self.maker.make(job, design) else {
+        let Some(mut epoch) = self.maker.make(job, design, floor) else {
             return false;
         };
         let before_last = match last {

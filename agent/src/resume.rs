@@ -324,7 +324,8 @@ where
                 .rev()
                 .find(|r| r.printed_height.to_bits() == height && r.station != done.0)
         });
-        let restored = at.map(|at| restore(lifecycle, &seen.states[at], before));
+        let profiled = !seen.passes.is_empty();
+        let restored = at.map(|at| restore(lifecycle, &seen.states[at], before, profiled));
         match restored {
             Some(Ok(bytes)) => resumed.state_bytes = Some(bytes),
             Some(Err(e)) => {
@@ -561,6 +562,7 @@ fn restore<C: ChunkSource>(
     lifecycle: &mut Lifecycle<C>,
     r: &ScanLayerStateRecord,
     before: Option<&ScanLayerStateRecord>,
+    profiled: bool,
 ) -> Result<usize, StateError> {
     let decode = |r: &ScanLayerStateRecord| postcard::from_bytes::<ScanLayerState>(&r.state);
     let state = decode(r)?;
@@ -570,6 +572,7 @@ fn restore<C: ChunkSource>(
         r.printed_height,
         &state,
         Some((r.station, before_state.as_ref())),
+        profiled,
     )?;
     Ok(r.state.len() + before.map_or(0, |b| b.state.len()))
 }

@@ -113,6 +113,23 @@ impl DesignSamples {
         })
     }
 
+    /// Keeps only the samples at or above `z_min` (design frame), in order: a line profiler's
+    /// pass judges only what its range reaches. Each keeps the area it stands for.
+    pub fn retain_from(&mut self, z_min: f64) {
+        let mut kept = 0;
+        for i in 0..self.points.len() {
+            if self.points[i].z >= z_min {
+                self.points[kept] = self.points[i];
+                self.normals[kept] = self.normals[i];
+                self.triangles[kept] = self.triangles[i];
+                kept += 1;
+            }
+        }
+        self.points.truncate(kept);
+        self.normals.truncate(kept);
+        self.triangles.truncate(kept);
+    }
+
     /// Samples.
     pub fn len(&self) -> usize {
         self.points.len()

@@ -250,7 +250,7 @@ impl<C: ChunkSource> Lifecycle<C> {
         let s = &mut self.open[i];
         match (s.findings, self.findings.as_mut()) {
             (Some(taken), _) => taken,
-            (None, Some(st)) => *s.findings.insert(st.begin(s.key, &s.design)),
+            (None, Some(st)) => *s.findings.insert(st.begin(s.key, &s.design, s.floor)),
             (None, None) => false,
         }
     }

@@ -159,6 +159,8 @@ impl<C: ChunkSource> Lifecycle<C> {
         if !height.is_finite() || self.open[i].inspector.tally().points_received > 0 {
             return;
         }
+        let floor = self.pass_floor(self.open[i].key.0, height, self.open[i].profiled);
+        self.open[i].floor = floor;
         if let Some(d) = self.designs.cached(height) {
             let s = &mut self.open[i];
             s.inspector.set_index(d.clone());
@@ -184,7 +186,7 @@ impl<C: ChunkSource> Lifecycle<C> {
                 let prepared = preparer.prepare(height, maker.is_some()).map(|design| {
                     let section = started.elapsed();
                     let design = Arc::new(design);
-                    let epoch = maker.as_ref().and_then(|m| m.make(job, &design));
+                    let epoch = maker.as_ref().and_then(|m| m.make(job, &design, floor));
                     let mesh = maker.is_some().then(|| started.elapsed() - section);
                     Prepared {
                         design,

@@ -53,6 +53,8 @@ pub(super) struct Profiler {
     left: Left,
     /// Point buffers of profiles that left the wait, for the next ones.
     spare: Vec<Vec<ProfilePoint>>,
+    /// The job of the newest mount pose taken: its stations are passes.
+    track_job: Option<u64>,
 }
 
 impl Profiler {
@@ -62,6 +64,7 @@ impl Profiler {
             config,
             left: Left::default(),
             spare: Vec::new(),
+            track_job: None,
         }
     }
 
@@ -108,6 +111,16 @@ impl<C: ChunkSource> Lifecycle<C> {
         }
     }
 
+    /// The lowest height a pass of `job` at printed height `height` judges, when `job` is
+    /// printed with a profiler (`profiled`, or its newest mount pose says so): the profiler
+    /// rides beside the nozzle, at the printed height or above it, and nothing farther than its
+    /// `max_range` below returns light to it. Findings keep the design samples from there up,
+    /// so their state does not grow with the print.
+    pub(super) fn pass_floor(&self, job: u64, height: f64, profiled: bool) -> Option<f64> {
+        let profiled = profiled || self.profiler.track_job == Some(job);
+        (profiled && height.is_finite()).then_some(height - self.profiler.config.max_range)
+    }
+
     /// A pass's position σ: the robot's pose accuracy, from `[profiler]`.
     pub(super) fn profiler_sigma(&self) -> f64 {
         self.profiler.config.position_sigma
@@ -152,9 +165,12 @@ impl<C: ChunkSource> Lifecycle<C> {
             time_ns: m.time_ns.min(i64::MAX as u64) as i64,
             pose: self.frames.t_design_base * base_mount,
         };
-        if let Err(e) = p.placer.pose(pose, &mut p.left) {
-            self.counters.input.poses_invalid += 1;
-            warn!("job {} mount pose {}: rejected: {e}", m.job, m.sequence);
+        match p.placer.pose(pose, &mut p.left) {
+            Ok(()) => p.track_job = Some(m.job),
+            Err(e) => {
+                self.counters.input.poses_invalid += 1;
+                warn!("job {} mount pose {}: rejected: {e}", m.job, m.sequence);
+            }
         }
         self.take_left(now, out);
         // A pass that ended waiting for this pose closes now.

@@ -15,21 +15,24 @@ impl<C: ChunkSource> Lifecycle<C> {
     /// state the agent before recorded after its last station: the printed design is prepared
     /// here and now, and the layer's next stations go on from that state. `last` is that
     /// station and the state recorded before it first closed (`None`: it was the layer's first),
-    /// so that it can be sent again (see [`FindingsStage`]).
+    /// so that it can be sent again (see [`FindingsStage`]). `profiled`: the job is printed with
+    /// a line profiler, whose passes judge the design within its range only.
     pub fn restore_scan_layer(
         &mut self,
         job: u64,
         printed_height: f64,
         state: &ScanLayerState,
         last: Option<(u32, Option<&ScanLayerState>)>,
+        profiled: bool,
     ) -> Result<(), RestoreError> {
+        let floor = self.pass_floor(job, printed_height, profiled);
         let design = if printed_height.is_finite() {
             self.designs.at(printed_height)?
         } else {
             self.designs.full().clone()
         };
         let stage = self.findings.as_mut().ok_or(RestoreError::FindingsOff)?;
-        if stage.restore(job, &design, state, last) {
+        if stage.restore(job, &design, state, last, floor) {
             Ok(())
         } else {
             Err(RestoreError::DoesNotFit)

@@ -22,6 +22,8 @@ pub(super) struct OpenStation {
     pub(super) design: Arc<PrintedDesign>,
     /// The printed height whose design is being prepared for this station; its chunks wait.
     pub(super) awaiting: Option<f64>,
+    /// A pass's findings judge the design from this height up (the profiler's reach).
+    pub(super) floor: Option<f64>,
     /// Whether the findings stage took this station (decided at its first chunk).
     pub(super) findings: Option<bool>,
     pub(super) tracker: SequenceTracker,
@@ -116,6 +118,7 @@ impl<C: ChunkSource> Lifecycle<C> {
             ),
             design: self.designs.full().clone(),
             awaiting: None,
+            floor: None,
             findings: None,
             tracker: SequenceTracker::new(),
             empty: 0,

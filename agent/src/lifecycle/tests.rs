@@ -541,7 +541,7 @@ fn an_incomplete_attempt_sent_again_counts_once_in_the_findings() {
     let mut out_resumed = WithStates::default();
     let (after, before) = (&out_retried.states[1], &out_retried.states[0]);
     resumed
-        .restore_scan_layer(1, f64::NAN, after, Some((2, Some(before))))
+        .restore_scan_layer(1, f64::NAN, after, Some((2, Some(before))), false)
         .unwrap();
     resumed.remember_reported((1, 2), 1, 0);
     attempt_on_top(&mut resumed, &mut out_resumed, (2, 2), 0.004, 4);
@@ -578,7 +578,8 @@ fn a_scan_layer_taken_up_from_its_state_goes_on_as_if_never_stopped() {
 
     let mut b = with_findings();
     let mut out_b = WithStates::default();
-    b.restore_scan_layer(1, f64::NAN, &decoded, None).unwrap();
+    b.restore_scan_layer(1, f64::NAN, &decoded, None, false)
+        .unwrap();
     station_on_top(&mut a, &mut out_a, 3, 0.002);
     station_on_top(&mut b, &mut out_b, 3, 0.002);
     let bytes = |f: &StationFindings| asbuilt_protocol::codec::encode(f);
@@ -592,7 +593,7 @@ fn a_scan_layer_taken_up_from_its_state_goes_on_as_if_never_stopped() {
     other.samples += 1;
     assert!(
         with_findings()
-            .restore_scan_layer(1, f64::NAN, &other, None)
+            .restore_scan_layer(1, f64::NAN, &other, None, false)
             .is_err()
     );
 }
@@ -810,6 +811,58 @@ mod profiler {
         let r = out.reports[0];
         assert_eq!(r.status(), Some(StationStatus::Complete));
         assert_eq!((r.stats.count, r.rejected.total()), (88, 0));
+    }
+
+    /// A pass of a job printed with a profiler judges the design from `max_range` (0.3 m)
+    /// below its printed height up, the samples there exactly those of the whole cut; a
+    /// station of a job without mount poses judges the whole cut.
+    #[test]
+    fn a_pass_judges_only_what_its_profiler_can_reach() {
+        let height = 0.4;
+        let run = |profiled: bool| {
+            let (lc, _, t) = setup();
+            let config = crate::config::FindingsConfig {
+                enabled: true,
+                ..Default::default()
+            };
+            let mut lc = lc.with_findings(FindingsStage::new(config, 0.005, 0.05, 100));
+            let mut out = WithStates::default();
+            if profiled {
+                // The track of the job's passes before this one.
+                lc.on_mount_pose(&mount_pose(0), t, &mut out);
+            }
+            let mut begin = event(StationEventKind::Begin, 5, 1);
+            begin.printed_height = height;
+            lc.on_event(&begin, t, &mut out);
+            lc.wait_designs(t, &mut out);
+            for k in usize::from(profiled) as u64..3 {
+                lc.on_mount_pose(&mount_pose(k), t, &mut out);
+            }
+            let (h, p) = profiles(0);
+            lc.on_profiles(&h, &p, t, &mut out);
+            lc.on_mount_pose(&mount_pose(3), t, &mut out);
+            lc.on_event(&event(StationEventKind::End, 5, 1), t, &mut out);
+            let r = out.inner.reports[0];
+            assert_eq!((r.points_received, r.rejected.total()), (88, 0));
+            assert_eq!(out.states.len(), 1);
+            out.states[0].samples
+        };
+        let cut = cube().at(height).unwrap();
+        let samples = asbuilt_core::sampling::DesignSamples::generate(
+            cut.design(),
+            crate::config::FindingsConfig::default().spacing,
+            asbuilt_core::scan_layer::defaults::SAMPLE_SEED,
+        )
+        .unwrap();
+        let from = height - ProfilerConfig::default().max_range;
+        let reached = samples.points.iter().filter(|p| p.z >= from).count();
+        assert!(
+            reached < samples.len() / 2,
+            "{reached} of {}",
+            samples.len()
+        );
+        assert_eq!(run(true), reached);
+        assert_eq!(run(false), samples.len());
     }
 
     #[test]

@@ -12,12 +12,14 @@ use nalgebra::Point3;
 use crate::paint::Painter;
 
 /// The current job's findings, each scan layer's latest: what its verdicts are judged from.
-/// As many as the job has scan layers (the design's height over the layers between scans).
+/// As many as the job has scan layers (the design's height over the layers between scans, every
+/// layer with a line profiler), each kept encoded: the message's fixed capacity is 42 kB, its
+/// rows in use a few hundred bytes.
 pub(crate) struct ScanLayers {
     limits: Limits,
     job: Option<u64>,
-    /// By scan layer.
-    layers: Vec<StationFindings>,
+    /// By scan layer: its number and its findings, encoded.
+    layers: Vec<(u32, Vec<u8>)>,
 }
 
 impl ScanLayers {
@@ -36,15 +38,19 @@ impl ScanLayers {
             self.job = Some(f.job);
             self.layers.clear();
         }
-        match self.layers.binary_search_by_key(&f.layer, |l| l.layer) {
-            Ok(i) => self.layers[i] = f.clone(),
-            Err(i) => self.layers.insert(i, f.clone()),
+        let encoded = (f.layer, asbuilt_protocol::codec::encode(f));
+        match self.layers.binary_search_by_key(&f.layer, |l| l.0) {
+            Ok(i) => self.layers[i] = encoded,
+            Err(i) => self.layers.insert(i, encoded),
         }
-        let upto: Vec<&StationFindings> = self
+        // Decoded as this build encoded them; one that would not is left out, not guessed.
+        let decoded: Vec<StationFindings> = self
             .layers
             .iter()
-            .take_while(|l| l.layer <= f.layer)
+            .take_while(|l| l.0 < f.layer)
+            .filter_map(|l| asbuilt_protocol::codec::decode(&l.1).ok())
             .collect();
+        let upto: Vec<&StationFindings> = decoded.iter().chain([f]).collect();
         let (mut verdicts, _) = asbuilt_report::job_verdicts(&upto, &self.limits);
         verdicts
             .pop()

@@ -193,22 +193,31 @@ impl Viewer {
     /// Opens the sinks the settings name; at least one is needed.
     pub fn start(settings: ViewerParams) -> Result<Self, ViewerError> {
         let builder = rerun::RecordingStreamBuilder::new("asbuilt");
+        // Without the footer: rerun keeps a manifest of every chunk in memory to write it when
+        // the file closes (rerun #12623), 8 MB over the column's 60 passes and growing with the
+        // job. The file is valid without it; `rerun rrd optimize` adds it afterwards.
+        let file = |path: &std::path::PathBuf| {
+            let options = rerun::sink::FileSinkOptions {
+                write_footer: false,
+            };
+            rerun::sink::FileSink::with_options(path, options).map_err(|source| ViewerError::File {
+                path: path.clone(),
+                source,
+            })
+        };
         let rec = match (&settings.rrd, &settings.url) {
             (Some(path), Some(url)) => {
-                let sink =
-                    rerun::sink::FileSink::new(path).map_err(|source| ViewerError::File {
-                        path: path.clone(),
-                        source,
-                    })?;
                 let uri = url.parse().map_err(|source| ViewerError::Url {
                     url: url.clone(),
                     source,
                 })?;
                 builder
-                    .set_sinks((sink, rerun::sink::GrpcSink::new(uri)))
+                    .set_sinks((file(path)?, rerun::sink::GrpcSink::new(uri)))
                     .map_err(ViewerError::Stream)?
             }
-            (Some(path), None) => builder.save(path).map_err(ViewerError::Stream)?,
+            (Some(path), None) => builder
+                .set_sinks((file(path)?,))
+                .map_err(ViewerError::Stream)?,
             (None, Some(url)) => builder
                 .connect_grpc_opts(url.clone())
                 .map_err(ViewerError::Stream)?,

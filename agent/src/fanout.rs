@@ -26,7 +26,8 @@ pub(crate) struct Fanout<'p> {
     pub(crate) recorder: Option<Recorder>,
     /// The rerun view, when `[viewer]` is on, and points shown so far per open station.
     pub(crate) viewer: Option<Viewer>,
-    pub(crate) shown: std::collections::BTreeMap<(u64, u32), usize>,
+    /// What the view was given of each open station, and what its size is expected to be.
+    pub(crate) shown: std::collections::BTreeMap<(u64, u32), ViewShare>,
     pub(crate) frames: &'p asbuilt_core::frames::FrameChain,
     /// Where deviations go when no shared-memory sample can be loaned, so the station's
     /// statistics stay whole. Sized once for the largest accepted chunk.
@@ -66,8 +67,12 @@ impl<'p> Fanout<'p> {
         }
     }
 
-    /// A station event taken from the cell: recorded.
-    pub(crate) fn took_event(&self, ev: &StationEvent) {
+    /// A station event taken from the cell: recorded; a Begin's chunk count sizes the
+    /// station's share of the view.
+    pub(crate) fn took_event(&mut self, ev: &StationEvent) {
+        if self.viewer.is_some() && ev.kind() == Some(asbuilt_protocol::StationEventKind::Begin) {
+            self.share((ev.job, ev.station)).expected_chunks = ev.expected_chunks.into();
+        }
         if let Some(r) = &self.recorder {
             r.record(Recorded::Event(*ev));
             // A Begin is made durable at once: an agent resuming after a power cut knows
@@ -122,6 +127,8 @@ impl<'p> Fanout<'p> {
     /// A scan chunk taken from the cell: recorded, where the recorder's writer may read it in
     /// shared memory (then it comes back lent, to be given back when the lifecycle is done).
     pub(crate) fn took_chunk(&mut self, sample: &ChunkSample) -> Option<Lent<ChunkSample>> {
+        let h = sample.user_header();
+        self.sized_by((h.job, h.station), h.point_count);
         self.recorder
             .as_mut()
             .and_then(|r| r.chunk(sample.user_header(), sample.payload()))
@@ -129,6 +136,7 @@ impl<'p> Fanout<'p> {
 
     /// A line profiler's chunk, taken from the cell: recorded.
     pub(crate) fn took_profiles(&mut self, h: &ProfileHeader, points: &[ProfilePoint]) {
+        self.sized_by((h.job, h.pass), h.point_count);
         if let Some(r) = self.recorder.as_mut() {
             r.profiles(h, points);
         }
@@ -178,6 +186,55 @@ impl Outgoing {
     }
 }
 
+/// What the view is given of one station: its points spread evenly over the whole station,
+/// at most the per-station budget. The stride follows from the points the station is expected
+/// to bring (its Begin's chunks times its first chunk's points: a pass's deviations come in
+/// batches of other sizes, but its points are the same); without a chunk count, each chunk
+/// gives a sixteenth of the budget, and a station of more chunks shows its first sixteen only.
+#[derive(Debug, Default, Clone, Copy)]
+pub(crate) struct ViewShare {
+    points: usize,
+    parts: u32,
+    expected_chunks: u64,
+    chunk_points: u64,
+}
+
+impl ViewShare {
+    fn stride(&self, n: usize, max: usize) -> usize {
+        let expected = self.expected_chunks.saturating_mul(self.chunk_points);
+        if expected > 0 {
+            usize::try_from(expected)
+                .unwrap_or(usize::MAX)
+                .div_ceil(max.max(1))
+                .max(1)
+        } else {
+            viewer::stride(n, (max / 16).max(1).min(max - self.points))
+        }
+    }
+}
+
+impl Fanout<'_> {
+    /// The view's share of a station; a cell that begins stations it never ends cannot grow
+    /// the table past the stations a lifecycle keeps open, and a few.
+    fn share(&mut self, key: (u64, u32)) -> &mut ViewShare {
+        const KEPT: usize = 64;
+        if self.shown.len() >= KEPT && !self.shown.contains_key(&key) {
+            self.shown.pop_first();
+        }
+        self.shown.entry(key).or_default()
+    }
+
+    /// A station's first chunk of input says how many points a chunk brings.
+    fn sized_by(&mut self, key: (u64, u32), points: u32) {
+        if self.viewer.is_some() {
+            let share = self.share(key);
+            if share.chunk_points == 0 {
+                share.chunk_points = points.into();
+            }
+        }
+    }
+}
+
 /// A result waiting for its record to be durable.
 pub(crate) struct Held {
     /// The recorder's commit that makes it durable; none before it is asked for.
@@ -197,16 +254,17 @@ impl Fanout<'_> {
     fn view_points(&mut self, h: &DeviationHeader, devs: &[PointDeviation]) {
         let Some(v) = &self.viewer else { return };
         let max = v.max_points_per_station();
-        let shown = self.shown.entry((h.job, h.station)).or_insert(0);
-        if *shown >= max || devs.is_empty() {
+        let share = self.shown.entry((h.job, h.station)).or_default();
+        if share.points >= max || devs.is_empty() {
             return;
         }
-        let per_chunk = (max / 16).max(1).min(max - *shown);
-        let (positions, distances) = viewer::decimate(devs, viewer::stride(devs.len(), per_chunk));
-        *shown += positions.len();
+        let (positions, distances) = viewer::decimate(devs, share.stride(devs.len(), max));
+        share.points += positions.len();
+        share.parts += 1;
         v.show(View::Points {
             index: h.station,
             name: view_name(h.job, h.station),
+            part: share.parts - 1,
             positions,
             distances,
         });
@@ -249,6 +307,21 @@ impl Fanout<'_> {
 }
 
 impl Outputs for Fanout<'_> {
+    fn pass_sensor(
+        &mut self,
+        key: crate::attempts::StationKey,
+        layer: u32,
+        sensor: &nalgebra::Isometry3<f64>,
+    ) {
+        if let Some(v) = &self.viewer {
+            v.show(View::Sensor {
+                index: key.1,
+                layer,
+                pose: *sensor,
+            });
+        }
+    }
+
     fn wants_scan_layer_state(&self) -> bool {
         self.record_states && self.recorder.is_some()
     }
@@ -447,6 +520,37 @@ mod tests {
 
     use super::*;
     use crate::config::RecorderConfig;
+
+    /// A station of 248 chunks of 6,000 points with a budget of 20,000: every chunk gives some
+    /// points, and all of them together stay within the budget. Without a chunk count, the
+    /// budget is spent in the first eighteen chunks.
+    #[test]
+    fn a_station_view_spreads_its_budget_over_every_chunk() {
+        let show = |expected_chunks: u64| {
+            let mut share = ViewShare {
+                expected_chunks,
+                chunk_points: 6_000,
+                ..ViewShare::default()
+            };
+            let mut parts = Vec::new();
+            for _ in 0..248 {
+                if share.points >= 20_000 {
+                    break;
+                }
+                let shown = 6_000usize.div_ceil(share.stride(6_000, 20_000));
+                share.points += shown;
+                parts.push(shown);
+            }
+            (share.points, parts)
+        };
+        let (points, parts) = show(248);
+        assert_eq!(parts.len(), 248);
+        assert!(parts.iter().all(|&n| n == 80), "{parts:?}");
+        assert!(points <= 20_000 && points > 19_000, "{points}");
+        // A sixteenth of the budget a chunk, the last ones what is left of it.
+        let (points, parts) = show(0);
+        assert_eq!((parts.len(), points), (18, 20_000));
+    }
 
     fn cube() -> Arc<Design> {
         let (lo, hi) = (

@@ -186,6 +186,13 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
             m.clock_offset_ns
         )
     });
+    // A pass is one layer's band: 20,000 points draw it at about a point a mm², and the view
+    // of 60 passes stays a 30 MB file instead of the 200,000 a scanner's station is given.
+    let pass_points = if job.profiler.is_some() {
+        "max_points_per_station = 20000\n"
+    } else {
+        ""
+    };
     let url = args
         .rerun_url
         .as_ref()
@@ -201,7 +208,7 @@ fn agent_config(job: &SimJob, prefix: &str, args: &DemoArgs) -> String {
          [recorder]\ndir = \"recording\"\nfoxglove = true\n\
          # The demo's job is bounded and checked for room before it starts; an agent beside a\n\
          # printer keeps the default, 1024.\nmin_free_mb = {min_free}\n\n\
-         [viewer]\nrrd = \"demo.rrd\"\n{url}\n\
+         [viewer]\nrrd = \"demo.rrd\"\n{pass_points}{url}\n\
          [findings]\nenabled = true\nlayer_height = {h}\n\n\
          [tolerances]\n# The report's verdicts: each kind's limit (metres, m² for missing material).\n\
          width = {tol}\ntop_height = {tol}\nposition = {tol}\nsurface = {tol}\n\

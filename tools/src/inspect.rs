@@ -674,7 +674,7 @@ impl OutputStage<'_> {
             Point3::from([f64::INFINITY; 3]),
             Point3::from([f64::NEG_INFINITY; 3]),
         );
-        for devs in full {
+        for (part, devs) in full.into_iter().enumerate() {
             for d in devs
                 .iter()
                 .filter(|d| !d.flags.contains(DeviationFlags::REJECTED))
@@ -699,6 +699,7 @@ impl OutputStage<'_> {
                 v.show(View::Points {
                     index: n as u32,
                     name: self.name.to_string(),
+                    part: part as u32,
                     positions,
                     distances,
                 });
@@ -737,6 +738,7 @@ fn start_viewer(
     }
     let v = Viewer::start(ViewerParams {
         rrd: args.rerun.clone(),
+        footer: true,
         url: args.rerun_url.clone(),
         max_points_per_station: args.rerun_points,
         // Offline nothing waits on the view: a deep queue keeps every item.

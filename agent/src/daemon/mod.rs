@@ -498,6 +498,8 @@ fn start_viewer(
         if config.viewer.rrd.is_some() || config.viewer.url.is_some() {
             let v = Viewer::start(ViewerParams {
                 rrd: config.viewer.rrd.clone(),
+                // The agent runs for as long as the cell prints: see the field.
+                footer: false,
                 url: config.viewer.url.clone(),
                 max_points_per_station: config.viewer.max_points_per_station,
                 queue: config.viewer.queue,

@@ -86,6 +86,9 @@ pub trait Outputs {
     fn tally(&mut self, _tally: &Tally) {}
     /// Findings of a station's scan layer, after its report (when `[findings]` is on).
     fn findings(&mut self, _findings: &StationFindings) {}
+    /// Where a line profiler's sensor was (design frame) at the last profile of a batch of pass
+    /// `key` (of layer `layer`) just compared: the view follows it.
+    fn pass_sensor(&mut self, _key: StationKey, _layer: u32, _sensor: &nalgebra::Isometry3<f64>) {}
     /// Advice for the layers still to print, after the findings (when `[corrections]` is on).
     fn correction(&mut self, _correction: &LayerCorrection) {}
     /// The scan layer's flatness, dimensions and plumb so far, after a report (when

@@ -383,6 +383,9 @@ impl<C: ChunkSource> Lifecycle<C> {
             self.inspect(i, (key.0, key.1, seq, 0), points, now, out);
         }
         b.batches += b.points.len().div_ceil(batch) as u64;
+        if let (Some(sensor), Some(begin)) = (b.sensors.last(), self.open[i].begin) {
+            out.pass_sensor(key, begin.layer, sensor);
+        }
         b.points.clear();
         b.sensors.clear();
         self.open[i].profiles = Some(b);

@@ -110,6 +110,7 @@ pub const PANELS: &[Panel] = &[
             "+ /design",
             "+ /stations/**",
             "+ /deviations/**",
+            "+ /profiler/**",
             "+ /findings/areas/**",
             "+ /findings/markers",
             "+ /findings/ruler",

@@ -10,7 +10,8 @@
 //! The layout is a table ([`PANELS`]); every panel has data on the timeline the view opens on
 //! ([`Job::timeline`]): `layer` (the scan layer) for a print, `station` for a survey. Entities:
 //! `design` (static mesh), `legend`, `stations/<name>` (the scanner's pose),
-//! `deviations/<name>` (points), `histogram`, `stats/{mean,median_abs,p95_abs}_mm`,
+//! `deviations/<name>/<part>` (points, a part per chunk shown), `profiler/{sensor,latest}` (a
+//! line profiler's sensor and the profiles it just took), `histogram`, `stats/{mean,median_abs,p95_abs}_mm`,
 //! `findings/{markers,areas/*,ruler,table}`, `history/*` (one series per band), `layers/*`
 //! (per-band means), and from `asbuilt inspect` also `missing` and `m3c2` (design samples and
 //! core points).
@@ -42,6 +43,12 @@ use paint::Painter;
 pub struct ViewerParams {
     /// A `.rrd` file to write.
     pub rrd: Option<PathBuf>,
+    /// Whether the file ends with rerun's footer, its manifest of every chunk for random
+    /// access: rerun keeps that manifest in memory until the file closes (rerun #12623), so it
+    /// grows with the job (8 MB over the column's 60 passes). A bounded run writes it; the
+    /// agent, which runs for as long as the cell prints, does not (`rerun rrd optimize` adds
+    /// it to a file afterwards).
+    pub footer: bool,
     /// A viewer to stream to, `rerun+http://HOST:PORT/proxy`.
     pub url: Option<String>,
     /// Points shown per station, at most.
@@ -81,12 +88,27 @@ pub enum View {
         /// When it began, nanoseconds since the Unix epoch.
         time_ns: u64,
     },
-    /// Design-frame positions and their signed distance (NaN: no match).
+    /// A line profiler's sensor (`T_design_sensor`) at the latest profile compared of pass
+    /// `index`, of layer `layer`: drawn where it is now, and the pass's points that follow are
+    /// also drawn as its latest profiles.
+    Sensor {
+        /// The pass's number.
+        index: u32,
+        /// The layer the pass scans.
+        layer: u32,
+        /// `T_design_sensor`.
+        pose: Isometry3<f64>,
+    },
+    /// Design-frame positions and their signed distance (NaN: no match): one part of a
+    /// station's points. Each part is an entity of its own under the station's: rerun shows an
+    /// entity's latest points only, and a station's chunks come at one time.
     Points {
         /// The station's number.
         index: u32,
         /// The station's name.
         name: String,
+        /// Which of the station's parts, from 0 (a part sent again replaces itself).
+        part: u32,
         /// Design frame, metres.
         positions: Vec<Point3<f64>>,
         /// Signed distances, metres, one per position.
@@ -193,12 +215,9 @@ impl Viewer {
     /// Opens the sinks the settings name; at least one is needed.
     pub fn start(settings: ViewerParams) -> Result<Self, ViewerError> {
         let builder = rerun::RecordingStreamBuilder::new("asbuilt");
-        // Without the footer: rerun keeps a manifest of every chunk in memory to write it when
-        // the file closes (rerun #12623), 8 MB over the column's 60 passes and growing with the
-        // job. The file is valid without it; `rerun rrd optimize` adds it afterwards.
         let file = |path: &std::path::PathBuf| {
             let options = rerun::sink::FileSinkOptions {
-                write_footer: false,
+                write_footer: settings.footer,
             };
             rerun::sink::FileSink::with_options(path, options).map_err(|source| ViewerError::File {
                 path: path.clone(),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::sync::mpsc::Receiver;
 
 use asbuilt_protocol::StationReport;
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::findings::ScanLayers;
 use crate::{BandMeans, View, ViewerParams, colour};
@@ -26,6 +26,8 @@ pub(crate) struct Painter {
     station_layer: BTreeMap<u32, u32>,
     /// The current job's findings, for their verdicts and numbers.
     pub(crate) scan_layers: ScanLayers,
+    /// The line profiler's pass whose sensor came last: its points are its latest profiles.
+    pass: Option<u32>,
     /// The latest scan layer's findings and the station that brought them, whose history is
     /// drawn once the scan layer is complete.
     pub(crate) pending_history: Option<(u32, asbuilt_protocol::StationFindings)>,
@@ -74,6 +76,7 @@ impl Painter {
             bounds: None,
             warn: settings.warn,
             station_layer: BTreeMap::new(),
+            pass: None,
             scan_layers: ScanLayers::new(limits),
             pending_history: None,
         }
@@ -134,12 +137,14 @@ impl Painter {
                     ),
                 )
             }
+            View::Sensor { index, layer, pose } => self.sensor(index, layer, &pose),
             View::Points {
                 index,
                 name,
+                part,
                 positions,
                 distances,
-            } => self.points(index, &name, &positions, &distances),
+            } => self.points(index, &format!("{name}/{part:04}"), &positions, &distances),
             View::Report { name, report, .. } => self.report(&name, &report),
             View::Samples {
                 path,
@@ -200,12 +205,49 @@ impl Painter {
             })
             .collect();
         let pts: Vec<[f32; 3]> = positions.iter().map(|p| self.local(p)).collect();
+        if self.pass == Some(index) {
+            // A pass's newest batch is what the profiler just swept: drawn again, larger, in
+            // place of the batch before, so the view shows the line profiles being laid.
+            self.rec.log(
+                "profiler/latest",
+                &rerun::Points3D::new(pts.iter().copied())
+                    .with_colors(colours.iter().copied())
+                    .with_radii([rerun::Radius::new_ui_points(4.0)]),
+            )?;
+        }
         self.rec.log(
             format!("deviations/{name}"),
             &rerun::Points3D::new(pts)
                 .with_colors(colours)
                 .with_radii([rerun::Radius::new_ui_points(2.0)]),
         )
+    }
+
+    /// A line profiler's sensor where its latest profile was taken: its axes (z the view,
+    /// x along the line) under `profiler/sensor`, at the pass and its layer.
+    fn sensor(
+        &mut self,
+        index: u32,
+        layer: u32,
+        pose: &Isometry3<f64>,
+    ) -> Result<(), rerun::RecordingStreamError> {
+        self.station_layer.insert(index, layer);
+        if self.station_layer.len() > STATIONS_REMEMBERED {
+            self.station_layer.pop_first();
+        }
+        self.pass = Some(index);
+        self.at(index, layer);
+        let t = pose.translation.vector - self.origin;
+        let q = pose.rotation.quaternion();
+        self.rec.log(
+            "profiler/sensor",
+            &rerun::Transform3D::from_translation_rotation(
+                [t.x as f32, t.y as f32, t.z as f32],
+                rerun::Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
+            ),
+        )?;
+        self.rec
+            .log("profiler/sensor", &rerun::TransformAxes3D::new(0.1))
     }
 
     /// A station's statistics (a dot each) and its histogram, at the station and its scan

@@ -43,9 +43,15 @@ fn assert_has_entities(rrd: &Path, want: &[&str]) -> usize {
     chunks
 }
 
-fn verify_with_rerun(rrd: &Path) {
+/// `footer`: the file must end with rerun's footer (a bounded run's; the agent writes none).
+fn verify_with_rerun(rrd: &Path, footer: bool) {
     let Ok(o) = Command::new("rerun")
-        .args(["rrd", "verify"])
+        .args([
+            "rrd",
+            "verify",
+            "--check-footers",
+            if footer { "true" } else { "false" },
+        ])
         .arg(rrd)
         .output()
     else {
@@ -85,7 +91,7 @@ fn inspect_writes_a_view_of_the_bunny() {
             "/design",
             "/legend",
             "/stations/bun000",
-            "/deviations/bun000",
+            "/deviations/bun000/0000",
             "/stations/ear_back/histogram",
             "/stats/median_abs_mm",
             "/stats/p95_abs_mm",
@@ -97,7 +103,7 @@ fn inspect_writes_a_view_of_the_bunny() {
     let job = Job::Survey { layer_bands: true };
     assert_eq!(panels_without_data(&rrd, job), Vec::<String>::new());
     assert_eq!(time_panel_timeline(&rrd).as_deref(), Some("station"));
-    verify_with_rerun(&rrd);
+    verify_with_rerun(&rrd, true);
 }
 
 #[test]
@@ -112,12 +118,14 @@ fn the_agent_writes_a_view_of_a_job() {
         &[
             "/design",
             "/stations/job1/station0",
-            "/deviations/job1/station9",
+            "/deviations/job1/station9/0000",
+            // Every chunk shown stays: rerun shows an entity's latest points only.
+            "/deviations/job1/station9/0001",
             "/stations/job1/station3/histogram",
             "/stats/mean_mm",
         ],
     );
-    verify_with_rerun(&rrd);
+    verify_with_rerun(&rrd, false);
 }
 
 /// Each scan layer's finding labels of report.json, by scan layer.
@@ -313,7 +321,7 @@ fn the_demo_view_opens_on_the_part_with_a_history_per_layer_band() {
     assert_eq!(want.len(), 2, "{want:?}");
     assert!(want.iter().all(|(_, l)| !l.is_empty()), "{want:?}");
     assert_eq!(markers(&rrd), want);
-    verify_with_rerun(&rrd);
+    verify_with_rerun(&rrd, false);
 }
 
 /// The chunks of the recording's (not the blueprint's) or the blueprint's store.

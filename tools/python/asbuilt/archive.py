@@ -312,7 +312,13 @@ def rows_of(job: Job, report: Dict[str, Any], started_ns: Optional[int],
                 "verdict": _band_verdict(scan_layers, scan.get("scan_layer"), band.get("layer")),
             })
     last = scan_layers[-1] if scan_layers else None
-    last_bands = [h for h in history if last is not None and h["scan_layer"] == last.get("layer")]
+    # Each layer band as its latest reading judged it: a scanner's last scan layer reads every
+    # layer, a line profiler's pass only those within its reach.
+    latest = {}
+    for h in history:
+        if h["layer"] not in latest or (h["scan_layer"] or 0) >= (latest[h["layer"]]["scan_layer"] or 0):
+            latest[h["layer"]] = h
+    last_bands = list(latest.values())
     counts = (last or {}).get("counts") or {}
     overall = report.get("overall") or {}
     summary = assessment.get("summary") or []

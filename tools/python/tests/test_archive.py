@@ -270,3 +270,22 @@ def test_a_path_a_worker_cannot_read_is_an_error_row_that_says_so(tmp_path):
     row = archive.inspect_job(archive.Job("lost", [str(tmp_path / "lost.mcap")]))
     assert list(row) == ["errors"]
     assert "cannot be read on worker" in row["errors"][0]["error"], row
+
+
+def test_each_layer_counts_by_its_latest_reading():
+    """A line profiler's passes each read only the layers within reach: the job's share of
+    layers out of tolerance takes each layer band's latest reading, not the last pass's bands
+    alone. Layer 1 failed when pass 3 read it; the last pass (5) read layers 4 and 5 only."""
+    from asbuilt.archive import Job, _Options, rows_of
+
+    reads = {3: [0, 1, 2, 3], 5: [4, 5]}
+    report = {"assessment": {
+        "scan_layers": [{"layer": s, "layers": [
+            {"layer": b, "verdict": "fail" if (s, b) == (3, 1) else "pass"} for b in bands]}
+            for s, bands in reads.items()],
+        "layer_history": [{"layer": b, "scans": [{"scan_layer": s} for s in reads if b in reads[s]]}
+                          for b in range(6)],
+    }}
+    jobs = rows_of(Job("j", ["j.mcap"], 1), report, None, _Options())["jobs"]
+    assert (jobs[0]["layers_measured"], jobs[0]["layers_out_of_tolerance"]) == (6, 1)
+    assert jobs[0]["share_layers_out_of_tolerance"] == 1 / 6

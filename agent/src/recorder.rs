@@ -113,19 +113,42 @@ pub struct Recorder {
     pub counters: Arc<RecorderCounters>,
 }
 
+/// What Foxglove's channels are drawn with: the colour scale's tolerance (metres), where the
+/// robot's base is in the design frame, and a line profiler's clock offset (the robot's clock
+/// less the sensor's, ns), which puts its profiles on the robot's clock.
+#[derive(Debug, Clone, Copy)]
+pub struct ShownAs {
+    /// Deviations are coloured saturating at ± this, metres.
+    pub tolerance: f64,
+    /// The robot's base in the design frame (`[calibration]`).
+    pub t_design_base: nalgebra::Isometry3<f64>,
+    /// `[profiler] clock_offset_ns`.
+    pub clock_offset_ns: i64,
+}
+
+/// A tolerance alone: the base at the design's origin, clocks that agree.
+impl From<f64> for ShownAs {
+    fn from(tolerance: f64) -> Self {
+        Self {
+            tolerance,
+            t_design_base: nalgebra::Isometry3::identity(),
+            clock_offset_ns: 0,
+        }
+    }
+}
+
 impl Recorder {
     /// Starts the writer thread. `design` (the file's path and bytes, as the agent read them)
     /// is attached to every file with `meta`, whose design hash is filled from those bytes. With Foxglove's
-    /// channels, `mesh` (the design as the agent read it) is shown and `tolerance` sets the
-    /// points' colour scale.
+    /// channels, `mesh` (the design as the agent read it) is shown, drawn as `shown` says.
     pub fn start(
         cfg: &RecorderConfig,
         meta: JobMetadata,
         design: (&Path, Vec<u8>),
         mesh: Arc<Design>,
-        tolerance: f64,
+        shown: impl Into<ShownAs>,
     ) -> std::io::Result<Self> {
-        Self::start_on(Arc::new(Disk), cfg, meta, design, mesh, tolerance)
+        Self::start_on(Arc::new(Disk), cfg, meta, design, mesh, shown)
     }
 
     /// [`Recorder::start`] writing through `storage` instead of the disk.
@@ -135,9 +158,10 @@ impl Recorder {
         mut meta: JobMetadata,
         (design, design_bytes): (&Path, Vec<u8>),
         mesh: Arc<Design>,
-        tolerance: f64,
+        shown: impl Into<ShownAs>,
     ) -> std::io::Result<Self> {
         use sha2::{Digest, Sha256};
+        let shown = shown.into();
         let dir = cfg.dir.clone().expect("started only when recording is on");
         std::fs::create_dir_all(&dir)?;
         meta.design_sha256 = format!("{:x}", Sha256::digest(&design_bytes));
@@ -172,7 +196,7 @@ impl Recorder {
             sync_failing: false,
             continuing: None,
             foxglove: cfg.foxglove.then_some(Foxglove {
-                tolerance,
+                shown,
                 mesh,
                 every: cfg.foxglove_every.max(1) as usize,
             }),
@@ -487,7 +511,7 @@ impl Drop for Gone {
 
 /// What the Foxglove channels need besides the messages: the colour scale and the design.
 struct Foxglove {
-    tolerance: f64,
+    shown: ShownAs,
     mesh: Arc<Design>,
     every: usize,
 }
@@ -816,11 +840,12 @@ impl Writer {
         )
         .map_err(begun)?;
         if let Some(f) = &self.foxglove {
-            let tolerance = f.tolerance;
+            let tolerance = f.shown.tolerance;
             writer = writer
                 .with_foxglove(Box::new(move |d| deviation_colour(d, tolerance)))
                 .map_err(begun)?
-                .foxglove_every(f.every);
+                .foxglove_every(f.every)
+                .foxglove_clock_offset(f.shown.clock_offset_ns);
         }
         writer.metadata(&self.meta).map_err(begun)?;
         let now = unix_time_ns();
@@ -831,6 +856,11 @@ impl Writer {
             let vertices = f.mesh.vertices.iter().map(|v| [v.x, v.y, v.z]);
             writer
                 .foxglove_design(now, vertices, &f.mesh.triangles)
+                .map_err(begun)?;
+            let base = &f.shown.t_design_base;
+            let q = base.rotation.coords;
+            writer
+                .foxglove_base(now, base.translation.vector.into(), [q.x, q.y, q.z, q.w])
                 .map_err(begun)?;
         }
         writer.flush().map_err(begun)?;

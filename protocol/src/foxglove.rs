@@ -9,18 +9,27 @@
 //! | [`TOPIC_DEVIATIONS`] | `foxglove.PointCloud` | each deviation chunk: design frame, `x y z distance_mm` (f32) and `red green blue alpha` (u8) |
 //! | [`json_topic`] of each channel the message table marks (`/foxglove/reports`, `findings`, `corrections`, `surface`) | JSON | each station report, findings, correction and surface judgement |
 //! | [`TOPIC_SCANS`] (when asked for: `pack`) | `foxglove.PointCloud` | each scan chunk in its station's frame, `x y z intensity` (f32) |
+//! | [`TOPIC_BASE`] | `foxglove.FrameTransform` | the robot's base in the design frame (`T_design_base`), once per file, when the writer is told it |
+//! | [`TOPIC_MOUNT_POSES`] | `foxglove.FrameTransforms` | each mount pose of a line profiler, on the robot's clock: [`BASE_FRAME`] → `profiler_mount_<job>` → `profiler_<job>` (its `T_mount_sensor`) |
+//! | [`TOPIC_PROFILES`] | `foxglove.PointCloud` | each profile chunk's last profile in `profiler_<job>`, at its time on the robot's clock (the sensor's plus the clock offset the writer is told), `x y z` (f32, y = 0: the laser's plane) |
+//!
+//! Foxglove places a profile by the mount's transforms around its time, as the agent does; one
+//! profile a chunk (1 in 32) keeps the channel light, the asbuilt channels keep every one.
 
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
 use foxglove::Encode;
 use foxglove::messages::{
-    Color, FrameTransform, PackedElementField, PointCloud, Pose, Quaternion, SceneEntity,
-    SceneUpdate, Timestamp, TriangleListPrimitive, Vector3, packed_element_field::NumericType,
+    Color, FrameTransform, FrameTransforms, PackedElementField, PointCloud, Pose, Quaternion,
+    SceneEntity, SceneUpdate, Timestamp, TriangleListPrimitive, Vector3,
+    packed_element_field::NumericType,
 };
 
 use crate::recording::{Channel, Recorded};
-use crate::{DeviationFlags, DeviationHeader, PointDeviation, PoseSnapshot};
+use crate::{
+    DeviationFlags, DeviationHeader, MountPose, PointDeviation, PoseSnapshot, ProfilePoint,
+};
 
 /// The design as a `foxglove.SceneUpdate` (one triangle list), once per recording.
 pub const TOPIC_DESIGN: &str = "/foxglove/design";
@@ -41,6 +50,14 @@ pub fn json_topic(channel: Channel) -> String {
 pub const TOPIC_SCANS: &str = "/foxglove/scans";
 /// The frame every point and the design are in; stations hang from it.
 pub const DESIGN_FRAME: &str = "design";
+/// The robot's base in the design frame, once per file.
+pub const TOPIC_BASE: &str = "/foxglove/robot_base";
+/// Each mount pose of a line profiler as the base → mount → sensor transforms.
+pub const TOPIC_MOUNT_POSES: &str = "/foxglove/mount_poses";
+/// Each profile chunk's last profile in its profiler's frame.
+pub const TOPIC_PROFILES: &str = "/foxglove/profiles";
+/// The robot's base frame, which mount poses are in.
+pub const BASE_FRAME: &str = "robot_base";
 /// Bytes of one point in a [`TOPIC_DEVIATIONS`] cloud.
 pub const POINT_STRIDE: u32 = 20;
 
@@ -59,6 +76,11 @@ pub(crate) struct FoxgloveChannels {
     colour: Colour,
     /// One point in this many of a chunk, if it matched, goes into the deviations' cloud.
     every: usize,
+    base: u16,
+    mount_poses: u16,
+    profiles: u16,
+    /// The robot's clock less the profiler's, ns: a profile's time on the robot's clock.
+    clock_offset_ns: i64,
 }
 
 fn add<W: Write + Seek, E: Encode>(
@@ -96,7 +118,20 @@ impl FoxgloveChannels {
             scans: None,
             colour,
             every: 1,
+            base: add::<_, FrameTransform>(mcap, TOPIC_BASE)?,
+            mount_poses: add::<_, FrameTransforms>(mcap, TOPIC_MOUNT_POSES)?,
+            profiles: add::<_, PointCloud>(mcap, TOPIC_PROFILES)?,
+            clock_offset_ns: 0,
         })
+    }
+
+    /// The profiler's clock offset (the robot's clock less the sensor's, ns).
+    pub(crate) fn set_clock_offset(&mut self, ns: i64) {
+        self.clock_offset_ns = ns;
+    }
+
+    pub(crate) fn base_channel(&self) -> u16 {
+        self.base
     }
 
     /// Keeps one point in `every` of a chunk in the deviations' cloud, if it matched (at least
@@ -126,6 +161,14 @@ impl FoxgloveChannels {
                 Some(self.cloud(h, cloud_points(points, self.every)))
             }
             Recorded::Chunk(h, points) => self.scan(h, points),
+            Recorded::MountPose(p) => Some((self.mount_poses, encode(&mount_transforms(p)))),
+            Recorded::Profiles(h, points) => {
+                let (ns, range) = h.profiles(points.len()).ok()?.last()?;
+                let time = i128::from(ns) + i128::from(self.clock_offset_ns);
+                let time = u64::try_from(time.max(0)).unwrap_or(u64::MAX);
+                let cloud = profile_cloud(time, h.job, &points[range]);
+                Some((self.profiles, encode(&cloud)))
+            }
             m => Some((*self.json.get(&m.channel())?, m.foxglove_json()?)),
         }
     }
@@ -170,6 +213,84 @@ fn timestamp(ns: u64) -> Timestamp {
 /// The frame of a station's scanner.
 pub fn station_frame(job: u64, station: u32) -> String {
     format!("station_{job}_{station}")
+}
+
+/// A line profiler's mount frame and its sensor's.
+pub fn profiler_frames(job: u64) -> (String, String) {
+    (format!("profiler_mount_{job}"), format!("profiler_{job}"))
+}
+
+fn frame_transform(
+    time_ns: u64,
+    (parent, child): (&str, &str),
+    [x, y, z]: [f64; 3],
+    [qx, qy, qz, qw]: [f64; 4],
+) -> FrameTransform {
+    FrameTransform {
+        timestamp: Some(timestamp(time_ns)),
+        parent_frame_id: parent.into(),
+        child_frame_id: child.into(),
+        translation: Some(Vector3 { x, y, z }),
+        rotation: Some(Quaternion {
+            x: qx,
+            y: qy,
+            z: qz,
+            w: qw,
+        }),
+    }
+}
+
+/// A mount pose: the mount in the robot's base, the sensor on the mount.
+fn mount_transforms(m: &MountPose) -> FrameTransforms {
+    let (mount, sensor) = profiler_frames(m.job);
+    FrameTransforms {
+        transforms: vec![
+            frame_transform(
+                m.time_ns,
+                (BASE_FRAME, &mount),
+                m.translation,
+                m.rotation_xyzw,
+            ),
+            frame_transform(
+                m.time_ns,
+                (&mount, &sensor),
+                m.mount_sensor_translation,
+                m.mount_sensor_rotation_xyzw,
+            ),
+        ],
+    }
+}
+
+/// The robot's base in the design frame (`T_design_base`: translation, quaternion xyzw).
+pub(crate) fn base_transform(time_ns: u64, translation: [f64; 3], rotation: [f64; 4]) -> Vec<u8> {
+    encode(&frame_transform(
+        time_ns,
+        (DESIGN_FRAME, BASE_FRAME),
+        translation,
+        rotation,
+    ))
+}
+
+/// One profile's points in its profiler's frame: x along the line, z along the view.
+fn profile_cloud(time_ns: u64, job: u64, points: &[ProfilePoint]) -> PointCloud {
+    let mut data = Vec::with_capacity(points.len() * 12);
+    for p in points.iter().filter(|p| p.x.is_finite() && p.z.is_finite()) {
+        for v in [p.x, 0.0, p.z] {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    PointCloud {
+        timestamp: Some(timestamp(time_ns)),
+        frame_id: profiler_frames(job).1,
+        pose: Some(identity()),
+        point_stride: 12,
+        fields: vec![
+            field("x", 0, NumericType::Float32),
+            field("y", 4, NumericType::Float32),
+            field("z", 8, NumericType::Float32),
+        ],
+        data: data.into(),
+    }
 }
 
 fn transform(p: &PoseSnapshot) -> FrameTransform {
@@ -325,4 +446,93 @@ pub(crate) fn design_scene(
         deletions: Vec::new(),
         entities: vec![entity],
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use foxglove::Decode;
+
+    use super::*;
+    use crate::recording::RecordingWriter;
+
+    /// A mount pose and a chunk of two profiles, with the sensor's clock 5 ms behind the
+    /// robot's: the pose's two transforms, and the chunk's last profile in the profiler's frame
+    /// at its time on the robot's clock.
+    #[test]
+    fn a_profilers_poses_and_profiles_reach_foxglove_in_its_frames() {
+        let mut w = RecordingWriter::new(std::io::Cursor::new(Vec::new()))
+            .unwrap()
+            .with_foxglove(Box::new(|_| [0, 0, 0]))
+            .unwrap()
+            .foxglove_clock_offset(5_000_000);
+        w.foxglove_base(1, [1.0, 2.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+            .unwrap();
+        let mut m = MountPose::new(7, 3, 0, 2_000_000_000);
+        m.translation = [0.5, 0.0, 0.6];
+        m.mount_sensor_translation = [0.0, -0.06, 0.0];
+        w.write(2, &Recorded::MountPose(m)).unwrap();
+        let mut h = crate::ProfileHeader::new(7, 3, 0);
+        h.push(1_995_000_000, 2);
+        h.push(1_995_500_000, 3);
+        let p = |x: f32, z: f32| ProfilePoint { x, z };
+        let points = vec![
+            p(0.0, 0.1),
+            p(0.1, 0.1),
+            p(-0.01, 0.1),
+            p(f32::NAN, f32::NAN),
+            p(0.01, 0.11),
+        ];
+        w.write(3, &Recorded::Profiles(Box::new(h), points))
+            .unwrap();
+        let bytes = w.finish().unwrap().into_inner();
+        let mut seen = 0;
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            match m.channel.topic.as_str() {
+                TOPIC_BASE => {
+                    let t = FrameTransform::decode(&m.data[..]).unwrap();
+                    assert_eq!(
+                        (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
+                        (DESIGN_FRAME, BASE_FRAME)
+                    );
+                    assert_eq!(t.translation.unwrap().x, 1.0);
+                    seen += 1;
+                }
+                TOPIC_MOUNT_POSES => {
+                    let t = FrameTransforms::decode(&m.data[..]).unwrap().transforms;
+                    let frames: Vec<(&str, &str)> = t
+                        .iter()
+                        .map(|t| (t.parent_frame_id.as_str(), t.child_frame_id.as_str()))
+                        .collect();
+                    assert_eq!(
+                        frames,
+                        [
+                            (BASE_FRAME, "profiler_mount_7"),
+                            ("profiler_mount_7", "profiler_7")
+                        ]
+                    );
+                    assert_eq!(t[0].translation.unwrap().z, 0.6);
+                    assert_eq!(t[1].translation.unwrap().y, -0.06);
+                    assert_eq!(t[0].timestamp, Some(timestamp(2_000_000_000)));
+                    seen += 1;
+                }
+                TOPIC_PROFILES => {
+                    let c = PointCloud::decode(&m.data[..]).unwrap();
+                    assert_eq!(c.frame_id, "profiler_7");
+                    // 1.9955 s on the sensor's clock is 2.0005 s on the robot's.
+                    assert_eq!(c.timestamp, Some(timestamp(2_000_500_000)));
+                    let xyz: Vec<f32> = c
+                        .data
+                        .chunks(4)
+                        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+                        .collect();
+                    // The last profile's returns; its no-return is left out.
+                    assert_eq!(xyz, [-0.01, 0.0, 0.1, 0.01, 0.0, 0.11]);
+                    seen += 1;
+                }
+                _ => {}
+            }
+        }
+        assert_eq!(seen, 3);
+    }
 }

@@ -235,6 +235,31 @@ impl<W: Write + Seek> RecordingWriter<W> {
         Ok(self)
     }
 
+    /// A line profiler's clock offset (the robot's clock less the sensor's, ns), for the times
+    /// of its profiles on Foxglove's channel; nothing without Foxglove's channels.
+    pub fn foxglove_clock_offset(mut self, ns: i64) -> Self {
+        if let Some(f) = &mut self.foxglove {
+            f.set_clock_offset(ns);
+        }
+        self
+    }
+
+    /// The robot's base in the design frame (`T_design_base`) for Foxglove, which places a line
+    /// profiler's mount poses by it; nothing without Foxglove's channels.
+    pub fn foxglove_base(
+        &mut self,
+        time: u64,
+        translation: [f64; 3],
+        rotation_xyzw: [f64; 4],
+    ) -> Result<(), mcap::McapError> {
+        let Some(f) = &self.foxglove else {
+            return Ok(());
+        };
+        let channel = f.base_channel();
+        let bytes = crate::foxglove::base_transform(time, translation, rotation_xyzw);
+        self.write_to(channel, time, time, &bytes)
+    }
+
     /// The design for Foxglove (metres, design frame); nothing without Foxglove's channels.
     pub fn foxglove_design(
         &mut self,

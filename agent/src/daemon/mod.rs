@@ -469,7 +469,11 @@ fn start_recorder(
                 job_metadata(config),
                 (&config.design.path, file),
                 design,
-                config.inspect.tolerance,
+                crate::recorder::ShownAs {
+                    tolerance: config.inspect.tolerance,
+                    t_design_base: config.frames.t_design_base,
+                    clock_offset_ns: config.profiler.clock_offset_ns,
+                },
             )
             .map_err(|source| AgentError::Recorder {
                 dir: dir.clone(),

@@ -294,20 +294,12 @@ fn profile_cloud(time_ns: u64, job: u64, points: &[ProfilePoint]) -> PointCloud 
 }
 
 fn transform(p: &PoseSnapshot) -> FrameTransform {
-    let [x, y, z] = p.translation;
-    let [qx, qy, qz, qw] = p.rotation_xyzw;
-    FrameTransform {
-        timestamp: Some(timestamp(p.timestamp_ns)),
-        parent_frame_id: DESIGN_FRAME.into(),
-        child_frame_id: station_frame(p.job, p.station),
-        translation: Some(Vector3 { x, y, z }),
-        rotation: Some(Quaternion {
-            x: qx,
-            y: qy,
-            z: qz,
-            w: qw,
-        }),
-    }
+    frame_transform(
+        p.timestamp_ns,
+        (DESIGN_FRAME, &station_frame(p.job, p.station)),
+        p.translation,
+        p.rotation_xyzw,
+    )
 }
 
 /// The points of a deviation chunk that its Foxglove cloud shows: one in `every` by their place

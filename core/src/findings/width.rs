@@ -4,11 +4,12 @@
 //!
 //! Least squares follows any local departure: a bulge over a quarter of an elliptical column's
 //! band pulls `t` by millimetres toward it, and a refit that cuts the residuals of that fit keeps
-//! much of the pull, since the fit it judges by is already pulled. So the fit starts from the one
-//! that explains most of the band best, the least median of absolute residuals (Rousseeuw's
-//! LMedS), among fits that each leave out one arc of normal directions: a local departure on a
-//! convex band sits on one arc of them. From there it is refitted without residuals beyond
-//! 3 robust σ until the samples kept settle.
+//! much of the pull, since the fit it judges by is already pulled. So where a fit leaving out one
+//! arc of normal directions explains the band far better (less than half the median absolute
+//! residual; a local departure on a convex band sits on one arc of them), the fit starts from
+//! the best of those, the least median of absolute residuals (Rousseeuw's LMedS); else from
+//! least squares. From there it is refitted without residuals beyond 3 robust σ until the
+//! samples kept settle.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -80,9 +81,12 @@ impl Normal {
         // seen separate it from the shift: its Schur complement stays well off zero when the
         // normals point in opposite directions.
         let mut a = self.a;
-        let ridge = 1e-6 * self.n as f64;
-        a[(1, 1)] += ridge;
-        a[(2, 2)] += ridge;
+        // A direction the rows hardly face (a wall's end faces alone, a few samples) is held at
+        // zero outright: one end face's station error would read as the shift along the wall.
+        for k in 1..3 {
+            let seen = a[(k, k)] > 0.05 * self.n as f64;
+            a[(k, k)] += if seen { 1e-6 } else { 1e6 } * self.n as f64;
+        }
         let att = a.fixed_view::<2, 2>(1, 1).into_owned();
         let atw = a.fixed_view::<2, 1>(1, 0).into_owned();
         let schur = a[(0, 0)] - (atw.transpose() * att.try_inverse()? * atw)[(0, 0)];
@@ -114,14 +118,18 @@ pub(super) fn fit_width(m3c2: &[CoreResult], idx: &[usize]) -> Option<WidthFit> 
     Some(with_variance(&rows, fit, cut))
 }
 
-/// Of the fit to every row and the fits leaving out one arc of sectors, the one whose median
-/// absolute residual over every row is least; the fit to every row on a tie.
+/// Where the refit starts: the fit to every row, unless a fit leaving out one arc of sectors
+/// explains the band with less than half its median absolute residual over every row (then
+/// the least of those). A band without a local departure starts where least squares does, as
+/// before this start was added: on a straight wall only its end faces see the shift along it,
+/// and a leave-out start can keep one end face's station error as that shift.
 fn least_median_start(rows: &[Row]) -> Option<Vector3<f64>> {
     let mut sector = [Normal::zero(); SECTORS];
+    let mut all = Normal::zero();
     for r in rows {
         sector[r.sector].add(r);
+        all.add(r);
     }
-    let all = sector.iter().fold(Normal::zero(), |s, o| s.plus(o));
     let mut abs = Vec::with_capacity(rows.len());
     let mut median = |f: &Vector3<f64>| {
         abs.clear();
@@ -129,7 +137,8 @@ fn least_median_start(rows: &[Row]) -> Option<Vector3<f64>> {
         let mid = abs.len() / 2;
         *abs.select_nth_unstable_by(mid, f64::total_cmp).1
     };
-    let mut best = all.solve().map(|f| (median(&f), f));
+    let full = all.solve().map(|f| (median(&f), f));
+    let mut best: Option<(f64, Vector3<f64>)> = None;
     for len in 1..=MAX_LEFT_OUT {
         for first in 0..SECTORS {
             let left_out = (first..first + len).map(|s| s % SECTORS);
@@ -146,7 +155,11 @@ fn least_median_start(rows: &[Row]) -> Option<Vector3<f64>> {
             }
         }
     }
-    best.map(|(_, f)| f)
+    match (full, best) {
+        (Some((m_full, _)), Some((m, f))) if m < 0.5 * m_full => Some(f),
+        (Some((_, f)), _) | (None, Some((_, f))) => Some(f),
+        (None, None) => None,
+    }
 }
 
 /// Refitted from `start` without residuals beyond 3 robust σ of the fit before, until the

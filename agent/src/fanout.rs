@@ -131,7 +131,7 @@ impl<'p> Fanout<'p> {
         self.sized_by((h.job, h.station), h.point_count);
         self.recorder
             .as_mut()
-            .and_then(|r| r.chunk(sample.user_header(), sample.payload()))
+            .and_then(|r| r.chunk(h, sample.payload()))
     }
 
     /// A line profiler's chunk, taken from the cell: recorded.
@@ -252,19 +252,22 @@ impl Fanout<'_> {
     /// A decimated share of a deviation chunk for the view: at most 1/16 of the per-station
     /// budget per chunk, and nothing once the budget is spent.
     fn view_points(&mut self, h: &DeviationHeader, devs: &[PointDeviation]) {
-        let Some(v) = &self.viewer else { return };
-        let max = v.max_points_per_station();
-        let share = self.shown.entry((h.job, h.station)).or_default();
+        let Some(max) = self.viewer.as_ref().map(Viewer::max_points_per_station) else {
+            return;
+        };
+        let share = self.share((h.job, h.station));
         if share.points >= max || devs.is_empty() {
             return;
         }
         let (positions, distances) = viewer::decimate(devs, share.stride(devs.len(), max));
         share.points += positions.len();
         share.parts += 1;
+        let part = share.parts - 1;
+        let Some(v) = &self.viewer else { return };
         v.show(View::Points {
             index: h.station,
             name: view_name(h.job, h.station),
-            part: share.parts - 1,
+            part,
             positions,
             distances,
         });

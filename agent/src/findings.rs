@@ -75,7 +75,7 @@ pub(crate) struct EpochMaker {
 }
 
 impl EpochMaker {
-    ///
+    /// The scan layer's state of `job` over `design`: its design samples, M3C2 and coverage.
     /// With a `floor` (a line profiler's pass) only the samples from that height up are kept:
     /// nothing lower is in the profiler's range, and the state stays the same size however tall
     /// the print grows.

@@ -509,7 +509,7 @@ impl Drop for Gone {
     }
 }
 
-/// What the Foxglove channels need besides the messages: the colour scale and the design.
+/// What the Foxglove channels need besides the messages: how they are drawn and the design.
 struct Foxglove {
     shown: ShownAs,
     mesh: Arc<Design>,

@@ -279,18 +279,7 @@ fn profile_cloud(time_ns: u64, job: u64, points: &[ProfilePoint]) -> PointCloud 
             data.extend_from_slice(&v.to_le_bytes());
         }
     }
-    PointCloud {
-        timestamp: Some(timestamp(time_ns)),
-        frame_id: profiler_frames(job).1,
-        pose: Some(identity()),
-        point_stride: 12,
-        fields: vec![
-            field("x", 0, NumericType::Float32),
-            field("y", 4, NumericType::Float32),
-            field("z", 8, NumericType::Float32),
-        ],
-        data: data.into(),
-    }
+    f32_cloud(time_ns, profiler_frames(job).1, &["x", "y", "z"], data)
 }
 
 fn transform(p: &PoseSnapshot) -> FrameTransform {
@@ -376,17 +365,25 @@ fn scan_cloud(time_ns: u64, job: u64, station: u32, points: &[crate::ScanPoint])
             data.extend_from_slice(&v.to_le_bytes());
         }
     }
+    f32_cloud(
+        time_ns,
+        station_frame(job, station),
+        &["x", "y", "z", "intensity"],
+        data,
+    )
+}
+
+/// A cloud in `frame_id` whose points are the f32 `fields`, in order, in `data`.
+fn f32_cloud(time_ns: u64, frame_id: String, fields: &[&str], data: Vec<u8>) -> PointCloud {
     PointCloud {
         timestamp: Some(timestamp(time_ns)),
-        frame_id: station_frame(job, station),
+        frame_id,
         pose: Some(identity()),
-        point_stride: 16,
-        fields: vec![
-            field("x", 0, NumericType::Float32),
-            field("y", 4, NumericType::Float32),
-            field("z", 8, NumericType::Float32),
-            field("intensity", 12, NumericType::Float32),
-        ],
+        point_stride: 4 * fields.len() as u32,
+        fields: (0..)
+            .zip(fields)
+            .map(|(i, name)| field(name, 4 * i, NumericType::Float32))
+            .collect(),
         data: data.into(),
     }
 }

@@ -11,8 +11,8 @@
 //! ([`Job::timeline`]): `layer` (the scan layer) for a print, `station` for a survey. Entities:
 //! `design` (static mesh), `legend`, `stations/<name>` (the scanner's pose),
 //! `deviations/<name>/<part>` (points, a part per chunk shown), `profiler/{sensor,latest}` (a
-//! line profiler's sensor and the profiles it just took), `histogram`, `stats/{mean,median_abs,p95_abs}_mm`,
-//! `findings/{markers,areas/*,ruler,table}`, `history/*` (one series per band), `layers/*`
+//! line profiler's sensor and the profiles it just took), `histogram`,
+//! `stats/{mean,median_abs,p95_abs}_mm`, `findings/{markers,areas/*,ruler,table}`, `history/*` (one series per band), `layers/*`
 //! (per-band means), and from `asbuilt inspect` also `missing` and `m3c2` (design samples and
 //! core points).
 //!

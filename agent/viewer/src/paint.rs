@@ -118,24 +118,11 @@ impl Painter {
                 pose,
                 time_ns,
             } => {
-                self.station_layer.insert(index, layer);
-                if self.station_layer.len() > STATIONS_REMEMBERED {
-                    self.station_layer.pop_first();
-                }
-                self.at(index, layer);
+                self.at_station(index, layer);
                 self.rec
                     .set_timestamp_nanos_since_epoch("time", time_ns as i64);
-                let t = pose.translation.vector - self.origin;
-                let q = pose.rotation.quaternion();
-                self.rec.log(
-                    format!("stations/{name}"),
-                    &rerun::Transform3D::from_translation_rotation(
-                        [t.x as f32, t.y as f32, t.z as f32],
-                        rerun::Quaternion::from_xyzw([
-                            q.i as f32, q.j as f32, q.k as f32, q.w as f32,
-                        ]),
-                    ),
-                )
+                self.rec
+                    .log(format!("stations/{name}"), &self.transform(&pose))
             }
             View::Sensor { index, layer, pose } => self.sensor(index, layer, &pose),
             View::Points {
@@ -231,23 +218,31 @@ impl Painter {
         layer: u32,
         pose: &Isometry3<f64>,
     ) -> Result<(), rerun::RecordingStreamError> {
+        self.pass = Some(index);
+        self.at_station(index, layer);
+        self.rec.log("profiler/sensor", &self.transform(pose))?;
+        self.rec
+            .log("profiler/sensor", &rerun::TransformAxes3D::new(0.1))
+    }
+
+    /// Station `index` is of scan layer `layer` (its points do not carry it), and the time
+    /// cursor goes to it.
+    fn at_station(&mut self, index: u32, layer: u32) {
         self.station_layer.insert(index, layer);
         if self.station_layer.len() > STATIONS_REMEMBERED {
             self.station_layer.pop_first();
         }
-        self.pass = Some(index);
         self.at(index, layer);
+    }
+
+    /// A design-frame pose as a transform from the view's origin.
+    fn transform(&self, pose: &Isometry3<f64>) -> rerun::Transform3D {
         let t = pose.translation.vector - self.origin;
         let q = pose.rotation.quaternion();
-        self.rec.log(
-            "profiler/sensor",
-            &rerun::Transform3D::from_translation_rotation(
-                [t.x as f32, t.y as f32, t.z as f32],
-                rerun::Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
-            ),
-        )?;
-        self.rec
-            .log("profiler/sensor", &rerun::TransformAxes3D::new(0.1))
+        rerun::Transform3D::from_translation_rotation(
+            [t.x as f32, t.y as f32, t.z as f32],
+            rerun::Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
+        )
     }
 
     /// A station's statistics (a dot each) and its histogram, at the station and its scan

@@ -76,16 +76,15 @@ impl Normal {
         if self.n < 6 {
             return None;
         }
-        // A shift along a direction no side faces (along a straight wall) cannot be seen: a
-        // small ridge on the shift keeps it at zero. The width is known only when the faces
-        // seen separate it from the shift: its Schur complement stays well off zero when the
-        // normals point in opposite directions.
+        // A shift along a direction the rows hardly face (along a straight wall, whose end
+        // faces are a few samples) is held at zero outright: one end face's station error
+        // would read as the shift along the wall. A seen one gets a small ridge only. The
+        // width is known only when the faces seen separate it from the shift: its Schur
+        // complement stays well off zero when the normals point in opposite directions.
         let mut a = self.a;
-        // A direction the rows hardly face (a wall's end faces alone, a few samples) is held at
-        // zero outright: one end face's station error would read as the shift along the wall.
         for k in 1..3 {
-            let seen = a[(k, k)] > 0.05 * self.n as f64;
-            a[(k, k)] += if seen { 1e-6 } else { 1e6 } * self.n as f64;
+            let ridge = if seen(&self.a, self.n, k) { 1e-6 } else { 1e6 };
+            a[(k, k)] += ridge * self.n as f64;
         }
         let att = a.fixed_view::<2, 2>(1, 1).into_owned();
         let atw = a.fixed_view::<2, 1>(1, 0).into_owned();
@@ -96,6 +95,12 @@ impl Normal {
             None
         }
     }
+}
+
+/// Whether the shift along axis `k` (1: x, 2: y) is faced by enough of the `n` rows whose
+/// `XᵀX` is `a` to be measured.
+fn seen(a: &Matrix3<f64>, n: usize, k: usize) -> bool {
+    a[(k, k)] > 0.05 * n as f64
 }
 
 /// `w/2, tₓ, t_y` of the band made of `idx`: `None` where its sides cannot separate them.
@@ -198,11 +203,7 @@ fn with_variance(rows: &[Row], fit: Vector3<f64>, cut: f64) -> WidthFit {
         }
     }
     // A shift no side faces is held at zero by the ridge, not measured: it varies by nothing.
-    let seen = [
-        true,
-        a[(1, 1)] > 0.05 * n as f64,
-        a[(2, 2)] > 0.05 * n as f64,
-    ];
+    let measured = [true, seen(&a, n, 1), seen(&a, n, 2)];
     let ridge = 1e-6 * n as f64;
     a[(1, 1)] += ridge;
     a[(2, 2)] += ridge;
@@ -213,7 +214,7 @@ fn with_variance(rows: &[Row], fit: Vector3<f64>, cut: f64) -> WidthFit {
     WidthFit {
         half_width: fit.x,
         shift: [fit.y, fit.z],
-        variance: [0, 1, 2].map(|c| if seen[c] { s2 * inv[(c, c)] } else { 0.0 }),
+        variance: [0, 1, 2].map(|c| if measured[c] { s2 * inv[(c, c)] } else { 0.0 }),
     }
 }
 
